@@ -1,0 +1,100 @@
+"""Earth model and the direction cosine matrices of the north finder.
+
+All functions take radians and broadcast over array-likes; see the package docstring for frames.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from firmware_sim.errors import SimConfigError
+
+#: Earth rotation rate (WGS84), rad/s.
+OMEGA_IE = 7.292115e-5
+#: Reference gravity used to convert micro-g to m/s^2.
+G0 = 9.80665
+#: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
+MAX_LATITUDE_DEG = 89.0
+
+
+def check_latitude(latitude_deg: float, field: str = "latitude_deg") -> float:
+    """Return ``latitude_deg`` as float if north finding is defined there, else raise.
+
+    Raises
+    ------
+    SimConfigError
+        NaN, outside [-90, 90], or within ``90 - MAX_LATITUDE_DEG`` degrees of a pole.
+    """
+    lat = float(latitude_deg)
+    if not math.isfinite(lat):
+        raise SimConfigError(f"{field}: must be a finite number, got {latitude_deg!r}")
+    if abs(lat) > 90.0:
+        raise SimConfigError(f"{field}: must lie in [-90, 90] degrees, got {lat}")
+    if abs(lat) > MAX_LATITUDE_DEG:
+        raise SimConfigError(
+            f"{field}: {lat} deg is too close to a pole (limit +-{MAX_LATITUDE_DEG} deg): the horizontal "
+            f"Earth rate Omega*cos(lat) = {OMEGA_IE * math.cos(math.radians(lat)):.3e} rad/s vanishes "
+            "there, so north is undefined"
+        )
+    return lat
+
+
+def earth_rate_n(latitude: ArrayLike) -> NDArray[np.float64]:
+    """Earth rate in the North-West-Up frame, rad/s, shape ``(..., 3)``."""
+    lat = np.asarray(latitude, dtype=float)
+    return OMEGA_IE * np.stack([np.cos(lat), np.zeros_like(lat), np.sin(lat)], axis=-1)
+
+
+def gravity(latitude: ArrayLike) -> NDArray[np.float64] | float:
+    """Normal gravity on the ellipsoid (Somigliana, WGS84), m/s^2."""
+    s2 = np.sin(np.asarray(latitude, dtype=float)) ** 2
+    g = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / np.sqrt(1.0 - 6.69437999013e-3 * s2)
+    return float(g) if np.ndim(g) == 0 else g
+
+
+def mat_nb(alpha: ArrayLike, theta: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
+    """C_n^b for azimuth rotation ``alpha``, pitch ``theta``, roll ``gamma`` (z-y-x), shape ``(..., 3, 3)``."""
+    a, t, r = (np.asarray(v, dtype=float) for v in (alpha, theta, gamma))
+    ca, sa, ct, st, cr, sr = np.cos(a), np.sin(a), np.cos(t), np.sin(t), np.cos(r), np.sin(r)
+    return np.stack(
+        [
+            np.stack([ca * ct, sa * ct, -st], axis=-1),
+            np.stack([ca * st * sr - sa * cr, sa * st * sr + ca * cr, ct * sr], axis=-1),
+            np.stack([ca * st * cr + sa * sr, sa * st * cr - ca * sr, ct * cr], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def mat_table(mu: ArrayLike) -> NDArray[np.float64]:
+    """C_m^m1 for a table angle ``mu`` about body z (right-handed about up), shape ``(..., 3, 3)``."""
+    m = np.asarray(mu, dtype=float)
+    c, s = np.cos(m), np.sin(m)
+    z, o = np.zeros_like(m), np.ones_like(m)
+    return np.stack(
+        [np.stack([c, s, z], -1), np.stack([-s, c, z], -1), np.stack([z, z, o], -1)], axis=-2
+    )
+
+
+def alpha_from_azimuth(azimuth_deg: ArrayLike) -> NDArray[np.float64]:
+    """The model's ``alpha`` (rad, counter-clockwise) for a public azimuth (deg, clockwise from north)."""
+    return -np.radians(np.asarray(azimuth_deg, dtype=float))
+
+
+def azimuth_from_alpha(alpha: ArrayLike) -> NDArray[np.float64]:
+    """Public azimuth in [0, 360) deg, clockwise from north, for the model's ``alpha`` (rad)."""
+    return np.mod(-np.degrees(np.asarray(alpha, dtype=float)), 360.0)
+
+
+def body_rates(
+    azimuth_deg: float, pitch_deg: float, roll_deg: float, latitude_deg: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Noise-free Earth rate (rad/s) and specific force (m/s^2) in the body frame at table angle 0."""
+    lat = math.radians(latitude_deg)
+    c_nb = mat_nb(alpha_from_azimuth(azimuth_deg), math.radians(pitch_deg), math.radians(roll_deg))
+    omega_ib_b = c_nb @ earth_rate_n(lat)
+    f_b = c_nb @ np.array([0.0, 0.0, gravity(lat)])
+    return omega_ib_b, f_b
