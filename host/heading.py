@@ -1,0 +1,902 @@
+"""Heading solvers of the gyro north finder: two-position, multi-position least squares, plans.
+
+Conventions (the same as the instrument's)
+------------------------------------------
+Frames
+    Navigation frame n is North-West-Up. Body frame b: x is the reference axis, y points left,
+    z up. ``alpha`` rotates n into b about up, counter-clockwise seen from above; then pitch
+    ``theta`` about y and roll ``gamma`` about x (z-y-x order, C_n^b as in the source paper).
+Azimuth
+    Every result reports the **azimuth of body x, clockwise from true north**, in [0, 360) deg:
+    ``azimuth = -alpha mod 360``.
+Table
+    ``mu`` turns the sensors about body z, positive right-handed about up (counter-clockwise seen
+    from above); the sensors then read through C_m^m1 = [[cos mu, sin mu, 0], [-sin mu, cos mu, 0],
+    [0, 0, 1]].
+Sensors
+    Gyros read ``C_m^m1 C_n^b omega_ie_n`` + bias, omega_ie_n = Omega (cos lat, 0, sin lat).
+    Accelerometers read specific force ``C_m^m1 C_n^b (0, 0, +g)`` + bias (level: z reads +g).
+    The paper's eqs. 3, 4, 8, 9 use the opposite sign (a = -f); the levelling below is written for
+    specific force.
+Units
+    Gyro window means may be in any one unit, named by ``rate_unit`` (a key of
+    :data:`RATE_UNITS` or the size of one unit in rad/s); the Earth rate is converted into that
+    unit. Accelerometer means likewise with ``accel_unit`` (:data:`ACCEL_UNITS`, or m/s^2 per unit).
+    Noise levels (``gyro_noise``, ``accel_noise``) are 1-sigma of the **window means** in the same
+    units. Angles in the public API are degrees.
+
+The paper's prototype data
+--------------------------
+The source paper's Tables 1 and 2 (mean gyro outputs at eight positions 30 deg apart and the
+azimuths it computed from them) fit this model exactly once two conventions are mapped: its table
+turned clockwise seen from above (pass ``mu = -30, -60, ...``), and the azimuth it reports is that
+of the body y axis, i.e. ``paper azimuth = azimuth - 90 deg`` (y points 90 deg counter-clockwise
+of x). With the table's x and y rows taken as our x and y gyros, Table 2 is reproduced to the
+rounding of Table 1 (largest difference 0.006 deg; see ``tests/test_heading.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from host.errors import GeometryError, HostConfigError, InputError, LatitudeError, TiltError
+
+__all__ = [
+    "ACCEL_UNITS",
+    "G0",
+    "MAX_LATITUDE_DEG",
+    "MAX_TILT_DEG",
+    "MIN_MU_SEPARATION_DEG",
+    "OMEGA_IE",
+    "PAPER_SWEEP",
+    "PLANS",
+    "RATE_UNITS",
+    "HeadingSolution",
+    "MultiPositionSolution",
+    "PositionPlan",
+    "normal_gravity",
+    "pairwise_azimuths",
+    "solve_multi_position",
+    "solve_two_position",
+    "two_position_bound_deg",
+]
+
+#: Earth rotation rate (WGS84), rad/s.
+OMEGA_IE = 7.292115e-5
+#: Standard gravity, m/s^2 (defines the unit "g" of accelerometer means).
+G0 = 9.80665
+#: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
+MAX_LATITUDE_DEG = 89.0
+#: The table angle must differ from 0 (mod 360) by at least this much. The Earth-rate difference
+#: between the positions is 2 Omega_H sin(mu/2): at 5 deg it is 23 times smaller than at 180 deg.
+MIN_MU_SEPARATION_DEG = 5.0
+#: Largest pitch or roll accepted. The equations are exact at any tilt, but beyond this a north
+#: finder is outside its levelling range and the accelerometer model (no cross-coupling, no
+#: misalignment) stops being credible.
+MAX_TILT_DEG = 15.0
+
+#: Gyro units accepted by name: size of one unit in rad/s.
+RATE_UNITS: Mapping[str, float] = {
+    "rad/s": 1.0,
+    "mrad/s": 1e-3,
+    "urad/s": 1e-6,
+    "deg/s": math.pi / 180.0,
+    "deg/h": math.pi / 180.0 / 3600.0,
+}
+#: Accelerometer units accepted by name: size of one unit in m/s^2.
+ACCEL_UNITS: Mapping[str, float] = {
+    "m/s^2": 1.0,
+    "g": G0,
+    "mg": G0 * 1e-3,
+    "ug": G0 * 1e-6,
+}
+
+
+# ----------------------------------------------------------------------------------------------
+# Results and plans
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class HeadingSolution:
+    """Result of a two-position heading solution.
+
+    Attributes
+    ----------
+    azimuth_deg : float
+        Azimuth of body x at the first position, clockwise from true north, in [0, 360) deg.
+    pitch_deg, roll_deg : float
+        Tilt used by the solution, deg: from the accelerometers, or 0 when level was assumed.
+    mu_deg : float
+        Table angle between the two positions, deg, as given.
+    sigma_deg : float or None
+        1-sigma azimuth error from the given noise of the window means (linear propagation),
+        deg; None when no noise level was given. Systematic errors (a level assumption on a
+        tilted instrument, table indexing, scale factors) are not included.
+    levelled : bool
+        True when the tilt came from the accelerometers (paper eq. 14), False when the
+        instrument was assumed level (eq. 15).
+    """
+
+    azimuth_deg: float
+    pitch_deg: float
+    roll_deg: float
+    mu_deg: float
+    sigma_deg: float | None
+    levelled: bool
+
+
+@dataclass(frozen=True)
+class MultiPositionSolution:
+    """Result of the multi-position least-squares heading fit.
+
+    Attributes
+    ----------
+    azimuth_deg : float
+        Azimuth of body x at table angle 0, clockwise from true north, [0, 360) deg.
+    pitch_deg, roll_deg : float
+        Tilt, deg: estimated from the accelerometers, or the known values passed in.
+    sigma_deg : float or None
+        1-sigma azimuth, deg (None when neither noise levels nor redundant data allow one).
+    mu_deg : tuple of float
+        Table angles of the positions, deg, as given.
+    gyro_bias : ndarray, shape (2,)
+        Estimated x and y gyro biases, in ``rate_unit``.
+    accel_bias : ndarray, shape (2,), or None
+        Estimated x and y accelerometer biases in ``accel_unit`` (None without accelerometers).
+    parameter_names : tuple of str
+        Names of the estimated parameters, in the order of ``covariance``: ``alpha`` (rad, the
+        model's counter-clockwise angle, so var(azimuth) = var(alpha)), ``gyro_bias_x``,
+        ``gyro_bias_y`` (rate unit), then with accelerometers ``pitch``, ``roll`` (rad),
+        ``accel_bias_x``, ``accel_bias_y`` (accel unit).
+    covariance : ndarray, shape (P, P), or None
+        Covariance of those parameters.
+    gyro_residuals : ndarray, shape (N, 2)
+        Measured minus fitted gyro means, rate unit.
+    accel_residuals : ndarray, shape (N, 2), or None
+        Measured minus fitted accelerometer means, accel unit.
+    """
+
+    azimuth_deg: float
+    pitch_deg: float
+    roll_deg: float
+    sigma_deg: float | None
+    mu_deg: tuple[float, ...]
+    gyro_bias: NDArray[np.float64] = field(repr=False)
+    accel_bias: NDArray[np.float64] | None = field(repr=False)
+    parameter_names: tuple[str, ...] = field(repr=False)
+    covariance: NDArray[np.float64] | None = field(repr=False)
+    gyro_residuals: NDArray[np.float64] = field(repr=False)
+    accel_residuals: NDArray[np.float64] | None = field(repr=False)
+
+
+@dataclass(frozen=True)
+class PositionPlan:
+    """A named sequence of table positions for a north-finding run.
+
+    Attributes
+    ----------
+    name : str
+        Identifier used by the CLI and studies.
+    angles_deg : tuple of float
+        Table angle of each position, deg (right-handed about up), first one the reference.
+    dwell_s : float
+        Recording time per position, s.
+    description : str
+        One line saying where the plan comes from.
+    """
+
+    name: str
+    angles_deg: tuple[float, ...]
+    dwell_s: float
+    description: str
+
+    def pairs(self) -> tuple[tuple[int, int], ...]:
+        """Index pairs (reference, k) solved by :func:`pairwise_azimuths`."""
+        return tuple((0, k) for k in range(1, len(self.angles_deg)))
+
+    def pair_mu_deg(self) -> tuple[float, ...]:
+        """Table angle of each pair, deg."""
+        a0 = self.angles_deg[0]
+        return tuple(a - a0 for a in self.angles_deg[1:])
+
+
+#: The source paper's prototype procedure: eight positions 30 deg apart, 10 s at each; each
+#: position after the first is paired with the first, giving seven azimuths (mu = 30 ... 210 deg).
+PAPER_SWEEP = PositionPlan(
+    name="paper-30deg-sweep",
+    angles_deg=tuple(float(a) for a in range(0, 240, 30)),
+    dwell_s=10.0,
+    description="8 positions, 30 deg steps, 10 s each; 7 pairwise azimuths against position 1",
+)
+
+#: Plans by name.
+PLANS: Mapping[str, PositionPlan] = {PAPER_SWEEP.name: PAPER_SWEEP}
+
+
+# ----------------------------------------------------------------------------------------------
+# Checks and helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def _unit_scale(unit: str | float, table: Mapping[str, float], field_name: str) -> float:
+    if isinstance(unit, str):
+        try:
+            return table[unit]
+        except KeyError:
+            choices = ", ".join(repr(k) for k in table)
+            raise HostConfigError(
+                f"{field_name}: unknown unit {unit!r}; choose one of {choices} "
+                "or give the size of one unit as a number"
+            ) from None
+    value = float(unit)
+    if not math.isfinite(value) or value <= 0.0:
+        raise HostConfigError(f"{field_name}: must be a positive finite number, got {unit!r}")
+    return value
+
+
+def _latitude_rad(latitude_deg: float | None, purpose: str) -> float:
+    if latitude_deg is None:
+        raise LatitudeError(f"latitude_deg is required for {purpose}")
+    try:
+        lat = float(latitude_deg)
+    except (TypeError, ValueError) as exc:
+        raise LatitudeError(f"latitude_deg: must be a number, got {latitude_deg!r}") from exc
+    if not math.isfinite(lat):
+        raise LatitudeError(f"latitude_deg: must be finite, got {lat}")
+    if abs(lat) > 90.0:
+        raise LatitudeError(f"latitude_deg: must lie in [-90, 90] deg, got {lat}")
+    if abs(lat) > MAX_LATITUDE_DEG:
+        raise LatitudeError(
+            f"latitude_deg: {lat} deg is too close to a pole (limit +-{MAX_LATITUDE_DEG} deg): "
+            "the horizontal Earth rate Omega*cos(lat) vanishes there, so north is undefined"
+        )
+    return math.radians(lat)
+
+
+def _vector(name: str, value: ArrayLike, *, lead: tuple[int, ...] = ()) -> NDArray[np.float64]:
+    """Return ``value`` as float array of shape ``lead + (2,)`` or ``lead + (3,)`` (x, y[, z])."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: must be numeric, got {value!r}") from exc
+    if arr.shape[:-1] != lead or arr.ndim != len(lead) + 1 or arr.shape[-1] not in (2, 3):
+        want = " x ".join(str(n) for n in lead)
+        want = f"({want}, 2) or ({want}, 3)" if lead else "(2,) or (3,)"
+        raise InputError(f"{name}: expected shape {want} (x, y[, z] means), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{name}: contains non-finite values: {arr.tolist()}")
+    return arr
+
+
+def _noise(
+    name: str, value: ArrayLike | None, shape: tuple[int, int]
+) -> NDArray[np.float64] | None:
+    """Broadcast a 1-sigma noise level to ``shape`` (positions, axes x/y); None stays None."""
+    if value is None:
+        return None
+    try:
+        arr = np.asarray(value, dtype=float)
+        if arr.ndim == 1 and arr.shape[0] == shape[0]:
+            arr = arr[:, None]  # one level per position, both axes
+        out = np.broadcast_to(arr, shape).astype(float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(
+            f"{name}: must be a scalar, one value per position, or shape {shape} "
+            f"(positions, x/y), got {np.shape(value)}"
+        ) from exc
+    if not np.all(np.isfinite(out)) or np.any(out < 0.0):
+        raise InputError(f"{name}: must be finite and non-negative, got {out.tolist()}")
+    return out
+
+
+def _check_mu(mu_deg: float, name: str = "mu_deg") -> float:
+    try:
+        mu = float(mu_deg)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: must be a number, got {mu_deg!r}") from exc
+    if not math.isfinite(mu):
+        raise InputError(f"{name}: must be finite, got {mu}")
+    wrapped = mu % 360.0
+    separation = min(wrapped, 360.0 - wrapped)
+    if separation < MIN_MU_SEPARATION_DEG:
+        raise GeometryError(
+            f"{name} = {mu} deg: the table angle must differ from 0 and 360 deg by at least "
+            f"{MIN_MU_SEPARATION_DEG} deg (it is {separation:.3g} deg away); the Earth-rate "
+            "difference 2*Omega_H*sin(mu/2) vanishes there"
+        )
+    return mu
+
+
+def _check_tilt(pitch: float, roll: float, source: str) -> None:
+    for label, value in (("pitch", pitch), ("roll", roll)):
+        if abs(math.degrees(value)) > MAX_TILT_DEG:
+            raise TiltError(
+                f"{label} {math.degrees(value):.3f} deg ({source}) exceeds the limit of "
+                f"+-{MAX_TILT_DEG} deg: level the instrument first"
+            )
+
+
+def normal_gravity(latitude_deg: float) -> float:
+    """Normal gravity on the WGS84 ellipsoid (Somigliana), m/s^2."""
+    s2 = math.sin(math.radians(latitude_deg)) ** 2
+    return 9.7803253359 * (1.0 + 0.00193185265241 * s2) / math.sqrt(1.0 - 6.69437999013e-3 * s2)
+
+
+def _table2(mu: float | NDArray[np.float64]) -> NDArray[np.float64]:
+    """Horizontal block of C_m^m1, shape ``(..., 2, 2)``."""
+    c, s = np.cos(mu), np.sin(mu)
+    return np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], -2)
+
+
+def _tilt_from_f0(fx0: float, fy0: float, g: float, source: str) -> tuple[float, float]:
+    """Pitch and roll (rad) from the horizontal specific force at table angle 0.
+
+    Level body frame sees f = g (-sin theta, cos theta sin gamma, cos theta cos gamma).
+    """
+    s_theta = -fx0 / g
+    if abs(s_theta) >= 1.0:
+        raise TiltError(
+            f"{source}: horizontal specific force {fx0:.6g} exceeds gravity {g:.6g} "
+            "(check accel_unit and the accelerometer means)"
+        )
+    theta = math.asin(s_theta)
+    s_gamma = fy0 / (g * math.cos(theta))
+    if abs(s_gamma) >= 1.0:
+        raise TiltError(
+            f"{source}: horizontal specific force {fy0:.6g} exceeds gravity {g:.6g} "
+            "(check accel_unit and the accelerometer means)"
+        )
+    return theta, math.asin(s_gamma)
+
+
+# ----------------------------------------------------------------------------------------------
+# Two positions
+# ----------------------------------------------------------------------------------------------
+
+
+def _level_two_position(
+    a0: NDArray[np.float64], a1: NDArray[np.float64], mu: float, g: float
+) -> tuple[float, float]:
+    """Paper eqs. 12 and 13 for specific force: bias-free tilt from two positions.
+
+    With S = g sin(theta), C = g cos(theta) sin(gamma) and d = f(0) - f(mu):
+    -dfx = (1 - cos mu) S + sin mu C and dfy = -sin mu S + (1 - cos mu) C.
+    """
+    dfx, dfy = a0[0] - a1[0], a0[1] - a1[1]
+    c, s = math.cos(mu), math.sin(mu)
+    det = 2.0 * (1.0 - c)
+    s_pitch = ((1.0 - c) * -dfx - s * dfy) / det
+    c_roll = (s * -dfx + (1.0 - c) * dfy) / det
+    return _tilt_from_f0(-s_pitch, c_roll, g, "accelerometer levelling")
+
+
+def _eq14_terms(
+    theta: float, gamma: float, mu: float, omega_u: float
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """Coefficients of eq. 14: num = n1 dwx + n2 dwy + n0, den = d1 dwx + d2 dwy + d0."""
+    st, ct, sg, cg = math.sin(theta), math.cos(theta), math.sin(gamma), math.cos(gamma)
+    c, s = math.cos(mu), math.sin(mu)
+    n1 = st * sg + s * ct - c * st * sg
+    n2 = -(ct - c * ct - s * st * sg)
+    n0 = 2.0 * omega_u * sg * (1.0 - c)
+    d1 = -(c - 1.0) * cg
+    d2 = s * cg
+    d0 = -2.0 * omega_u * st * (c - 1.0) * cg
+    return (n1, n2, n0), (d1, d2, d0)
+
+
+def _alpha_two_position(
+    g0: NDArray[np.float64],
+    g1: NDArray[np.float64],
+    mu: float,
+    theta: float,
+    gamma: float,
+    omega_u: float,
+) -> tuple[float, NDArray[np.float64]]:
+    """Model angle alpha (rad) by eq. 14 (eq. 15 when level) and d alpha / d(g0x, g0y, g1x, g1y)."""
+    dwx, dwy = g0[0] - g1[0], g0[1] - g1[1]
+    (n1, n2, n0), (d1, d2, d0) = _eq14_terms(theta, gamma, mu, omega_u)
+    num = n1 * dwx + n2 * dwy + n0
+    den = d1 * dwx + d2 * dwy + d0
+    r2 = num * num + den * den
+    if r2 == 0.0:
+        raise GeometryError("the gyro differences are zero: no Earth rate was measured")
+    dx = (den * n1 - num * d1) / r2
+    dy = (den * n2 - num * d2) / r2
+    return math.atan2(num, den), np.array([dx, dy, -dx, -dy])
+
+
+def solve_two_position(
+    gyro0: ArrayLike,
+    gyro1: ArrayLike,
+    mu_deg: float,
+    *,
+    accel0: ArrayLike | None = None,
+    accel1: ArrayLike | None = None,
+    latitude_deg: float | None = None,
+    rate_unit: str | float = "rad/s",
+    accel_unit: str | float = "m/s^2",
+    gyro_noise: ArrayLike | None = None,
+    accel_noise: ArrayLike | None = None,
+) -> HeadingSolution:
+    """Azimuth from window means at two table positions (the paper's arbitrary two-position method).
+
+    Differencing the two positions cancels constant gyro and accelerometer biases. With
+    accelerometer means the tilt comes from eqs. 12 and 13 (for specific force) and the azimuth
+    from eq. 14, which needs the vertical Earth rate and so the latitude; without them the
+    instrument is taken as level and eq. 15 is used. Both are evaluated with atan2.
+
+    Parameters
+    ----------
+    gyro0, gyro1 : array_like, shape (2,) or (3,)
+        Mean gyro outputs (x, y[, z]) at the first position and after turning the table by
+        ``mu_deg``, in ``rate_unit``. The z gyro is not used.
+    mu_deg : float
+        Table angle from the first to the second position, deg, right-handed about up. Any value
+        at least :data:`MIN_MU_SEPARATION_DEG` away from 0 (mod 360), negative or above 180.
+    accel0, accel1 : array_like, shape (2,) or (3,), optional
+        Mean accelerometer outputs (specific force) at the two positions, in ``accel_unit``.
+        Give both or neither.
+    latitude_deg : float, optional
+        Geodetic latitude, deg. Required with accelerometers (eq. 14 and gravity); without them it
+        is only checked.
+    rate_unit : str or float
+        Unit of the gyro means and ``gyro_noise``: a key of :data:`RATE_UNITS` or the size of one
+        unit in rad/s. It only matters with accelerometers (the Earth rate enters eq. 14); eq. 15
+        is unit-free, so raw outputs (counts, mV) are fine for a level instrument.
+    accel_unit : str or float
+        Unit of the accelerometer means: a key of :data:`ACCEL_UNITS` or m/s^2 per unit.
+    gyro_noise : float or array_like, optional
+        1-sigma noise of each gyro window mean, in ``rate_unit``: a scalar, one value per position
+        (shape (2,)) or per position and axis (shape (2, 2)). For white noise of angle random
+        walk N over a window of t seconds this is N / sqrt(t).
+    accel_noise : float or array_like, optional
+        1-sigma noise of each accelerometer window mean, in ``accel_unit``, shaped like
+        ``gyro_noise``; ignored without accelerometers, taken as zero when omitted.
+
+    Returns
+    -------
+    HeadingSolution
+        Azimuth of body x at the first position; ``sigma_deg`` when a noise level was given.
+
+    Raises
+    ------
+    InputError
+        Wrong shapes, non-finite values, only one accelerometer mean, bad noise levels.
+    GeometryError
+        ``mu_deg`` within :data:`MIN_MU_SEPARATION_DEG` of 0 or 360 deg, or no Earth rate seen.
+    LatitudeError
+        Latitude missing (with accelerometers), not finite, or beyond +-:data:`MAX_LATITUDE_DEG`.
+    TiltError
+        Pitch or roll beyond +-:data:`MAX_TILT_DEG`, or accelerometer means inconsistent with g.
+    HostConfigError
+        Unknown unit.
+
+    Notes
+    -----
+    For white noise with equal noise s on all four gyro means and a level instrument,
+    ``sigma = s / (sqrt(2) Omega_H |sin(mu/2)|)`` rad, i.e. N / (Omega_H |sin(mu/2)| sqrt(T))
+    with T the total dwell (see :func:`two_position_bound_deg`).
+    """
+    g0 = _vector("gyro0", gyro0)
+    g1 = _vector("gyro1", gyro1)
+    mu_in = _check_mu(mu_deg)
+    mu = math.radians(mu_in)
+    rate_scale = _unit_scale(rate_unit, RATE_UNITS, "rate_unit")
+    if (accel0 is None) != (accel1 is None):
+        raise InputError("accel0 and accel1: give both accelerometer means or neither")
+    levelled = accel0 is not None
+    if levelled:
+        lat = _latitude_rad(latitude_deg, "levelling with accelerometers (eq. 14)")
+    elif latitude_deg is not None:
+        lat = _latitude_rad(latitude_deg, "the solution")
+    gyro_sigma = _noise("gyro_noise", gyro_noise, (2, 2))
+
+    if levelled:
+        a0 = _vector("accel0", accel0)
+        a1 = _vector("accel1", accel1)
+        accel_scale = _unit_scale(accel_unit, ACCEL_UNITS, "accel_unit")
+        g = normal_gravity(math.degrees(lat)) / accel_scale
+        omega_u = OMEGA_IE * math.sin(lat) / rate_scale
+        theta, gamma = _level_two_position(a0, a1, mu, g)
+        _check_tilt(theta, gamma, "from the accelerometers")
+    else:
+        theta = gamma = omega_u = 0.0
+
+    alpha, d_alpha = _alpha_two_position(g0, g1, mu, theta, gamma, omega_u)
+
+    sigma_deg: float | None = None
+    if gyro_sigma is not None:
+        variance = float(np.sum((d_alpha * gyro_sigma.ravel()) ** 2))
+        accel_sigma = _noise("accel_noise", accel_noise, (2, 2)) if levelled else None
+        if accel_sigma is not None:
+            variance += _accel_variance(g0, g1, a0, a1, mu, g, omega_u, accel_sigma)
+        sigma_deg = math.degrees(math.sqrt(variance))
+
+    return HeadingSolution(
+        azimuth_deg=float(np.mod(-math.degrees(alpha), 360.0)),
+        pitch_deg=math.degrees(theta),
+        roll_deg=math.degrees(gamma),
+        mu_deg=mu_in,
+        sigma_deg=sigma_deg,
+        levelled=levelled,
+    )
+
+
+def _accel_variance(
+    g0: NDArray[np.float64],
+    g1: NDArray[np.float64],
+    a0: NDArray[np.float64],
+    a1: NDArray[np.float64],
+    mu: float,
+    g: float,
+    omega_u: float,
+    accel_sigma: NDArray[np.float64],
+) -> float:
+    """Variance of alpha (rad^2) from accelerometer noise, through the tilt (central differences).
+
+    alpha is smooth in the accelerometer means; a step of 1e-6 g keeps the truncation error of
+    the derivative near 1e-12 relative, far below what a 1-sigma figure needs.
+    """
+    base = np.concatenate([a0[:2], a1[:2]])
+    step = 1e-6 * g
+    grad = np.empty(4)
+    for j in range(4):
+        values = []
+        for sign in (1.0, -1.0):
+            a = base.copy()
+            a[j] += sign * step
+            theta, gamma = _level_two_position(a[:2], a[2:], mu, g)
+            values.append(_alpha_two_position(g0, g1, mu, theta, gamma, omega_u)[0])
+        diff = math.remainder(values[0] - values[1], math.tau)
+        grad[j] = diff / (2.0 * step)
+    return float(np.sum((grad * accel_sigma.ravel()) ** 2))
+
+
+def two_position_bound_deg(
+    arw_dpsh: float, total_time_s: float, mu_deg: float, latitude_deg: float
+) -> float:
+    """Best 1-sigma azimuth of a level two-position run with white gyro noise only, deg.
+
+    sigma = N / (Omega cos(lat) |sin(mu/2)| sqrt(T)), with the angle random walk
+    N = arw_dpsh * pi/180 / 60 rad/sqrt(s), both horizontal gyros, and the total dwell T split
+    equally over the two positions.
+
+    Parameters
+    ----------
+    arw_dpsh : float
+        Gyro angle random walk, deg/sqrt(h).
+    total_time_s : float
+        Total recording time over both positions, s.
+    mu_deg : float
+        Table angle between the positions, deg.
+    latitude_deg : float
+        Latitude, deg.
+    """
+    lat = _latitude_rad(latitude_deg, "the bound")
+    mu = math.radians(_check_mu(mu_deg))
+    arw = arw_dpsh * math.pi / 180.0 / 60.0
+    omega_h = OMEGA_IE * math.cos(lat)
+    return math.degrees(arw / (omega_h * abs(math.sin(mu / 2.0)) * math.sqrt(total_time_s)))
+
+
+# ----------------------------------------------------------------------------------------------
+# Pairwise over a plan
+# ----------------------------------------------------------------------------------------------
+
+
+def pairwise_azimuths(
+    gyro_means: ArrayLike,
+    plan: PositionPlan | Sequence[float] = PAPER_SWEEP,
+    *,
+    accel_means: ArrayLike | None = None,
+    latitude_deg: float | None = None,
+    rate_unit: str | float = "rad/s",
+    accel_unit: str | float = "m/s^2",
+    gyro_noise: float | None = None,
+    accel_noise: float | None = None,
+) -> tuple[HeadingSolution, ...]:
+    """Two-position azimuths of every position against the first (the paper's Table 2 layout).
+
+    Parameters
+    ----------
+    gyro_means : array_like, shape (N, 2) or (N, 3)
+        Gyro window means at each position of the plan, ``rate_unit``.
+    plan : PositionPlan or sequence of float
+        The plan, or the N table angles in deg.
+    accel_means : array_like, shape (N, 2) or (N, 3), optional
+        Accelerometer window means (then ``latitude_deg`` is required).
+    latitude_deg, rate_unit, accel_unit
+        As for :func:`solve_two_position`.
+    gyro_noise, accel_noise : float, optional
+        1-sigma noise of every window mean (one value for all positions and axes).
+
+    Returns
+    -------
+    tuple of HeadingSolution
+        N - 1 solutions, pair (0, k) for k = 1 .. N-1, ``mu_deg = angle_k - angle_0``.
+    """
+    angles = plan.angles_deg if isinstance(plan, PositionPlan) else tuple(plan)
+    n = len(angles)
+    if n < 2:
+        raise GeometryError(f"a plan needs at least 2 positions, got {n}")
+    gyro = _vector("gyro_means", gyro_means, lead=(n,))
+    accel = None if accel_means is None else _vector("accel_means", accel_means, lead=(n,))
+    out = []
+    for k in range(1, n):
+        out.append(
+            solve_two_position(
+                gyro[0],
+                gyro[k],
+                float(angles[k]) - float(angles[0]),
+                accel0=None if accel is None else accel[0],
+                accel1=None if accel is None else accel[k],
+                latitude_deg=latitude_deg,
+                rate_unit=rate_unit,
+                accel_unit=accel_unit,
+                gyro_noise=gyro_noise,
+                accel_noise=accel_noise,
+            )
+        )
+    return tuple(out)
+
+
+# ----------------------------------------------------------------------------------------------
+# Multi-position least squares
+# ----------------------------------------------------------------------------------------------
+
+
+def _h_and_jac(
+    alpha: float, theta: float, gamma: float, omega_n: float, omega_u: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Horizontal Earth rate in the body frame at table angle 0 and its derivatives.
+
+    Returns h (2,) and dh/d(alpha, theta, gamma) (2, 3).
+    """
+    sa, ca = math.sin(alpha), math.cos(alpha)
+    st, ct, sg, cg = math.sin(theta), math.cos(theta), math.sin(gamma), math.cos(gamma)
+    h = np.array(
+        [
+            omega_n * ca * ct - omega_u * st,
+            omega_n * (ca * st * sg - sa * cg) + omega_u * ct * sg,
+        ]
+    )
+    jac = np.array(
+        [
+            [-omega_n * sa * ct, -omega_n * ca * st - omega_u * ct, 0.0],
+            [
+                -omega_n * (sa * st * sg + ca * cg),
+                omega_n * ca * ct * sg - omega_u * st * sg,
+                omega_n * (ca * st * cg + sa * sg) + omega_u * ct * cg,
+            ],
+        ]
+    )
+    return h, jac
+
+
+def _weighted_lstsq(
+    a: NDArray[np.float64], b: NDArray[np.float64], sigma: NDArray[np.float64] | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Solve a x ~ b weighted by 1/sigma; return x, the unit-weight normal inverse, residuals."""
+    w = np.ones_like(b) if sigma is None else 1.0 / sigma
+    aw = a * w[:, None]
+    x, *_ = np.linalg.lstsq(aw, b * w, rcond=None)
+    normal_inv = np.linalg.inv(aw.T @ aw)
+    return x, normal_inv, b - a @ x
+
+
+def _posterior_scale(
+    residuals: NDArray[np.float64], n_params: int, sigma: NDArray[np.float64] | None
+) -> float | None:
+    """Variance factor: 1 with known noise, the residual estimate with redundancy, else None."""
+    if sigma is not None:
+        return 1.0
+    dof = residuals.size - n_params
+    if dof <= 0:
+        return None
+    return float(residuals @ residuals) / dof
+
+
+def solve_multi_position(
+    gyro_means: ArrayLike,
+    mu_deg: ArrayLike,
+    *,
+    latitude_deg: float,
+    accel_means: ArrayLike | None = None,
+    pitch_deg: float = 0.0,
+    roll_deg: float = 0.0,
+    rate_unit: str | float = "rad/s",
+    accel_unit: str | float = "m/s^2",
+    gyro_noise: ArrayLike | None = None,
+    accel_noise: ArrayLike | None = None,
+    max_iterations: int = 50,
+) -> MultiPositionSolution:
+    """Least-squares azimuth from gyro window means at any set of table angles.
+
+    Model, both horizontal gyros at every position i:
+    ``w_i = R(mu_i) h(alpha, pitch, roll) + b``, where R is the horizontal block of C_m^m1,
+    h the horizontal Earth rate in the body frame at table angle 0 (its size fixed by the known
+    latitude) and b the constant gyro bias. Unknowns: alpha and b (Gauss-Newton; only alpha
+    enters non-linearly). With accelerometer means the tilt and accelerometer biases are
+    estimated first from ``f_i = R(mu_i) f_0 + b_a`` (linear), and their covariance is carried
+    into the heading's; without them the tilt is the known ``pitch_deg``, ``roll_deg``.
+
+    Parameters
+    ----------
+    gyro_means : array_like, shape (N, 2) or (N, 3)
+        Gyro window means (x, y[, z]) in ``rate_unit``; N >= 2. The z gyro is not used.
+    mu_deg : array_like, shape (N,)
+        Table angle of each position, deg. At least two must be
+        :data:`MIN_MU_SEPARATION_DEG` apart (mod 360).
+    latitude_deg : float
+        Latitude, deg.
+    accel_means : array_like, shape (N, 2) or (N, 3), optional
+        Accelerometer window means in ``accel_unit``; then pitch and roll are estimated.
+    pitch_deg, roll_deg : float
+        Known tilt used without accelerometers, deg.
+    rate_unit, accel_unit : str or float
+        As for :func:`solve_two_position`.
+    gyro_noise : float or array_like, optional
+        1-sigma of each gyro window mean (scalar, shape (N,) or (N, 2)), ``rate_unit``. Without
+        it the noise is estimated from the residuals when there is redundancy (N >= 3 or more
+        equations than unknowns), otherwise no covariance is given.
+    accel_noise : float or array_like, optional
+        Likewise for the accelerometer means (redundancy needs N >= 3).
+    max_iterations : int
+        Gauss-Newton iteration limit.
+
+    Returns
+    -------
+    MultiPositionSolution
+
+    Raises
+    ------
+    InputError, GeometryError, LatitudeError, TiltError, HostConfigError
+        As for :func:`solve_two_position`; GeometryError also when fewer than two distinct
+        positions are given or the fit does not converge.
+    """
+    mus_in = np.asarray(mu_deg, dtype=float)
+    if mus_in.ndim != 1 or mus_in.size < 2:
+        raise InputError(f"mu_deg: expected shape (N,) with N >= 2, got {mus_in.shape}")
+    if not np.all(np.isfinite(mus_in)):
+        raise InputError(f"mu_deg: contains non-finite values: {mus_in.tolist()}")
+    n = mus_in.size
+    gyro = _vector("gyro_means", gyro_means, lead=(n,))[:, :2]
+    accel = None if accel_means is None else _vector("accel_means", accel_means, lead=(n,))[:, :2]
+    lat = _latitude_rad(latitude_deg, "the multi-position fit")
+    rate_scale = _unit_scale(rate_unit, RATE_UNITS, "rate_unit")
+    gyro_sigma = _noise("gyro_noise", gyro_noise, (n, 2))
+    accel_sigma = _noise("accel_noise", accel_noise, (n, 2)) if accel is not None else None
+    if gyro_sigma is not None and np.any(gyro_sigma == 0.0):
+        raise InputError("gyro_noise: must be positive for a weighted fit")
+    if accel_sigma is not None and np.any(accel_sigma == 0.0):
+        raise InputError("accel_noise: must be positive for a weighted fit")
+
+    separations = np.abs(np.sin(np.radians(mus_in[:, None] - mus_in[None, :]) / 2.0))
+    if separations.max() < math.sin(math.radians(MIN_MU_SEPARATION_DEG) / 2.0):
+        raise GeometryError(
+            f"mu_deg = {mus_in.tolist()}: at least two positions must be "
+            f"{MIN_MU_SEPARATION_DEG} deg apart (mod 360) for the biases to separate from the "
+            "Earth rate"
+        )
+    mus = np.radians(mus_in)
+    rot = _table2(mus)  # (N, 2, 2)
+    eye = np.broadcast_to(np.eye(2), (n, 2, 2))
+    design_lin = np.concatenate([rot, eye], axis=2).reshape(2 * n, 4)
+    omega_n = OMEGA_IE * math.cos(lat) / rate_scale
+    omega_u = OMEGA_IE * math.sin(lat) / rate_scale
+
+    # Tilt: linear in (f0x, f0y, bias_x, bias_y); biases cancel only through the rotation.
+    tilt_cov = None
+    accel_bias = accel_res = None
+    if accel is not None:
+        accel_scale = _unit_scale(accel_unit, ACCEL_UNITS, "accel_unit")
+        g = normal_gravity(math.degrees(lat)) / accel_scale
+        sig_a = None if accel_sigma is None else accel_sigma.ravel()
+        xa, ninv_a, res_a = _weighted_lstsq(design_lin, accel.ravel(), sig_a)
+        theta, gamma = _tilt_from_f0(xa[0], xa[1], g, "accelerometer fit")
+        _check_tilt(theta, gamma, "from the accelerometers")
+        accel_bias = xa[2:].copy()
+        accel_res = res_a.reshape(n, 2)
+        scale_a = _posterior_scale(res_a / (1.0 if sig_a is None else sig_a), 4, sig_a)
+        # (theta, gamma) from (f0x, f0y): f0x = -g sin(theta), f0y = g cos(theta) sin(gamma).
+        st, ct, sg, cg = math.sin(theta), math.cos(theta), math.sin(gamma), math.cos(gamma)
+        d_f_d_tilt = np.array([[-g * ct, 0.0], [-g * st * sg, g * ct * cg]])
+        d_tilt_d_f = np.linalg.inv(d_f_d_tilt)
+        jac_a = np.zeros((4, 4))
+        jac_a[:2, :2] = d_tilt_d_f
+        jac_a[2:, 2:] = np.eye(2)
+        tilt_cov = None if scale_a is None else scale_a * (jac_a @ ninv_a @ jac_a.T)
+    else:
+        theta, gamma = math.radians(float(pitch_deg)), math.radians(float(roll_deg))
+        if not (math.isfinite(theta) and math.isfinite(gamma)):
+            raise InputError(f"pitch_deg, roll_deg: must be finite, got {pitch_deg}, {roll_deg}")
+        _check_tilt(theta, gamma, "as given")
+
+    # Start from the unconstrained linear fit w_i = R_i u + b, then alpha from u given the tilt.
+    sig_g = None if gyro_sigma is None else gyro_sigma.ravel()
+    x_lin, _, _ = _weighted_lstsq(design_lin, gyro.ravel(), sig_g)
+    st, ct, sg, cg = math.sin(theta), math.cos(theta), math.sin(gamma), math.cos(gamma)
+    # h = M (cos a, sin a) + c: solve for (cos a, sin a) and take its angle.
+    m = np.array([[omega_n * ct, 0.0], [omega_n * st * sg, -omega_n * cg]])
+    c = np.array([-omega_u * st, omega_u * ct * sg])
+    cs = np.linalg.solve(m, x_lin[:2] - c)
+    alpha = math.atan2(cs[1], cs[0])
+    bias = x_lin[2:].copy()
+
+    w = np.ones(2 * n) if sig_g is None else 1.0 / sig_g
+    converged = False
+    for _ in range(max_iterations):
+        h, dh = _h_and_jac(alpha, theta, gamma, omega_n, omega_u)
+        model = np.einsum("nij,j->ni", rot, h) + bias
+        res = (gyro - model).ravel()
+        jac = np.empty((2 * n, 3))
+        jac[:, 0] = np.einsum("nij,j->ni", rot, dh[:, 0]).ravel()
+        jac[:, 1:] = np.tile(np.eye(2), (n, 1))
+        step, *_ = np.linalg.lstsq(jac * w[:, None], res * w, rcond=None)
+        alpha += step[0]
+        bias += step[1:]
+        if abs(step[0]) < 1e-15 and np.all(np.abs(step[1:]) <= 1e-15 * (1.0 + abs(omega_n))):
+            converged = True
+            break
+    if not converged:
+        raise GeometryError(
+            f"multi-position fit did not converge in {max_iterations} iterations "
+            f"(mu_deg = {mus_in.tolist()})"
+        )
+    h, dh = _h_and_jac(alpha, theta, gamma, omega_n, omega_u)
+    res_g = (gyro - np.einsum("nij,j->ni", rot, h) - bias).ravel()
+    jac = np.empty((2 * n, 3))
+    jac[:, 0] = np.einsum("nij,j->ni", rot, dh[:, 0]).ravel()
+    jac[:, 1:] = np.tile(np.eye(2), (n, 1))
+    jw = jac * w[:, None]
+    normal = jw.T @ jw
+    if np.linalg.cond(normal) > 1e12:
+        raise GeometryError(
+            f"mu_deg = {mus_in.tolist()}: the positions do not separate heading from gyro bias"
+        )
+    ninv_g = np.linalg.inv(normal)
+    scale_g = _posterior_scale(res_g * w, 3, sig_g)
+
+    names = ["alpha", "gyro_bias_x", "gyro_bias_y"]
+    cov: NDArray[np.float64] | None = None
+    if scale_g is not None:
+        cov = scale_g * ninv_g
+        if accel is not None:
+            names += ["pitch", "roll", "accel_bias_x", "accel_bias_y"]
+            if tilt_cov is None:
+                cov = None
+            else:
+                # Sensitivity of the gyro estimate to the tilt it was computed with.
+                jac_t = np.empty((2 * n, 4))
+                jac_t[:, :2] = np.einsum("nij,jk->nik", rot, dh[:, 1:]).reshape(2 * n, 2)
+                jac_t[:, 2:] = 0.0
+                sens = -ninv_g @ (jw.T @ (jac_t * w[:, None]))
+                full = np.zeros((7, 7))
+                full[:3, :3] = cov + sens @ tilt_cov @ sens.T
+                full[:3, 3:] = sens @ tilt_cov
+                full[3:, :3] = full[:3, 3:].T
+                full[3:, 3:] = tilt_cov
+                cov = full
+    elif accel is not None:
+        names += ["pitch", "roll", "accel_bias_x", "accel_bias_y"]
+
+    return MultiPositionSolution(
+        azimuth_deg=float(np.mod(-math.degrees(alpha), 360.0)),
+        pitch_deg=math.degrees(theta),
+        roll_deg=math.degrees(gamma),
+        sigma_deg=None if cov is None else math.degrees(math.sqrt(cov[0, 0])),
+        mu_deg=tuple(float(v) for v in mus_in),
+        gyro_bias=bias,
+        accel_bias=accel_bias,
+        parameter_names=tuple(names),
+        covariance=cov,
+        gyro_residuals=res_g.reshape(n, 2),
+        accel_residuals=accel_res,
+    )
