@@ -1,0 +1,460 @@
+"""The instrument's physics: Earth rate and gravity through the turntable into two sensor triads.
+
+:class:`Instrument` produces samples at a fixed rate (200 Hz by default), either as whole blocks
+(:meth:`Instrument.generate`) or step by step (:meth:`Instrument.advance`); both give identical
+output for the same seed because every random process draws from its own stream in time order.
+
+Each sample is the increment over its interval expressed as a mean rate (rad/s) or mean specific
+force (m/s^2), as pulse-counting outputs deliver; quantisation carries its remainder to the next
+sample, so window sums are exact to one least significant bit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import lfilter
+
+from firmware_sim.earth import G0, body_rates, check_latitude
+from firmware_sim.errors import SimConfigError
+from firmware_sim.sensors import SensorSpec
+from firmware_sim.turntable import Turntable
+
+#: Sample rates the model honours, Hz. Below 10 Hz the slow-noise grid (0.1 s) would alias.
+MIN_SAMPLE_RATE_HZ = 10.0
+MAX_SAMPLE_RATE_HZ = 2000.0
+#: Largest pitch or roll the simulated base can stand at, deg.
+MAX_TILT_DEG = 45.0
+
+_DPH = math.pi / 180.0 / 3600.0  # deg/h -> rad/s
+_UG = 1e-6 * G0  # micro-g -> m/s^2
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Where the instrument really stands: azimuth clockwise from north, latitude, pitch, roll (deg)."""
+
+    azimuth_deg: float = 0.0
+    latitude_deg: float = 34.0
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise SimConfigError(f"truth {f.name}: must be a finite number, got {v!r}")
+        check_latitude(self.latitude_deg, "truth latitude_deg")
+        for name in ("pitch_deg", "roll_deg"):
+            if abs(getattr(self, name)) > MAX_TILT_DEG:
+                raise SimConfigError(
+                    f"truth {name}: {getattr(self, name)} deg exceeds the +-{MAX_TILT_DEG} deg the "
+                    "simulated base can stand at"
+                )
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """Consecutive samples. Sample ``counter[i]`` covers ``(time_s[i] - 1/fs, time_s[i]]``.
+
+    Attributes
+    ----------
+    counter : (n,) int64
+        Sample number since power-on, starting at 0.
+    time_s : (n,) float
+        End of each sample interval, seconds since power-on.
+    gyro_rps : (n, 3) float
+        Gyro triad, mean rate over the interval, rad/s, sensor frame m1.
+    accel_mps2 : (n, 3) float
+        Accelerometer triad, mean specific force, m/s^2.
+    table_deg : (n,) float
+        Encoder reading at the end of the interval, [0, 360) deg.
+    table_rate_dps : (n,) float
+        True mean table rate over the interval, deg/s.
+    temperature_c : (n,) float
+        Sensor temperature, degC.
+    gyro_saturated, accel_saturated : (n,) bool
+        Any axis of the triad hit its range.
+    """
+
+    counter: NDArray[np.int64]
+    time_s: NDArray[np.float64]
+    gyro_rps: NDArray[np.float64]
+    accel_mps2: NDArray[np.float64]
+    table_deg: NDArray[np.float64]
+    table_rate_dps: NDArray[np.float64]
+    temperature_c: NDArray[np.float64]
+    gyro_saturated: NDArray[np.bool_]
+    accel_saturated: NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return len(self.counter)
+
+    @staticmethod
+    def concat(blocks: list[SampleBlock]) -> SampleBlock:
+        """Join blocks in order."""
+        return SampleBlock(
+            *(np.concatenate([getattr(b, f.name) for b in blocks]) for f in fields(SampleBlock))
+        )
+
+
+class _SlowNoise:
+    """Bias instability (flicker) and random walks on a coarse 0.1 s grid, interpolated to samples.
+
+    Flicker noise with one-sided PSD B^2 / (pi f) (IEEE Std 952's (B^2 / 2 pi) / f, two-sided),
+    whose Allan deviation is B sqrt(2 ln 2 / pi) = 0.664 B, is built from first-order Gauss-Markov
+    processes with correlation times spaced by sqrt(10) from 1 s to 10^4 s; their summed PSD is
+    flat per log frequency, so the Allan deviation has its floor 0.664 B between a few seconds and
+    a few thousand seconds. States are kept at unit variance and scaled on output, so noise levels
+    can change while running without a jump in the random sequence.
+    """
+
+    DT = 0.1
+    TAUS = 10.0 ** np.arange(0.0, 4.01, 0.5)
+
+    def __init__(self, rng: np.random.Generator, nch: int) -> None:
+        self._rng = rng
+        self._phi = np.exp(-self.DT / self.TAUS)
+        self._gain = np.sqrt(1.0 - self._phi**2)
+        # n components of variance c, spaced by a ratio r, sum to the one-sided PSD c / (f ln r);
+        # c = B^2 ln r / pi gives B^2 / (pi f).
+        self.flicker_unit = math.sqrt(math.log(10.0**0.5) / math.pi)
+        self._state = rng.standard_normal((len(self.TAUS), nch))
+        self._walk = np.zeros(nch)
+        self._k0 = 0
+        self._flicker = self._state.sum(axis=0)[None, :]
+        self._walks = self._walk[None, :].copy()
+
+    def _extend(self, k_last: int) -> None:
+        m = k_last - (self._k0 + len(self._flicker) - 1)
+        if m <= 0:
+            return
+        w = self._rng.standard_normal((m, len(self.TAUS) + 1, self._walk.size))
+        comps = np.empty((m, len(self.TAUS), self._walk.size))
+        for i, phi in enumerate(self._phi):
+            comps[:, i, :], _ = lfilter(
+                [self._gain[i]], [1.0, -phi], w[:, i, :], axis=0, zi=(phi * self._state[i])[None, :]
+            )
+        self._state = comps[-1]
+        walks = self._walk + np.cumsum(math.sqrt(self.DT) * w[:, -1, :], axis=0)
+        self._walk = walks[-1]
+        self._flicker = np.concatenate([self._flicker, comps.sum(axis=1)])
+        self._walks = np.concatenate([self._walks, walks])
+
+    def values(
+        self, t: NDArray[np.float64], flicker_b: NDArray[np.float64], walk_k: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """Slow noise at increasing times ``t`` (s), shape ``(len(t), nch)``, SI units."""
+        pos = t / self.DT
+        self._extend(math.floor(pos[-1]) + 1)
+        drop = math.floor(pos[0]) - self._k0
+        if drop > 0:
+            self._flicker, self._walks = self._flicker[drop:], self._walks[drop:]
+            self._k0 += drop
+        coarse = self._flicker * (flicker_b * self.flicker_unit) + self._walks * walk_k
+        grid = np.arange(len(coarse)) + self._k0
+        out = np.empty((len(t), coarse.shape[1]))
+        for j in np.flatnonzero(flicker_b + walk_k):
+            out[:, j] = np.interp(pos, grid, coarse[:, j])
+        for j in np.flatnonzero(flicker_b + walk_k == 0):
+            out[:, j] = 0.0
+        return out
+
+
+def _triad_matrix(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray[np.float64]:
+    m = np.diag(1.0 + sf)
+    m[~np.eye(3, dtype=bool)] = mis
+    return m
+
+
+class Instrument:
+    """Turntable, gyro triad and accelerometer triad of one simulated north finder.
+
+    Parameters
+    ----------
+    spec : SensorSpec
+        Sensor, environment and table specification (datasheet units).
+    truth : Truth
+        Azimuth, latitude, pitch and roll of the base.
+    rng : numpy.random.Generator
+        Seeded generator; the instrument spawns independent streams from it.
+    sample_rate_hz : float
+        Output rate, 200 Hz by default.
+    table_angle_deg : float
+        Table angle at power-on.
+    """
+
+    def __init__(
+        self,
+        spec: SensorSpec,
+        truth: Truth,
+        rng: np.random.Generator,
+        *,
+        sample_rate_hz: float = 200.0,
+        table_angle_deg: float = 0.0,
+    ) -> None:
+        fs = float(sample_rate_hz)
+        if not (math.isfinite(fs) and MIN_SAMPLE_RATE_HZ <= fs <= MAX_SAMPLE_RATE_HZ):
+            raise SimConfigError(
+                f"sample_rate_hz: {sample_rate_hz!r} Hz cannot be honoured; the model runs from "
+                f"{MIN_SAMPLE_RATE_HZ:g} to {MAX_SAMPLE_RATE_HZ:g} Hz"
+            )
+        self.sample_rate_hz = fs
+        turn_on, white, slow, impulses, table = rng.spawn(5)
+        self._z_bias = turn_on.standard_normal(6)
+        self._z_sf = turn_on.standard_normal(6)
+        self._z_mis = turn_on.standard_normal((2, 6))
+        self._vib_phase = turn_on.uniform(0.0, 2 * math.pi, 6)
+        self._white = white
+        self._slow = _SlowNoise(slow, 6)
+        self._imp_rng = impulses
+        self._imp_next = math.inf
+        self._events: list[tuple[float, float, NDArray[np.float64]]] = []
+        self._k = 0
+        self._clock = 0.0
+        self._remainder = np.zeros(6)
+        self._extra_bias = np.zeros(6)
+        self._vibration: tuple[float, NDArray[np.float64]] | None = None
+        self.vibration_on = True
+        self.table = Turntable(spec.table, table, table_angle_deg)
+        self.truth = truth
+        self.set_spec(spec)
+
+    # -- configuration ------------------------------------------------------------------------
+    def set_spec(self, spec: SensorSpec) -> None:
+        """Change the specification while running; drawn turn-on errors keep their z-scores."""
+        self.spec = spec
+        g, a, fs = spec.gyro, spec.accel, self.sample_rate_hz
+        self._bias = np.concatenate(
+            [
+                np.asarray(g.bias_dph) * _DPH + g.turn_on_bias_dph * _DPH * self._z_bias[:3],
+                np.asarray(a.bias_ug) * _UG + a.turn_on_bias_ug * _UG * self._z_bias[3:],
+            ]
+        )
+        self._white_sigma = np.repeat(
+            [
+                g.arw_dpsh * math.pi / 180.0 / 60.0 * math.sqrt(fs),
+                a.vrw_ug_rthz * _UG * math.sqrt(fs),
+            ],
+            3,
+        )
+        self._flicker_b = np.repeat([g.bias_instability_dph * _DPH, a.bias_instability_ug * _UG], 3)
+        self._walk_k = np.repeat(
+            [g.rrw_dphpsh * math.pi / 180.0 / 3600.0 / 60.0, a.random_walk_ug_rts * _UG], 3
+        )
+        mg = _triad_matrix(
+            g.scale_factor_ppm * 1e-6 * self._z_sf[:3], g.misalignment_urad * 1e-6 * self._z_mis[0]
+        )
+        ma = _triad_matrix(
+            a.scale_factor_ppm * 1e-6 * self._z_sf[3:], a.misalignment_urad * 1e-6 * self._z_mis[1]
+        )
+        self._m_t = np.zeros((6, 6))
+        self._m_t[:3, :3], self._m_t[3:, 3:] = mg.T, ma.T
+        self._identity = not (
+            g.scale_factor_ppm or g.misalignment_urad or a.scale_factor_ppm or a.misalignment_urad
+        )
+        self._lsb = np.array([g.lsb_dph * _DPH] * 3 + [a.lsb_ug * _UG] * 3)
+        self._range = np.array([g.range_dps * math.pi / 180.0] * 3 + [a.range_g * G0] * 3)
+        self._warm = np.concatenate(
+            [np.asarray(g.warmup_bias_dph) * _DPH, np.asarray(a.warmup_bias_ug) * _UG]
+        )
+        self._warm_tau = np.repeat([g.warmup_tau_s, a.warmup_tau_s], 3)
+        self._temp_coeff = np.concatenate(
+            [np.asarray(g.temp_coeff_dph_per_c) * _DPH, np.asarray(a.temp_coeff_ug_per_c) * _UG]
+        )
+        self._imp_amp = np.repeat([g.impulse_dph * _DPH, a.impulse_ug * _UG], 3)
+        d = spec.disturbance
+        if d.impulse_rate_hz > 0 and not math.isfinite(self._imp_next):
+            self._imp_next = self.time_s + self._imp_rng.exponential(1.0 / d.impulse_rate_hz)
+        elif d.impulse_rate_hz == 0:
+            self._imp_next = math.inf
+        vib_amp = np.repeat([g.vibration_dph * _DPH, a.vibration_ug * _UG], 3)
+        self._vibration = (
+            (d.vibration_hz, vib_amp) if d.vibration_hz > 0 and vib_amp.any() else None
+        )
+        self.table.spec = spec.table
+
+    def set_truth(self, truth: Truth) -> None:
+        """Move the base; applies from the next sample on."""
+        self.truth = truth
+
+    # -- fault and disturbance injection ------------------------------------------------------
+    def inject_bias_step(
+        self,
+        gyro_dph: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        accel_ug: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        """Add a permanent bias step from the next sample on."""
+        self._extra_bias += np.concatenate(
+            [np.asarray(gyro_dph) * _DPH, np.asarray(accel_ug) * _UG]
+        )
+
+    def inject_impulses(
+        self,
+        count: int,
+        *,
+        interval_s: float = 0.5,
+        gyro_dph: float = 50.0,
+        accel_ug: float = 5000.0,
+        duration_s: float | None = None,
+    ) -> None:
+        """Queue a burst of ``count`` half-sine impulses, one every ``interval_s``, from now."""
+        dur = self.spec.disturbance.impulse_duration_s if duration_s is None else duration_s
+        amp = np.repeat([gyro_dph * _DPH, accel_ug * _UG], 3)
+        for i in range(int(count)):
+            self._events.append((self.time_s + i * interval_s, dur, amp * self._direction()))
+
+    def set_vibration(
+        self, on: bool, *, hz: float = 35.0, gyro_dph: float = 5.0, accel_ug: float = 2000.0
+    ) -> None:
+        """Switch vibration on or off; with no vibration in the spec, ``on`` uses the given line."""
+        self.vibration_on = bool(on)
+        if on and self._vibration is None:
+            self._vibration = (hz, np.repeat([gyro_dph * _DPH, accel_ug * _UG], 3))
+
+    def _direction(self) -> NDArray[np.float64]:
+        v = self._imp_rng.standard_normal(6)
+        v[:3] /= np.linalg.norm(v[:3]) or 1.0
+        v[3:] /= np.linalg.norm(v[3:]) or 1.0
+        return v
+
+    # -- sampling ------------------------------------------------------------------------------
+    @property
+    def samples_emitted(self) -> int:
+        return self._k
+
+    @property
+    def time_s(self) -> float:
+        """Time of the last emitted sample, seconds since power-on."""
+        return self._k / self.sample_rate_hz
+
+    def temperature(self, t: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """Sensor temperature at times ``t``, degC."""
+        th = self.spec.thermal
+        tt = np.asarray(t, dtype=float)
+        return (
+            th.ambient_c
+            + th.warmup_rise_c * (1.0 - np.exp(-tt / th.warmup_tau_s))
+            + th.ramp_c_per_h * tt / 3600.0
+        )
+
+    def advance(self, dt: float) -> SampleBlock:
+        """Advance the clock by ``dt`` seconds and return the samples that fell due."""
+        if not (math.isfinite(dt) and dt >= 0):
+            raise SimConfigError(f"dt: must be a finite non-negative number of seconds, got {dt!r}")
+        self._clock = max(self._clock, self.time_s) + dt
+        due = math.floor(self._clock * self.sample_rate_hz + 1e-6) - self._k
+        return self.generate(max(due, 0))
+
+    def generate(self, n: int) -> SampleBlock:
+        """The next ``n`` samples as one block."""
+        fs = self.sample_rate_hz
+        k = self._k + np.arange(n, dtype=np.int64)
+        edges = (self._k + np.arange(n + 1)) / fs
+        t = edges[1:]
+        angle, _ = self.table.state(edges)
+        table_rate = np.diff(angle) * fs
+        omega_b, f_b = body_rates(
+            self.truth.azimuth_deg,
+            self.truth.pitch_deg,
+            self.truth.roll_deg,
+            self.truth.latitude_deg,
+        )
+        out = np.empty((n, 6))
+        if n and np.ptp(angle) == 0.0:
+            # The table is still: every sample sees the same true vector, so apply the error
+            # matrix to that one vector instead of to every sample.
+            mu = math.radians(angle[0])
+            c, s = math.cos(mu), math.sin(mu)
+            true = np.array(
+                [
+                    c * omega_b[0] + s * omega_b[1],
+                    -s * omega_b[0] + c * omega_b[1],
+                    omega_b[2],
+                    c * f_b[0] + s * f_b[1],
+                    -s * f_b[0] + c * f_b[1],
+                    f_b[2],
+                ]
+            )
+            out[:] = (true if self._identity else true @ self._m_t) + self._bias + self._extra_bias
+        else:
+            mu = np.radians(angle)
+            cm, sm = np.cos(mu), np.sin(mu)
+            c = 0.5 * (cm[:-1] + cm[1:])
+            s = 0.5 * (sm[:-1] + sm[1:])
+            out[:, 0] = c * omega_b[0] + s * omega_b[1]
+            out[:, 1] = -s * omega_b[0] + c * omega_b[1]
+            out[:, 2] = omega_b[2] + np.radians(table_rate)
+            out[:, 3] = c * f_b[0] + s * f_b[1]
+            out[:, 4] = -s * f_b[0] + c * f_b[1]
+            out[:, 5] = f_b[2]
+            if not self._identity:
+                out = out @ self._m_t
+            out += self._bias + self._extra_bias
+        if self._warm.any():
+            for sl, tau in ((slice(0, 3), self._warm_tau[0]), (slice(3, 6), self._warm_tau[3])):
+                if self._warm[sl].any():
+                    out[:, sl] += np.exp(-t / tau)[:, None] * self._warm[sl]
+        temperature = self.temperature(t)
+        if self._temp_coeff.any():
+            out += (temperature - self.spec.thermal.ambient_c)[:, None] * self._temp_coeff
+        if n and self._white_sigma.any():
+            noise = self._white.standard_normal((n, 6))
+            noise *= self._white_sigma
+            out += noise
+        if n and (self._flicker_b.any() or self._walk_k.any()):
+            out += self._slow.values(t - 0.5 / fs, self._flicker_b, self._walk_k)
+        if n:
+            self._add_impulses(out, t)
+        if n and self._vibration is not None and self.vibration_on:
+            hz, amp = self._vibration
+            out += amp * np.sin(2 * math.pi * hz * t[:, None] + self._vib_phase)
+        if n and (np.any(out.max(axis=0) > self._range) or np.any(out.min(axis=0) < -self._range)):
+            sat = np.abs(out) > self._range
+            np.clip(out, -self._range, self._range, out=out)
+        else:
+            sat = np.zeros((n, 6), dtype=bool)
+        self._quantise(out)
+        self._k += n
+        self._clock = max(self._clock, self.time_s)
+        return SampleBlock(
+            counter=k,
+            time_s=t,
+            gyro_rps=out[:, :3],
+            accel_mps2=out[:, 3:],
+            table_deg=self.table.encoder(angle[1:]),
+            table_rate_dps=table_rate,
+            temperature_c=temperature,
+            gyro_saturated=sat[:, :3].any(axis=1),
+            accel_saturated=sat[:, 3:].any(axis=1),
+        )
+
+    def _add_impulses(self, out: NDArray[np.float64], t: NDArray[np.float64]) -> None:
+        rate = self.spec.disturbance.impulse_rate_hz
+        while self._imp_next <= t[-1]:
+            amp = self._imp_amp * self._direction()
+            self._events.append((self._imp_next, self.spec.disturbance.impulse_duration_s, amp))
+            self._imp_next += self._imp_rng.exponential(1.0 / rate) if rate > 0 else math.inf
+        t0, t1 = t[0] - 1.0 / self.sample_rate_hz, t[-1]
+        keep = []
+        for start, dur, amp in self._events:
+            if start + dur <= t0:
+                continue
+            keep.append((start, dur, amp))
+            if start >= t1:
+                continue
+            x = (t - start) / dur
+            on = (x > 0) & (x < 1)
+            out[on] += np.sin(math.pi * x[on])[:, None] * amp
+        self._events = keep
+
+    def _quantise(self, out: NDArray[np.float64]) -> None:
+        for j in np.flatnonzero(self._lsb):
+            cum = self._remainder[j] + np.cumsum(out[:, j] / self._lsb[j])
+            q = np.round(cum)
+            if len(q):
+                self._remainder[j] = cum[-1] - q[-1]
+            out[:, j] = np.diff(q, prepend=0.0) * self._lsb[j]

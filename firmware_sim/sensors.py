@@ -1,0 +1,240 @@
+"""Sensor specifications in datasheet units, loaded from TOML files or named presets.
+
+A :class:`SensorSpec` describes one instrument: gyro triad, accelerometer triad, thermal behaviour,
+disturbances and turntable. Every error term is switched off by setting it to zero; the ``ideal``
+preset has every term at zero. Presets live as TOML files in ``firmware_sim/presets/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from firmware_sim.errors import SimConfigError
+
+_VEC3 = "vec3"
+_NONNEG = "nonneg"
+_POSITIVE = "positive"
+_ANY = "any"
+
+
+def _f(default: float, check: str = _NONNEG, doc: str = "") -> Any:
+    return field(default=default, metadata={"check": check, "doc": doc})
+
+
+def _v(doc: str = "") -> Any:
+    return field(default=(0.0, 0.0, 0.0), metadata={"check": _VEC3, "doc": doc})
+
+
+@dataclass(frozen=True)
+class GyroSpec:
+    """Gyro triad errors. Random terms (``turn_on_*``, scale factor, misalignment) are 1-sigma draws."""
+
+    bias_dph: tuple[float, float, float] = _v("constant bias per axis, deg/h")
+    turn_on_bias_dph: float = _f(0.0, doc="turn-on to turn-on bias repeatability, 1 sigma, deg/h")
+    bias_instability_dph: float = _f(
+        0.0, doc="flicker bias instability B; Allan floor 0.664 B, deg/h"
+    )
+    arw_dpsh: float = _f(0.0, doc="angle random walk, deg/sqrt(h)")
+    rrw_dphpsh: float = _f(0.0, doc="rate random walk, deg/h/sqrt(h)")
+    scale_factor_ppm: float = _f(0.0, doc="scale-factor error per axis, 1 sigma, ppm")
+    misalignment_urad: float = _f(0.0, doc="axis misalignment, 1 sigma per off-diagonal, urad")
+    lsb_dph: float = _f(0.0, doc="output quantisation (pulse weight as a rate), deg/h; 0 = none")
+    range_dps: float = _f(200.0, _POSITIVE, "measurement range, deg/s")
+    temp_coeff_dph_per_c: tuple[float, float, float] = _v(
+        "bias temperature sensitivity, deg/h/degC"
+    )
+    warmup_bias_dph: tuple[float, float, float] = _v("warm-up transient at power-on, deg/h")
+    warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s")
+    impulse_dph: float = _f(0.0, doc="peak rate of one impulse (shock), deg/h")
+    vibration_dph: float = _f(0.0, doc="vibration amplitude seen by each gyro axis, deg/h")
+
+
+@dataclass(frozen=True)
+class AccelSpec:
+    """Accelerometer triad errors, micro-g based (1 ug = 9.80665e-6 m/s^2)."""
+
+    bias_ug: tuple[float, float, float] = _v("constant bias per axis, ug")
+    turn_on_bias_ug: float = _f(0.0, doc="turn-on bias repeatability, 1 sigma, ug")
+    bias_instability_ug: float = _f(0.0, doc="flicker bias instability, ug")
+    vrw_ug_rthz: float = _f(0.0, doc="velocity random walk (white noise density), ug/sqrt(Hz)")
+    random_walk_ug_rts: float = _f(0.0, doc="bias random walk, ug/sqrt(s)")
+    scale_factor_ppm: float = _f(0.0, doc="scale-factor error per axis, 1 sigma, ppm")
+    misalignment_urad: float = _f(0.0, doc="axis misalignment, 1 sigma, urad")
+    lsb_ug: float = _f(0.0, doc="output quantisation, ug; 0 = none")
+    range_g: float = _f(10.0, _POSITIVE, "measurement range, g")
+    temp_coeff_ug_per_c: tuple[float, float, float] = _v("bias temperature sensitivity, ug/degC")
+    warmup_bias_ug: tuple[float, float, float] = _v("warm-up transient at power-on, ug")
+    warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s")
+    impulse_ug: float = _f(0.0, doc="peak specific force of one impulse, ug")
+    vibration_ug: float = _f(0.0, doc="vibration amplitude seen by each accelerometer axis, ug")
+
+
+@dataclass(frozen=True)
+class ThermalSpec:
+    """Sensor temperature: T(t) = ambient + rise (1 - exp(-t / tau)) + ramp t."""
+
+    ambient_c: float = _f(20.0, _ANY, "ambient temperature at power-on, degC")
+    warmup_rise_c: float = _f(0.0, _ANY, "self-heating rise after power-on, degC")
+    warmup_tau_s: float = _f(600.0, _POSITIVE, "self-heating time constant, s")
+    ramp_c_per_h: float = _f(0.0, _ANY, "slow ambient drift, degC/h (gives linear bias trends)")
+
+
+@dataclass(frozen=True)
+class DisturbanceSpec:
+    """Environment: random impulses (doors, footsteps) and a vibration line (engines, pumps)."""
+
+    impulse_rate_hz: float = _f(0.0, doc="mean rate of impulses (Poisson), 1/s")
+    impulse_duration_s: float = _f(0.05, _POSITIVE, "duration of one half-sine impulse, s")
+    vibration_hz: float = _f(0.0, doc="vibration frequency, Hz; 0 = none")
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """Turntable about body z."""
+
+    max_rate_dps: float = _f(10.0, _POSITIVE, "speed limit, deg/s")
+    max_accel_dps2: float = _f(20.0, _POSITIVE, "acceleration limit, deg/s^2")
+    settle_s: float = _f(2.0, doc="settling time after the motion profile ends, s")
+    encoder_resolution_deg: float = _f(360.0 / 2**24, doc="encoder resolution, deg; 0 = exact")
+    indexing_error_deg: float = _f(0.0, doc="stop-position error per move, 1 sigma, deg")
+    overshoot_deg: float = _f(0.0, doc="amplitude of the damped oscillation after a stop, deg")
+    overshoot_hz: float = _f(4.0, _POSITIVE, "frequency of that oscillation, Hz")
+
+
+_SECTIONS: dict[str, type] = {
+    "gyro": GyroSpec,
+    "accel": AccelSpec,
+    "thermal": ThermalSpec,
+    "disturbance": DisturbanceSpec,
+    "table": TableSpec,
+}
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """A whole instrument: sensors, environment and turntable."""
+
+    name: str = "custom"
+    description: str = ""
+    gyro: GyroSpec = field(default_factory=GyroSpec)
+    accel: AccelSpec = field(default_factory=AccelSpec)
+    thermal: ThermalSpec = field(default_factory=ThermalSpec)
+    disturbance: DisturbanceSpec = field(default_factory=DisturbanceSpec)
+    table: TableSpec = field(default_factory=TableSpec)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A plain dict in the TOML layout (sections of datasheet values)."""
+        out: dict[str, Any] = {"name": self.name, "description": self.description}
+        for section in _SECTIONS:
+            out[section] = {
+                k: list(v) if isinstance(v, tuple) else v
+                for k, v in dataclasses.asdict(getattr(self, section)).items()
+            }
+        return out
+
+    def with_values(self, values: dict[str, Any]) -> SensorSpec:
+        """A copy with dotted fields replaced, e.g. ``{"gyro.arw_dpsh": 0.002}``; validated."""
+        data = self.to_dict()
+        for dotted, value in values.items():
+            section, _, key = str(dotted).partition(".")
+            if section not in _SECTIONS or not key:
+                raise SimConfigError(
+                    f"{dotted}: not a sensor field; use SECTION.FIELD with SECTION one of "
+                    f"{', '.join(_SECTIONS)}"
+                )
+            data[section][key] = value
+        return spec_from_dict(data, source=self.name)
+
+
+def _check_value(where: str, check: str, value: Any) -> float | tuple[float, float, float]:
+    if check == _VEC3:
+        if not isinstance(value, list | tuple) or len(value) != 3:
+            raise SimConfigError(f"{where}: expected a list of three numbers, got {value!r}")
+        return tuple(_check_value(f"{where}[{i}]", _ANY, v) for i, v in enumerate(value))  # type: ignore[return-value]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise SimConfigError(f"{where}: expected a number, got {value!r}")
+    x = float(value)
+    if not math.isfinite(x):
+        raise SimConfigError(f"{where}: must be finite, got {value!r}")
+    if check == _NONNEG and x < 0:
+        raise SimConfigError(f"{where}: must not be negative, got {x}")
+    if check == _POSITIVE and x <= 0:
+        raise SimConfigError(f"{where}: must be positive, got {x}")
+    return x
+
+
+def _section_from_dict(cls: type, data: Any, where: str) -> Any:
+    if not isinstance(data, dict):
+        raise SimConfigError(f"{where}: expected a table of fields, got {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise SimConfigError(
+            f"{where}.{unknown[0]}: unknown field; known fields are {', '.join(fields)}"
+        )
+    kwargs = {
+        k: _check_value(f"{where}.{k}", fields[k].metadata["check"], v) for k, v in data.items()
+    }
+    return cls(**kwargs)
+
+
+def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> SensorSpec:
+    """Build and validate a :class:`SensorSpec` from the TOML layout; errors name the field."""
+    if not isinstance(data, dict):
+        raise SimConfigError(f"{source}: expected a table, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(_SECTIONS) - {"name", "description"})
+    if unknown:
+        raise SimConfigError(
+            f"{source}: unknown section or key {unknown[0]!r}; expected name, description, "
+            f"{', '.join(_SECTIONS)}"
+        )
+    kwargs: dict[str, Any] = {
+        "name": str(data.get("name", Path(source).stem)),
+        "description": str(data.get("description", "")),
+    }
+    for section, cls in _SECTIONS.items():
+        kwargs[section] = _section_from_dict(cls, data.get(section, {}), f"{source}: {section}")
+    return SensorSpec(**kwargs)
+
+
+def preset_names() -> list[str]:
+    """Names of the presets shipped with the package."""
+    files = resources.files("firmware_sim").joinpath("presets").iterdir()
+    return sorted(f.name[: -len(".toml")] for f in files if f.name.endswith(".toml"))
+
+
+def load_spec(name_or_path: str | Path) -> SensorSpec:
+    """Load a preset by name (``paper-rlg``) or a TOML file by path.
+
+    Raises
+    ------
+    SimConfigError
+        Unknown preset (the message lists the presets), unreadable file, invalid TOML or field.
+    """
+    text = str(name_or_path)
+    path = Path(text)
+    if text.endswith(".toml") or path.exists():
+        try:
+            raw = path.read_bytes()
+        except OSError as exc:
+            raise SimConfigError(f"sensor file {text}: cannot read it ({exc.strerror})") from exc
+        source = text
+    else:
+        if text not in preset_names():
+            raise SimConfigError(
+                f"unknown sensor preset {text!r}; presets are {', '.join(preset_names())} "
+                "(or give a path to a .toml file)"
+            )
+        raw = resources.files("firmware_sim").joinpath("presets", f"{text}.toml").read_bytes()
+        source = text
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise SimConfigError(f"sensor file {source}: not valid TOML ({exc})") from exc
+    return spec_from_dict(data, source=source)

@@ -1,0 +1,214 @@
+"""The turntable: trapezoidal moves about body z, settling, encoder and indexing error.
+
+The table angle is continuous (not wrapped) in the model; the encoder reports it modulo 360 deg,
+quantised to its resolution. A move stops at the commanded angle plus an indexing error drawn per
+move; the encoder sees where the table really is.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from firmware_sim.errors import SimError
+from firmware_sim.sensors import TableSpec
+
+
+class TableBusyError(SimError):
+    """A move was ordered while the table was still moving."""
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """Constant acceleration from ``t0``: angle = a0 + v0 dt + acc dt^2 / 2 (deg, deg/s, deg/s^2)."""
+
+    t0: float
+    a0: float
+    v0: float
+    acc: float
+
+    def at(self, dt: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return self.a0 + self.v0 * dt + 0.5 * self.acc * dt * dt, self.v0 + self.acc * dt
+
+
+def trapezoid_duration(distance_deg: float, max_rate_dps: float, max_accel_dps2: float) -> float:
+    """Time (s) of a rest-to-rest move over ``|distance_deg|`` with rate and acceleration limits."""
+    d, v, a = abs(distance_deg), max_rate_dps, max_accel_dps2
+    if d <= v * v / a:
+        return 2.0 * math.sqrt(d / a)
+    return v / a + d / v
+
+
+class Turntable:
+    """A rate- and acceleration-limited table that moves on command.
+
+    Parameters
+    ----------
+    spec : TableSpec
+        Limits, settle time, encoder resolution, indexing error, post-stop oscillation.
+    rng : numpy.random.Generator
+        Source of the indexing errors.
+    angle_deg : float
+        Initial angle.
+    """
+
+    def __init__(self, spec: TableSpec, rng: np.random.Generator, angle_deg: float = 0.0) -> None:
+        self.spec = spec
+        self._rng = rng
+        self._segments: list[_Segment] = [_Segment(-math.inf, float(angle_deg), 0.0, 0.0)]
+        self._motion_end = -math.inf  # end of the commanded profile
+        self._target = float(angle_deg)  # commanded angle (continuous)
+        self._overshoot = 0.0
+        self._stalled = False
+
+    # -- commands -----------------------------------------------------------------------------
+    def move_by(self, t: float, delta_deg: float, max_rate_dps: float | None = None) -> float:
+        """Start a move by ``delta_deg`` at time ``t``; return the time the profile ends.
+
+        Raises
+        ------
+        TableBusyError
+            The previous profile has not ended at ``t``.
+        """
+        if self.is_moving(t):
+            raise TableBusyError(f"table still moving at t={t:.3f} s")
+        start, _ = self.state(t)
+        v = (
+            self.spec.max_rate_dps
+            if max_rate_dps is None
+            else min(max_rate_dps, self.spec.max_rate_dps)
+        )
+        a = self.spec.max_accel_dps2
+        err = (
+            self._rng.normal(0.0, self.spec.indexing_error_deg)
+            if self.spec.indexing_error_deg
+            else 0.0
+        )
+        self._target = float(start) + delta_deg if not self._stalled else float(start)
+        d = self._target + err - float(start)
+        s = math.copysign(1.0, d)
+        dist = abs(d)
+        if self._stalled or dist == 0.0:
+            self._segments = [_Segment(-math.inf, float(start), 0.0, 0.0)]
+            self._motion_end = t
+            return t
+        if dist <= v * v / a:
+            ta, tc = math.sqrt(dist / a), 0.0
+        else:
+            ta, tc = v / a, (dist - v * v / a) / v
+        vp = a * ta
+        a1 = float(start) + s * 0.5 * a * ta * ta
+        a2 = a1 + s * vp * tc
+        self._segments = [
+            _Segment(-math.inf, float(start), 0.0, 0.0),
+            _Segment(t, float(start), 0.0, s * a),
+            _Segment(t + ta, a1, s * vp, 0.0),
+            _Segment(t + ta + tc, a2, s * vp, -s * a),
+            _Segment(t + 2 * ta + tc, float(start) + d, 0.0, 0.0),
+        ]
+        self._motion_end = t + 2 * ta + tc
+        self._overshoot = s * self.spec.overshoot_deg
+        return self._motion_end
+
+    def move_to(self, t: float, target_deg: float, max_rate_dps: float | None = None) -> float:
+        """Move to an absolute angle (modulo 360) by the shorter way; return the profile end time."""
+        current = self._target if not self.is_moving(t) else float(self.state(t)[0])
+        delta = (target_deg - current + 180.0) % 360.0 - 180.0
+        return self.move_by(t, delta, max_rate_dps)
+
+    def stop(self, t: float) -> float:
+        """Decelerate at the acceleration limit from time ``t``; return when the table is at rest."""
+        angle, rate = (float(x) for x in self.state(t))
+        if rate == 0.0:
+            self._motion_end = min(self._motion_end, t)
+            self._segments = [_Segment(-math.inf, angle, 0.0, 0.0)]
+            self._target = angle
+            return t
+        a = self.spec.max_accel_dps2
+        tb = abs(rate) / a
+        acc = -math.copysign(a, rate)
+        end_angle = angle + rate * tb + 0.5 * acc * tb * tb
+        keep = [s for s in self._segments if s.t0 <= t]
+        self._segments = [
+            *keep,
+            _Segment(t, angle, rate, acc),
+            _Segment(t + tb, end_angle, 0.0, 0.0),
+        ]
+        self._motion_end = t + tb
+        self._target = end_angle
+        self._overshoot = 0.0
+        return self._motion_end
+
+    def stall(self, t: float, stalled: bool = True) -> None:
+        """Simulate a jammed table: it stops where it is and ignores moves until released."""
+        if stalled:
+            self.stop(t)
+            # A jammed table stops at once, not on a deceleration ramp.
+            angle = float(self.state(t)[0])
+            self._segments = [_Segment(-math.inf, angle, 0.0, 0.0)]
+            self._motion_end = t
+        self._stalled = stalled
+
+    # -- queries ------------------------------------------------------------------------------
+    @property
+    def target_deg(self) -> float:
+        """The commanded angle modulo 360 (the table ends near it, off by the indexing error)."""
+        return self._target % 360.0
+
+    @property
+    def stalled(self) -> bool:
+        return self._stalled
+
+    @property
+    def motion_end_s(self) -> float:
+        return self._motion_end
+
+    def is_moving(self, t: float) -> bool:
+        """True while the commanded profile runs (settling oscillation not included)."""
+        return t < self._motion_end
+
+    def is_settled(self, t: float) -> bool:
+        return t >= self._motion_end + self.spec.settle_s
+
+    def state(self, t: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """True (continuous) angle in deg and rate in deg/s at times ``t`` (s), same shape as ``t``."""
+        tt = np.asarray(t, dtype=float)
+        starts = np.array([s.t0 for s in self._segments])
+        idx = np.searchsorted(starts, tt, side="right") - 1
+        if (
+            idx.size
+            and idx.min() == idx.max()
+            and not math.isfinite(self._segments[int(idx.flat[0])].t0)
+        ):
+            angle, rate = np.full_like(tt, self._segments[int(idx.flat[0])].a0), np.zeros_like(tt)
+            segs: list[int] = []
+        else:
+            angle, rate = np.empty_like(tt), np.empty_like(tt)
+            segs = [int(i) for i in np.unique(idx)]
+        for i in segs:
+            seg = self._segments[int(i)]
+            sel = idx == i
+            dt = tt[sel] - seg.t0 if math.isfinite(seg.t0) else np.zeros(np.count_nonzero(sel))
+            angle[sel], rate[sel] = seg.at(dt)
+        if self._overshoot and math.isfinite(self._motion_end):
+            # Damped ring-down after the stop; tau = settle/4 leaves 2 % at the end of settling.
+            x = tt - self._motion_end
+            tau = max(self.spec.settle_s / 4.0, 1e-3)
+            on = (x > 0) & (x < 40.0 * tau)  # exp(-40) is far below any encoder resolution
+            if np.any(on):
+                w = 2 * math.pi * self.spec.overshoot_hz
+                env = self._overshoot * np.exp(-x[on] / tau)
+                angle[on] += env * np.sin(w * x[on])
+                rate[on] += env * (w * np.cos(w * x[on]) - np.sin(w * x[on]) / tau)
+        return angle, rate
+
+    def encoder(self, angle_deg: ArrayLike) -> NDArray[np.float64]:
+        """What the encoder reports for true angles: modulo 360, quantised to its resolution."""
+        a = np.asarray(angle_deg, dtype=float)
+        res = self.spec.encoder_resolution_deg
+        if res > 0:
+            a = np.round(a / res) * res
+        return np.mod(a, 360.0)

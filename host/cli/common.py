@@ -1,0 +1,58 @@
+"""Argument helpers shared by the subcommands, so every command spells an option the same way."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite float, with an error that quotes the bad text."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be finite: {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    value = finite_float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive: {text!r}")
+    return value
+
+
+def angle_list(text: str) -> list[float]:
+    """argparse type: comma-separated angles in degrees, e.g. ``0,60`` or ``0,90,180,270``."""
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if not parts:
+        raise argparse.ArgumentTypeError("expected comma-separated angles in degrees, e.g. 0,180")
+    return [finite_float(p) for p in parts]
+
+
+def add_sensor_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--sensor",
+        default="paper-rlg",
+        metavar="PRESET|FILE",
+        help="sensor preset name or TOML file (default: paper-rlg)",
+    )
+
+
+def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
+    """The simulated truth: where the simulated instrument really stands."""
+    g = parser.add_argument_group("simulated truth")
+    g.add_argument(
+        "--azimuth",
+        type=finite_float,
+        default=None,
+        help="deg clockwise from north (default: random)",
+    )
+    g.add_argument(
+        "--latitude", type=finite_float, default=34.0, help="deg, north positive (default: 34)"
+    )
+    g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
+    g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
+    g.add_argument("--seed", type=int, default=None, help="random seed (default: fresh each run)")

@@ -1,0 +1,398 @@
+"""Physics of the simulated instrument: closed forms, error terms, Allan statistics, bad input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from firmware_sim.earth import OMEGA_IE, check_latitude, gravity
+from firmware_sim.errors import SimConfigError
+from firmware_sim.imu import Instrument, SampleBlock, Truth
+from firmware_sim.sensors import (
+    AccelSpec,
+    DisturbanceSpec,
+    GyroSpec,
+    SensorSpec,
+    TableSpec,
+    ThermalSpec,
+    load_spec,
+    preset_names,
+    spec_from_dict,
+)
+from firmware_sim.turntable import TableBusyError, trapezoid_duration
+from host.allan import allan_deviation
+
+DPH = math.pi / 180 / 3600
+IDEAL = load_spec("ideal")
+
+
+def paper_gyro(az_deg, pitch_deg, roll_deg, lat_deg, mu_deg):
+    """Seed 000 eqs. 1, 2, 6, 7 (and z) written out independently of the matrices; rad/s."""
+    a, t, g = -math.radians(az_deg), math.radians(pitch_deg), math.radians(roll_deg)
+    mu = math.radians(mu_deg)
+    w_nor, w_u = (
+        OMEGA_IE * math.cos(math.radians(lat_deg)),
+        OMEGA_IE * math.sin(math.radians(lat_deg)),
+    )
+    wx0 = w_nor * math.cos(a) * math.cos(t) - w_u * math.sin(t)
+    wy0 = w_nor * (
+        math.cos(a) * math.sin(t) * math.sin(g) - math.sin(a) * math.cos(g)
+    ) + w_u * math.cos(t) * math.sin(g)
+    wz0 = w_nor * (
+        math.cos(a) * math.sin(t) * math.cos(g) + math.sin(a) * math.sin(g)
+    ) + w_u * math.cos(t) * math.cos(g)
+    return np.array(
+        [math.cos(mu) * wx0 + math.sin(mu) * wy0, -math.sin(mu) * wx0 + math.cos(mu) * wy0, wz0]
+    )
+
+
+def specific_force(pitch_deg, roll_deg, lat_deg, mu_deg):
+    """What a level-referenced accelerometer triad reads (z up reads +g), m/s^2."""
+    t, g, mu = math.radians(pitch_deg), math.radians(roll_deg), math.radians(mu_deg)
+    grav = gravity(math.radians(lat_deg))
+    fx0, fy0, fz0 = (
+        -grav * math.sin(t),
+        grav * math.cos(t) * math.sin(g),
+        grav * math.cos(t) * math.cos(g),
+    )
+    return np.array(
+        [math.cos(mu) * fx0 + math.sin(mu) * fy0, -math.sin(mu) * fx0 + math.cos(mu) * fy0, fz0]
+    )
+
+
+def window_at(ins: Instrument, mu_deg: float, seconds: float = 10.0) -> SampleBlock:
+    """Turn to ``mu_deg``, wait for the table to settle, and record a window."""
+    end = ins.table.move_to(ins.time_s, mu_deg)
+    ins.advance(end - ins.time_s + ins.table.spec.settle_s)
+    return ins.advance(seconds)
+
+
+def test_somigliana_and_earth_rate():
+    assert gravity(0.0) == pytest.approx(9.7803253359, abs=1e-10)
+    assert gravity(math.pi / 2) == pytest.approx(9.8321849378, abs=1e-9)
+    assert OMEGA_IE == 7.292115e-5
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_noise_free_window_means_equal_the_closed_form(seed):
+    rng = np.random.default_rng(seed)
+    truth = Truth(
+        azimuth_deg=float(rng.uniform(0, 360)),
+        latitude_deg=float(rng.uniform(-80, 80)),
+        pitch_deg=float(rng.uniform(-10, 10)),
+        roll_deg=float(rng.uniform(-10, 10)),
+    )
+    mu = float(rng.uniform(-360, 360))
+    ins = Instrument(IDEAL, truth, rng)
+    first = ins.advance(10.0)
+    second = window_at(ins, mu)
+    args = (truth.azimuth_deg, truth.pitch_deg, truth.roll_deg, truth.latitude_deg)
+    for block, angle in ((first, 0.0), (second, mu)):
+        assert_allclose(
+            block.gyro_rps.mean(axis=0), paper_gyro(*args, angle), rtol=1e-9, atol=1e-9 * OMEGA_IE
+        )
+        f = specific_force(truth.pitch_deg, truth.roll_deg, truth.latitude_deg, angle)
+        assert_allclose(block.accel_mps2.mean(axis=0), f, rtol=1e-9, atol=1e-9 * 9.8)
+        assert_allclose(block.table_deg, angle % 360.0, atol=1e-9)
+
+
+def test_level_accelerometer_reads_plus_g_on_z():
+    ins = Instrument(IDEAL, Truth(latitude_deg=45.0), np.random.default_rng(0))
+    f = ins.generate(10).accel_mps2
+    assert_allclose(f, np.tile([0.0, 0.0, gravity(math.radians(45.0))], (10, 1)), atol=1e-12)
+
+
+def test_constant_biases_cancel_in_position_differences():
+    spec = IDEAL.with_values(
+        {
+            "gyro.bias_dph": [3.0, -2.0, 1.0],
+            "gyro.turn_on_bias_dph": 0.5,
+            "accel.bias_ug": [500.0, -300.0, 100.0],
+        }
+    )
+    truth = Truth(azimuth_deg=123.0, latitude_deg=34.0, pitch_deg=2.0, roll_deg=-1.5)
+    biased, clean = (
+        Instrument(spec, truth, np.random.default_rng(3)),
+        Instrument(IDEAL, truth, np.random.default_rng(3)),
+    )
+    diffs = []
+    for ins in (biased, clean):
+        w0 = ins.advance(10.0)
+        w1 = window_at(ins, 70.0)
+        diffs.append(
+            (
+                w0.gyro_rps.mean(0) - w1.gyro_rps.mean(0),
+                w0.accel_mps2.mean(0) - w1.accel_mps2.mean(0),
+            )
+        )
+        if ins is biased:
+            offset = w0.gyro_rps.mean(0) - paper_gyro(123.0, 2.0, -1.5, 34.0, 0.0)
+    assert np.abs(offset[:2]).max() > 1.0 * DPH  # the biases are really there
+    assert_allclose(diffs[0][0], diffs[1][0], atol=1e-15)
+    assert_allclose(diffs[0][1], diffs[1][1], atol=1e-12)
+
+
+def test_table_rate_appears_in_the_gyro_and_the_profile_respects_the_limits():
+    spec = IDEAL.with_values({"table.max_rate_dps": 8.0, "table.max_accel_dps2": 16.0})
+    ins = Instrument(spec, Truth(), np.random.default_rng(0))
+    ins.advance(1.0)
+    start = ins.time_s
+    end = ins.table.move_by(start, 100.0)
+    assert end - start == pytest.approx(trapezoid_duration(100.0, 8.0, 16.0))
+    assert end - start == pytest.approx(8.0 / 16.0 + 100.0 / 8.0)
+    block = ins.advance(end - start + 1.0)
+    earth_z = paper_gyro(0.0, 0.0, 0.0, 34.0, 0.0)[2]
+    table_rate = np.degrees(block.gyro_rps[:, 2] - earth_z)
+    assert table_rate.max() == pytest.approx(8.0, abs=1e-9)
+    assert_allclose(table_rate, block.table_rate_dps, atol=1e-9)
+    # The gyro integrates to the angle turned: each sample is the mean rate over its interval.
+    assert table_rate.sum() / ins.sample_rate_hz == pytest.approx(100.0, abs=1e-9)
+    accel = np.diff(block.table_rate_dps) * ins.sample_rate_hz
+    assert np.abs(accel).max() <= 16.0 * (1 + 1e-9)
+    assert block.table_deg[-1] == pytest.approx(100.0, abs=1e-9)
+
+
+def test_short_moves_are_triangular_and_a_busy_table_refuses():
+    spec = TableSpec(
+        max_rate_dps=10.0, max_accel_dps2=10.0, settle_s=1.0, encoder_resolution_deg=0.0
+    )
+    ins = Instrument(SensorSpec(table=spec), Truth(), np.random.default_rng(0))
+    end = ins.table.move_to(0.0, 2.5)
+    assert end == pytest.approx(2 * math.sqrt(2.5 / 10.0))
+    with pytest.raises(TableBusyError):
+        ins.table.move_by(0.1, 5.0)
+    ins.advance(end + 0.5)
+    assert not ins.table.is_settled(ins.time_s)
+    ins.advance(0.6)
+    assert ins.table.is_settled(ins.time_s)
+
+
+def test_move_to_takes_the_shorter_way_and_stop_decelerates():
+    spec = TableSpec(max_rate_dps=10.0, max_accel_dps2=20.0, encoder_resolution_deg=0.0)
+    ins = Instrument(SensorSpec(table=spec), Truth(), np.random.default_rng(0))
+    end = ins.table.move_to(0.0, 350.0)
+    block = ins.advance(end + 0.1)
+    assert block.table_rate_dps.min() < 0 and block.table_rate_dps.max() <= 0
+    assert block.table_deg[-1] == pytest.approx(350.0, abs=1e-9)
+    ins.table.move_by(ins.time_s, 90.0)
+    ins.advance(2.0)
+    stop_at = ins.table.stop(ins.time_s)
+    assert stop_at - ins.time_s == pytest.approx(10.0 / 20.0)
+    ins.advance(1.0)
+    assert not ins.table.is_moving(ins.time_s)
+    assert ins.table.state(ins.time_s)[1] == 0.0
+
+
+def test_indexing_error_shows_in_the_encoder_and_encoder_is_quantised():
+    spec = TableSpec(indexing_error_deg=0.05, encoder_resolution_deg=0.001)
+    ins = Instrument(SensorSpec(table=spec), Truth(), np.random.default_rng(5))
+    window = window_at(ins, 30.0)
+    assert abs(window.table_deg[-1] - 30.0) > 1e-4
+    assert_allclose(window.table_deg / 0.001, np.round(window.table_deg / 0.001), atol=1e-6)
+
+
+def test_quantisation_carries_its_remainder():
+    spec = IDEAL.with_values({"gyro.lsb_dph": 0.5, "accel.lsb_ug": 20.0})
+    truth = Truth(azimuth_deg=40.0)
+    q = Instrument(spec, truth, np.random.default_rng(0)).generate(2000)
+    exact = Instrument(IDEAL, truth, np.random.default_rng(0)).generate(2000)
+    lsb = np.array([0.5 * DPH] * 3)
+    assert_allclose(q.gyro_rps / lsb, np.round(q.gyro_rps / lsb), atol=1e-6)
+    assert np.abs(q.gyro_rps - exact.gyro_rps).max() > 0.1 * lsb[0]
+    # window sums are exact to one count
+    assert np.all(np.abs(q.gyro_rps.sum(0) - exact.gyro_rps.sum(0)) <= lsb)
+
+
+def test_warm_up_temperature_impulse_and_vibration_terms_appear_and_switch_off():
+    spec = IDEAL.with_values(
+        {
+            "gyro.warmup_bias_dph": [1.0, 0.0, 0.0],
+            "gyro.warmup_tau_s": 10.0,
+            "gyro.temp_coeff_dph_per_c": [0.0, 0.1, 0.0],
+            "thermal.ramp_c_per_h": 36.0,
+        }
+    )
+    ins = Instrument(spec, Truth(), np.random.default_rng(0))
+    clean = Instrument(IDEAL, Truth(), np.random.default_rng(0))
+    d = (ins.generate(200 * 60).gyro_rps - clean.generate(200 * 60).gyro_rps) / DPH
+    t = np.arange(1, 200 * 60 + 1) / 200.0
+    assert_allclose(d[:, 0], np.exp(-t / 10.0), atol=1e-9)
+    assert_allclose(d[:, 1], 0.1 * 36.0 * t / 3600.0, atol=1e-9)  # the linear trend
+    dist = IDEAL.with_values(
+        {
+            "disturbance.impulse_rate_hz": 1.0,
+            "gyro.impulse_dph": 100.0,
+            "disturbance.vibration_hz": 35.0,
+            "gyro.vibration_dph": 3.0,
+        }
+    )
+    ins = Instrument(dist, Truth(), np.random.default_rng(1))
+    g = ins.generate(200 * 20).gyro_rps / DPH - clean.generate(200 * 20).gyro_rps / DPH
+    assert np.abs(g).max() > 20.0  # impulses
+    spectrum = np.abs(np.fft.rfft(g[:, 0]))
+    assert np.argmax(spectrum[1:]) + 1 == pytest.approx(35.0 * 20, abs=2)  # 35 Hz line
+    ins.set_vibration(False)
+    ins.set_spec(ins.spec.with_values({"disturbance.impulse_rate_hz": 0.0}))
+    ins.generate(200)  # let the last impulse pass
+    quiet = ins.generate(2000).gyro_rps / DPH - clean.generate(2200).gyro_rps[200:] / DPH
+    assert np.abs(quiet).max() < 1e-9
+
+
+def test_injected_bias_step_and_impulse_burst():
+    ins = Instrument(IDEAL, Truth(), np.random.default_rng(0))
+    before = ins.generate(100).gyro_rps.mean(0)
+    ins.inject_bias_step(gyro_dph=(0.0, 2.0, 0.0))
+    after = ins.generate(100).gyro_rps.mean(0)
+    assert_allclose((after - before) / DPH, [0.0, 2.0, 0.0], atol=1e-9)
+    ins.inject_impulses(3, interval_s=0.2, gyro_dph=40.0, accel_ug=0.0)
+    burst = ins.generate(200).gyro_rps / DPH - after / DPH
+    assert np.linalg.norm(burst, axis=1).max() == pytest.approx(40.0, rel=0.05)
+
+
+def test_identical_seeds_identical_output_and_blocks_equal_steps():
+    spec = load_spec("fog-0.08").with_values(
+        {"disturbance.impulse_rate_hz": 0.5, "gyro.impulse_dph": 30.0}
+    )
+    truth = Truth(azimuth_deg=200.0, latitude_deg=-20.0, pitch_deg=1.0)
+    whole = Instrument(spec, truth, np.random.default_rng(42)).generate(4000)
+    stepped = Instrument(spec, truth, np.random.default_rng(42))
+    parts = [stepped.advance(0.005) for _ in range(1000)] + [
+        stepped.advance(0.37) for _ in range(40)
+    ]
+    parts.append(stepped.generate(4000 - sum(len(p) for p in parts)))
+    joined = SampleBlock.concat(parts)
+    assert_allclose(joined.gyro_rps, whole.gyro_rps, rtol=0, atol=0)
+    assert_allclose(joined.accel_mps2, whole.accel_mps2, rtol=0, atol=0)
+    assert_allclose(joined.counter, np.arange(4000))
+    other = Instrument(spec, truth, np.random.default_rng(43)).generate(4000)
+    assert not np.allclose(other.gyro_rps, whole.gyro_rps)
+
+
+def test_allan_deviation_reads_the_configured_arw_at_one_second():
+    arw = 0.0015
+    ins = Instrument(SensorSpec(gyro=GyroSpec(arw_dpsh=arw)), Truth(), np.random.default_rng(7))
+    rate_dph = ins.generate(200 * 3600).gyro_rps / DPH
+    _, adev = allan_deviation(rate_dph, 200.0, [1.0])
+    # sigma_A(1 s) = N / sqrt(1 s); N in deg/h/sqrt(Hz) = ARW deg/sqrt(h) * 60
+    assert_allclose(adev[0], arw * 60.0, rtol=0.05)
+
+
+def test_allan_floor_matches_the_bias_instability():
+    b = 0.05
+    ins = Instrument(
+        SensorSpec(gyro=GyroSpec(bias_instability_dph=b)),
+        Truth(),
+        np.random.default_rng(11),
+        sample_rate_hz=20.0,
+    )
+    rate = ins.generate(20 * 3600 * 4).gyro_rps / DPH
+    _, adev = allan_deviation(rate, 20.0, [10.0, 20.0, 50.0, 100.0, 200.0])
+    floor = adev.mean(axis=0)
+    assert_allclose(floor, 0.664 * b, rtol=0.15)
+
+
+def test_rate_random_walk_has_a_half_slope():
+    k = 0.1
+    ins = Instrument(
+        SensorSpec(gyro=GyroSpec(rrw_dphpsh=k)),
+        Truth(),
+        np.random.default_rng(2),
+        sample_rate_hz=20.0,
+    )
+    rate = ins.generate(20 * 3600 * 4).gyro_rps / DPH
+    taus, adev = allan_deviation(rate, 20.0, [10.0, 20.0, 50.0, 100.0, 200.0, 300.0])
+    slopes = np.polyfit(np.log(taus), np.log(adev), 1)[0]
+    assert_allclose(slopes, 0.5, atol=0.1)
+    # level: K sqrt(tau / 3), K in deg/h/sqrt(s) = RRW / 60
+    assert_allclose(adev[1], k / 60.0 * math.sqrt(20.0 / 3.0), rtol=0.2)
+
+
+def test_every_preset_loads_and_ideal_has_no_error_term():
+    names = preset_names()
+    assert {"ideal", "paper-rlg", "fog-0.08", "nav-fog", "tactical-fog", "mems"} <= set(names)
+    for name in names:
+        assert load_spec(name).name == name
+    d = IDEAL.to_dict()
+    for section in ("gyro", "accel"):
+        for key, value in d[section].items():
+            if key.startswith("range") or key.endswith("tau_s"):
+                continue
+            assert not np.any(value), f"ideal {section}.{key} = {value}"
+    assert IDEAL.table.encoder_resolution_deg == 0 and IDEAL.table.indexing_error_deg == 0
+
+
+def test_spec_round_trips_through_a_toml_file(tmp_path):
+    spec = load_spec("nav-fog")
+    lines = [f'name = "{spec.name}"', f'description = "{spec.description}"']
+    for section, values in spec.to_dict().items():
+        if isinstance(values, dict):
+            lines.append(f"[{section}]")
+            lines += [f"{k} = {v!r}" for k, v in values.items()]
+    path = tmp_path / "mine.toml"
+    path.write_text("\n".join(lines))
+    assert load_spec(str(path)) == spec
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"gyro": {"arw_dpsh": -0.1}}, "gyro.arw_dpsh: must not be negative"),
+        ({"gyro": {"arw_dpsh": float("nan")}}, "gyro.arw_dpsh: must be finite"),
+        ({"gyro": {"arw": 0.1}}, "gyro.arw: unknown field"),
+        ({"accel": {"bias_ug": [1.0, 2.0]}}, "accel.bias_ug: expected a list of three numbers"),
+        ({"table": {"max_rate_dps": 0.0}}, "table.max_rate_dps: must be positive"),
+        ({"thermal": {"ambient_c": "warm"}}, "thermal.ambient_c: expected a number"),
+        ({"gyros": {}}, "unknown section or key 'gyros'"),
+    ],
+)
+def test_bad_specs_name_the_field(data, message):
+    with pytest.raises(SimConfigError, match=message.replace("[", r"\[")):
+        spec_from_dict(data, source="test.toml")
+
+
+def test_bad_presets_files_latitudes_and_rates(tmp_path):
+    with pytest.raises(
+        SimConfigError, match=r"unknown sensor preset 'rlg'; presets are .*paper-rlg"
+    ):
+        load_spec("rlg")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[gyro\narw_dpsh = 1")
+    with pytest.raises(SimConfigError, match="not valid TOML"):
+        load_spec(bad)
+    with pytest.raises(SimConfigError, match="cannot read"):
+        load_spec(tmp_path / "missing.toml")
+    with pytest.raises(SimConfigError, match="too close to a pole"):
+        Truth(latitude_deg=90.0)
+    with pytest.raises(SimConfigError, match="must lie in"):
+        check_latitude(91.0)
+    with pytest.raises(SimConfigError, match="finite"):
+        Truth(azimuth_deg=float("nan"))
+    with pytest.raises(SimConfigError, match="pitch_deg"):
+        Truth(pitch_deg=60.0)
+    with pytest.raises(SimConfigError, match="sample_rate_hz: 5000 Hz cannot be honoured"):
+        Instrument(IDEAL, Truth(), np.random.default_rng(0), sample_rate_hz=5000)
+    with pytest.raises(SimConfigError, match="sample_rate_hz"):
+        Instrument(IDEAL, Truth(), np.random.default_rng(0), sample_rate_hz=float("nan"))
+    with pytest.raises(SimConfigError, match="not a sensor field"):
+        IDEAL.with_values({"arw": 1.0})
+
+
+def test_saturation_is_flagged():
+    spec = SensorSpec(
+        gyro=GyroSpec(range_dps=5.0),
+        accel=AccelSpec(range_g=2.0),
+        table=TableSpec(max_rate_dps=10.0),
+    )
+    ins = Instrument(spec, Truth(), np.random.default_rng(0))
+    ins.table.move_by(0.0, 90.0)
+    block = ins.advance(5.0)
+    assert block.gyro_saturated.any() and not block.accel_saturated.any()
+    assert np.degrees(block.gyro_rps[:, 2]).max() <= 5.0 + 1e-12
+
+
+def test_unused_spec_sections_have_defaults():
+    spec = SensorSpec()
+    assert spec.thermal == ThermalSpec() and spec.disturbance == DisturbanceSpec()
