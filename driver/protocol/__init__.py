@@ -1,0 +1,102 @@
+"""The wire protocol shared by the driver and the simulated instrument (see ``protocol.md``).
+
+Pure code: no I/O, no clock, no threads. Byte order is little-endian everywhere.
+
+- :mod:`~driver.protocol.constants`: codes (states, opcodes, results, config keys), flags
+  (validity, faults) and the physical value of one count.
+- :mod:`~driver.protocol.messages`: one frozen dataclass per message, ``encode() -> bytes`` of
+  its payload and a ``decode(payload)`` classmethod.
+- :mod:`~driver.protocol.can`: CAN 2.0A identifiers, frame mapping and reassembly.
+- :mod:`~driver.protocol.serial`: serial framing, CRC-16/CCITT-FALSE and the de-framer.
+- :mod:`~driver.protocol.budget`: link load and which sample rates fit a link.
+"""
+
+from driver.protocol.constants import (
+    PROTOCOL_VERSION_MAJOR,
+    PROTOCOL_VERSION_MINOR,
+    Axis,
+    CanFunction,
+    ConfigKey,
+    DeviceState,
+    Direction,
+    Fault,
+    Opcode,
+    Result,
+    SelfTestFailure,
+    SerialType,
+    Validity,
+    result_meaning,
+)
+from driver.protocol.messages import (
+    Command,
+    GetConfig,
+    GetStatus,
+    Home,
+    Identify,
+    IdentifyPage,
+    Message,
+    Reply,
+    RequestIdentify,
+    Reset,
+    RotateBy,
+    RotateTo,
+    Sample,
+    SampleAux,
+    SampleAxis,
+    SampleX,
+    SampleY,
+    SampleZ,
+    Scale,
+    SelfTest,
+    SetConfig,
+    Status,
+    StatusCounters,
+    StatusMain,
+    Stop,
+    StreamStart,
+    StreamStop,
+)
+
+__all__ = [
+    "PROTOCOL_VERSION_MAJOR",
+    "PROTOCOL_VERSION_MINOR",
+    "Axis",
+    "CanFunction",
+    "Command",
+    "ConfigKey",
+    "DeviceState",
+    "Direction",
+    "Fault",
+    "GetConfig",
+    "GetStatus",
+    "Home",
+    "Identify",
+    "IdentifyPage",
+    "Message",
+    "Opcode",
+    "Reply",
+    "RequestIdentify",
+    "Reset",
+    "Result",
+    "RotateBy",
+    "RotateTo",
+    "Sample",
+    "SampleAux",
+    "SampleAxis",
+    "SampleX",
+    "SampleY",
+    "SampleZ",
+    "Scale",
+    "SelfTest",
+    "SelfTestFailure",
+    "SerialType",
+    "SetConfig",
+    "Status",
+    "StatusCounters",
+    "StatusMain",
+    "Stop",
+    "StreamStart",
+    "StreamStop",
+    "Validity",
+    "result_meaning",
+]

@@ -1,0 +1,422 @@
+"""CAN 2.0A mapping: messages to and from ``(arbitration_id, data)``, and reassembly.
+
+Identifier = :class:`~driver.protocol.constants.CanFunction` base + node id (1..15). Data is
+little-endian; every frame has the exact length of its message (no padding). CAN FD is not
+offered. :class:`TickAssembler` joins the four frames of a sample tick, :class:`IdentifyAssembler`
+the identify pages, and :class:`CanReceiver` does both plus status merging and counting.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from driver.errors import EncodeError, PayloadError, ProtocolError, UnknownMessageError
+from driver.protocol.constants import NODE_ID_MAX, NODE_ID_MIN, CanFunction
+from driver.protocol.messages import (
+    Command,
+    Identify,
+    IdentifyPage,
+    Message,
+    Reply,
+    Sample,
+    SampleAux,
+    SampleAxis,
+    SampleX,
+    SampleY,
+    SampleZ,
+    Status,
+    StatusCounters,
+    StatusMain,
+)
+
+__all__ = [
+    "CAN_MAX_DLC",
+    "CanDecoded",
+    "CanFrame",
+    "CanMessage",
+    "CanReceiver",
+    "IdentifyAssembler",
+    "TickAssembler",
+    "TickLoss",
+    "can_id",
+    "decode_can",
+    "encode_can",
+    "split_can_id",
+]
+
+CAN_MAX_DLC = 8
+
+CanMessage = (
+    Command
+    | Reply
+    | SampleX
+    | SampleY
+    | SampleZ
+    | SampleAux
+    | StatusMain
+    | StatusCounters
+    | IdentifyPage
+)
+"""What one CAN frame decodes to."""
+
+_DECODER = {
+    CanFunction.COMMAND: Command.decode,
+    CanFunction.REPLY: Reply.decode,
+    CanFunction.SAMPLE_X: SampleX.decode,
+    CanFunction.SAMPLE_Y: SampleY.decode,
+    CanFunction.SAMPLE_Z: SampleZ.decode,
+    CanFunction.SAMPLE_AUX: SampleAux.decode,
+    CanFunction.STATUS: StatusMain.decode,
+    CanFunction.STATUS_COUNTERS: StatusCounters.decode,
+    CanFunction.IDENTIFY: IdentifyPage.decode,
+}
+
+_FUNCTION_OF: dict[type, CanFunction] = {
+    Reply: CanFunction.REPLY,
+    SampleX: CanFunction.SAMPLE_X,
+    SampleY: CanFunction.SAMPLE_Y,
+    SampleZ: CanFunction.SAMPLE_Z,
+    SampleAux: CanFunction.SAMPLE_AUX,
+    StatusMain: CanFunction.STATUS,
+    StatusCounters: CanFunction.STATUS_COUNTERS,
+    IdentifyPage: CanFunction.IDENTIFY,
+}
+
+
+class CanFrame(NamedTuple):
+    """A classic CAN data frame with an 11-bit identifier."""
+
+    arbitration_id: int
+    data: bytes
+
+
+class CanDecoded(NamedTuple):
+    """A decoded CAN frame: the node it belongs to and its message."""
+
+    node_id: int
+    message: CanMessage
+
+
+def can_id(function: CanFunction, node_id: int) -> int:
+    """Arbitration id of ``function`` for ``node_id``.
+
+    Raises
+    ------
+    EncodeError
+        Node id outside 1..15.
+    """
+    if not isinstance(node_id, int) or not NODE_ID_MIN <= node_id <= NODE_ID_MAX:
+        raise EncodeError(f"node_id={node_id!r} must be in [{NODE_ID_MIN}, {NODE_ID_MAX}]")
+    return function + node_id
+
+
+def split_can_id(arbitration_id: int) -> tuple[CanFunction, int]:
+    """``(function, node_id)`` of an arbitration id.
+
+    Raises
+    ------
+    UnknownMessageError
+        The id is not in the protocol's table (including node id 0 and ids above 0x7FF).
+    """
+    node = arbitration_id & 0x0F
+    try:
+        function = CanFunction(arbitration_id & ~0x0F)
+    except ValueError:
+        function = None
+    if function is None or node == 0:
+        raise UnknownMessageError(f"CAN id 0x{arbitration_id:03X} is not a protocol message")
+    return function, node
+
+
+def encode_can(message: Message | CanMessage, node_id: int = 1) -> list[CanFrame]:
+    """CAN frames carrying ``message`` from or to ``node_id``, in sending order.
+
+    A :class:`Sample` gives four frames, a :class:`Status` two, an :class:`Identify` seven;
+    every other message one.
+
+    Raises
+    ------
+    EncodeError
+        A field does not fit, or the object is not a protocol message.
+    """
+    if isinstance(message, Sample):
+        parts: tuple[CanMessage, ...] | list[IdentifyPage] = message.split()
+    elif isinstance(message, Status):
+        parts = message.split()
+    elif isinstance(message, Identify):
+        parts = message.pages()
+    else:
+        parts = (message,)
+    frames = []
+    for part in parts:
+        if isinstance(part, Command):
+            function = CanFunction.COMMAND
+        else:
+            function = _FUNCTION_OF.get(type(part))
+            if function is None:
+                raise EncodeError(f"{type(part).__name__} is not a CAN message")
+        frames.append(CanFrame(can_id(function, node_id), part.encode()))
+    return frames
+
+
+def decode_can(
+    arbitration_id: int, data: bytes | bytearray, *, is_extended_id: bool = False
+) -> CanDecoded:
+    """Decode one CAN frame.
+
+    Raises
+    ------
+    UnknownMessageError
+        Extended (29-bit) id, or an id outside the protocol's table.
+    PayloadError
+        More than 8 data bytes, wrong length for the message, undefined field value
+        (:class:`~driver.errors.BadCommandError` for a command the device must refuse).
+    """
+    if is_extended_id:
+        raise UnknownMessageError(f"extended CAN id 0x{arbitration_id:08X} is not used")
+    decoder = _DECODER.get(arbitration_id & 0x7F0)
+    node = arbitration_id & 0x0F
+    if decoder is None or node == 0 or arbitration_id > 0x7FF:
+        raise UnknownMessageError(f"CAN id 0x{arbitration_id:03X} is not a protocol message")
+    if len(data) > CAN_MAX_DLC:
+        raise PayloadError(f"{len(data)} data bytes: only classic CAN (at most 8) is used")
+    return CanDecoded(node, decoder(bytes(data)))
+
+
+@dataclass(frozen=True, slots=True)
+class TickLoss:
+    """Sample ticks that did not arrive whole.
+
+    Attributes
+    ----------
+    first_counter : int
+        Sample counter of the first tick concerned.
+    count : int
+        Number of consecutive ticks concerned.
+    incomplete : bool
+        True: one tick of which some but not all four frames arrived. False: ``count`` ticks of
+        which no frame arrived.
+    """
+
+    first_counter: int
+    count: int
+    incomplete: bool
+
+
+def _nearest(low8: int, reference: int) -> int:
+    """The 32-bit counter with low byte ``low8`` nearest to ``reference``."""
+    return (reference + ((low8 - reference + 128) & 0xFF) - 128) & 0xFFFFFFFF
+
+
+_SLOT = {SampleX: 0, SampleY: 1, SampleZ: 2, SampleAux: 3}
+
+
+class TickAssembler:
+    """Joins the four CAN frames of each sample tick into a :class:`Sample`.
+
+    Frames of one tick may come in any order, but ticks do not interleave (one sender, and
+    CAN keeps its order). The full 32-bit counter is extended from the 8-bit tick: forward from
+    the previous tick, and re-anchored by :meth:`sync` with the counter from STATUS_COUNTERS
+    (needed at start and after a gap of 256 ticks or more). Before any sync the first tick
+    seen gets counter = tick.
+
+    Attributes
+    ----------
+    complete : int
+        Ticks delivered whole.
+    incomplete : int
+        Ticks of which only some frames arrived.
+    lost : int
+        Ticks of which no frame arrived.
+    duplicates : int
+        Frames repeating a part already held, or belonging to the tick just finished.
+    """
+
+    def __init__(self) -> None:
+        self._ref: int | None = None
+        self._last: int | None = None
+        self._tick: int | None = None
+        self._counter = 0
+        self._parts: list[SampleAxis | SampleAux | None] = [None] * 4
+        self.complete = 0
+        self.incomplete = 0
+        self.lost = 0
+        self.duplicates = 0
+
+    def sync(self, sample_counter: int) -> None:
+        """Anchor the counter extension on a full 32-bit sample counter from the status."""
+        sample_counter &= 0xFFFFFFFF
+        if self._tick is not None:
+            self._counter = _nearest(self._tick, sample_counter)
+        elif self._last is not None:
+            self._last = _nearest(self._last & 0xFF, sample_counter)
+        else:
+            self._ref = sample_counter
+
+    def add(self, part: SampleAxis | SampleAux) -> list[Sample | TickLoss]:
+        """Add one sample frame; return completed samples and loss reports, in tick order."""
+        out: list[Sample | TickLoss] = []
+        t = part.tick
+        if self._tick is not None and t != self._tick:
+            out.append(self._finish_incomplete())
+        if self._tick is None:
+            if self._last is None:
+                counter = t if self._ref is None else _nearest(t, self._ref)
+            else:
+                gap = (t - self._last) & 0xFF
+                if gap == 0:
+                    self.duplicates += 1
+                    return out
+                counter = (self._last + gap) & 0xFFFFFFFF
+                if gap > 1:
+                    self.lost += gap - 1
+                    out.append(TickLoss((self._last + 1) & 0xFFFFFFFF, gap - 1, False))
+            self._tick = t
+            self._counter = counter
+        slot = _SLOT[type(part)]
+        parts = self._parts
+        if parts[slot] is not None:
+            self.duplicates += 1
+            return out
+        parts[slot] = part
+        if None not in parts:
+            x, y, z, aux = parts
+            out.append(Sample.from_parts(self._counter, x, y, z, aux))  # type: ignore[arg-type]
+            self.complete += 1
+            self._end_tick()
+        return out
+
+    def flush(self) -> list[Sample | TickLoss]:
+        """Report a tick still waiting for frames as incomplete (e.g. at the end of a record)."""
+        return [self._finish_incomplete()] if self._tick is not None else []
+
+    def _finish_incomplete(self) -> TickLoss:
+        self.incomplete += 1
+        loss = TickLoss(self._counter, 1, True)
+        self._end_tick()
+        return loss
+
+    def _end_tick(self) -> None:
+        self._last = self._counter
+        self._tick = None
+        self._parts = [None] * 4
+
+
+class IdentifyAssembler:
+    """Joins CAN IDENTIFY pages into an :class:`Identify`.
+
+    Page 0 starts a new identify; pages before a page 0 are dropped.
+
+    Attributes
+    ----------
+    errors : int
+        Page sets dropped: a page out of turn, or pages that did not decode.
+    last_error : ProtocolError or None
+        The most recent reason for a drop.
+    """
+
+    def __init__(self) -> None:
+        self._pages: list[IdentifyPage] = []
+        self.errors = 0
+        self.last_error: ProtocolError | None = None
+
+    def add(self, page: IdentifyPage) -> Identify | None:
+        """Add one page; return the identify when its last page arrives, else None."""
+        if page.index == 0:
+            if self._pages:
+                self._drop(PayloadError("identify restarted before its last page"))
+            self._pages = [page]
+        elif not self._pages or page.index != len(self._pages) or page.last != self._pages[0].last:
+            self._drop(PayloadError(f"identify page {page.index} out of turn"))
+            return None
+        else:
+            self._pages.append(page)
+        if page.index == page.last:
+            pages, self._pages = self._pages, []
+            try:
+                return Identify.from_pages(pages)
+            except ProtocolError as exc:
+                self._drop(exc)
+        return None
+
+    def _drop(self, exc: ProtocolError) -> None:
+        self._pages = []
+        self.errors += 1
+        self.last_error = exc
+
+
+class CanReceiver:
+    """Decodes a stream of CAN frames into whole messages (host side, or a bus monitor).
+
+    Samples, status (STATUS followed by STATUS_COUNTERS) and identify pages are reassembled;
+    commands and replies pass through. Frames that do not decode are counted and dropped.
+
+    Parameters
+    ----------
+    node_id : int or None
+        Keep only this node's frames (others are counted in ``other_node``); None keeps all
+        (then the frames of several devices must not be mixed).
+
+    Attributes
+    ----------
+    frames : int
+        Frames given to :meth:`feed`.
+    unknown_id : int
+        Frames with an id outside the protocol's table (normal on a shared bus).
+    malformed : int
+        Frames with a protocol id that did not decode.
+    other_node : int
+        Frames of another node.
+    last_error : ProtocolError or None
+        The most recent decode error.
+    ticks : TickAssembler
+    identify : IdentifyAssembler
+    """
+
+    def __init__(self, node_id: int | None = None) -> None:
+        self.node_id = node_id
+        self.ticks = TickAssembler()
+        self.identify = IdentifyAssembler()
+        self._status: StatusMain | None = None
+        self.frames = 0
+        self.unknown_id = 0
+        self.malformed = 0
+        self.other_node = 0
+        self.last_error: ProtocolError | None = None
+
+    def feed(
+        self, arbitration_id: int, data: bytes | bytearray, *, is_extended_id: bool = False
+    ) -> list[Message | TickLoss]:
+        """Add one received frame; return the messages and tick losses it completes."""
+        self.frames += 1
+        try:
+            node, msg = decode_can(arbitration_id, data, is_extended_id=is_extended_id)
+        except UnknownMessageError as exc:
+            self.unknown_id += 1
+            self.last_error = exc
+            return []
+        except ProtocolError as exc:
+            self.malformed += 1
+            self.last_error = exc
+            return []
+        if self.node_id is not None and node != self.node_id:
+            self.other_node += 1
+            return []
+        if isinstance(msg, SampleAxis | SampleAux):
+            return self.ticks.add(msg)  # type: ignore[return-value]
+        if isinstance(msg, StatusMain):
+            self._status = msg
+            return []
+        if isinstance(msg, StatusCounters):
+            self.ticks.sync(msg.sample_counter)
+            main, self._status = self._status, None
+            if main is None:
+                self.malformed += 1
+                self.last_error = PayloadError("STATUS_COUNTERS without a preceding STATUS")
+                return []
+            return [Status.from_parts(main, msg)]
+        if isinstance(msg, IdentifyPage):
+            ident = self.identify.add(msg)
+            return [] if ident is None else [ident]
+        return [msg]
