@@ -327,6 +327,11 @@ class Instrument:
         return self._k
 
     @property
+    def clock_s(self) -> float:
+        """Simulated time reached by :meth:`advance`, s (at or after the last sample's time)."""
+        return max(self._clock, self.time_s)
+
+    @property
     def time_s(self) -> float:
         """Time of the last emitted sample, seconds since power-on."""
         return self._k / self.sample_rate_hz
@@ -453,8 +458,20 @@ class Instrument:
 
     def _quantise(self, out: NDArray[np.float64]) -> None:
         for j in np.flatnonzero(self._lsb):
-            cum = self._remainder[j] + np.cumsum(out[:, j] / self._lsb[j])
-            q = np.round(cum)
-            if len(q):
-                self._remainder[j] = cum[-1] - q[-1]
-            out[:, j] = np.diff(q, prepend=0.0) * self._lsb[j]
+            counts = quantise_carry(out[:, j] / self._lsb[j], self._remainder, j)
+            out[:, j] = counts * self._lsb[j]
+
+
+def quantise_carry(
+    values: NDArray[np.float64], remainder: NDArray[np.float64], j: int
+) -> NDArray[np.float64]:
+    """Round a run of values (in counts) to whole counts, carrying the rounding remainder.
+
+    ``remainder[j]`` holds what earlier runs left over (|r| <= 1/2) and is updated in place, so the
+    sum of the whole counts over any run differs from the exact sum by at most one count.
+    """
+    cum = remainder[j] + np.cumsum(values)
+    q = np.round(cum)
+    if len(q):
+        remainder[j] = cum[-1] - q[-1]
+    return np.diff(q, prepend=0.0)

@@ -87,7 +87,7 @@ class Turntable:
             if self.spec.indexing_error_deg
             else 0.0
         )
-        self._target = float(start) + delta_deg if not self._stalled else float(start)
+        self._target = float(start) + delta_deg
         d = self._target + err - float(start)
         s = math.copysign(1.0, d)
         dist = abs(d)
@@ -143,7 +143,11 @@ class Turntable:
         return self._motion_end
 
     def stall(self, t: float, stalled: bool = True) -> None:
-        """Simulate a jammed table: it stops where it is and ignores moves until released."""
+        """Simulate a jammed table: it stops where it is and does not move until released.
+
+        Moves ordered while jammed end at once, short of their target: the firmware sees the
+        encoder disagree with the command.
+        """
         if stalled:
             self.stop(t)
             # A jammed table stops at once, not on a deceleration ramp.

@@ -19,6 +19,8 @@ from host.errors import HostError
 #: dependency of one command does not break the others.
 COMMANDS: dict[str, str] = {
     "simulate": "host.cli.simulate",
+    "sim": "host.cli.sim",
+    "simctl": "host.cli.simctl",
 }
 
 

@@ -1,0 +1,607 @@
+"""The simulated instrument's firmware: a state machine advanced by ``process(dt)``.
+
+The firmware speaks protocol messages (the codec's dataclasses), not bytes: link adapters in
+:mod:`firmware_sim.links` turn them into CAN frames or serial frames. It never sleeps and never
+reads the wall clock; a runner (:mod:`firmware_sim.runner`) or a test decides how far time moves.
+
+The state is a function of time and of the commands received: BOOT until ``boot_s`` after power-on
+or reset, WARMUP until ``warmup_s`` after power-on, then READY; a move makes it ROTATING until the
+motion profile ends and SETTLING for the settle time after; a drive fault makes it FAULT until
+RESET. The sample stream runs independently of the state (if switched on) and carries the state in
+its validity bits.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from driver.protocol.constants import (
+    ANGLE_FULL_TURN,
+    CONFIG_LIMITS,
+    INT24_MAX,
+    INT24_MIN,
+    INT32_MAX,
+    INT32_MIN,
+    ROTATE_BY_LIMIT,
+    SAMPLE_RATES_HZ,
+    TEMPERATURE_NOT_AVAILABLE,
+    ConfigKey,
+    DeviceState,
+    Direction,
+    Fault,
+    Opcode,
+    Result,
+    SelfTestFailure,
+    Validity,
+)
+from driver.protocol.messages import (
+    Command,
+    GetConfig,
+    Identify,
+    Reply,
+    RotateBy,
+    RotateTo,
+    Sample,
+    SetConfig,
+    Status,
+)
+from firmware_sim.errors import SimConfigError
+from firmware_sim.imu import Instrument, SampleBlock, Truth, quantise_carry
+from firmware_sim.sensors import SensorSpec
+
+log = logging.getLogger("northfinder.sim")
+
+#: Rate at which the physics runs; every output rate divides it and a tick is the sum of
+#: ``BASE_RATE_HZ / rate`` physics increments, as a pulse-counting output would add them.
+BASE_RATE_HZ = 400.0
+_DPH = math.pi / 180.0 / 3600.0
+_GYRO_COUNT = 1e-4 * _DPH  # rad/s per count
+_ACCEL_COUNT = 1e-6 * 9.80665  # m/s^2 per count
+#: A move that ends further than this from its command is a drive fault, deg.
+DRIVE_FAULT_LIMIT_DEG = 0.5
+#: Time from receiving a command to sending its reply, s.
+REPLY_LATENCY_S = 0.001
+MOTION_OPCODES = (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME)
+
+
+@dataclass(frozen=True)
+class LinkInfo:
+    """What the firmware knows about its link, to decide which sample rates fit."""
+
+    kind: str = "can"  # "can" or "serial"
+    bitrate: int = 500_000
+
+
+def can_load(sample_rate_hz: float, heartbeat_ms: float, bitrate: int) -> float:
+    """Worst-case CAN bus load (0..1) of the stream and heartbeat at ``bitrate``.
+
+    Every frame is taken as a standard 8-byte data frame with worst-case bit stuffing: 135 bits
+    including the 3-bit interframe space. Four frames per tick, two per heartbeat.
+    """
+    frames_per_s = 4.0 * sample_rate_hz + 2.0 * 1000.0 / heartbeat_ms
+    return frames_per_s * 135.0 / bitrate
+
+
+def serial_load(sample_rate_hz: float, heartbeat_ms: float, baud: int) -> float:
+    """Serial link load (0..1): frames of 7 + payload bytes, 10 bits a byte (8N1)."""
+    bytes_per_s = (7 + Sample.SIZE) * sample_rate_hz + (7 + Status.SIZE) * 1000.0 / heartbeat_ms
+    return bytes_per_s * 10.0 / baud
+
+
+#: Largest share of the link the stream may take; the rest is kept for commands and replies.
+MAX_LINK_LOAD = 0.8
+
+
+def rate_fits(link: LinkInfo, sample_rate_hz: float, heartbeat_ms: float) -> bool:
+    load = can_load if link.kind == "can" else serial_load
+    return load(sample_rate_hz, heartbeat_ms, link.bitrate) <= MAX_LINK_LOAD
+
+
+@dataclass
+class FaultInjection:
+    """Faults ordered through the control channel. Link adapters read the frame faults."""
+
+    drop_frames: int = 0
+    corrupt_frames: int = 0
+    reply_delay_s: float = 0.0
+    silent: bool = False
+    skip_counter: int = 0
+    wrong_result: int | None = None
+
+
+@dataclass(frozen=True)
+class Outgoing:
+    """A message the firmware sends at simulated time ``time_s``."""
+
+    time_s: float
+    message: Reply | Status | Sample | Identify
+
+
+@dataclass
+class _Tick:
+    """Physics increments waiting to be summed into the next output tick."""
+
+    gyro: list[np.ndarray] = field(default_factory=list)
+    accel: list[np.ndarray] = field(default_factory=list)
+
+
+class Firmware:
+    """The device: state machine, command handling, sample stream and heartbeat.
+
+    Parameters
+    ----------
+    spec : SensorSpec
+        The instrument (sensors and table).
+    truth : Truth
+        Where it stands.
+    rng : numpy.random.Generator
+        Seeded generator for the physics.
+    warmup_s : float
+        Warm-up time after power-on before moves are accepted (the paper's 2 min by default).
+    boot_s : float
+        Boot time after power-on or reset.
+    node_id : int
+        CAN node id, reported by GET_CONFIG NODE_ID.
+    link : LinkInfo
+        The link the device talks on, for the rate checks.
+    serial_number : int
+        Reported by IDENTIFY.
+    """
+
+    MODEL = "NF-SIM"
+    FIRMWARE_VERSION = (0, 1, 0)
+
+    def __init__(
+        self,
+        spec: SensorSpec,
+        truth: Truth,
+        rng: np.random.Generator,
+        *,
+        warmup_s: float = 120.0,
+        boot_s: float = 0.5,
+        node_id: int = 1,
+        link: LinkInfo | None = None,
+        serial_number: int = 1,
+    ) -> None:
+        for name, value in (("warmup_s", warmup_s), ("boot_s", boot_s)):
+            if not (math.isfinite(value) and value >= 0):
+                raise SimConfigError(
+                    f"{name}: must be a finite number of seconds >= 0, got {value!r}"
+                )
+        self.instrument = Instrument(spec, truth, rng, sample_rate_hz=BASE_RATE_HZ)
+        self.link = link or LinkInfo()
+        self.node_id = node_id
+        self.serial_number = serial_number
+        self.warmup_s = float(warmup_s)
+        self.boot_s = float(boot_s)
+        self.faults = FaultInjection()
+        self.on_state_change: Callable[[DeviceState, DeviceState, float], None] | None = None
+        self.rx_malformed = 0
+        self.tx_dropped = 0
+        self.cmd_rejected = 0
+        self._fault = Fault(0)
+        self._pending: list[Outgoing] = []
+        self._reboot(0.0)
+        self._last_state = self.state_at(0.0)
+
+    # -- configuration and state --------------------------------------------------------------
+    def _reboot(self, t: float) -> None:
+        table = self.instrument.spec.table
+        self._boot_end = t + self.boot_s
+        self._counter = 0
+        self._tick_start = t  # start of the current tick's interval
+        self._tick = _Tick()
+        self._remainder = np.zeros(6)
+        self._next_heartbeat = t
+        self._settle_end = -math.inf
+        self._checked_move = True
+        self._fault = Fault(0)
+        self.config: dict[ConfigKey, int] = {
+            ConfigKey.SAMPLE_RATE_HZ: 200,
+            ConfigKey.HEARTBEAT_PERIOD_MS: 100,
+            ConfigKey.TABLE_MAX_RATE_MDPS: round(table.max_rate_dps * 1000),
+            ConfigKey.TABLE_MAX_ACCEL_MDPS2: round(table.max_accel_dps2 * 1000),
+            ConfigKey.SETTLE_TIME_MS: round(table.settle_s * 1000),
+            ConfigKey.STREAMING: 0,
+        }
+        if not rate_fits(self.link, 200, 100):
+            self.config[ConfigKey.SAMPLE_RATE_HZ] = max(
+                (r for r in SAMPLE_RATES_HZ if rate_fits(self.link, r, 100)),
+                default=min(SAMPLE_RATES_HZ),
+            )
+
+    def reboot(self) -> None:
+        """Restart the firmware now (RESET, or a reset from the control channel): BOOT, counter 0,
+        configuration back to defaults, streaming off. Warm-up is thermal and counts from power-on."""
+        self._reboot(self.now)
+        self._pending.clear()
+        log.info("t=%.3f s reset", self.now)
+
+    @property
+    def now(self) -> float:
+        """Simulated time since power-on, s."""
+        return self.instrument.clock_s
+
+    @property
+    def sample_rate_hz(self) -> int:
+        return self.config[ConfigKey.SAMPLE_RATE_HZ]
+
+    @property
+    def streaming(self) -> bool:
+        return bool(self.config[ConfigKey.STREAMING])
+
+    @property
+    def state(self) -> DeviceState:
+        return self.state_at(self.now)
+
+    def state_at(self, t: float) -> DeviceState:
+        """The state at simulated time ``t`` (not before the last command)."""
+        if self._fault:
+            return DeviceState.FAULT
+        if t < self._boot_end:
+            return DeviceState.BOOT
+        if t < self.warmup_s:
+            return DeviceState.WARMUP
+        if self.instrument.table.is_moving(t):
+            return DeviceState.ROTATING
+        if t < self._settle_end:
+            return DeviceState.SETTLING
+        return DeviceState.READY
+
+    def read_config(self, key: ConfigKey) -> int:
+        if key == ConfigKey.LINK_BITRATE:
+            return self.link.bitrate
+        if key == ConfigKey.NODE_ID:
+            return self.node_id
+        if key == ConfigKey.LINK_MAX_SAMPLE_RATE_HZ:
+            hb = self.config[ConfigKey.HEARTBEAT_PERIOD_MS]
+            return max((r for r in SAMPLE_RATES_HZ if rate_fits(self.link, r, hb)), default=0)
+        return self.config[key]
+
+    def set_truth(self, truth: Truth) -> None:
+        self.instrument.set_truth(truth)
+
+    def set_spec(self, spec: SensorSpec) -> None:
+        self.instrument.set_spec(spec)
+
+    # -- commands ------------------------------------------------------------------------------
+    def identity(self) -> Identify:
+        return Identify(
+            model=self.MODEL,
+            serial_number=self.serial_number,
+            hardware_revision=1,
+            firmware_version=self.FIRMWARE_VERSION,
+            max_sample_rate_hz=max(SAMPLE_RATES_HZ),
+        )
+
+    def status(self) -> Status:
+        """The heartbeat's content now."""
+        t = self.now
+        angle = float(self.instrument.table.encoder(self.instrument.table.state(t)[0]))
+        return Status(
+            state=self.state_at(t),
+            angle=_angle_counts(angle),
+            temperature=_temperature_counts(float(self.instrument.temperature(t))),
+            faults=self._fault,
+            sample_counter=(self._counter - 1) & 0xFFFFFFFF,
+            rx_malformed=self.rx_malformed & 0xFFFF,
+            tx_dropped=self.tx_dropped & 0xFF,
+            cmd_rejected=self.cmd_rejected & 0xFF,
+        )
+
+    def note_malformed(self) -> None:
+        """A frame addressed to the device could not be decoded at all: count it, nothing else."""
+        self.rx_malformed += 1
+
+    def refuse(self, seq: int, opcode: int, result: int) -> None:
+        """A command the codec could not accept (unknown opcode, bad arguments): reply and count."""
+        self.rx_malformed += 1
+        self._reply(Reply(seq, _opcode(opcode), Result(result)))
+
+    def handle(self, command: Command) -> None:
+        """Act on one decoded command received now; its reply goes out with the next process()."""
+        if self.faults.silent:
+            return
+        result, data, follow = self._execute(command)
+        self._reply(Reply(command.seq, command.OPCODE, result, data))
+        if follow is not None:
+            self._queue(follow, REPLY_LATENCY_S + self.faults.reply_delay_s)
+        if command.OPCODE == Opcode.RESET and result == Result.OK:
+            pending = self._pending[-1:]  # the reply to RESET still goes out
+            self.reboot()
+            self._pending = pending
+
+    def _reply(self, reply: Reply) -> None:
+        if self.faults.wrong_result is not None:
+            reply = replace(reply, result=self.faults.wrong_result, data=b"")
+            self.faults.wrong_result = None
+        if reply.result != Result.OK:
+            self.cmd_rejected += 1
+        self._queue(reply, REPLY_LATENCY_S + self.faults.reply_delay_s)
+
+    def _queue(self, message: Reply | Status | Identify, delay: float) -> None:
+        self._pending.append(Outgoing(self.now + delay, message))
+
+    def _execute(self, cmd: Command) -> tuple[Result, bytes, Status | Identify | None]:
+        op = cmd.OPCODE
+        state = self.state
+        if op == Opcode.IDENTIFY:
+            return Result.OK, b"", self.identity()
+        if op == Opcode.GET_STATUS:
+            return Result.OK, b"", self.status()
+        if op == Opcode.STOP:
+            self._stop()
+            return Result.OK, b"", None
+        if op in (Opcode.STREAM_START, Opcode.STREAM_STOP):
+            self.config[ConfigKey.STREAMING] = int(op == Opcode.STREAM_START)
+            return Result.OK, b"", None
+        if op == Opcode.GET_CONFIG:
+            assert isinstance(cmd, GetConfig)
+            if not isinstance(cmd.key, ConfigKey):
+                return Result.UNKNOWN_KEY, b"", None
+            return (
+                Result.OK,
+                Reply.config(cmd.seq, op, cmd.key, self.read_config(cmd.key)).data,
+                None,
+            )
+        if op == Opcode.RESET:
+            return Result.OK, b"", None
+        if op == Opcode.SET_CONFIG:
+            assert isinstance(cmd, SetConfig)
+            result = self._set_config(cmd, state)
+            data = (
+                Reply.config(cmd.seq, op, cmd.key, self.read_config(cmd.key)).data
+                if result == Result.OK
+                else b""
+            )
+            return result, data, None
+        if op == Opcode.SELF_TEST:
+            if state in (DeviceState.ROTATING, DeviceState.SETTLING):
+                return Result.BUSY, b"", None
+            failures = SelfTestFailure.DRIVE if self._fault & Fault.DRIVE else SelfTestFailure(0)
+            return Result.OK, Reply.self_test(cmd.seq, failures).data, None
+        if op in MOTION_OPCODES:
+            return self._move(cmd, state), b"", None
+        return Result.UNKNOWN_COMMAND, b"", None
+
+    def _set_config(self, cmd: SetConfig, state: DeviceState) -> Result:
+        key, value = cmd.key, cmd.value
+        if not isinstance(key, ConfigKey):
+            return Result.UNKNOWN_KEY
+        if key.read_only:
+            return Result.READ_ONLY
+        if state == DeviceState.FAULT:
+            return Result.FAULT
+        lo, hi = CONFIG_LIMITS[key]
+        if not lo <= value <= hi or (
+            key == ConfigKey.SAMPLE_RATE_HZ and value not in SAMPLE_RATES_HZ
+        ):
+            return Result.OUT_OF_RANGE
+        if key in (ConfigKey.SAMPLE_RATE_HZ, ConfigKey.HEARTBEAT_PERIOD_MS):
+            rate = value if key == ConfigKey.SAMPLE_RATE_HZ else self.sample_rate_hz
+            hb = (
+                value
+                if key == ConfigKey.HEARTBEAT_PERIOD_MS
+                else self.config[ConfigKey.HEARTBEAT_PERIOD_MS]
+            )
+            if not rate_fits(self.link, rate, hb):
+                return Result.RATE_EXCEEDS_LINK
+        if key in (
+            ConfigKey.TABLE_MAX_RATE_MDPS,
+            ConfigKey.TABLE_MAX_ACCEL_MDPS2,
+            ConfigKey.SETTLE_TIME_MS,
+        ):
+            if state in (DeviceState.ROTATING, DeviceState.SETTLING):
+                return Result.BUSY
+            field_name = {
+                ConfigKey.TABLE_MAX_RATE_MDPS: ("max_rate_dps", 1e-3),
+                ConfigKey.TABLE_MAX_ACCEL_MDPS2: ("max_accel_dps2", 1e-3),
+                ConfigKey.SETTLE_TIME_MS: ("settle_s", 1e-3),
+            }[key]
+            table = replace(self.instrument.table.spec, **{field_name[0]: value * field_name[1]})
+            self.instrument.table.spec = table
+        if key == ConfigKey.SAMPLE_RATE_HZ and value != self.sample_rate_hz:
+            self._close_tick_for_rate_change()
+        self.config[key] = value
+        return Result.OK
+
+    def _move(self, cmd: Command, state: DeviceState) -> Result:
+        if isinstance(cmd, RotateTo) and not 0 <= cmd.angle < ANGLE_FULL_TURN:
+            return Result.OUT_OF_RANGE
+        if isinstance(cmd, RotateBy) and abs(cmd.delta) > ROTATE_BY_LIMIT:
+            return Result.OUT_OF_RANGE
+        if state == DeviceState.FAULT:
+            return Result.FAULT
+        if state in (DeviceState.BOOT, DeviceState.WARMUP):
+            return Result.NOT_READY
+        if state in (DeviceState.ROTATING, DeviceState.SETTLING):
+            return Result.BUSY
+        table, t = self.instrument.table, self.now
+        current = float(table.encoder(table.state(t)[0]))
+        if isinstance(cmd, RotateBy):
+            delta = cmd.delta * 1e-6
+        else:
+            target = cmd.angle * 1e-6 if isinstance(cmd, RotateTo) else 0.0
+            direction = cmd.direction if isinstance(cmd, RotateTo) else Direction.SHORTEST
+            delta = (target - current) % 360.0
+            if direction == Direction.SHORTEST and delta > 180.0:
+                delta -= 360.0
+            elif direction == Direction.NEGATIVE and delta > 0.0:
+                delta -= 360.0
+        table.move_by(t, delta)
+        self._settle_end = table.motion_end_s + table.spec.settle_s
+        self._checked_move = False
+        return Result.OK
+
+    def _stop(self) -> None:
+        table, t = self.instrument.table, self.now
+        if table.is_moving(t):
+            table.stop(t)
+            self._settle_end = table.motion_end_s + table.spec.settle_s
+            self._checked_move = True  # a stopped move is short of its target by intent
+
+    def stall_table(self, stalled: bool = True) -> None:
+        """Jam (or free) the table, as a control-channel fault."""
+        self.instrument.table.stall(self.now, stalled)
+        if stalled:
+            self._settle_end = min(self._settle_end, self.now)
+
+    # -- time ----------------------------------------------------------------------------------
+    def process(self, dt: float) -> list[Outgoing]:
+        """Advance simulated time by ``dt`` seconds; return what the device sends, in time order."""
+        if not (math.isfinite(dt) and dt >= 0):
+            raise SimConfigError(f"dt: must be a finite number of seconds >= 0, got {dt!r}")
+        t0 = self.now
+        block = self.instrument.advance(dt)
+        t1 = self.now
+        out: list[Outgoing] = []
+        self._check_move(t1)
+        period = self.config[ConfigKey.HEARTBEAT_PERIOD_MS] / 1000.0
+        while self._next_heartbeat <= t1:
+            out.append(Outgoing(self._next_heartbeat, self._status_at(self._next_heartbeat)))
+            self._next_heartbeat += period
+        if len(block):
+            out.extend(self._ticks(block))
+        due = [p for p in self._pending if p.time_s <= t1]
+        self._pending = [p for p in self._pending if p.time_s > t1]
+        out.extend(due)
+        out.sort(key=lambda o: o.time_s)
+        state = self.state_at(t1)
+        if state != self._last_state:
+            log.info("t=%.3f s state %s -> %s", t1, self._last_state.name, state.name)
+            if self.on_state_change is not None:
+                self.on_state_change(self._last_state, state, t1)
+            self._last_state = state
+        del t0
+        if self.faults.silent:
+            return []
+        return out
+
+    def _status_at(self, t: float) -> Status:
+        s = self.status()
+        return replace(s, state=self.state_at(t))
+
+    def _check_move(self, t: float) -> None:
+        table = self.instrument.table
+        if self._checked_move or table.is_moving(t):
+            return
+        self._checked_move = True
+        actual = float(table.encoder(table.state(t)[0]))
+        error = (actual - table.target_deg + 180.0) % 360.0 - 180.0
+        if abs(error) > DRIVE_FAULT_LIMIT_DEG:
+            self._fault |= Fault.DRIVE
+            log.warning(
+                "t=%.3f s drive fault: table at %.4f deg, commanded %.4f deg",
+                t,
+                actual,
+                table.target_deg,
+            )
+
+    def _close_tick_for_rate_change(self) -> None:
+        # Increments already collected for the old rate would be mis-timed in a tick of the new
+        # one; a rate change starts a fresh tick at the next physics sample.
+        self._tick = _Tick()
+        self._tick_start = self.now
+
+    def _ticks(self, block: SampleBlock) -> list[Outgoing]:
+        per_tick = round(BASE_RATE_HZ / self.sample_rate_hz)
+        self._tick.gyro.append(block.gyro_rps)
+        self._tick.accel.append(block.accel_mps2)
+        gyro = np.concatenate(self._tick.gyro)
+        accel = np.concatenate(self._tick.accel)
+        # Samples of this block that complete a tick, aligned to the physics sample grid.
+        have = len(gyro)
+        n_ticks = have // per_tick
+        used = n_ticks * per_tick
+        self._tick = _Tick([gyro[used:]], [accel[used:]])
+        if n_ticks == 0:
+            return []
+        # Times and table data at the end of each completed tick.
+        end_idx = np.arange(1, n_ticks + 1) * per_tick - 1 - (have - len(block))
+        g = gyro[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
+        a = accel[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
+        moving = np.zeros(n_ticks, dtype=bool)
+        sat_g = np.zeros(n_ticks, dtype=bool)
+        sat_a = np.zeros(n_ticks, dtype=bool)
+        # per-tick flags from the block's samples that fall into each tick
+        first = have - len(block)
+        for i in range(n_ticks):
+            lo, hi = max(i * per_tick - first, 0), (i + 1) * per_tick - first
+            if hi <= 0:
+                continue
+            moving[i] = bool(np.any(block.table_rate_dps[lo:hi] != 0.0))
+            sat_g[i] = bool(np.any(block.gyro_saturated[lo:hi]))
+            sat_a[i] = bool(np.any(block.accel_saturated[lo:hi]))
+        if not self.streaming:
+            self._counter += n_ticks
+            self._counter &= 0xFFFFFFFF
+            return []
+        gc = np.column_stack(
+            [quantise_carry(g[:, j] / _GYRO_COUNT, self._remainder, j) for j in range(3)]
+        )
+        ac = np.column_stack(
+            [quantise_carry(a[:, j] / _ACCEL_COUNT, self._remainder, 3 + j) for j in range(3)]
+        )
+        sat_g |= np.any((gc > INT32_MAX) | (gc < INT32_MIN), axis=1)
+        sat_a |= np.any((ac > INT24_MAX) | (ac < INT24_MIN), axis=1)
+        gc = np.clip(gc, INT32_MIN, INT32_MAX).astype(np.int64)
+        ac = np.clip(ac, INT24_MIN, INT24_MAX).astype(np.int64)
+        out = []
+        for i in range(n_ticks):
+            j = min(max(int(end_idx[i]), 0), len(block) - 1)
+            t = float(block.time_s[j])
+            state = self.state_at(t)
+            validity = Validity(0)
+            if state != DeviceState.FAULT:
+                validity |= Validity.GYRO_VALID | Validity.ACCEL_VALID
+            else:
+                validity |= Validity.FAULT
+            if moving[i]:
+                validity |= Validity.TABLE_MOVING
+            if state == DeviceState.SETTLING:
+                validity |= Validity.TABLE_SETTLING
+            if state in (DeviceState.BOOT, DeviceState.WARMUP):
+                validity |= Validity.WARMING_UP
+            if sat_g[i]:
+                validity |= Validity.GYRO_SATURATED
+            if sat_a[i]:
+                validity |= Validity.ACCEL_SATURATED
+            if self.faults.skip_counter:
+                self._counter += self.faults.skip_counter
+                self.faults.skip_counter = 0
+            sample = Sample(
+                counter=self._counter & 0xFFFFFFFF,
+                gyro=(int(gc[i, 0]), int(gc[i, 1]), int(gc[i, 2])),
+                accel=(int(ac[i, 0]), int(ac[i, 1]), int(ac[i, 2])),
+                angle=_angle_counts(float(block.table_deg[j])),
+                temperature=_temperature_counts(float(block.temperature_c[j])),
+                validity=validity,
+            )
+            self._counter = (self._counter + 1) & 0xFFFFFFFF
+            out.append(Outgoing(t, sample))
+        return out
+
+
+def _angle_counts(angle_deg: float) -> int:
+    return round(angle_deg * 1e6) % ANGLE_FULL_TURN
+
+
+def _temperature_counts(temp_c: float) -> int:
+    if not math.isfinite(temp_c):
+        return TEMPERATURE_NOT_AVAILABLE
+    return max(-32767, min(32767, round(temp_c * 100.0)))
+
+
+def _opcode(code: int) -> Opcode | int:
+    try:
+        return Opcode(code)
+    except ValueError:
+        return code
+
+
+__all__ = ["BASE_RATE_HZ", "FaultInjection", "Firmware", "LinkInfo", "Outgoing", "Truth"]

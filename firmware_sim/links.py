@@ -1,0 +1,344 @@
+"""Wire adapters of the simulated device: CAN on a python-can bus, serial and SLCAN on byte streams.
+
+An adapter receives frames, decodes them with the shared codec and hands commands to the
+firmware; it encodes what the firmware sends. It also applies the frame-level faults ordered
+through the control channel (drop or corrupt the next N frames). Malformed input is counted in
+the firmware's ``rx_malformed`` and never stops the device.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import tty
+from collections.abc import Callable
+from typing import Protocol
+
+import can
+import serial
+
+from driver.errors import BadCommandError, ProtocolError
+from driver.protocol.can import encode_can, split_can_id
+from driver.protocol.constants import CanFunction
+from driver.protocol.messages import Command
+from driver.protocol.serial import Deframer, SerialEncoder, decode_payload
+from firmware_sim.firmware import Firmware, Outgoing
+
+#: Most frames one poll handles before letting time advance, so a flood cannot starve the stream.
+MAX_FRAMES_PER_POLL = 256
+
+
+class ByteStream(Protocol):
+    """A bidirectional byte link: a pseudo-terminal master or an opened serial port."""
+
+    def read(self, timeout: float) -> bytes: ...
+    def write(self, data: bytes) -> None: ...
+    def close(self) -> None: ...
+
+
+class FdStream:
+    """A byte stream on a file descriptor (the master side of a pseudo-terminal)."""
+
+    def __init__(self, fd: int, write_timeout: float = 0.05) -> None:
+        self.fd = fd
+        self.write_timeout = write_timeout
+        os.set_blocking(fd, False)
+
+    def read(self, timeout: float) -> bytes:
+        ready, _, _ = select.select([self.fd], [], [], max(timeout, 0.0))
+        if not ready:
+            return b""
+        try:
+            return os.read(self.fd, 65536)
+        except OSError:  # the other side is not open (EIO on a pty): nothing to read
+            return b""
+
+    def write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            _, ready, _ = select.select([], [self.fd], [], self.write_timeout)
+            if not ready:
+                raise BlockingIOError("pseudo-terminal output is full: nobody is reading it")
+            try:
+                n = os.write(self.fd, view)
+            except BlockingIOError:
+                continue
+            view = view[n:]
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+class SerialStream:
+    """A byte stream on a pyserial port."""
+
+    def __init__(self, port: serial.Serial) -> None:
+        self.port = port
+
+    def read(self, timeout: float) -> bytes:
+        self.port.timeout = max(timeout, 0.0)
+        first = self.port.read(1)
+        if not first:
+            return b""
+        return first + self.port.read(self.port.in_waiting)
+
+    def write(self, data: bytes) -> None:
+        self.port.write(data)
+
+    def close(self) -> None:
+        self.port.close()
+
+
+class PseudoTerminal:
+    """A pseudo-terminal in raw mode; the device keeps both ends open so hosts may come and go.
+
+    Attributes
+    ----------
+    path : str
+        The slave path a host opens (``/dev/pts/N``).
+    stream : FdStream
+        The device's end.
+    """
+
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        tty.setraw(self.master)
+        self.path = os.ttyname(self.slave)
+        self.stream = FdStream(self.master)
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class _FrameFaults:
+    """Drop or corrupt outgoing frames as the firmware's fault injection says."""
+
+    def __init__(self, firmware: Firmware) -> None:
+        self.firmware = firmware
+
+    def filter(self, data: bytes, corrupt: Callable[[bytes], bytes]) -> bytes | None:
+        faults = self.firmware.faults
+        if faults.drop_frames > 0:
+            faults.drop_frames -= 1
+            return None
+        if faults.corrupt_frames > 0:
+            faults.corrupt_frames -= 1
+            return corrupt(data)
+        return data
+
+
+class CanLink:
+    """The device on a python-can bus (``virtual``, ``socketcan``, an SLCAN pty bus, ...).
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        Opened by the caller and closed by the caller.
+    firmware : Firmware
+    node_id : int
+        The device answers COMMAND frames of this node only.
+    """
+
+    def __init__(self, bus: can.BusABC, firmware: Firmware, node_id: int = 1) -> None:
+        self.bus = bus
+        self.firmware = firmware
+        self.node_id = node_id
+        self._faults = _FrameFaults(firmware)
+
+    def poll(self, timeout: float) -> int:
+        """Receive and handle frames for up to ``timeout`` seconds; return how many were read."""
+        n = 0
+        msg = self.bus.recv(timeout)
+        while msg is not None:
+            self._on_frame(msg)
+            n += 1
+            if n >= MAX_FRAMES_PER_POLL:
+                break
+            msg = self.bus.recv(0.0)
+        return n
+
+    def _on_frame(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_extended_id:
+            return
+        try:
+            function, node = split_can_id(msg.arbitration_id)
+        except ProtocolError:
+            return  # not a protocol id: another device's traffic
+        if function != CanFunction.COMMAND or node != self.node_id:
+            return
+        if msg.is_remote_frame or msg.is_fd:
+            self.firmware.note_malformed()
+            return
+        try:
+            command = Command.decode(bytes(msg.data))
+        except BadCommandError as exc:
+            self.firmware.refuse(exc.seq, exc.opcode, exc.result)
+        except ProtocolError:
+            self.firmware.note_malformed()
+        else:
+            self.firmware.handle(command)
+
+    def send(self, outgoing: list[Outgoing]) -> None:
+        for item in outgoing:
+            for frame in encode_can(item.message, self.node_id):
+                # A corrupted CAN frame that still reaches the host has a wrong length: the
+                # bus's own CRC would have stopped any other corruption.
+                data = self._faults.filter(frame.data, lambda d: d[:-1])
+                if data is None:
+                    continue
+                try:
+                    self.bus.send(
+                        can.Message(
+                            arbitration_id=frame.arbitration_id, data=data, is_extended_id=False
+                        )
+                    )
+                except can.CanError:
+                    self.firmware.tx_dropped += 1
+
+
+class SerialLink:
+    """The device on a serial byte stream with the protocol's binary frames."""
+
+    def __init__(self, stream: ByteStream, firmware: Firmware) -> None:
+        self.stream = stream
+        self.firmware = firmware
+        self.deframer = Deframer()
+        self.encoder = SerialEncoder()
+        self._faults = _FrameFaults(firmware)
+        self._bad = 0
+
+    def poll(self, timeout: float) -> int:
+        data = self.stream.read(timeout)
+        if not data:
+            return 0
+        frames = self.deframer.feed(data)
+        bad = self.deframer.crc_errors + self.deframer.length_errors
+        for _ in range(bad - self._bad):
+            self.firmware.note_malformed()
+        self._bad = bad
+        for frame in frames:
+            try:
+                message = decode_payload(frame.msg_type, frame.payload)
+            except BadCommandError as exc:
+                self.firmware.refuse(exc.seq, exc.opcode, exc.result)
+                continue
+            except ProtocolError:
+                self.firmware.note_malformed()
+                continue
+            if isinstance(message, Command):
+                self.firmware.handle(message)
+            else:
+                self.firmware.note_malformed()  # a device receives only commands
+        return len(frames)
+
+    def send(self, outgoing: list[Outgoing]) -> None:
+        chunks = []
+        for item in outgoing:
+            data = self._faults.filter(self.encoder.encode(item.message), _flip_payload_bit)
+            if data is not None:
+                chunks.append(data)
+        if chunks:
+            try:
+                self.stream.write(b"".join(chunks))
+            except (BlockingIOError, OSError):
+                self.firmware.tx_dropped += len(chunks)
+
+
+def _flip_payload_bit(frame: bytes) -> bytes:
+    b = bytearray(frame)
+    b[min(5, len(b) - 3)] ^= 0x01
+    return bytes(b)
+
+
+class SlcanAdapter:
+    """The device side of an SLCAN (Lawicel) adapter on a byte stream, usable as a CAN bus.
+
+    A host in another process opens the pseudo-terminal with python-can's ``slcan`` interface and
+    sees the simulated node on "its" CAN bus. Only what the device needs is implemented: standard
+    and extended data frames, open/close/bitrate commands (acknowledged), version and serial.
+    """
+
+    def __init__(self, stream: ByteStream) -> None:
+        self.stream = stream
+        self._buf = bytearray()
+        self._frames: list[can.Message] = []
+        self.open = False
+        self.errors = 0
+
+    def send(self, msg: can.Message) -> None:
+        if not self.open:
+            return  # a closed adapter puts nothing on the wire
+        if msg.is_extended_id:
+            text = f"T{msg.arbitration_id:08X}{msg.dlc}{bytes(msg.data).hex().upper()}\r"
+        else:
+            text = f"t{msg.arbitration_id:03X}{msg.dlc}{bytes(msg.data).hex().upper()}\r"
+        self.stream.write(text.encode("ascii"))
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if self._frames:
+            return self._frames.pop(0)
+        data = self.stream.read(0.0 if timeout is None else timeout)
+        if data:
+            self._feed(data)
+        return self._frames.pop(0) if self._frames else None
+
+    def _feed(self, data: bytes) -> None:
+        self._buf += data
+        while True:
+            i = self._buf.find(b"\r")
+            if i < 0:
+                if len(self._buf) > 64:  # no SLCAN line is this long: garbage
+                    self.errors += 1
+                    self._buf.clear()
+                return
+            line = bytes(self._buf[:i])
+            del self._buf[: i + 1]
+            self._answer(line)
+
+    def _answer(self, line: bytes) -> None:
+        ok, bell = b"\r", b"\x07"
+        if not line:
+            return
+        cmd = chr(line[0])
+        try:
+            if cmd in "tT":
+                n = 3 if cmd == "t" else 8
+                arb = int(line[1 : 1 + n], 16)
+                dlc = int(line[1 + n : 2 + n])
+                payload = bytes.fromhex(line[2 + n :].decode("ascii"))
+                if dlc > 8 or len(payload) != dlc:
+                    raise ValueError("length")
+                if self.open:
+                    self._frames.append(
+                        can.Message(arbitration_id=arb, data=payload, is_extended_id=cmd == "T")
+                    )
+                self.stream.write(b"z\r" if cmd == "t" else b"Z\r")
+            elif cmd in "rR":
+                self.stream.write(ok)
+            elif cmd in "OL":
+                self.open = True
+                self.stream.write(ok)
+            elif cmd == "C":
+                self.open = False
+                self.stream.write(ok)
+            elif cmd in "SsMmXWZQ":
+                self.stream.write(ok)
+            elif cmd == "F":
+                self.stream.write(b"F00\r")
+            elif cmd in "Vv":
+                self.stream.write(cmd.encode() + b"0101\r")
+            elif cmd == "N":
+                self.stream.write(b"NSIM1\r")
+            else:
+                raise ValueError("command")
+        except (ValueError, UnicodeDecodeError):
+            self.errors += 1
+            self.stream.write(bell)
+
+    def shutdown(self) -> None:
+        self.open = False

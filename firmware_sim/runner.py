@@ -1,0 +1,144 @@
+"""Clocks and the loop that drives the firmware on a link.
+
+Three clocks: :class:`RealTimeClock` (paced from its start instant, so no drift accumulates),
+the same with a speed factor (accelerated rehearsal), and :class:`LockstepClock` (the caller
+advances time; for tests). The :class:`Runner` polls the link, advances the firmware to the
+clock's time and sends what the firmware emits. A lock serialises the loop with the control
+channel.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+from firmware_sim.errors import SimConfigError
+from firmware_sim.firmware import Firmware, Outgoing
+
+
+class Link(Protocol):
+    def poll(self, timeout: float) -> int: ...
+    def send(self, outgoing: list[Outgoing]) -> None: ...
+
+
+class RealTimeClock:
+    """Simulated time = speed x wall time since start, re-anchored on every speed change or pause.
+
+    Parameters
+    ----------
+    speed : float
+        Simulated seconds per wall second (1 = real time).
+    monotonic : callable
+        Wall clock (``time.monotonic``); injectable for tests.
+    """
+
+    def __init__(self, speed: float = 1.0, monotonic: Callable[[], float] = time.monotonic) -> None:
+        self._monotonic = monotonic
+        self._check(speed)
+        self._speed = float(speed)
+        self._anchor_wall = monotonic()
+        self._anchor_sim = 0.0
+        self._paused = False
+
+    @staticmethod
+    def _check(speed: float) -> None:
+        if not (isinstance(speed, int | float) and 0 < speed <= 10_000):
+            raise SimConfigError(f"speed: must be a number in (0, 10000], got {speed!r}")
+
+    @property
+    def speed(self) -> float:
+        return self._speed
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    def now(self) -> float:
+        if self._paused:
+            return self._anchor_sim
+        return self._anchor_sim + (self._monotonic() - self._anchor_wall) * self._speed
+
+    def _reanchor(self) -> None:
+        self._anchor_sim = self.now()
+        self._anchor_wall = self._monotonic()
+
+    def set_speed(self, speed: float) -> None:
+        self._check(speed)
+        self._reanchor()
+        self._speed = float(speed)
+
+    def pause(self) -> None:
+        self._reanchor()
+        self._paused = True
+
+    def resume(self) -> None:
+        if self._paused:
+            self._anchor_wall = self._monotonic()
+            self._paused = False
+
+    def wall_until(self, sim_t: float) -> float:
+        """Wall seconds until simulated time ``sim_t`` (0 if past; long if paused)."""
+        if self._paused:
+            return 0.05
+        return max(0.0, (sim_t - self.now()) / self._speed)
+
+
+class LockstepClock:
+    """A clock that moves only when told: ``advance(dt)``."""
+
+    def __init__(self) -> None:
+        self._t = 0.0
+        self.speed = 1.0
+        self.paused = False
+
+    def now(self) -> float:
+        return self._t
+
+    def advance(self, dt: float) -> None:
+        self._t += dt
+
+    def set_speed(self, speed: float) -> None:
+        self.speed = speed
+
+    def pause(self) -> None:
+        self.paused = True
+
+    def resume(self) -> None:
+        self.paused = False
+
+    def wall_until(self, sim_t: float) -> float:
+        return 0.0
+
+
+class Runner:
+    """Drives one firmware on one link with one clock.
+
+    ``step()`` does one round (poll, advance, send); ``run(stop)`` loops until ``stop`` is set.
+    """
+
+    def __init__(
+        self, firmware: Firmware, link: Link, clock: RealTimeClock | LockstepClock
+    ) -> None:
+        self.firmware = firmware
+        self.link = link
+        self.clock = clock
+        self.lock = threading.RLock()
+        self.sent = 0
+
+    def step(self, poll_timeout: float = 0.0) -> None:
+        self.link.poll(poll_timeout)
+        with self.lock:
+            dt = self.clock.now() - self.firmware.now
+            if dt > 0:
+                out = self.firmware.process(dt)
+                self.sent += len(out)
+                self.link.send(out)
+
+    def run(self, stop: threading.Event) -> None:
+        while not stop.is_set():
+            # Wake for the next output tick or for incoming frames, whichever comes first.
+            tick = 1.0 / self.firmware.sample_rate_hz
+            timeout = min(0.002, self.clock.wall_until(self.firmware.now + tick))
+            self.step(timeout)

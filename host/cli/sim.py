@@ -1,0 +1,161 @@
+"""``northfinder sim``: run the simulated instrument on a CAN bus, a serial port or a pty.
+
+Links (choose one):
+  -i/-c/-b          any python-can bus, e.g. ``-i socketcan -c vcan0`` or ``-i virtual -c nf``
+  --serial PORT     the protocol's serial frames on a serial port (path or pyserial URL)
+  --pty             serial frames on a pseudo-terminal the simulator creates (prints its path)
+  --slcan-pty       an SLCAN adapter on a pseudo-terminal (prints its path), so a host in another
+                    process reaches the simulated CAN node with ``can.Bus(interface="slcan", ...)``
+
+The simulator prints one line per fact a caller needs (``pty PATH``, ``control ADDRESS``,
+``truth ...``) on stdout, logs state changes on stderr, and stops cleanly on SIGINT or SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+
+import can
+import can.cli
+import numpy as np
+import serial
+
+from firmware_sim.control import Controller, ControlServer
+from firmware_sim.firmware import Firmware, LinkInfo
+from firmware_sim.imu import Truth
+from firmware_sim.links import CanLink, PseudoTerminal, SerialLink, SerialStream, SlcanAdapter
+from firmware_sim.runner import RealTimeClock, Runner
+from firmware_sim.sensors import load_spec
+from host.cli.common import add_sensor_argument, add_truth_arguments, finite_float, positive_float
+from host.errors import HostConfigError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "sim",
+        help="run the simulated instrument on a link",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    can.cli.add_bus_arguments(p)
+    link = p.add_argument_group("serial and pseudo-terminal links")
+    link.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
+    link.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
+    link.add_argument("--pty", action="store_true", help="serial frames on a new pseudo-terminal")
+    link.add_argument(
+        "--slcan-pty", action="store_true", help="an SLCAN adapter on a new pseudo-terminal"
+    )
+    add_sensor_argument(p)
+    add_truth_arguments(p)
+    p.add_argument(
+        "--warmup",
+        type=finite_float,
+        default=120.0,
+        metavar="SECONDS",
+        help="warm-up time (default 120; 0 allowed)",
+    )
+    p.add_argument(
+        "--speed",
+        type=positive_float,
+        default=1.0,
+        help="simulated seconds per wall second (default 1)",
+    )
+    p.add_argument("--node-id", type=int, default=1, help="CAN node id 1..15 (default 1)")
+    p.add_argument(
+        "--control",
+        metavar="ADDRESS",
+        help="control channel: 127.0.0.1:PORT (0 = any free port) or unix:PATH",
+    )
+    p.add_argument(
+        "--duration", type=positive_float, default=None, help="stop after this many wall seconds"
+    )
+    return p
+
+
+def _links(args: argparse.Namespace) -> int:
+    return sum(
+        (
+            bool(getattr(args, "interface", None) or getattr(args, "channel", None)),
+            bool(args.serial),
+            args.pty,
+            args.slcan_pty,
+        )
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if _links(args) != 1:
+        raise HostConfigError(
+            "choose exactly one link: -i/-c (python-can), --serial PORT, --pty or --slcan-pty"
+        )
+    if not 1 <= args.node_id <= 15:
+        raise HostConfigError(f"--node-id: must be 1..15, got {args.node_id}")
+    if args.warmup < 0:
+        raise HostConfigError(f"--warmup: must be >= 0 seconds, got {args.warmup}")
+    logging.basicConfig(
+        level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr
+    )
+    rng = np.random.default_rng(args.seed)
+    azimuth = float(rng.uniform(0.0, 360.0)) if args.azimuth is None else args.azimuth
+    truth = Truth(azimuth, args.latitude, args.pitch, args.roll)
+    spec = load_spec(args.sensor)
+    closers = []
+    pty = None
+    if args.pty or args.slcan_pty:
+        pty = PseudoTerminal()
+        closers.append(pty.close)
+    if args.serial:
+        try:
+            port = serial.serial_for_url(args.serial, baudrate=args.baud, timeout=0)
+        except (serial.SerialException, ValueError) as exc:
+            raise HostConfigError(f"--serial {args.serial}: {exc}") from exc
+        closers.append(port.close)
+        info = LinkInfo("serial", args.baud)
+    elif args.pty:
+        info = LinkInfo("serial", args.baud)
+    else:
+        info = LinkInfo("can", getattr(args, "bitrate", None) or 500_000)
+    firmware = Firmware(spec, truth, rng, warmup_s=args.warmup, node_id=args.node_id, link=info)
+    if args.serial:
+        link = SerialLink(SerialStream(port), firmware)
+    elif args.pty:
+        link = SerialLink(pty.stream, firmware)
+    elif args.slcan_pty:
+        link = CanLink(SlcanAdapter(pty.stream), firmware, args.node_id)
+    else:
+        try:
+            bus = can.cli.create_bus_from_namespace(args)
+        except (argparse.ArgumentError, can.CanError, OSError, ValueError) as exc:
+            raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+        closers.append(bus.shutdown)
+        link = CanLink(bus, firmware, args.node_id)
+    runner = Runner(firmware, link, RealTimeClock(args.speed))
+    server = None
+    if args.control:
+        server = ControlServer(Controller(runner), args.control).start()
+        closers.append(server.close)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    if args.duration:
+        threading.Timer(args.duration, stop.set).start()
+    if pty is not None:
+        print(f"pty {pty.path}", flush=True)
+    if server is not None:
+        print(f"control {server.address}", flush=True)
+    print(
+        f"truth azimuth {truth.azimuth_deg:.6f} latitude {truth.latitude_deg:g} pitch {truth.pitch_deg:g} "
+        f"roll {truth.roll_deg:g} sensor {spec.name} warmup {args.warmup:g} speed {args.speed:g}",
+        flush=True,
+    )
+    try:
+        runner.run(stop)
+    finally:
+        for close in reversed(closers):
+            close()
+        logging.getLogger("northfinder.sim").info("stopped at t=%.3f s", firmware.now)
+    return 0
