@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# Guest side of the HIL runner. Runs inside the virtual machine (or directly on a host that
+# already has the CAN interface): makes sure the CAN interface exists, then runs each step.
+#
+# Usage: guest.sh <out-dir>      Reads <out-dir>/config.env written by scripts/hil.
+# Writes: <out-dir>/guest-started, <out-dir>/guest.log (this script's own log),
+#         <out-dir>/steps/<name>/{log,rc,seconds,result.json}, <out-dir>/steps.tsv,
+#         and last <out-dir>/status ("pass" or "fail <reason>").
+# Exit status: 0 all steps passed, 1 a step failed, 2 setup failed.
+set -uo pipefail
+
+OUT=${1:?usage: guest.sh <out-dir>}
+# shellcheck source=/dev/null
+source "$OUT/config.env" || { echo "fail no config.env" >"$OUT/status"; exit 2; }
+export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin:$PATH
+export HIL_OUT=$OUT HIL_D HIL_REPO HIL_PYTHON HIL_CAN_IF HIL_MODE
+export PYTHONDONTWRITEBYTECODE=1   # the guest's root filesystem is read-only
+
+now() { date +%s.%N; }
+printf 'host_mode=%s\nuptime=%s\nkernel=%s\n' "$HIL_MODE" "$(cut -d' ' -f1 /proc/uptime)" "$(uname -r)" \
+    >"$OUT/guest-started"
+exec >>"$OUT/guest.log" 2>&1
+echo "guest: kernel $(uname -r), mode $HIL_MODE, uptime $(cut -d' ' -f1 /proc/uptime) s, $(nproc) cpus"
+
+finish() { echo "$1" >"$OUT/status.tmp" && mv "$OUT/status.tmp" "$OUT/status"; sync; exit "$2"; }
+
+# CAN interface
+if ip link show "$HIL_CAN_IF" >/dev/null 2>&1; then
+    echo "guest: $HIL_CAN_IF present"
+else
+    modprobe vcan || finish "fail setup: modprobe vcan" 2
+    ip link add dev "$HIL_CAN_IF" type vcan || finish "fail setup: ip link add $HIL_CAN_IF" 2
+    echo "guest: created $HIL_CAN_IF"
+fi
+ip link set up "$HIL_CAN_IF" 2>/dev/null || ip link show "$HIL_CAN_IF" | grep -q '[<,]UP[,>]' \
+    || finish "fail setup: $HIL_CAN_IF is down" 2
+ip -details link show "$HIL_CAN_IF"
+
+# Steps
+mkdir -p "$OUT/steps"
+: >"$OUT/steps.tsv"
+failed=()
+for step in $HIL_STEPS; do
+    exe=$HIL_D/steps/$step
+    dir=$OUT/steps/$step
+    mkdir -p "$dir"
+    export HIL_STEP=$step HIL_STEP_OUT=$dir
+    if [[ ! -x $exe ]]; then
+        echo "guest: no executable step $exe" | tee "$dir/log"
+        rc=127; secs=0
+    else
+        echo "guest: step $step start"
+        t0=$(now)
+        (cd "$dir" && timeout -k 10 "$HIL_STEP_TIMEOUT" "$exe" </dev/null >"$dir/log" 2>&1)
+        rc=$?
+        secs=$(awk -v a="$t0" -v b="$(now)" 'BEGIN{printf "%.3f", b-a}')
+        ((rc == 124)) && echo "step timed out after $HIL_STEP_TIMEOUT s" >>"$dir/log"
+        tail -n 5 "$dir/log"
+    fi
+    echo "$rc" >"$dir/rc"; echo "$secs" >"$dir/seconds"
+    printf '%s\t%s\t%s\n' "$step" "$rc" "$secs" >>"$OUT/steps.tsv"
+    echo "guest: step $step rc=$rc ${secs}s"
+    ((rc == 0)) || failed+=("$step")
+done
+
+if ((${#failed[@]})); then
+    finish "fail steps: ${failed[*]}" 1
+fi
+finish pass 0

@@ -1,0 +1,284 @@
+"""SocketCAN smoke test: paced frames from one bus to another over a (virtual) CAN interface.
+
+The sender runs in this process; the receiver runs in a child process (its own bus, its own
+CPU), and ``candump -L`` records the traffic to a file. Every frame carries a sequence number,
+so the receiver counts lost, duplicated and reordered frames. Inter-arrival jitter comes from
+the kernel receive timestamps.
+
+    python smoke_can.py --out DIR [--channel vcan0] [--rate 800] [--frames 4000]
+
+Writes DIR/result.json and DIR/candump.log; exits 0 when every frame arrived, 1 otherwise.
+Uses only python-can and the standard library (imports are slow under software emulation).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import select
+import shutil
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import time
+
+DATA_ID = 0x123
+END_ID = 0x7FF
+PAYLOAD = struct.Struct("<II")  # sequence number, sender time in microseconds (low 32 bits)
+
+
+def percentile(sorted_values: list[float], q: float) -> float | None:
+    """Nearest-rank percentile of an already sorted list."""
+    if not sorted_values:
+        return None
+    k = max(0, min(len(sorted_values) - 1, round(q / 100 * (len(sorted_values) - 1))))
+    return sorted_values[k]
+
+
+def stats_us(values_s: list[float]) -> dict:
+    v = sorted(values_s)
+    us = lambda x: None if x is None else round(x * 1e6, 1)  # noqa: E731
+    return {
+        "n": len(v),
+        "p50_us": us(percentile(v, 50)),
+        "p99_us": us(percentile(v, 99)),
+        "max_us": us(v[-1] if v else None),
+    }
+
+
+def open_bus(channel: str):
+    import can
+
+    return can.Bus(interface="socketcan", channel=channel, receive_own_messages=False)
+
+
+def receiver(args) -> int:
+    """Child process: receive until the end frame (or a deadline), print one JSON line."""
+    bus = open_bus(args.channel)
+    rcvbuf = bus.socket.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+    print(json.dumps({"ready": True, "rcvbuf": rcvbuf}), flush=True)
+    seqs: list[int] = []
+    stamps: list[float] = []
+    end_seen = False
+    deadline = time.monotonic() + args.rx_deadline
+    while time.monotonic() < deadline:
+        msg = bus.recv(timeout=1.0)
+        if msg is None:
+            continue
+        if msg.arbitration_id == END_ID:
+            end_seen = True
+            break
+        if msg.arbitration_id != DATA_ID or len(msg.data) != PAYLOAD.size:
+            continue
+        seqs.append(PAYLOAD.unpack(bytes(msg.data))[0])
+        stamps.append(msg.timestamp)
+    bus.shutdown()
+
+    unique = set(seqs)
+    out_of_order = sum(1 for a, b in itertools.pairwise(seqs) if b < a)
+    period = 1.0 / args.rate
+    gaps = [b - a for a, b in itertools.pairwise(stamps)]
+    print(
+        json.dumps(
+            {
+                "received": len(seqs),
+                "unique": len(unique),
+                "duplicates": len(seqs) - len(unique),
+                "out_of_order": out_of_order,
+                "missing_seqs_head": sorted(set(range(args.frames)) - unique)[:20],
+                "end_seen": end_seen,
+                "interarrival": stats_us(gaps),
+                "jitter": stats_us([abs(g - period) for g in gaps]),
+                "rcvbuf": rcvbuf,
+            }
+        ),
+        flush=True,
+    )
+    return 0
+
+
+def start_candump(channel: str, path: str):
+    """Start ``candump -L`` and wait until it holds a socket (so it sees the first frame)."""
+    exe = shutil.which("candump")
+    if exe is None:
+        return None, "candump not found"
+    with open(path, "wb") as f:  # the child keeps its own copy of the descriptor
+        proc = subprocess.Popen([exe, "-L", channel], stdout=f, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            return None, f"candump exited with {proc.returncode}"
+        try:
+            fds = os.listdir(f"/proc/{proc.pid}/fd")
+            if any(os.readlink(f"/proc/{proc.pid}/fd/{fd}").startswith("socket:") for fd in fds):
+                time.sleep(0.2)  # socket() is followed by bind(); give it a moment
+                return proc, None
+        except OSError:
+            pass
+        time.sleep(0.05)
+    return proc, "candump did not open a socket within 20 s"
+
+
+def stop_candump(proc, path: str) -> int | None:
+    if proc is None:
+        return None
+    time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    with open(path, "rb") as f:
+        return sum(1 for line in f if line.strip())
+
+
+def sender(args) -> int:
+    os.makedirs(args.out, exist_ok=True)
+    result: dict = {
+        "step": "smoke",
+        "channel": args.channel,
+        "rate_hz": args.rate,
+        "frames_planned": args.frames,
+    }
+    t_start = time.monotonic()
+    candump_path = os.path.join(args.out, "candump.log")
+    dump, dump_err = start_candump(args.channel, candump_path)
+    if dump_err:
+        result["candump_error"] = dump_err
+
+    rx = subprocess.Popen(
+        [sys.executable, os.path.abspath(__file__), "--role", "rx", *args.passthrough],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    ready_line = ""
+    r, _, _ = select.select([rx.stdout], [], [], 120)
+    if r:
+        ready_line = rx.stdout.readline()
+    if '"ready"' not in ready_line:
+        rx.kill()
+        result.update(ok=False, error=f"receiver did not start: {ready_line!r}")
+        return finish(args, result, dump, candump_path, t_start)
+
+    import can
+
+    bus = open_bus(args.channel)
+    period = 1.0 / args.rate
+    sent = 0
+    send_errors = 0
+    lateness: list[float] = []
+    t0 = time.perf_counter() + 0.05
+    for seq in range(args.frames):
+        due = t0 + seq * period
+        delay = due - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        now = time.perf_counter()
+        lateness.append(max(0.0, now - due))
+        msg = can.Message(
+            arbitration_id=DATA_ID,
+            is_extended_id=False,
+            data=PAYLOAD.pack(seq, int(time.time() * 1e6) & 0xFFFFFFFF),
+        )
+        for _attempt in range(50):
+            try:
+                bus.send(msg, timeout=0.1)
+                sent += 1
+                break
+            except can.CanError:
+                send_errors += 1
+                time.sleep(0.001)
+    elapsed = time.perf_counter() - t0
+    time.sleep(0.2)
+    bus.send(can.Message(arbitration_id=END_ID, is_extended_id=False, data=b"\x00"))
+    bus.shutdown()
+
+    try:
+        rx_out, _ = rx.communicate(timeout=args.rx_deadline + 30)
+    except subprocess.TimeoutExpired:
+        rx.kill()
+        rx_out, _ = rx.communicate()
+    rx_result = {}
+    for line in rx_out.splitlines():
+        if line.startswith("{") and '"received"' in line:
+            rx_result = json.loads(line)
+    received = rx_result.get("unique", 0)
+    result.update(
+        frames_sent=sent,
+        frames_received=received,
+        frames_lost=sent - received,
+        send_errors=send_errors,
+        send_seconds=round(elapsed, 3),
+        achieved_rate_hz=round(sent / elapsed, 1) if elapsed > 0 else None,
+        sender_lateness=stats_us(lateness),
+        receiver=rx_result,
+    )
+    result["ok"] = (
+        bool(rx_result)
+        and sent == args.frames
+        and received == sent
+        and rx_result.get("duplicates", 1) == 0
+        and rx_result.get("end_seen", False)
+    )
+    return finish(args, result, dump, candump_path, t_start)
+
+
+def finish(args, result: dict, dump, candump_path: str, t_start: float) -> int:
+    count = stop_candump(dump, candump_path)
+    if count is not None:
+        # candump sees the data frames plus the end frame.
+        result["candump_frames"] = count
+        result["candump_data_frames"] = count - (
+            1 if result.get("receiver", {}).get("end_seen") else 0
+        )
+        result["candump_file"] = candump_path
+        if (
+            result.get("frames_sent") is not None
+            and result["candump_data_frames"] != result["frames_sent"]
+        ):
+            result["ok"] = False
+            result["candump_mismatch"] = True
+    else:
+        result["ok"] = False
+    result["step_seconds"] = round(time.monotonic() - t_start, 3)
+    with open(os.path.join(args.out, "result.json"), "w") as f:
+        json.dump(result, f, indent=2)
+        f.write("\n")
+    rx = result.get("receiver", {})
+    print(
+        f"smoke: sent {result.get('frames_sent')} received {result.get('frames_received')} "
+        f"lost {result.get('frames_lost')} candump {result.get('candump_data_frames')} "
+        f"rate {result.get('achieved_rate_hz')} Hz "
+        f"jitter p50 {rx.get('jitter', {}).get('p50_us')} us p99 {rx.get('jitter', {}).get('p99_us')} us "
+        f"-> {'PASS' if result['ok'] else 'FAIL'}"
+    )
+    return 0 if result["ok"] else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--role", choices=["tx", "rx"], default="tx")
+    p.add_argument("--out", default=".")
+    p.add_argument("--channel", default=os.environ.get("HIL_CAN_IF", "vcan0"))
+    p.add_argument("--rate", type=float, default=800.0)
+    p.add_argument("--frames", type=int, default=4000)
+    args = p.parse_args(argv)
+    args.rx_deadline = args.frames / args.rate * 10 + 60
+    args.passthrough = [
+        "--channel",
+        args.channel,
+        "--rate",
+        str(args.rate),
+        "--frames",
+        str(args.frames),
+    ]
+    return receiver(args) if args.role == "rx" else sender(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,114 @@
+"""Host side of the HIL runner: read the output directory, print a summary, write summary.json.
+
+    python3 summarize.py <out-dir>
+
+Standard library only (runs with the host's python3). Exit status: 0 when the guest wrote
+status "pass" and every step's rc is 0; 1 when a step failed; 2 when the run never produced
+a status (setup failure, VM did not boot, whole-run timeout).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+
+def read(path: str) -> str | None:
+    try:
+        with open(path) as f:
+            return f.read().strip()
+    except OSError:
+        return None
+
+
+def read_kv(path: str) -> dict:
+    text = read(path) or ""
+    return dict(line.split("=", 1) for line in text.splitlines() if "=" in line)
+
+
+def num(text: str | None) -> float | None:
+    try:
+        return round(float(text), 3) if text is not None else None
+    except ValueError:
+        return None
+
+
+def main(out: str) -> int:
+    timings = read_kv(os.path.join(out, "timings.env"))
+    guest = read_kv(os.path.join(out, "guest-started"))
+    status = read(os.path.join(out, "status"))
+    summary: dict = {
+        "mode": timings.get("mode"),
+        "kernel": guest.get("kernel") or timings.get("kernel"),
+        "status": status,
+        "runner_rc": num(timings.get("runner_rc")),
+        "timings_s": {
+            "install": num(timings.get("install_seconds")),
+            "project_venv": num(timings.get("venv_seconds")),
+            "vm_boot_to_guest_script": num(timings.get("boot_seconds")),
+            "guest_uptime_at_script_start": num(guest.get("uptime")),
+            "vm_total": num(timings.get("vm_seconds")),
+            "total": num(timings.get("total_seconds")),
+        },
+        "steps": [],
+    }
+    steps_tsv = read(os.path.join(out, "steps.tsv")) or ""
+    for line in steps_tsv.splitlines():
+        name, rc, secs = ([*line.split("\t"), "", "", ""])[:3]
+        step = {
+            "name": name,
+            "rc": int(rc) if rc.lstrip("-").isdigit() else None,
+            "seconds": num(secs),
+        }
+        res = read(os.path.join(out, "steps", name, "result.json"))
+        if res:
+            try:
+                step["result"] = json.loads(res)
+            except json.JSONDecodeError as e:
+                step["result_error"] = f"result.json is not JSON: {e}"
+        summary["steps"].append(step)
+
+    if status is None:
+        verdict, rc = "ERROR (no status from the guest: see vm.log / guest.log)", 2
+    elif status == "pass" and all(s["rc"] == 0 for s in summary["steps"]):
+        verdict, rc = "PASS", 0
+    elif status.startswith("fail setup") or status.startswith("fail no"):
+        verdict, rc = f"ERROR ({status})", 2
+    else:
+        verdict, rc = f"FAIL ({status})", 1
+    summary["verdict"] = verdict
+    summary["exit_status"] = rc
+
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=2)
+        f.write("\n")
+
+    t = summary["timings_s"]
+    fmt = lambda v: "-" if v is None else f"{v:.1f} s"  # noqa: E731
+    print(f"hil: mode {summary['mode']}, kernel {summary['kernel']}")
+    print(
+        f"hil: install {fmt(t['install'])}, project venv {fmt(t['project_venv'])}, "
+        f"boot to guest script {fmt(t['vm_boot_to_guest_script'])}, "
+        f"VM total {fmt(t['vm_total'])}, run total {fmt(t['total'])}"
+    )
+    for s in summary["steps"]:
+        line = f"hil: step {s['name']}: rc {s['rc']} in {fmt(s['seconds'])}"
+        r = s.get("result") or {}
+        if s["name"] == "smoke" and r:
+            rx = r.get("receiver", {})
+            line += (
+                f"; sent {r.get('frames_sent')} received {r.get('frames_received')} "
+                f"lost {r.get('frames_lost')} candump {r.get('candump_data_frames')} "
+                f"at {r.get('achieved_rate_hz')} Hz; inter-arrival p50 "
+                f"{rx.get('interarrival', {}).get('p50_us')} us p99 "
+                f"{rx.get('interarrival', {}).get('p99_us')} us; jitter p50 "
+                f"{rx.get('jitter', {}).get('p50_us')} us p99 {rx.get('jitter', {}).get('p99_us')} us"
+            )
+        print(line)
+    print(f"hil: {verdict}  (summary: {os.path.join(out, 'summary.json')})")
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1]))
