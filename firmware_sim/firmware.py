@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from driver.protocol.budget import max_sample_rate, rate_fits
 from driver.protocol.constants import (
     ANGLE_FULL_TURN,
     CONFIG_LIMITS,
@@ -71,35 +72,16 @@ MOTION_OPCODES = (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME)
 
 @dataclass(frozen=True)
 class LinkInfo:
-    """What the firmware knows about its link, to decide which sample rates fit."""
+    """What the firmware knows about its link, to decide which sample rates fit (protocol.md 7)."""
 
     kind: str = "can"  # "can" or "serial"
     bitrate: int = 500_000
 
+    def fits(self, sample_rate_hz: float, heartbeat_ms: float) -> bool:
+        return rate_fits(self.kind, self.bitrate, sample_rate_hz, heartbeat_ms)
 
-def can_load(sample_rate_hz: float, heartbeat_ms: float, bitrate: int) -> float:
-    """Worst-case CAN bus load (0..1) of the stream and heartbeat at ``bitrate``.
-
-    Every frame is taken as a standard 8-byte data frame with worst-case bit stuffing: 135 bits
-    including the 3-bit interframe space. Four frames per tick, two per heartbeat.
-    """
-    frames_per_s = 4.0 * sample_rate_hz + 2.0 * 1000.0 / heartbeat_ms
-    return frames_per_s * 135.0 / bitrate
-
-
-def serial_load(sample_rate_hz: float, heartbeat_ms: float, baud: int) -> float:
-    """Serial link load (0..1): frames of 7 + payload bytes, 10 bits a byte (8N1)."""
-    bytes_per_s = (7 + Sample.SIZE) * sample_rate_hz + (7 + Status.SIZE) * 1000.0 / heartbeat_ms
-    return bytes_per_s * 10.0 / baud
-
-
-#: Largest share of the link the stream may take; the rest is kept for commands and replies.
-MAX_LINK_LOAD = 0.8
-
-
-def rate_fits(link: LinkInfo, sample_rate_hz: float, heartbeat_ms: float) -> bool:
-    load = can_load if link.kind == "can" else serial_load
-    return load(sample_rate_hz, heartbeat_ms, link.bitrate) <= MAX_LINK_LOAD
+    def max_rate(self, heartbeat_ms: float) -> int:
+        return max_sample_rate(self.kind, self.bitrate, heartbeat_ms)
 
 
 @dataclass
@@ -186,6 +168,7 @@ class Firmware:
         self.cmd_rejected = 0
         self._fault = Fault(0)
         self._pending: list[Outgoing] = []
+        self.boot_count = 0
         self._reboot(0.0)
         self._last_state = self.state_at(0.0)
 
@@ -209,17 +192,17 @@ class Firmware:
             ConfigKey.SETTLE_TIME_MS: round(table.settle_s * 1000),
             ConfigKey.STREAMING: 0,
         }
-        if not rate_fits(self.link, 200, 100):
-            self.config[ConfigKey.SAMPLE_RATE_HZ] = max(
-                (r for r in SAMPLE_RATES_HZ if rate_fits(self.link, r, 100)),
-                default=min(SAMPLE_RATES_HZ),
-            )
+        if not self.link.fits(200, 100):
+            self.config[ConfigKey.SAMPLE_RATE_HZ] = self.link.max_rate(100) or min(SAMPLE_RATES_HZ)
+        self.boot_count += 1
+        # protocol.md 5: the device announces itself during BOOT.
+        self._pending.append(Outgoing(t + REPLY_LATENCY_S, self.identity()))
 
     def reboot(self) -> None:
         """Restart the firmware now (RESET, or a reset from the control channel): BOOT, counter 0,
         configuration back to defaults, streaming off. Warm-up is thermal and counts from power-on."""
-        self._reboot(self.now)
         self._pending.clear()
+        self._reboot(self.now)
         log.info("t=%.3f s reset", self.now)
 
     @property
@@ -259,8 +242,7 @@ class Firmware:
         if key == ConfigKey.NODE_ID:
             return self.node_id
         if key == ConfigKey.LINK_MAX_SAMPLE_RATE_HZ:
-            hb = self.config[ConfigKey.HEARTBEAT_PERIOD_MS]
-            return max((r for r in SAMPLE_RATES_HZ if rate_fits(self.link, r, hb)), default=0)
+            return self.link.max_rate(self.config[ConfigKey.HEARTBEAT_PERIOD_MS])
         return self.config[key]
 
     def set_truth(self, truth: Truth) -> None:
@@ -312,9 +294,9 @@ class Firmware:
         if follow is not None:
             self._queue(follow, REPLY_LATENCY_S + self.faults.reply_delay_s)
         if command.OPCODE == Opcode.RESET and result == Result.OK:
-            pending = self._pending[-1:]  # the reply to RESET still goes out
+            reply = self._pending[-1]  # the reply to RESET goes out first (protocol.md 6)
             self.reboot()
-            self._pending = pending
+            self._pending.insert(0, reply)
 
     def _reply(self, reply: Reply) -> None:
         if self.faults.wrong_result is not None:
@@ -328,8 +310,13 @@ class Firmware:
         self._pending.append(Outgoing(self.now + delay, message))
 
     def _execute(self, cmd: Command) -> tuple[Result, bytes, Status | Identify | None]:
+        """Carry out a decoded command; the checks run in the order of protocol.md table 4.3
+        (unknown opcode and bad arguments were already refused by the codec)."""
         op = cmd.OPCODE
         state = self.state
+        refusal = _state_refusal(cmd, state)
+        if refusal is not None:
+            return refusal, b"", None
         if op == Opcode.IDENTIFY:
             return Result.OK, b"", self.identity()
         if op == Opcode.GET_STATUS:
@@ -353,7 +340,7 @@ class Firmware:
             return Result.OK, b"", None
         if op == Opcode.SET_CONFIG:
             assert isinstance(cmd, SetConfig)
-            result = self._set_config(cmd, state)
+            result = self._set_config(cmd)
             data = (
                 Reply.config(cmd.seq, op, cmd.key, self.read_config(cmd.key)).data
                 if result == Result.OK
@@ -361,22 +348,18 @@ class Firmware:
             )
             return result, data, None
         if op == Opcode.SELF_TEST:
-            if state in (DeviceState.ROTATING, DeviceState.SETTLING):
-                return Result.BUSY, b"", None
             failures = SelfTestFailure.DRIVE if self._fault & Fault.DRIVE else SelfTestFailure(0)
             return Result.OK, Reply.self_test(cmd.seq, failures).data, None
         if op in MOTION_OPCODES:
-            return self._move(cmd, state), b"", None
+            return self._move(cmd), b"", None
         return Result.UNKNOWN_COMMAND, b"", None
 
-    def _set_config(self, cmd: SetConfig, state: DeviceState) -> Result:
+    def _set_config(self, cmd: SetConfig) -> Result:
         key, value = cmd.key, cmd.value
         if not isinstance(key, ConfigKey):
             return Result.UNKNOWN_KEY
         if key.read_only:
             return Result.READ_ONLY
-        if state == DeviceState.FAULT:
-            return Result.FAULT
         lo, hi = CONFIG_LIMITS[key]
         if not lo <= value <= hi or (
             key == ConfigKey.SAMPLE_RATE_HZ and value not in SAMPLE_RATES_HZ
@@ -389,15 +372,13 @@ class Firmware:
                 if key == ConfigKey.HEARTBEAT_PERIOD_MS
                 else self.config[ConfigKey.HEARTBEAT_PERIOD_MS]
             )
-            if not rate_fits(self.link, rate, hb):
+            if not self.link.fits(rate, hb):
                 return Result.RATE_EXCEEDS_LINK
         if key in (
             ConfigKey.TABLE_MAX_RATE_MDPS,
             ConfigKey.TABLE_MAX_ACCEL_MDPS2,
             ConfigKey.SETTLE_TIME_MS,
         ):
-            if state in (DeviceState.ROTATING, DeviceState.SETTLING):
-                return Result.BUSY
             field_name = {
                 ConfigKey.TABLE_MAX_RATE_MDPS: ("max_rate_dps", 1e-3),
                 ConfigKey.TABLE_MAX_ACCEL_MDPS2: ("max_accel_dps2", 1e-3),
@@ -410,17 +391,11 @@ class Firmware:
         self.config[key] = value
         return Result.OK
 
-    def _move(self, cmd: Command, state: DeviceState) -> Result:
+    def _move(self, cmd: Command) -> Result:
         if isinstance(cmd, RotateTo) and not 0 <= cmd.angle < ANGLE_FULL_TURN:
             return Result.OUT_OF_RANGE
         if isinstance(cmd, RotateBy) and abs(cmd.delta) > ROTATE_BY_LIMIT:
             return Result.OUT_OF_RANGE
-        if state == DeviceState.FAULT:
-            return Result.FAULT
-        if state in (DeviceState.BOOT, DeviceState.WARMUP):
-            return Result.NOT_READY
-        if state in (DeviceState.ROTATING, DeviceState.SETTLING):
-            return Result.BUSY
         table, t = self.instrument.table, self.now
         current = float(table.encoder(table.state(t)[0]))
         if isinstance(cmd, RotateBy):
@@ -467,6 +442,8 @@ class Firmware:
             self._next_heartbeat += period
         if len(block):
             out.extend(self._ticks(block))
+        for t_change in self._transitions(t0, t1):
+            out.append(Outgoing(t_change, self._status_at(t_change)))
         due = [p for p in self._pending if p.time_s <= t1]
         self._pending = [p for p in self._pending if p.time_s > t1]
         out.extend(due)
@@ -477,10 +454,23 @@ class Firmware:
             if self.on_state_change is not None:
                 self.on_state_change(self._last_state, state, t1)
             self._last_state = state
-        del t0
         if self.faults.silent:
             return []
         return out
+
+    def _transitions(self, t0: float, t1: float) -> list[float]:
+        """Times in (t0, t1] at which the state changes by itself (protocol.md 5: each sends a status)."""
+        candidates = (
+            self._boot_end,
+            self.warmup_s,
+            self.instrument.table.motion_end_s,
+            self._settle_end,
+        )
+        return sorted(
+            t
+            for t in set(candidates)
+            if t0 < t <= t1 and self.state_at(t - 1e-9) != self.state_at(t)
+        )
 
     def _status_at(self, t: float) -> Status:
         s = self.status()
@@ -585,6 +575,32 @@ class Firmware:
             self._counter = (self._counter + 1) & 0xFFFFFFFF
             out.append(Outgoing(t, sample))
         return out
+
+
+_BOOT_ALLOWED = frozenset({Opcode.IDENTIFY, Opcode.GET_STATUS, Opcode.GET_CONFIG, Opcode.RESET})
+_FAULT_REFUSED = frozenset({*MOTION_OPCODES, Opcode.SET_CONFIG})
+_BUSY_REFUSED = frozenset({*MOTION_OPCODES, Opcode.SELF_TEST})
+
+
+_MOTION_KEYS = frozenset(
+    {ConfigKey.TABLE_MAX_RATE_MDPS, ConfigKey.TABLE_MAX_ACCEL_MDPS2, ConfigKey.SETTLE_TIME_MS}
+)
+
+
+def _state_refusal(cmd: Command, state: DeviceState) -> Result | None:
+    """The state check of protocol.md table 4.3 (third in order)."""
+    op = cmd.OPCODE
+    if state == DeviceState.FAULT and op in _FAULT_REFUSED:
+        return Result.FAULT
+    if state == DeviceState.BOOT and op not in _BOOT_ALLOWED:
+        return Result.NOT_READY
+    if state == DeviceState.WARMUP and op in MOTION_OPCODES:
+        return Result.NOT_READY
+    if state in (DeviceState.ROTATING, DeviceState.SETTLING) and (
+        op in _BUSY_REFUSED or (isinstance(cmd, SetConfig) and cmd.key in _MOTION_KEYS)
+    ):
+        return Result.BUSY
+    return None
 
 
 def _angle_counts(angle_deg: float) -> int:

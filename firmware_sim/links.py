@@ -211,6 +211,7 @@ class SerialLink:
         self.encoder = SerialEncoder()
         self._faults = _FrameFaults(firmware)
         self._bad = 0
+        self._boot = firmware.boot_count
 
     def poll(self, timeout: float) -> int:
         data = self.stream.read(timeout)
@@ -237,6 +238,10 @@ class SerialLink:
         return len(frames)
 
     def send(self, outgoing: list[Outgoing]) -> None:
+        if self.firmware.boot_count != self._boot:
+            # protocol.md 6: after RESET the serial sequence counter restarts.
+            self._boot = self.firmware.boot_count
+            self.encoder = SerialEncoder()
         chunks = []
         for item in outgoing:
             data = self._faults.filter(self.encoder.encode(item.message), _flip_payload_bit)
