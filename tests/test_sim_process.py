@@ -1,0 +1,217 @@
+"""``northfinder sim`` as a real subprocess, reached over a pseudo-terminal with pyserial and with
+python-can's own ``slcan`` interface; and its behaviour under random input."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import can
+import numpy as np
+import pytest
+import serial
+
+from driver.protocol.can import CanReceiver, TickLoss, encode_can
+from driver.protocol.constants import Opcode, Result, SerialType
+from driver.protocol.messages import (
+    GetStatus,
+    Identify,
+    Reply,
+    RequestIdentify,
+    Sample,
+    Status,
+    StreamStart,
+)
+from driver.protocol.serial import Deframer, SerialEncoder, SerialFrame
+from firmware_sim.control import ControlClient
+
+pytestmark = pytest.mark.subprocess
+
+
+@contextmanager
+def simulator(*link: str, seed: int = 1) -> Iterator[tuple[str, str]]:
+    """Start ``northfinder sim`` on a new pty; yield (pty path, control address); always stop it."""
+    cmd = [
+        sys.executable,
+        "-c",
+        "from host.cli import main; raise SystemExit(main())",
+        "sim",
+        *link,
+    ]
+    cmd += ["--warmup", "0", "--seed", str(seed), "--control", "127.0.0.1:0"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        facts = {}
+        while len(facts) < 2:
+            line = proc.stdout.readline()
+            if not line:
+                raise RuntimeError(f"simulator exited: {proc.stderr.read()}")
+            key, _, value = line.strip().partition(" ")
+            facts[key] = value
+        yield facts["pty"], facts["control"]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            assert proc.wait(10) == 0, proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+
+
+def read_serial(port: serial.Serial, deframer: Deframer, seconds: float) -> list:
+    out, end = [], time.monotonic() + seconds
+    while time.monotonic() < end:
+        out += deframer.feed_messages(port.read(4096))
+    return out
+
+
+def test_serial_pty_subprocess_identifies_streams_and_answers():
+    with simulator("--pty") as (path, control):
+        with serial.Serial(path, 115200, timeout=0.05) as port:
+            enc, de = SerialEncoder(), Deframer()
+            time.sleep(0.6)  # past BOOT
+            port.reset_input_buffer()
+            port.write(enc.encode(RequestIdentify(1)) + enc.encode(StreamStart(2)))
+            got = read_serial(port, de, 2.0)
+            port.write(enc.encode(GetStatus(3)))
+            got += read_serial(port, de, 0.3)
+        replies = {m.seq: m for m in got if isinstance(m, Reply)}
+        assert {1, 2, 3} <= set(replies) and all(replies[k].ok for k in (1, 2, 3))
+        assert any(isinstance(m, Identify) and m.model == "NF-SIM" for m in got)
+        counters = np.array([m.counter for m in got if isinstance(m, Sample)])
+        assert len(counters) > 300 and np.all(np.diff(counters) == 1)
+        assert de.crc_errors == 0 and de.lost_frames == 0
+        with ControlClient(control) as ctl:
+            assert ctl.call("status")["state"] == "READY"
+
+
+def can_send(bus: can.BusABC, message) -> None:
+    for frame in encode_can(message, 1):
+        bus.send(
+            can.Message(arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False)
+        )
+
+
+def read_can(bus: can.BusABC, rx: CanReceiver, seconds: float) -> list:
+    out, end = [], time.monotonic() + seconds
+    while time.monotonic() < end:
+        msg = bus.recv(0.05)
+        if msg is not None:
+            out += rx.feed(msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id)
+    return out
+
+
+def test_slcan_pty_subprocess_reached_with_python_can():
+    with simulator("--slcan-pty") as (path, _control):
+        with can.Bus(interface="slcan", channel=path, sleep_after_open=0, bitrate=500_000) as bus:
+            rx = CanReceiver(node_id=1)
+            time.sleep(0.6)
+            can_send(bus, RequestIdentify(1))
+            can_send(bus, StreamStart(2))
+            got = read_can(bus, rx, 2.0)
+        assert any(isinstance(m, Identify) for m in got)
+        assert {m.seq for m in got if isinstance(m, Reply) and m.ok} >= {1, 2}
+        samples = [m for m in got if isinstance(m, Sample)]
+        assert len(samples) > 300
+        assert not [m for m in got if isinstance(m, TickLoss)]
+        assert np.all(np.diff([s.counter for s in samples]) == 1)
+
+
+def test_random_bytes_on_serial_do_not_disturb_the_stream():
+    rng = np.random.default_rng(7)
+    with simulator("--pty", seed=4) as (path, control):
+        with serial.Serial(path, 115200, timeout=0.02) as port:
+            enc, de = SerialEncoder(), Deframer()
+            time.sleep(0.6)
+            port.reset_input_buffer()
+            port.write(enc.encode(StreamStart(1)))
+            got = read_serial(port, de, 0.3)
+            for i in range(40):
+                junk = rng.integers(0, 256, int(rng.integers(1, 300)), dtype=np.uint8).tobytes()
+                if i % 4 == 0:  # a well-framed command with an undefined opcode: must be refused
+                    junk += SerialFrame(
+                        SerialType.COMMAND, 200 + i, bytes((100 + i, 0x7E))
+                    ).encode()
+                port.write(junk)
+                got += read_serial(port, de, 0.05)
+            port.write(enc.encode(GetStatus(99)))
+            got += read_serial(port, de, 0.5)
+        counters = np.array([m.counter for m in got if isinstance(m, Sample)])
+        assert len(counters) > 400 and np.all(np.diff(counters) == 1), "the stream has a gap"
+        refused = [m for m in got if isinstance(m, Reply) and m.result == Result.UNKNOWN_COMMAND]
+        assert len(refused) == 10
+        status = [m for m in got if isinstance(m, Status)][-1]
+        assert status.rx_malformed > 0
+        assert any(isinstance(m, Reply) and m.seq == 99 and m.ok for m in got), (
+            "no answer after the junk"
+        )
+        with ControlClient(control) as ctl:
+            assert ctl.call("status")["rx_malformed"] >= 10
+
+
+def test_random_can_frames_do_not_disturb_the_stream():
+    rng = np.random.default_rng(11)
+    with simulator("--slcan-pty", seed=5) as (path, control):
+        with can.Bus(interface="slcan", channel=path, sleep_after_open=0) as bus:
+            rx = CanReceiver(node_id=1)
+            time.sleep(0.6)
+            can_send(bus, StreamStart(1))
+            got = read_can(bus, rx, 0.3)
+            sent_bad = 0
+            for _ in range(150):
+                arb = int(rng.integers(0, 0x800))
+                data = rng.integers(0, 256, int(rng.integers(0, 9)), dtype=np.uint8).tobytes()
+                if arb == 0x041:
+                    continue  # a random frame could be a real command; those are sent below
+                bus.send(can.Message(arbitration_id=arb, data=data, is_extended_id=False))
+            for seq in range(20):  # undefined opcodes and wrong lengths on our command id
+                bad = (
+                    bytes((seq, 0x70 + seq % 8))
+                    if seq % 2
+                    else bytes((seq, Opcode.ROTATE_TO, 1, 2))
+                )
+                bus.send(can.Message(arbitration_id=0x041, data=bad, is_extended_id=False))
+                sent_bad += 1
+            got += read_can(bus, rx, 1.0)
+            can_send(bus, GetStatus(77))
+            got += read_can(bus, rx, 0.5)
+        samples = [m for m in got if isinstance(m, Sample)]
+        assert len(samples) > 250
+        assert not [m for m in got if isinstance(m, TickLoss)], "the stream has a gap"
+        assert np.all(np.diff([s.counter for s in samples]) == 1)
+        answers = [m for m in got if isinstance(m, Reply) and m.seq < 20 and m.result != Result.OK]
+        assert len(answers) == sent_bad
+        assert any(isinstance(m, Reply) and m.seq == 77 and m.ok for m in got)
+        with ControlClient(control) as ctl:
+            assert ctl.call("status")["rx_malformed"] >= sent_bad
+
+
+def test_sim_refuses_bad_arguments_with_one_clear_line():
+    env = dict(os.environ)
+    for args, text in (
+        (["--pty", "--serial", "/dev/null"], "choose exactly one link"),
+        (["--pty", "--sensor", "nope"], "unknown sensor preset 'nope'"),
+        (["--pty", "--latitude", "90"], "too close to a pole"),
+        (["--pty", "--control", "10.1.2.3:5"], "only loopback addresses"),
+        (["--pty", "--node-id", "0"], "--node-id"),
+    ):
+        res = subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                "from host.cli import main; raise SystemExit(main())",
+                "sim",
+                *args,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=30,
+            env=env,
+        )
+        assert res.returncode != 0
+        assert text in res.stderr and "Traceback" not in res.stderr, res.stderr
