@@ -35,6 +35,10 @@ fi
 ip link set up "$HIL_CAN_IF" 2>/dev/null || ip link show "$HIL_CAN_IF" | grep -q '[<,]UP[,>]' \
     || finish "fail setup: $HIL_CAN_IF is down" 2
 ip -details link show "$HIL_CAN_IF"
+if [[ $HIL_MODE == vm ]]; then
+    # The guest's own kernel: let sockets ask for large receive buffers (see smoke_can.py).
+    sysctl -qw net.core.rmem_max=33554432 || true
+fi
 
 # Steps
 mkdir -p "$OUT/steps"
