@@ -21,6 +21,7 @@ COMMANDS: dict[str, str] = {
     "simulate": "host.cli.simulate",
     "sim": "host.cli.sim",
     "simctl": "host.cli.simctl",
+    "solve": "host.cli.solve",
 }
 
 

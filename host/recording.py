@@ -1,0 +1,324 @@
+"""Recordings of raw windows: written by ``northfinder record``, solved by ``northfinder solve``.
+
+Two formats carry the same content.
+
+CSV (``.csv``)
+    Comment lines ``# key = value`` first (``format = northfinder-recording``, ``version = 1``,
+    ``latitude_deg``, ``sample_rate_hz``, and anything else known, e.g. the simulated truth), then
+    one header line and one row per sample with the columns of :data:`COLUMNS`:
+
+    ======================  =====================================================
+    ``window``              0-based window index
+    ``commanded_deg``       table angle ordered for the window, deg
+    ``counter``             device sample counter (consecutive within a window)
+    ``time_s``              device time of the sample, s
+    ``gyro_x_dph`` .. z     gyro, mean rate over the sample interval, deg/h
+    ``accel_x_mps2`` .. z   accelerometer, mean specific force, m/s^2
+    ``table_deg``           encoder angle, deg
+    ``temperature_c``       sensor temperature, degC
+    ``validity``            validity bits (protocol.md 4.5)
+    ======================  =====================================================
+
+NPZ (``.npz``)
+    Arrays named after the columns (``gyro_dph`` and ``accel_mps2`` as (n, 3)), concatenated over
+    windows, and ``meta_json``: the same metadata as a JSON string.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from host.errors import HostError
+
+FORMAT = "northfinder-recording"
+VERSION = 1
+COLUMNS = (
+    "window",
+    "commanded_deg",
+    "counter",
+    "time_s",
+    "gyro_x_dph",
+    "gyro_y_dph",
+    "gyro_z_dph",
+    "accel_x_mps2",
+    "accel_y_mps2",
+    "accel_z_mps2",
+    "table_deg",
+    "temperature_c",
+    "validity",
+)
+
+
+class RecordingError(HostError):
+    """A recording cannot be read or written; the message names the file and what is wrong."""
+
+
+@dataclass(frozen=True)
+class RecordedWindow:
+    """One window of raw samples (the same fields the procedure reads from a live window)."""
+
+    commanded_deg: float
+    counter: NDArray[np.int64]
+    time_s: NDArray[np.float64]
+    gyro_dph: NDArray[np.float64]
+    accel_mps2: NDArray[np.float64]
+    table_deg: NDArray[np.float64]
+    temperature_c: NDArray[np.float64]
+    validity: NDArray[np.uint8]
+
+    @property
+    def gaps(self) -> list[tuple[int, int]]:
+        """(first missing counter, count) for every jump in the counter."""
+        d = np.diff(self.counter)
+        return [(int(self.counter[i] + 1), int(d[i] - 1)) for i in np.flatnonzero(d != 1)]
+
+    @property
+    def missing(self) -> int:
+        return sum(max(c, 0) for _, c in self.gaps)
+
+    @classmethod
+    def from_window(cls, window: Any, commanded_deg: float) -> RecordedWindow:
+        return cls(
+            float(commanded_deg),
+            np.asarray(window.counter, dtype=np.int64),
+            np.asarray(window.time_s, dtype=float),
+            np.asarray(window.gyro_dph, dtype=float),
+            np.asarray(window.accel_mps2, dtype=float),
+            np.asarray(window.table_deg, dtype=float),
+            np.asarray(window.temperature_c, dtype=float),
+            np.asarray(window.validity, dtype=np.uint8),
+        )
+
+
+@dataclass(frozen=True)
+class Recording:
+    windows: tuple[RecordedWindow, ...]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def save(self, path: str | Path) -> None:
+        """Write as CSV or NPZ, chosen by the file name's ending."""
+        p = Path(path)
+        meta = {"format": FORMAT, "version": VERSION, **self.meta}
+        try:
+            if p.suffix == ".npz":
+                arrays = _concat(self.windows)
+                np.savez_compressed(p, meta_json=np.array(json.dumps(meta)), **arrays)
+            elif p.suffix == ".csv":
+                with p.open("w", newline="") as fh:
+                    for k, v in meta.items():
+                        fh.write(f"# {k} = {json.dumps(v)}\n")
+                    writer = csv.writer(fh)
+                    writer.writerow(COLUMNS)
+                    for i, w in enumerate(self.windows):
+                        for j in range(len(w.counter)):
+                            writer.writerow(
+                                [
+                                    i,
+                                    f"{w.commanded_deg:.6f}",
+                                    int(w.counter[j]),
+                                    f"{w.time_s[j]:.6f}",
+                                ]
+                                + [repr(float(v)) for v in w.gyro_dph[j]]
+                                + [repr(float(v)) for v in w.accel_mps2[j]]
+                                + [
+                                    f"{w.table_deg[j]:.6f}",
+                                    f"{w.temperature_c[j]:.2f}",
+                                    int(w.validity[j]),
+                                ]
+                            )
+            else:
+                raise RecordingError(f"{p}: the file name must end in .csv or .npz")
+        except OSError as exc:
+            raise RecordingError(f"{p}: cannot write ({exc.strerror})") from exc
+
+    @staticmethod
+    def load(path: str | Path) -> Recording:
+        """Read a CSV or NPZ recording; every problem is reported with the file and the field."""
+        p = Path(path)
+        if p.suffix not in (".csv", ".npz"):
+            raise RecordingError(f"{p}: the file name must end in .csv or .npz")
+        try:
+            if p.suffix == ".npz":
+                arrays, meta = _read_npz(p)
+            else:
+                arrays, meta = _read_csv(p)
+        except OSError as exc:
+            raise RecordingError(f"{p}: cannot read ({exc.strerror or exc})") from exc
+        if meta.get("format") != FORMAT:
+            raise RecordingError(
+                f"{p}: not a northfinder recording (format = {meta.get('format')!r})"
+            )
+        if meta.get("version") != VERSION:
+            raise RecordingError(
+                f"{p}: recording version {meta.get('version')!r}; this reader knows {VERSION}"
+            )
+        return Recording(_split(arrays, p), meta)
+
+
+def _concat(windows: tuple[RecordedWindow, ...]) -> dict[str, NDArray[Any]]:
+    def cat(name: str) -> NDArray[Any]:
+        return np.concatenate([getattr(w, name) for w in windows])
+
+    return {
+        "window": np.concatenate(
+            [np.full(len(w.counter), i, dtype=np.int64) for i, w in enumerate(windows)]
+        ),
+        "commanded_deg": np.concatenate(
+            [np.full(len(w.counter), w.commanded_deg) for w in windows]
+        ),
+        **{
+            name: cat(name)
+            for name in (
+                "counter",
+                "time_s",
+                "gyro_dph",
+                "accel_mps2",
+                "table_deg",
+                "temperature_c",
+                "validity",
+            )
+        },
+    }
+
+
+def _read_npz(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+    try:
+        with np.load(p, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise RecordingError(f"{p}: not a readable NPZ file ({exc})") from exc
+    if "meta_json" not in arrays:
+        raise RecordingError(f"{p}: no meta_json array; not a northfinder recording")
+    try:
+        meta = json.loads(str(arrays.pop("meta_json")))
+    except json.JSONDecodeError as exc:
+        raise RecordingError(f"{p}: meta_json is not JSON ({exc})") from exc
+    return arrays, meta
+
+
+def _read_csv(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+    text = p.read_text(errors="replace")
+    meta: dict[str, Any] = {}
+    lines = text.splitlines()
+    body_start = 0
+    for i, line in enumerate(lines):
+        if not line.startswith("#"):
+            body_start = i
+            break
+        key, sep, value = line[1:].partition("=")
+        if sep:
+            try:
+                meta[key.strip()] = json.loads(value.strip())
+            except json.JSONDecodeError:
+                raise RecordingError(
+                    f"{p}: line {i + 1}: metadata value is not JSON: {value.strip()!r}"
+                ) from None
+    else:
+        body_start = len(lines)
+    reader = csv.reader(io.StringIO("\n".join(lines[body_start:])))
+    header = next(reader, None)
+    if header is None:
+        raise RecordingError(f"{p}: no header line")
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise RecordingError(
+            f"{p}: missing column {missing[0]!r}; columns are {', '.join(COLUMNS)}"
+        )
+    idx = [header.index(c) for c in COLUMNS]
+    rows = []
+    for lineno, row in enumerate(reader, start=body_start + 2):
+        if not row:
+            continue
+        try:
+            values = [float(row[k]) for k in idx]
+        except (ValueError, IndexError):
+            bad = next(
+                (COLUMNS[n] for n, k in enumerate(idx) if k >= len(row) or not _is_number(row[k])),
+                "?",
+            )
+            raise RecordingError(
+                f"{p}: line {lineno}: column {bad!r} is missing or not a number"
+            ) from None
+        rows.append(values)
+    if not rows:
+        raise RecordingError(f"{p}: no samples")
+    a = np.array(rows)
+    arrays = {
+        "window": a[:, 0].astype(np.int64),
+        "commanded_deg": a[:, 1],
+        "counter": a[:, 2].astype(np.int64),
+        "time_s": a[:, 3],
+        "gyro_dph": a[:, 4:7],
+        "accel_mps2": a[:, 7:10],
+        "table_deg": a[:, 10],
+        "temperature_c": a[:, 11],
+        "validity": a[:, 12].astype(np.uint8),
+    }
+    return arrays, meta
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _split(arrays: dict[str, NDArray[Any]], p: Path) -> tuple[RecordedWindow, ...]:
+    needed = (
+        "window",
+        "commanded_deg",
+        "counter",
+        "time_s",
+        "gyro_dph",
+        "accel_mps2",
+        "table_deg",
+        "temperature_c",
+        "validity",
+    )
+    for name in needed:
+        if name not in arrays:
+            raise RecordingError(f"{p}: missing array {name!r}")
+    n = len(arrays["window"])
+    for name in needed:
+        shape = (n, 3) if name in ("gyro_dph", "accel_mps2") else (n,)
+        if arrays[name].shape != shape:
+            raise RecordingError(
+                f"{p}: array {name!r} has shape {arrays[name].shape}, expected {shape}"
+            )
+        if arrays[name].dtype.kind == "f" and not np.all(np.isfinite(arrays[name])):
+            raise RecordingError(f"{p}: array {name!r} holds NaN or infinite values")
+    windows = []
+    for w in np.unique(arrays["window"]):
+        sel = arrays["window"] == w
+        commanded = arrays["commanded_deg"][sel]
+        if not math.isfinite(float(commanded[0])) or np.ptp(commanded) != 0:
+            raise RecordingError(f"{p}: window {int(w)} has more than one commanded angle")
+        windows.append(
+            RecordedWindow(
+                float(commanded[0]),
+                arrays["counter"][sel],
+                arrays["time_s"][sel],
+                arrays["gyro_dph"][sel],
+                arrays["accel_mps2"][sel],
+                arrays["table_deg"][sel],
+                arrays["temperature_c"][sel],
+                arrays["validity"][sel].astype(np.uint8),
+            )
+        )
+    if len(windows) < 2:
+        raise RecordingError(
+            f"{p}: {len(windows)} window(s); north finding needs at least two positions"
+        )
+    return tuple(windows)
