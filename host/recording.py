@@ -59,6 +59,18 @@ COLUMNS = (
 )
 
 
+#: Per-sample arrays of a window, in the order of :class:`RecordedWindow`'s fields.
+SAMPLE_ARRAYS = (
+    "counter",
+    "time_s",
+    "gyro_dph",
+    "accel_mps2",
+    "table_deg",
+    "temperature_c",
+    "validity",
+)
+
+
 class RecordingError(HostError):
     """A recording cannot be read or written; the message names the file and what is wrong."""
 
@@ -88,16 +100,10 @@ class RecordedWindow:
 
     @classmethod
     def from_window(cls, window: Any, commanded_deg: float) -> RecordedWindow:
-        return cls(
-            float(commanded_deg),
-            np.asarray(window.counter, dtype=np.int64),
-            np.asarray(window.time_s, dtype=float),
-            np.asarray(window.gyro_dph, dtype=float),
-            np.asarray(window.accel_mps2, dtype=float),
-            np.asarray(window.table_deg, dtype=float),
-            np.asarray(window.temperature_c, dtype=float),
-            np.asarray(window.validity, dtype=np.uint8),
-        )
+        """Copy the sample arrays of a live window (anything with those attributes)."""
+        fields = {name: np.array(getattr(window, name)) for name in SAMPLE_ARRAYS}
+        fields["validity"] = fields["validity"].astype(np.uint8)
+        return cls(float(commanded_deg), **fields)
 
 
 @dataclass(frozen=True)
@@ -176,18 +182,7 @@ def _concat(windows: tuple[RecordedWindow, ...]) -> dict[str, NDArray[Any]]:
         "commanded_deg": np.concatenate(
             [np.full(len(w.counter), w.commanded_deg) for w in windows]
         ),
-        **{
-            name: cat(name)
-            for name in (
-                "counter",
-                "time_s",
-                "gyro_dph",
-                "accel_mps2",
-                "table_deg",
-                "temperature_c",
-                "validity",
-            )
-        },
+        **{name: cat(name) for name in SAMPLE_ARRAYS},
     }
 
 
@@ -276,17 +271,7 @@ def _is_number(text: str) -> bool:
 
 
 def _split(arrays: dict[str, NDArray[Any]], p: Path) -> tuple[RecordedWindow, ...]:
-    needed = (
-        "window",
-        "commanded_deg",
-        "counter",
-        "time_s",
-        "gyro_dph",
-        "accel_mps2",
-        "table_deg",
-        "temperature_c",
-        "validity",
-    )
+    needed = ("window", "commanded_deg", *SAMPLE_ARRAYS)
     for name in needed:
         if name not in arrays:
             raise RecordingError(f"{p}: missing array {name!r}")
@@ -305,18 +290,9 @@ def _split(arrays: dict[str, NDArray[Any]], p: Path) -> tuple[RecordedWindow, ..
         commanded = arrays["commanded_deg"][sel]
         if not math.isfinite(float(commanded[0])) or np.ptp(commanded) != 0:
             raise RecordingError(f"{p}: window {int(w)} has more than one commanded angle")
-        windows.append(
-            RecordedWindow(
-                float(commanded[0]),
-                arrays["counter"][sel],
-                arrays["time_s"][sel],
-                arrays["gyro_dph"][sel],
-                arrays["accel_mps2"][sel],
-                arrays["table_deg"][sel],
-                arrays["temperature_c"][sel],
-                arrays["validity"][sel].astype(np.uint8),
-            )
-        )
+        fields = {name: arrays[name][sel] for name in SAMPLE_ARRAYS}
+        fields["validity"] = fields["validity"].astype(np.uint8)
+        windows.append(RecordedWindow(float(commanded[0]), **fields))
     if len(windows) < 2:
         raise RecordingError(
             f"{p}: {len(windows)} window(s); north finding needs at least two positions"

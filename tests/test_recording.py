@@ -88,8 +88,9 @@ def test_a_gap_in_a_recording_is_reported(tmp_path):
     rec = simulated_recording()
     w = rec.windows[1]
     keep = np.r_[0:500, 510 : len(w.counter)]
-    holed = RecordedWindow(w.commanded_deg, *(np.asarray(getattr(w, f))[keep] for f in
-                           ("counter", "time_s", "gyro_dph", "accel_mps2", "table_deg", "temperature_c", "validity")))  # fmt: skip
+    holed = RecordedWindow(
+        w.commanded_deg, *(np.asarray(getattr(w, f))[keep] for f in SAMPLE_ARRAYS)
+    )
     assert holed.gaps == [(int(w.counter[500]), 10)] and holed.missing == 10
     with pytest.raises(QualityError, match="missing 10 samples"):
         solve_recording(Recording((rec.windows[0], holed), rec.meta), None, "none", "auto")
