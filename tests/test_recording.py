@@ -14,7 +14,7 @@ from firmware_sim.imu import Instrument, Truth
 from firmware_sim.sensors import load_spec
 from host.cli.solve import solve_recording
 from host.procedure import QualityError
-from host.recording import RecordedWindow, Recording, RecordingError
+from host.recording import SAMPLE_ARRAYS, RecordedWindow, Recording, RecordingError
 
 DPH = math.pi / 180 / 3600
 TRUTH = Truth(azimuth_deg=251.3, latitude_deg=34.0, pitch_deg=2.5, roll_deg=-1.0)
