@@ -142,3 +142,37 @@ class Runner:
             tick = 1.0 / self.firmware.sample_rate_hz
             timeout = min(0.002, self.clock.wall_until(self.firmware.now + tick))
             self.step(timeout)
+
+
+class BackgroundRunner:
+    """A runner on its own thread: ``with BackgroundRunner(runner): ...`` starts and stops it.
+
+    Used to embed a simulated instrument in a host process (``northfinder find --sim``, tests).
+    """
+
+    def __init__(self, runner: Runner) -> None:
+        self.runner = runner
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="simulator", daemon=True)
+        self.error: BaseException | None = None
+
+    def _run(self) -> None:
+        try:
+            self.runner.run(self._stop)
+        except BaseException as exc:  # reported to the owner; a dead simulator must not be silent
+            self.error = exc
+            raise
+
+    def start(self) -> BackgroundRunner:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+    def __enter__(self) -> BackgroundRunner:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

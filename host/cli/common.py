@@ -32,6 +32,14 @@ def angle_list(text: str) -> list[float]:
     return [finite_float(p) for p in parts]
 
 
+#: Latitude of a simulation when none is given (the source paper's site is near 34 deg N).
+DEFAULT_LATITUDE_DEG = 34.0
+
+
+def sim_latitude(args: argparse.Namespace) -> float:
+    return DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
+
+
 def add_sensor_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--sensor",

@@ -30,7 +30,13 @@ from firmware_sim.imu import Truth
 from firmware_sim.links import CanLink, PseudoTerminal, SerialLink, SerialStream, SlcanAdapter
 from firmware_sim.runner import RealTimeClock, Runner
 from firmware_sim.sensors import load_spec
-from host.cli.common import add_sensor_argument, add_truth_arguments, finite_float, positive_float
+from host.cli.common import (
+    add_sensor_argument,
+    add_truth_arguments,
+    finite_float,
+    positive_float,
+    sim_latitude,
+)
 from host.errors import HostConfigError
 
 
@@ -101,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     )
     rng = np.random.default_rng(args.seed)
     azimuth = float(rng.uniform(0.0, 360.0)) if args.azimuth is None else args.azimuth
-    truth = Truth(azimuth, args.latitude, args.pitch, args.roll)
+    truth = Truth(azimuth, sim_latitude(args), args.pitch, args.roll)
     spec = load_spec(args.sensor)
     closers = []
     pty = None

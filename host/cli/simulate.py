@@ -15,7 +15,13 @@ import numpy as np
 from firmware_sim.earth import mat_table
 from firmware_sim.imu import Instrument, Truth, body_rates
 from firmware_sim.sensors import load_spec
-from host.cli.common import add_sensor_argument, add_truth_arguments, angle_list, positive_float
+from host.cli.common import (
+    add_sensor_argument,
+    add_truth_arguments,
+    angle_list,
+    positive_float,
+    sim_latitude,
+)
 
 DPH = math.pi / 180.0 / 3600.0
 UG = 9.80665e-6
@@ -49,7 +55,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
     azimuth = float(rng.uniform(0, 360)) if args.azimuth is None else args.azimuth
-    truth = Truth(azimuth, args.latitude, args.pitch, args.roll)
+    truth = Truth(azimuth, sim_latitude(args), args.pitch, args.roll)
     spec = load_spec(args.sensor)
     ins = Instrument(spec, truth, rng, sample_rate_hz=args.rate)
     omega_b, f_b = body_rates(
