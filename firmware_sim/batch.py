@@ -1,0 +1,549 @@
+"""Many simulated north-finding runs at once: the still windows of a plan for a whole array of runs.
+
+:func:`simulate_windows` produces, for ``n_runs`` independent power-ons of the instrument, the
+samples of every recording window of a plan (table positions, window length, settle time) as
+arrays of shape ``(runs, positions, samples, 3)``. It follows the conventions and error terms of
+:class:`firmware_sim.imu.Instrument` (same closed-form means, same noise statistics) but draws
+whole arrays of runs with numpy instead of stepping one instrument, and it only generates the
+samples inside the windows: the slow noise processes jump across the moves exactly.
+
+Timeline of one run (the same for every run)
+--------------------------------------------
+Power-on at t = 0 with the table already at ``positions_deg[0]``; ``warmup_s`` pass; window 0
+records ``round(window_s * fs)`` samples; then, for every next position, the table moves the
+shorter way with the trapezoidal profile of the spec's table limits, ``settle_s`` pass, and the
+next window records. A position equal to the previous one needs neither move nor settle. Window
+starts are whole samples: a move starts at the end of the previous window and the next window
+starts at the first sample boundary at or after the end of move plus settle.
+
+Error terms
+-----------
+Per run: constant and turn-on bias, scale-factor and misalignment draws, table indexing error per
+move, vibration phase. Per sample: white noise (ARW, VRW), bias instability (the same flicker
+model as the instrument: Gauss-Markov components from 1 s to 10^4 s on a 0.1 s grid) and random
+walks, warm-up transient, temperature sensitivity, Poisson impulses (half-sine, random
+direction), vibration line, optional bias step, range clipping and quantisation. The quantiser
+carries its remainder within a window; the remainder at a window start is drawn uniformly (what
+the samples before it left over). The post-stop ring-down enters linearised (its amplitude at a
+window start is far below any other term).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import lfilter
+
+from firmware_sim.earth import G0, alpha_from_azimuth, earth_rate_n, gravity, mat_nb
+from firmware_sim.errors import SimConfigError
+from firmware_sim.imu import MAX_SAMPLE_RATE_HZ, MIN_SAMPLE_RATE_HZ, Truth, _SlowNoise
+from firmware_sim.sensors import SensorSpec, TableSpec
+from firmware_sim.turntable import trapezoid_duration
+
+__all__ = ["BatchWindows", "plan_timeline", "simulate_windows"]
+
+_DPH = math.pi / 180.0 / 3600.0  # deg/h -> rad/s
+_UG = 1e-6 * G0  # micro-g -> m/s^2
+
+
+@dataclass(frozen=True)
+class BatchWindows:
+    """The recording windows of many runs.
+
+    Attributes
+    ----------
+    gyro_rps : (runs, positions, samples, 3) float64
+        Gyro triad, mean rate over each sample interval, rad/s (a strided view; the samples of
+        one channel are contiguous, so ``numpy.moveaxis(gyro_rps, 2, -1)`` is C-contiguous).
+    accel_mps2 : (runs, positions, samples, 3) float64
+        Accelerometer triad, specific force, m/s^2 (same layout).
+    table_deg : (runs, positions) float64
+        Encoder reading during each window, [0, 360) deg.
+    commanded_deg : (positions,) float64
+        Commanded table angle of each window, [0, 360) deg.
+    azimuth_deg : (runs,) float64
+        True azimuth of each run, deg clockwise from north.
+    window_start_s : (positions,) float64
+        Start of each window, seconds since power-on.
+    sample_rate_hz : float
+        Sample rate, Hz.
+    plan_time_s : float
+        From the start of the first window to the end of the last, s (moves and settling
+        included, warm-up not).
+    """
+
+    gyro_rps: NDArray[np.float64]
+    accel_mps2: NDArray[np.float64]
+    table_deg: NDArray[np.float64]
+    commanded_deg: NDArray[np.float64]
+    azimuth_deg: NDArray[np.float64]
+    window_start_s: NDArray[np.float64]
+    sample_rate_hz: float
+    plan_time_s: float
+
+    @property
+    def n_runs(self) -> int:
+        return int(self.gyro_rps.shape[0])
+
+
+def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> float:
+    v = float(value)
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        kind = "non-negative" if allow_zero else "positive"
+        raise SimConfigError(f"{name}: must be a finite {kind} number, got {value!r}")
+    return v
+
+
+def plan_timeline(
+    spec: SensorSpec,
+    positions_deg: Sequence[float],
+    window_s: float,
+    settle_s: float | None = None,
+    *,
+    warmup_s: float = 0.0,
+    sample_rate_hz: float = 200.0,
+) -> tuple[NDArray[np.int64], int, NDArray[np.float64], NDArray[np.float64]]:
+    """Sample layout of a plan (see the module docstring).
+
+    Returns
+    -------
+    start : (positions,) int64
+        Index of the first sample of each window (sample ``k`` ends at ``(k + 1) / fs``).
+    n : int
+        Samples per window.
+    move_end_s : (positions,) float64
+        When the move before each window ended, s (``-inf`` when there was none).
+    delta_deg : (positions,) float64
+        The commanded move before each window, deg (0 for the first window).
+    """
+    fs = float(sample_rate_hz)
+    if not (math.isfinite(fs) and MIN_SAMPLE_RATE_HZ <= fs <= MAX_SAMPLE_RATE_HZ):
+        raise SimConfigError(
+            f"sample_rate_hz: {sample_rate_hz!r} Hz cannot be honoured; the model runs from "
+            f"{MIN_SAMPLE_RATE_HZ:g} to {MAX_SAMPLE_RATE_HZ:g} Hz"
+        )
+    pos = np.asarray(positions_deg, dtype=float)
+    if pos.ndim != 1 or pos.size < 1 or not np.all(np.isfinite(pos)):
+        raise SimConfigError(f"positions_deg: expected finite table angles, got {positions_deg!r}")
+    window_s = _check_positive("window_s", window_s)
+    settle = spec.table.settle_s if settle_s is None else settle_s
+    settle = _check_positive("settle_s", settle, allow_zero=True)
+    warmup_s = _check_positive("warmup_s", warmup_s, allow_zero=True)
+    n = round(window_s * fs)
+    if n < 1:
+        raise SimConfigError(f"window_s: {window_s} s holds no sample at {fs:g} Hz")
+    starts = np.empty(pos.size, dtype=np.int64)
+    move_end = np.full(pos.size, -math.inf)
+    delta = np.zeros(pos.size)
+    k = round(warmup_s * fs)
+    for i in range(pos.size):
+        if i:
+            k += n
+            d = (pos[i] - pos[i - 1] + 180.0) % 360.0 - 180.0
+            if d != 0.0:
+                travel = trapezoid_duration(d, spec.table.max_rate_dps, spec.table.max_accel_dps2)
+                move_end[i] = k / fs + travel
+                k += math.ceil(round((travel + settle) * fs, 6))
+            delta[i] = d
+        starts[i] = k
+    return starts, n, move_end, delta
+
+
+def _truth_arrays(truth: Truth | Sequence[Truth], n_runs: int) -> tuple[NDArray[np.float64], ...]:
+    truths = [truth] * n_runs if isinstance(truth, Truth) else list(truth)
+    if len(truths) != n_runs:
+        raise SimConfigError(f"truths: expected one Truth per run ({n_runs}), got {len(truths)}")
+    if not all(isinstance(t, Truth) for t in truths):
+        raise SimConfigError("truths: expected firmware_sim.imu.Truth values")
+    return tuple(
+        np.array([getattr(t, f) for t in truths], dtype=float)
+        for f in ("azimuth_deg", "latitude_deg", "pitch_deg", "roll_deg")
+    )
+
+
+def _triad_matrices(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(runs, 3, 3) error matrices, diag 1 + sf, off-diagonals ``mis`` in row-major order."""
+    m = np.zeros((sf.shape[0], 3, 3))
+    m[:, ~np.eye(3, dtype=bool)] = mis
+    m[:, np.arange(3), np.arange(3)] = 1.0 + sf
+    return m
+
+
+def _slow_noise(
+    rng: np.random.Generator,
+    pos: NDArray[np.float64],
+    n_runs: int,
+    flicker_b: NDArray[np.float64],
+    walk_k: NDArray[np.float64],
+    out: NDArray[np.float64],
+) -> None:
+    """Add flicker plus random walk at fractional grid positions ``pos`` (P, n) to ``out``."""
+    dt, taus = _SlowNoise.DT, _SlowNoise.TAUS
+    unit = math.sqrt(math.log(10.0**0.5) / math.pi)
+    chans = np.flatnonzero(flicker_b + walk_k)
+    p_count, n = pos.shape
+    if chans.size == 0:
+        return
+    nc = chans.size
+    phi = np.exp(-dt / taus)
+    gain = np.sqrt(1.0 - phi**2)
+    state = None  # (taus, runs, nc): flicker components at grid point ``last``
+    walk = None  # (runs, nc)
+    last = 0
+    prev = None  # coarse values of the previous window, (m, runs, nc)
+    for p in range(p_count):
+        g0 = math.floor(pos[p, 0])
+        g1 = math.floor(pos[p, -1]) + 1
+        if state is None:
+            state = rng.standard_normal((taus.size, n_runs, nc))
+            walk = math.sqrt(dt * g0) * rng.standard_normal((n_runs, nc))
+            first = g0
+        else:
+            # Jump exactly from the last grid point of the previous window to this window's.
+            first = max(g0, last)
+            gap = first - last
+            if gap:
+                a = phi[:, None, None] ** gap
+                state = a * state + np.sqrt(1.0 - a * a) * rng.standard_normal(state.shape)
+                walk = walk + math.sqrt(dt * gap) * rng.standard_normal(walk.shape)
+        m = g1 - first + 1
+        flick = np.empty((m, n_runs, nc))
+        walks = np.empty((m, n_runs, nc))
+        flick[0], walks[0] = state.sum(axis=0), walk
+        if m > 1:
+            w = rng.standard_normal((m - 1, taus.size + 1, n_runs, nc))
+            acc = np.zeros((m - 1, n_runs, nc))
+            new_state = np.empty_like(state)
+            for i in range(taus.size):
+                comp, _ = lfilter(
+                    [gain[i]], [1.0, -phi[i]], w[:, i], axis=0, zi=(phi[i] * state[i])[None]
+                )
+                acc += comp
+                new_state[i] = comp[-1]
+            flick[1:] = acc
+            walks[1:] = walk + np.cumsum(math.sqrt(dt) * w[:, -1], axis=0)
+            state, walk = new_state, walks[-1]
+        last = g1
+        coarse = flick * (flicker_b[chans] * unit) + walks * walk_k[chans]  # (m, runs, nc)
+        if first > g0:  # this window begins one grid step before the previous one ended
+            coarse = np.concatenate([prev[-2:-1], coarse])
+        prev = coarse
+        # Linear interpolation as a product with an (m, n) weight matrix (two entries a column).
+        x = pos[p] - g0
+        j = np.minimum(np.floor(x).astype(np.int64), len(coarse) - 2)
+        f = x - j
+        weights = np.zeros((len(coarse), n))
+        cols = np.arange(n)
+        weights[j, cols] = 1.0 - f
+        weights[j + 1, cols] = f
+        vals = np.moveaxis(coarse, 0, -1) @ weights  # (runs, nc, n)
+        if chans.size == 6:
+            out[:, p] += vals
+        else:
+            out[:, p, chans] += vals
+
+
+def simulate_windows(
+    spec: SensorSpec,
+    truth: Truth | Sequence[Truth],
+    positions_deg: Sequence[float],
+    window_s: float,
+    settle_s: float | None = None,
+    *,
+    n_runs: int,
+    rng: np.random.Generator,
+    sample_rate_hz: float = 200.0,
+    warmup_s: float = 0.0,
+    bias_step_dph: float = 0.0,
+) -> BatchWindows:
+    """Samples of every window of a plan for ``n_runs`` independent runs.
+
+    Parameters
+    ----------
+    spec : SensorSpec
+        Sensors, environment, table.
+    truth : Truth or sequence of Truth
+        One truth for every run, or one per run (azimuth, latitude, pitch, roll may all differ).
+    positions_deg : sequence of float
+        Commanded table angle of each window, deg.
+    window_s : float
+        Recording time per window, s.
+    settle_s : float, optional
+        Wait after each move, s (default: the spec's ``table.settle_s``).
+    n_runs : int
+        Number of independent runs (power-ons).
+    rng : numpy.random.Generator
+        Seeded generator.
+    sample_rate_hz : float
+        Output rate, Hz.
+    warmup_s : float
+        Time from power-on to the first window, s.
+    bias_step_dph : float
+        Size of one permanent gyro bias step per run, deg/h, at a uniformly random time within
+        the recorded span, in a random direction (as :meth:`Instrument.inject_bias_step`).
+
+    Returns
+    -------
+    BatchWindows
+
+    Raises
+    ------
+    SimConfigError
+        Bad plan, run count, rate or truths.
+    """
+    if isinstance(n_runs, bool) or int(n_runs) != n_runs or int(n_runs) < 1:
+        raise SimConfigError(f"n_runs: must be a positive integer, got {n_runs!r}")
+    n_runs = int(n_runs)
+    fs = float(sample_rate_hz)
+    starts, n, move_end, delta = plan_timeline(
+        spec, positions_deg, window_s, settle_s, warmup_s=warmup_s, sample_rate_hz=fs
+    )
+    bias_step_dph = _check_positive("bias_step_dph", bias_step_dph, allow_zero=True)
+    pc = starts.size
+    commanded = np.mod(np.asarray(positions_deg, dtype=float), 360.0)
+    g, a, tab, d = spec.gyro, spec.accel, spec.table, spec.disturbance
+    az, lat, pitch, roll = _truth_arrays(truth, n_runs)
+    turn_on, white, slow, impulses, table_rng = rng.spawn(5)
+
+    # Sample times: sample k covers ((k)/fs, (k+1)/fs].
+    k = starts[:, None] + np.arange(n)[None, :]
+    t = (k + 1) / fs  # (P, n)
+
+    # -- noise-free signal through the table and the sensor error matrices --------------------
+    c_nb = mat_nb(alpha_from_azimuth(az), np.radians(pitch), np.radians(roll))  # (R, 3, 3)
+    lat_r = np.radians(lat)
+    omega_b = np.einsum("rij,rj->ri", c_nb, earth_rate_n(lat_r))
+    grav = np.asarray(gravity(lat_r), dtype=float).reshape(-1)
+    f_b = c_nb[:, :, 2] * grav[:, None]
+    idx_err = np.zeros((n_runs, pc))
+    moved = delta != 0.0
+    if tab.indexing_error_deg and moved.any():
+        idx_err[:, moved] = table_rng.normal(0.0, tab.indexing_error_deg, (n_runs, moved.sum()))
+    # Continuous angle: the commanded angle as reached the shorter way, plus this move's error.
+    angle = np.asarray(positions_deg, dtype=float)[0] + np.cumsum(delta)
+    true_angle = angle[None, :] + idx_err  # (R, P)
+    mu = np.radians(true_angle)
+    cm, sm = np.cos(mu), np.sin(mu)
+
+    def _rotate(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        x = cm * v[:, 0, None] + sm * v[:, 1, None]
+        y = -sm * v[:, 0, None] + cm * v[:, 1, None]
+        return np.stack([x, y, np.broadcast_to(v[:, 2, None], x.shape)], axis=-1)  # (R, P, 3)
+
+    true = np.concatenate([_rotate(omega_b), _rotate(f_b)], axis=-1)  # (R, P, 6)
+    z_bias = turn_on.standard_normal((n_runs, 6))
+    z_sf = turn_on.standard_normal((n_runs, 6))
+    z_mis = turn_on.standard_normal((n_runs, 2, 6))
+    vib_phase = turn_on.uniform(0.0, 2 * math.pi, (n_runs, 6))
+    if g.scale_factor_ppm or g.misalignment_urad or a.scale_factor_ppm or a.misalignment_urad:
+        mg = _triad_matrices(
+            g.scale_factor_ppm * 1e-6 * z_sf[:, :3], g.misalignment_urad * 1e-6 * z_mis[:, 0]
+        )
+        ma = _triad_matrices(
+            a.scale_factor_ppm * 1e-6 * z_sf[:, 3:], a.misalignment_urad * 1e-6 * z_mis[:, 1]
+        )
+        # Instrument: out = true @ M.T, i.e. out_i = sum_j M_ij true_j.
+        true = np.concatenate(
+            [
+                np.einsum("rij,rpj->rpi", mg, true[..., :3]),
+                np.einsum("rij,rpj->rpi", ma, true[..., 3:]),
+            ],
+            axis=-1,
+        )
+    else:
+        mg = ma = None
+    bias = np.concatenate(
+        [
+            np.asarray(g.bias_dph) * _DPH + g.turn_on_bias_dph * _DPH * z_bias[:, :3],
+            np.asarray(a.bias_ug) * _UG + a.turn_on_bias_ug * _UG * z_bias[:, 3:],
+        ],
+        axis=-1,
+    )
+    base = true + bias[:, None, :]  # (R, P, 6)
+
+    out = np.empty((n_runs, pc, 6, n))
+    white_sigma = np.repeat(
+        [g.arw_dpsh * math.pi / 180.0 / 60.0 * math.sqrt(fs), a.vrw_ug_rthz * _UG * math.sqrt(fs)],
+        3,
+    )
+    if white_sigma.any():
+        # One draw for every channel keeps the array contiguous; silent channels get zero gain.
+        white.standard_normal(out.shape, out=out)
+        out *= white_sigma[None, None, :, None]
+        out += base[..., None]
+    else:
+        out[:] = base[..., None]
+
+    # -- deterministic terms of time: warm-up transient, temperature, ring-down ---------------
+    th = spec.thermal
+    temperature = (
+        th.ambient_c
+        + th.warmup_rise_c * (1.0 - np.exp(-t / th.warmup_tau_s))
+        + th.ramp_c_per_h * t / 3600.0
+    )
+    det = np.zeros((pc, 6, n))
+    warm = np.concatenate(
+        [np.asarray(g.warmup_bias_dph) * _DPH, np.asarray(a.warmup_bias_ug) * _UG]
+    )
+    if warm.any():
+        det[:, :3] += np.exp(-t / g.warmup_tau_s)[:, None, :] * warm[:3, None]
+        det[:, 3:] += np.exp(-t / a.warmup_tau_s)[:, None, :] * warm[3:, None]
+    temp_coeff = np.concatenate(
+        [np.asarray(g.temp_coeff_dph_per_c) * _DPH, np.asarray(a.temp_coeff_ug_per_c) * _UG]
+    )
+    if temp_coeff.any():
+        det += (temperature - th.ambient_c)[:, None, :] * temp_coeff[None, :, None]
+    if det.any():
+        out += det[None]
+    ring = np.zeros(pc)
+    if tab.overshoot_deg:
+        ring = _ring_down(out, tab, move_end, delta, starts, n, fs, true, mg, ma)
+
+    # -- slow noise, impulses, vibration, bias step -------------------------------------------
+    flicker_b = np.repeat([g.bias_instability_dph * _DPH, a.bias_instability_ug * _UG], 3)
+    walk_k = np.repeat(
+        [g.rrw_dphpsh * math.pi / 180.0 / 3600.0 / 60.0, a.random_walk_ug_rts * _UG], 3
+    )
+    if flicker_b.any() or walk_k.any():
+        _slow_noise(slow, (t - 0.5 / fs) / _SlowNoise.DT, n_runs, flicker_b, walk_k, out)
+    imp_amp = np.repeat([g.impulse_dph * _DPH, a.impulse_ug * _UG], 3)
+    if d.impulse_rate_hz > 0 and imp_amp.any():
+        _add_impulses(out, impulses, t, fs, d.impulse_rate_hz, d.impulse_duration_s, imp_amp)
+    vib_amp = np.repeat([g.vibration_dph * _DPH, a.vibration_ug * _UG], 3)
+    if d.vibration_hz > 0 and vib_amp.any():
+        for j in np.flatnonzero(vib_amp):
+            out[:, :, j, :] += vib_amp[j] * np.sin(
+                2 * math.pi * d.vibration_hz * t[None] + vib_phase[:, j, None, None]
+            )
+    if bias_step_dph:
+        t_step = impulses.uniform(t[0, 0] - 1.0 / fs, t[-1, -1], n_runs)
+        v = impulses.standard_normal((n_runs, 3))
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        # The step applies from the first sample whose interval starts after it.
+        on = (t[None] - 1.0 / fs) >= t_step[:, None, None]  # (R, P, n)
+        out[:, :, :3, :] += (bias_step_dph * _DPH * v)[:, None, :, None] * on[:, :, None, :]
+
+    # -- range and quantisation ---------------------------------------------------------------
+    rng_limit = np.array([g.range_dps * math.pi / 180.0] * 3 + [a.range_g * G0] * 3)
+    for j in range(6):
+        ch = out[:, :, j, :]
+        if ch.max() > rng_limit[j] or ch.min() < -rng_limit[j]:
+            np.clip(ch, -rng_limit[j], rng_limit[j], out=ch)
+    lsb = np.array([g.lsb_dph * _DPH] * 3 + [a.lsb_ug * _UG] * 3)
+    if lsb.any():
+        remainder = turn_on.uniform(-0.5, 0.5, (n_runs, pc, 6))
+        for j in np.flatnonzero(lsb):
+            cum = remainder[:, :, j, None] + np.cumsum(out[:, :, j, :] / lsb[j], axis=-1)
+            q = np.round(cum)
+            out[:, :, j, :] = np.diff(q, axis=-1, prepend=0.0) * lsb[j]
+
+    res = tab.encoder_resolution_deg
+    enc = true_angle + ring[None, :]
+    if res > 0:
+        enc = np.round(enc / res) * res
+    view = np.moveaxis(out, 2, 3)  # (R, P, n, 6), channel-minor view of channel-major memory
+    plan_time = (starts[-1] + n - starts[0]) / fs
+    return BatchWindows(
+        gyro_rps=view[..., :3],
+        accel_mps2=view[..., 3:],
+        table_deg=np.mod(enc, 360.0),
+        commanded_deg=commanded,
+        azimuth_deg=np.mod(az, 360.0),
+        window_start_s=starts / fs,
+        sample_rate_hz=fs,
+        plan_time_s=float(plan_time),
+    )
+
+
+def _ring_down(
+    out: NDArray[np.float64],
+    tab: TableSpec,
+    move_end: NDArray[np.float64],
+    delta: NDArray[np.float64],
+    starts: NDArray[np.int64],
+    n: int,
+    fs: float,
+    true: NDArray[np.float64],
+    mg: NDArray[np.float64] | None,
+    ma: NDArray[np.float64] | None,
+) -> NDArray[np.float64]:
+    """Add the damped oscillation after each stop (linearised in the angle; exact on gyro z).
+
+    Returns the mean angle offset of each window, deg (what the encoder sees on average).
+    """
+    mean_offset = np.zeros(len(starts))
+    tau = max(tab.settle_s / 4.0, 1e-3)
+    w = 2 * math.pi * tab.overshoot_hz
+    last_end, last_delta = -math.inf, 0.0
+    for p in range(len(starts)):
+        if math.isfinite(move_end[p]):
+            last_end, last_delta = move_end[p], delta[p]
+        if not math.isfinite(last_end):
+            continue
+        edges = (starts[p] + np.arange(n + 1)) / fs
+        x = edges - last_end
+        on = (x > 0) & (x < 40.0 * tau)
+        if not on.any():
+            continue
+        amp = math.copysign(tab.overshoot_deg, last_delta)
+        osc = np.where(on, amp * np.exp(-x / tau) * np.sin(w * x), 0.0)  # deg, at the edges
+        if np.abs(osc).max() < 1e-15:
+            continue
+        mean_offset[p] = osc[1:].mean()
+        rate = np.radians(np.diff(osc) * fs)  # mean table rate per sample, rad/s
+        dmu = np.radians(0.5 * (osc[:-1] + osc[1:]))  # mean angle offset per sample, rad
+        # d/dmu of (c vx + s vy, -s vx + c vy) is (y, -x) of the rotated vector.
+        for sl, m in ((slice(0, 3), mg), (slice(3, 6), ma)):
+            rot = true[:, p, sl]
+            if m is not None:
+                rot = np.einsum("rij,rj->ri", np.linalg.inv(m), rot)
+            deriv = np.stack([rot[:, 1], -rot[:, 0], np.zeros(rot.shape[0])], axis=-1)
+            if m is not None:
+                deriv = np.einsum("rij,rj->ri", m, deriv)
+            out[:, p, sl, :] += deriv[:, :, None] * dmu[None, None, :]
+        gz = np.array([0.0, 0.0, 1.0])
+        if mg is None:
+            out[:, p, 2, :] += rate[None, :]
+        else:
+            out[:, p, 0:3, :] += (mg @ gz)[:, :, None] * rate[None, None, :]
+    return mean_offset
+
+
+def _add_impulses(
+    out: NDArray[np.float64],
+    rng: np.random.Generator,
+    t: NDArray[np.float64],
+    fs: float,
+    rate_hz: float,
+    duration_s: float,
+    amp: NDArray[np.float64],
+) -> None:
+    """Poisson half-sine impulses over each window (events that overlap it), random directions."""
+    n_runs, pc, _, n = out.shape
+    for p in range(pc):
+        t0, t1 = t[p, 0] - 1.0 / fs, t[p, -1]
+        span = t1 - t0 + duration_s
+        counts = rng.poisson(rate_hz * span, n_runs)
+        total = int(counts.sum())
+        if total == 0:
+            continue
+        run = np.repeat(np.arange(n_runs), counts)
+        start = t0 - duration_s + rng.uniform(0.0, span, total)
+        v = rng.standard_normal((total, 6))
+        v[:, :3] /= np.linalg.norm(v[:, :3], axis=1, keepdims=True)
+        v[:, 3:] /= np.linalg.norm(v[:, 3:], axis=1, keepdims=True)
+        # Samples whose end time lies inside (start, start + duration).
+        first = np.floor((start - t[p, 0]) * fs).astype(np.int64) + 1
+        m = math.ceil(duration_s * fs) + 1
+        idx = first[:, None] + np.arange(m)[None, :]
+        valid = (idx >= 0) & (idx < n)
+        idx_c = np.clip(idx, 0, n - 1)
+        x = (t[p, idx_c] - start[:, None]) / duration_s
+        shape = np.where(valid & (x > 0) & (x < 1), np.sin(math.pi * x), 0.0)  # (E, m)
+        contrib = shape[:, :, None] * (amp * v)[:, None, :]  # (E, m, 6)
+        for j in np.flatnonzero(amp):
+            np.add.at(out[:, p, j, :], (run[:, None], idx_c), contrib[:, :, j])
