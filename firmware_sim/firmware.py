@@ -203,6 +203,10 @@ class Firmware:
         configuration back to defaults, streaming off. Warm-up is thermal and counts from power-on."""
         self._pending.clear()
         self._reboot(self.now)
+        # protocol.md 4.6 and 6: the counters restart, and the reply to RESET leaves before the
+        # first status of BOOT.
+        self.rx_malformed = self.tx_dropped = self.cmd_rejected = 0
+        self._next_heartbeat = self.now + 2 * REPLY_LATENCY_S
         log.info("t=%.3f s reset", self.now)
 
     @property
@@ -289,10 +293,14 @@ class Firmware:
         """Act on one decoded command received now; its reply goes out with the next process()."""
         if self.faults.silent:
             return
+        before = self.state
         result, data, follow = self._execute(command)
         self._reply(Reply(command.seq, command.OPCODE, result, data))
         if follow is not None:
             self._queue(follow, REPLY_LATENCY_S + self.faults.reply_delay_s)
+        if command.OPCODE != Opcode.RESET and self.state != before:
+            # protocol.md 5: a change caused by a command (a move starting) also sends a status.
+            self._queue(self.status(), REPLY_LATENCY_S + self.faults.reply_delay_s)
         if command.OPCODE == Opcode.RESET and result == Result.OK:
             reply = self._pending[-1]  # the reply to RESET goes out first (protocol.md 6)
             self.reboot()

@@ -217,9 +217,12 @@ class TickAssembler:
 
     Frames of one tick may come in any order, but ticks do not interleave (one sender, and
     CAN keeps its order). The full 32-bit counter is extended from the 8-bit tick: forward from
-    the previous tick, and re-anchored by :meth:`sync` with the counter from STATUS_COUNTERS
-    (needed at start and after a gap of 256 ticks or more). Before any sync the first tick
-    seen gets counter = tick.
+    the previous tick, and anchored by :meth:`sync` with the counter from STATUS_COUNTERS
+    (needed at start and after a gap of 256 ticks or more). The first tick that starts after a
+    sync takes the counter with its low byte nearest the anchor when that lies further ahead than
+    the forward extension: a gap of any length is then measured and reported, not folded modulo
+    256. Before any sync the first tick seen gets counter = tick. :meth:`restart` forgets the
+    previous tick, for a stream that was switched off and on again (ticks not sent are not lost).
 
     Attributes
     ----------
@@ -235,6 +238,7 @@ class TickAssembler:
 
     def __init__(self) -> None:
         self._ref: int | None = None
+        self._fresh = False  # an anchor from sync() not yet used by a new tick
         self._last: int | None = None
         self._tick: int | None = None
         self._counter = 0
@@ -249,10 +253,18 @@ class TickAssembler:
         sample_counter &= 0xFFFFFFFF
         if self._tick is not None:
             self._counter = _nearest(self._tick, sample_counter)
-        elif self._last is not None:
-            self._last = _nearest(self._last & 0xFF, sample_counter)
-        else:
-            self._ref = sample_counter
+        self._ref = sample_counter
+        self._fresh = True
+
+    def restart(self) -> list[TickLoss]:
+        """Forget the previous tick: the stream was off, and ticks it did not send are not lost.
+
+        The next tick is placed by the latest :meth:`sync` anchor. A tick still waiting for frames
+        is reported as incomplete (returned).
+        """
+        out = self.flush()
+        self._last = None
+        return out
 
     def add(self, part: SampleAxis | SampleAux) -> list[Sample | TickLoss]:
         """Add one sample frame; return completed samples and loss reports, in tick order."""
@@ -265,6 +277,11 @@ class TickAssembler:
                 counter = t if self._ref is None else _nearest(t, self._ref)
             else:
                 gap = (t - self._last) & 0xFF
+                if self._fresh and self._ref is not None:
+                    # 256 or more lost ticks fold to a short gap; the anchor tells them apart.
+                    ahead = (_nearest(t, self._ref) - self._last) & 0xFFFFFFFF
+                    if ahead != gap and 0 < ahead < 1 << 31:
+                        gap = ahead
                 if gap == 0:
                     self.duplicates += 1
                     return out
@@ -272,6 +289,7 @@ class TickAssembler:
                 if gap > 1:
                     self.lost += gap - 1
                     out.append(TickLoss((self._last + 1) & 0xFFFFFFFF, gap - 1, False))
+            self._fresh = False
             self._tick = t
             self._counter = counter
         slot = _SLOT[type(part)]

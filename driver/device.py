@@ -1,0 +1,1340 @@
+"""The host driver: one :class:`Device` object per instrument, on CAN or serial.
+
+Units at this interface: angles in degrees (table angle counter-clockwise seen from above, as the
+encoder reports it), gyro rates in deg/h (``Window.gyro_rps`` gives rad/s), specific force in
+m/s^2, temperature in degC, times in seconds. Count scales come from the device's IDENTIFY, not
+from constants.
+
+Threads. A reader thread receives everything the device sends and sorts it: replies go to the
+caller waiting for their sequence number, statuses update :attr:`Device.last_status` (and feed
+link supervision), identify updates :attr:`Device.identity`, samples go to an :meth:`acquire`
+in progress and are dropped otherwise. Every public method may be called from any thread;
+:meth:`Device.acquire` calls run one at a time.
+
+Timing (wall clock). A command is sent with a fresh sequence number and waits
+``reply_timeout`` (default 0.25 s; protocol.md 6 asks for at least 0.1 s) for its reply. Commands
+that are safe to repeat (:data:`RETRYABLE`) are sent again with a new sequence number, up to
+``retries`` more times (default 2), so a query fails with :class:`~driver.errors.ReplyTimeout`
+after at most ``(1 + retries) * reply_timeout`` = 0.75 s. Moves, HOME, RESET and SELF_TEST are
+sent once: a lost reply leaves open whether they were carried out. The link counts as lost when
+no status arrived for three heartbeat periods (0.3 s by default).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal, TypeVar
+
+import can
+import numpy as np
+import serial
+
+from driver.errors import (
+    DeviceFault,
+    DeviceRefused,
+    DeviceReset,
+    DriverError,
+    DriverTimeout,
+    LinkError,
+    LinkLost,
+    MoveTimeout,
+    ProtocolError,
+    ReplyTimeout,
+    StreamGap,
+    StreamTimeout,
+)
+from driver.protocol.can import TickLoss
+from driver.protocol.constants import (
+    G0_MPS2,
+    PROTOCOL_VERSION_MAJOR,
+    TEMPERATURE_NOT_AVAILABLE,
+    ConfigKey,
+    DeviceState,
+    Direction,
+    Fault,
+    Opcode,
+    Result,
+    result_meaning,
+)
+from driver.protocol.messages import (
+    Command,
+    GetConfig,
+    GetStatus,
+    Home,
+    Identify,
+    Reply,
+    RequestIdentify,
+    Reset,
+    RotateBy,
+    RotateTo,
+    Sample,
+    SelfTest,
+    SetConfig,
+    Status,
+    Stop,
+    StreamStart,
+    StreamStop,
+)
+from driver.transport import CanTransport, Received, SerialTransport, Transport
+
+__all__ = [
+    "RETRYABLE",
+    "Device",
+    "DeviceStatus",
+    "LinkStats",
+    "Window",
+]
+
+log = logging.getLogger("northfinder.driver")
+
+RETRYABLE = frozenset(
+    {
+        Opcode.IDENTIFY,
+        Opcode.GET_STATUS,
+        Opcode.GET_CONFIG,
+        Opcode.SET_CONFIG,
+        Opcode.STREAM_START,
+        Opcode.STREAM_STOP,
+        Opcode.STOP,
+    }
+)
+"""Commands sent again (with a new sequence number) when their reply does not come.
+
+Queries change nothing; STREAM_START/STOP and STOP leave the same state however often they
+arrive; SET_CONFIG writes an absolute value, so applying it twice equals applying it once (its
+reply echoes the value in effect). ROTATE_TO/BY and HOME are not repeated (a second copy arriving
+during the move is refused BUSY, and ROTATE_BY would add up), nor RESET and SELF_TEST.
+"""
+
+REPLY_TIMEOUT_S = 0.25
+RETRIES = 2
+HEARTBEATS_UNTIL_LOST = 3
+"""protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
+READ_POLL_S = 0.05
+_U32 = 0xFFFFFFFF
+_DPH_TO_RPS = math.pi / 180.0 / 3600.0
+_CONFIG_NAMES = ", ".join(k.name.lower() for k in ConfigKey)
+_DIRECTIONS = {"shortest": Direction.SHORTEST, "positive": Direction.POSITIVE}
+_DIRECTIONS["negative"] = Direction.NEGATIVE
+_VALID = 0x03  # GYRO_VALID | ACCEL_VALID
+_BAD = 0xFC  # moving, settling, saturated, warming up, fault
+OnGap = Literal["raise", "report"]
+T = TypeVar("T")
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceStatus:
+    """The device's status message in physical units.
+
+    Attributes
+    ----------
+    state : DeviceState
+    angle_deg : float
+        Table angle from the encoder, deg in [0, 360).
+    temperature_c : float
+        Sensor temperature, degC (NaN: no reading).
+    faults : Fault
+        Fault flags (any set flag means state FAULT).
+    sample_counter : int
+        Counter of the device's most recent sample tick.
+    rx_malformed, tx_dropped, cmd_rejected : int
+        The device's wrapping counters (protocol.md 4.6).
+    received_at : float
+        ``time.monotonic()`` when the status arrived.
+    """
+
+    state: DeviceState
+    angle_deg: float
+    temperature_c: float
+    faults: Fault
+    sample_counter: int
+    rx_malformed: int
+    tx_dropped: int
+    cmd_rejected: int
+    received_at: float
+
+
+@dataclass(frozen=True, slots=True)
+class LinkStats:
+    """What the driver received and what it could not use, since the device object was created.
+
+    Attributes
+    ----------
+    frames_received : int
+        CAN frames, or serial frames that passed the CRC check.
+    frames_rejected : int
+        Frames dropped as corrupt: bad CRC or length (serial), or a protocol frame that did not
+        decode (wrong length, undefined code).
+    frames_foreign : int
+        CAN frames of other nodes or other equipment (normal on a shared bus).
+    frames_lost : int
+        Serial only: frames missing from the device's sequence counter (dropped or rejected;
+        a device restart also shows as a jump).
+    ticks_lost, ticks_incomplete : int
+        Sample ticks of which no frame / only some CAN frames arrived (while streaming).
+    samples_received : int
+        Whole samples delivered.
+    stray_replies : int
+        Replies nobody waited for (late replies to timed-out commands).
+    retries : int
+        Commands sent again after a reply timeout.
+    reply_timeouts : int
+        Commands that failed with :class:`~driver.errors.ReplyTimeout`.
+    resets_detected : int
+        Device restarts noticed (BOOT status, unrequested IDENTIFY).
+    """
+
+    frames_received: int
+    frames_rejected: int
+    frames_foreign: int
+    frames_lost: int
+    ticks_lost: int
+    ticks_incomplete: int
+    samples_received: int
+    stray_replies: int
+    retries: int
+    reply_timeouts: int
+    resets_detected: int
+
+
+@dataclass(frozen=True)
+class Window:
+    """One acquisition window: consecutive sample ticks, in physical units.
+
+    The window spans ``requested`` ticks of device time from its first sample; the arrays hold
+    the samples received (``n = requested - missing`` rows) and ``counter`` shows where any are
+    missing. Arrays are read-only.
+
+    Attributes
+    ----------
+    counter : ndarray, shape (n,), int64
+        Sample counter, continued past 2**32 instead of wrapping within a window.
+    time_s : ndarray, shape (n,)
+        Device time, ``counter / sample_rate_hz`` s (seconds since boot if the rate was never
+        changed); differences are exact.
+    arrival_s : ndarray, shape (n,)
+        Wall-clock time (``time.time()``) at which each sample was received.
+    gyro_dph : ndarray, shape (n, 3)
+        Mean angular rate over each sample interval, body x, y, z, deg/h.
+    accel_mps2 : ndarray, shape (n, 3)
+        Mean specific force over each sample interval, body x, y, z, m/s^2.
+    table_deg : ndarray, shape (n,)
+        Table angle from the encoder, deg in [0, 360).
+    temperature_c : ndarray, shape (n,)
+        Sensor temperature, degC (NaN: no reading).
+    validity : ndarray, shape (n,), uint8
+        Validity bits (:class:`~driver.protocol.constants.Validity`).
+    sample_rate_hz : float
+    requested : int
+        Ticks the window spans: ``round(seconds * sample_rate_hz)``.
+    missing : int
+        Ticks in the span that did not arrive whole (lost or incomplete).
+    gaps : tuple of (int, int)
+        ``(first_counter, count)`` of each run of missing ticks.
+    """
+
+    counter: np.ndarray
+    time_s: np.ndarray
+    arrival_s: np.ndarray
+    gyro_dph: np.ndarray
+    accel_mps2: np.ndarray
+    table_deg: np.ndarray
+    temperature_c: np.ndarray
+    validity: np.ndarray
+    sample_rate_hz: float
+    requested: int
+    missing: int = 0
+    gaps: tuple[tuple[int, int], ...] = field(default_factory=tuple)
+
+    def __len__(self) -> int:
+        return len(self.counter)
+
+    @property
+    def complete(self) -> bool:
+        """True when no tick of the span is missing."""
+        return self.missing == 0
+
+    @property
+    def duration_s(self) -> float:
+        """Device time the window spans, s."""
+        return self.requested / self.sample_rate_hz
+
+    @property
+    def gyro_rps(self) -> np.ndarray:
+        """Angular rate in rad/s, shape (n, 3)."""
+        return self.gyro_dph * _DPH_TO_RPS
+
+    @property
+    def valid_mask(self) -> np.ndarray:
+        """Samples fit for north finding: gyro and accelerometer valid, no other bit set."""
+        v = self.validity
+        return ((v & _VALID) == _VALID) & ((v & _BAD) == 0)
+
+    def mean(self, *, valid_only: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Mean gyro rate (deg/h) and specific force (m/s^2) over the window, each shape (3,).
+
+        Raises
+        ------
+        ValueError
+            No sample to average (none received, or none valid with ``valid_only``).
+        """
+        keep = self.valid_mask if valid_only else np.ones(len(self), dtype=bool)
+        if not np.any(keep):
+            raise ValueError(
+                "no valid sample in the window (table moving, warming up or in fault?)"
+                if valid_only
+                else "the window holds no sample"
+            )
+        return self.gyro_dph[keep].mean(axis=0), self.accel_mps2[keep].mean(axis=0)
+
+
+@dataclass
+class _Waiter:
+    opcode: Opcode
+    event: threading.Event = field(default_factory=threading.Event)
+    reply: Reply | None = None
+    error: DriverError | None = None
+
+
+@dataclass(frozen=True)
+class _Scales:
+    gyro_dph: float = 1e-4
+    accel_mps2: float = 1e-6 * G0_MPS2
+    angle_deg: float = 1e-6
+    temperature_c: float = 1e-2
+
+    @classmethod
+    def of(cls, ident: Identify) -> _Scales:
+        return cls(
+            ident.gyro_scale.value,
+            ident.accel_scale.value * G0_MPS2,
+            ident.angle_scale.value,
+            ident.temperature_scale.value,
+        )
+
+
+class Device:
+    """A north finder on a CAN bus or a serial line.
+
+    Open it with :meth:`open_can`, :meth:`from_bus` or :meth:`open_serial`, preferably as a
+    context manager (``with Device.open_serial("/dev/ttyUSB0") as dev:``): :meth:`close` always
+    stops the reader thread and releases the bus or port the device object opened. On opening the
+    driver reads IDENTIFY (count scales, protocol version), the status and the configuration.
+
+    Parameters
+    ----------
+    transport : Transport
+        The link (:class:`~driver.transport.CanTransport` or
+        :class:`~driver.transport.SerialTransport`); closed by :meth:`close`.
+    reply_timeout : float
+        Seconds to wait for each reply before declaring it lost (at least 0.1).
+    retries : int
+        Extra attempts for commands in :data:`RETRYABLE`.
+
+    Raises
+    ------
+    ReplyTimeout
+        The device does not answer IDENTIFY.
+    ProtocolError
+        The device speaks another major protocol version.
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        *,
+        reply_timeout: float = REPLY_TIMEOUT_S,
+        retries: int = RETRIES,
+    ) -> None:
+        if not reply_timeout >= 0.1:
+            raise ValueError(f"reply_timeout={reply_timeout!r}: must be at least 0.1 s")
+        if retries < 0:
+            raise ValueError(f"retries={retries!r}: must be >= 0")
+        self._transport = transport
+        self.reply_timeout = float(reply_timeout)
+        self.retries = int(retries)
+        self._lock = threading.RLock()
+        self._cond = threading.Condition(self._lock)
+        self._acquire_lock = threading.Lock()
+        self._waiters: dict[int, _Waiter] = {}
+        self._seq = 0
+        self._opened_at = time.monotonic()
+        self._status: DeviceStatus | None = None
+        self._status_count = 0
+        self._motion_count = 0  # _status_count of the latest ROTATING or SETTLING status
+        self._identify: Identify | None = None
+        self._identify_count = 0
+        self._identify_expected_until = 0.0
+        self._scales = _Scales()
+        self._boot_epoch = 0
+        self._reset_reason = ""
+        self._collector: queue.SimpleQueue[tuple[str, Any, float]] | None = None
+        self._config: dict[ConfigKey, int] = {}
+        self._config_stale = True
+        self._streaming = False
+        self._dead: DriverError | None = None
+        self._closed = False
+        self._stop = threading.Event()
+        self._counts = {"samples": 0, "stray": 0, "retries": 0, "timeouts": 0, "resets": 0}
+        self._reader = threading.Thread(
+            target=self._read_loop, name=f"northfinder-{transport.kind}-reader", daemon=True
+        )
+        self._reader.start()
+        try:
+            self._connect()
+        except BaseException:
+            self.close()
+            raise
+
+    # -- constructors -------------------------------------------------------------------------
+    @classmethod
+    def from_bus(
+        cls, bus: can.BusABC, node_id: int = 1, *, own_bus: bool = False, **options: Any
+    ) -> Device:
+        """A device on an opened python-can bus.
+
+        Parameters
+        ----------
+        bus : can.BusABC
+            The bus; shut down by :meth:`close` only with ``own_bus=True``.
+        node_id : int
+            The device's CAN node id, 1..15.
+        **options
+            ``reply_timeout``, ``retries`` (see :class:`Device`).
+        """
+        return cls(CanTransport(bus, node_id, own_bus=own_bus), **options)
+
+    @classmethod
+    def open_can(
+        cls,
+        interface: str | None = None,
+        channel: str | int | None = None,
+        bitrate: int | None = None,
+        *,
+        node_id: int = 1,
+        reply_timeout: float = REPLY_TIMEOUT_S,
+        retries: int = RETRIES,
+        **bus_options: Any,
+    ) -> Device:
+        """Open a python-can bus and the device on it; :meth:`close` shuts the bus down.
+
+        Examples: ``open_can("socketcan", "vcan0")``, ``open_can("slcan", "/dev/ttyACM0",
+        500_000, sleep_after_open=0)``, ``open_can("virtual", "bench")`` (same process only).
+
+        Raises
+        ------
+        LinkError
+            python-can could not open the bus (the message names interface and channel).
+        """
+        kw = {"interface": interface, "channel": channel, "bitrate": bitrate}
+        kw = {k: v for k, v in kw.items() if v is not None}
+        try:
+            bus = can.Bus(**kw, **bus_options)
+        except (can.CanError, OSError, ValueError, ImportError, serial.SerialException) as exc:
+            raise LinkError(
+                f"cannot open the CAN bus interface={interface!r} channel={channel!r}: {exc}"
+            ) from exc
+        return cls.from_bus(
+            bus, node_id, own_bus=True, reply_timeout=reply_timeout, retries=retries
+        )
+
+    @classmethod
+    def open_serial(
+        cls,
+        port_or_url: str,
+        baudrate: int = 115_200,
+        *,
+        reply_timeout: float = REPLY_TIMEOUT_S,
+        retries: int = RETRIES,
+        **port_options: Any,
+    ) -> Device:
+        """Open a serial port (a path such as ``/dev/ttyUSB0`` or ``/dev/pts/3``, or a pyserial
+        URL such as ``rfc2217://host:port``) and the device on it; :meth:`close` closes the port.
+
+        Raises
+        ------
+        LinkError
+            pyserial could not open the port.
+        """
+        try:
+            port = serial.serial_for_url(
+                port_or_url,
+                baudrate=baudrate,
+                timeout=READ_POLL_S,
+                write_timeout=1.0,
+                **port_options,
+            )
+            port.reset_input_buffer()  # bytes from before this host opened the port
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise LinkError(f"cannot open the serial port {port_or_url!r}: {exc}") from exc
+        return cls(SerialTransport(port), reply_timeout=reply_timeout, retries=retries)
+
+    # -- life cycle ---------------------------------------------------------------------------
+    def __enter__(self) -> Device:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the stream if this driver started it, stop the reader, release the bus or port.
+
+        Idempotent; never raises for a device that stopped answering.
+        """
+        if self._closed:
+            return
+        if self._streaming and self._dead is None and self._reader.is_alive():
+            try:
+                self._request(StreamStop, attempts=1)
+            except DriverError as exc:
+                log.info("stream not stopped on close: %s", exc)
+        self._closed = True
+        self._stop.set()
+        if self._reader is not threading.current_thread():
+            self._reader.join(2.0)
+        self._transport.close()
+        with self._cond:
+            for waiter in self._waiters.values():
+                waiter.error = LinkError("the device was closed")
+                waiter.event.set()
+            self._cond.notify_all()
+
+    @property
+    def closed(self) -> bool:
+        """True after :meth:`close`."""
+        return self._closed
+
+    @property
+    def link_kind(self) -> str:
+        """``"can"`` or ``"serial"``."""
+        return self._transport.kind
+
+    def _connect(self) -> None:
+        ident = self.identify()
+        if ident.protocol_version[0] != PROTOCOL_VERSION_MAJOR:
+            raise ProtocolError(
+                f"the device speaks protocol {ident.protocol_version[0]}.{ident.protocol_version[1]}; "
+                f"this driver speaks major version {PROTOCOL_VERSION_MAJOR}"
+            )
+        self.status()
+        self._refresh_config()
+
+    # -- the reader thread --------------------------------------------------------------------
+    def _read_loop(self) -> None:
+        try:
+            while not self._stop.is_set():
+                items = self._transport.recv(READ_POLL_S)
+                if items:
+                    self._dispatch(items, time.monotonic(), time.time())
+        except DriverError as exc:
+            if not self._stop.is_set():
+                self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
+        except Exception as exc:  # a bug must not leave callers waiting forever
+            if not self._stop.is_set():
+                self._fail(LinkLost(f"the driver's reader thread failed: {exc!r}"), exc)
+                raise
+
+    def _fail(self, error: DriverError, cause: BaseException) -> None:
+        error.__cause__ = cause
+        log.error("link lost: %s", error)
+        with self._cond:
+            self._dead = error
+            for waiter in self._waiters.values():
+                waiter.error = error
+                waiter.event.set()
+            if self._collector is not None:
+                self._collector.put(("lost", error, time.time()))
+            self._cond.notify_all()
+
+    def _dispatch(self, items: list[Received], mono: float, wall: float) -> None:
+        with self._cond:
+            for item in items:
+                if isinstance(item, Sample | TickLoss):
+                    if isinstance(item, Sample):
+                        self._counts["samples"] += 1
+                    if self._collector is not None:
+                        kind = "sample" if isinstance(item, Sample) else "loss"
+                        self._collector.put((kind, item, wall))
+                elif isinstance(item, Reply):
+                    self._on_reply(item)
+                elif isinstance(item, Status):
+                    self._on_status(item, mono)
+                elif isinstance(item, Identify):
+                    self._on_identify(item, mono)
+            self._cond.notify_all()
+
+    def _on_reply(self, reply: Reply) -> None:
+        waiter = self._waiters.get(reply.seq)
+        if waiter is None or waiter.opcode != reply.opcode or waiter.event.is_set():
+            self._counts["stray"] += 1
+            log.debug("stray reply %s", reply)
+            return
+        waiter.reply = reply
+        waiter.event.set()
+
+    def _on_status(self, status: Status, mono: float) -> None:
+        sc = self._scales
+        previous = self._status
+        self._status = DeviceStatus(
+            state=status.state,
+            angle_deg=status.angle * sc.angle_deg,
+            temperature_c=(
+                math.nan
+                if status.temperature == TEMPERATURE_NOT_AVAILABLE
+                else status.temperature * sc.temperature_c
+            ),
+            faults=status.faults,
+            sample_counter=status.sample_counter,
+            rx_malformed=status.rx_malformed,
+            tx_dropped=status.tx_dropped,
+            cmd_rejected=status.cmd_rejected,
+            received_at=mono,
+        )
+        self._status_count += 1
+        if status.state in (DeviceState.ROTATING, DeviceState.SETTLING):
+            self._motion_count = self._status_count
+        if status.state == DeviceState.BOOT and previous is not None:
+            if previous.state != DeviceState.BOOT:
+                self._note_reset("the device reports state BOOT")
+
+    def _on_identify(self, ident: Identify, mono: float) -> None:
+        self._identify = ident
+        self._identify_count += 1
+        self._scales = _Scales.of(ident)
+        booting = self._status is not None and self._status.state == DeviceState.BOOT
+        if mono > self._identify_expected_until and self._status is not None and not booting:
+            # protocol.md 5: a device announces itself in BOOT; nobody asked, so it restarted.
+            self._note_reset("the device sent IDENTIFY unrequested, as it does after a restart")
+
+    def _note_reset(self, reason: str) -> None:
+        """Called with the lock held, in the reader thread."""
+        self._boot_epoch += 1
+        self._counts["resets"] += 1
+        self._reset_reason = reason
+        self._streaming = False
+        self._config_stale = True
+        self._transport.restart_stream()
+        log.warning("device restart detected: %s", reason)
+        if self._collector is not None:
+            self._collector.put(("reset", reason, time.time()))
+
+    # -- requests -----------------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._closed:
+            raise LinkError("the device is closed")
+        if self._dead is not None:
+            raise LinkLost(f"the link is lost: {self._dead}") from self._dead
+
+    def _heartbeat_period_s(self) -> float:
+        return self._config.get(ConfigKey.HEARTBEAT_PERIOD_MS, 100) / 1000.0
+
+    def _status_age_s(self) -> float:
+        """Seconds since the latest status (or since opening, if none came yet)."""
+        last = self._status.received_at if self._status is not None else self._opened_at
+        return time.monotonic() - last
+
+    def _link_alive(self) -> bool:
+        return self._status_age_s() <= HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s()
+
+    def _link_lost_error(self) -> LinkLost:
+        hb = self._heartbeat_period_s()
+        return LinkLost(
+            f"no status from the device for {self._status_age_s():.2f} s "
+            f"({HEARTBEATS_UNTIL_LOST} heartbeat periods = {HEARTBEATS_UNTIL_LOST * hb:.2f} s): "
+            "the device is silent, off or restarting, or the link is down"
+        )
+
+    def _request(
+        self,
+        command: type[Command],
+        *args: Any,
+        timeout: float | None = None,
+        attempts: int | None = None,
+    ) -> Reply:
+        """Send a command and return its OK reply; retry only commands in :data:`RETRYABLE`."""
+        opcode = command.OPCODE
+        per = self.reply_timeout if timeout is None else timeout
+        if attempts is None:
+            attempts = 1 + self.retries if opcode in RETRYABLE else 1
+        for attempt in range(attempts):
+            self._check_open()
+            waiter = _Waiter(opcode)
+            with self._lock:
+                seq = self._next_seq()
+                self._waiters[seq] = waiter
+                if opcode == Opcode.IDENTIFY:
+                    self._identify_expected_until = time.monotonic() + per + 1.0
+            try:
+                self._transport.send(command(seq, *args))
+                answered = waiter.event.wait(per)
+            finally:
+                with self._lock:
+                    self._waiters.pop(seq, None)
+            if waiter.error is not None:
+                raise type(waiter.error)(str(waiter.error)) from waiter.error
+            if answered and waiter.reply is not None:
+                reply = waiter.reply
+                if reply.result != Result.OK:
+                    raise DeviceRefused(opcode, reply.result, result_meaning(reply.result))
+                return reply
+            if attempt + 1 < attempts:
+                self._counts["retries"] += 1
+                log.info("no reply to %s (seq %d) in %.3f s; sending again", opcode.name, seq, per)
+        self._counts["timeouts"] += 1
+        deadline = attempts * per
+        alive = self._link_alive()
+        text = f"no reply to {opcode.name} within {deadline:.2f} s ({attempts} attempt(s) of {per:.2f} s)"
+        if alive:
+            text += "; the device's heartbeat still arrives: the command or its reply was lost"
+        else:
+            text += (
+                f"; no status for {self._status_age_s():.2f} s either: the device is silent or "
+                "off, or the link is down (check power, cable, bus termination, port)"
+            )
+        if opcode in (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME, Opcode.RESET):
+            text += f"; {opcode.name} may have been carried out: read status() before repeating it"
+        raise ReplyTimeout(text, deadline, opcode, attempts, alive)
+
+    def _next_seq(self) -> int:
+        for _ in range(256):
+            self._seq = (self._seq + 1) & 0xFF
+            if self._seq not in self._waiters:
+                return self._seq
+        raise DriverError("256 commands are waiting for replies")  # pragma: no cover
+
+    def _wait_for(
+        self,
+        check: Callable[[], T | None],
+        deadline: float,
+        on_timeout: Callable[[], DriverError],
+        *,
+        supervise: bool = True,
+    ) -> T:
+        """Wait (lock held between checks) until ``check`` returns a value; it may raise."""
+        with self._cond:
+            while True:
+                self._check_open()
+                result = check()
+                if result is not None:
+                    return result
+                now = time.monotonic()
+                if now >= deadline:
+                    raise on_timeout()
+                if supervise and not self._link_alive():
+                    raise self._link_lost_error()
+                self._cond.wait(min(deadline - now, READ_POLL_S))
+
+    # -- queries ------------------------------------------------------------------------------
+    def identify(self) -> Identify:
+        """Ask the device who it is (IDENTIFY) and return its answer.
+
+        Raises
+        ------
+        ReplyTimeout
+            No reply, or the identify message did not follow it (lost frames), after retries.
+        """
+        for _ in range(1 + self.retries):
+            with self._lock:
+                n0 = self._identify_count
+            self._request(RequestIdentify)
+            try:
+                return self._wait_for(
+                    lambda n0=n0: self._identify if self._identify_count > n0 else None,
+                    time.monotonic() + self.reply_timeout,
+                    lambda: DriverTimeout("", 0.0),
+                    supervise=False,
+                )
+            except DriverTimeout:
+                self._counts["retries"] += 1
+        attempts = 1 + self.retries
+        raise ReplyTimeout(
+            "the device accepted IDENTIFY but its identify message did not arrive "
+            f"({attempts} attempts): identify frames are being lost",
+            attempts * 2 * self.reply_timeout,
+            Opcode.IDENTIFY,
+            attempts,
+            self._link_alive(),
+        )
+
+    @property
+    def identity(self) -> Identify:
+        """The identify read when opening (or received since): model, serial number, scales."""
+        assert self._identify is not None
+        return self._identify
+
+    def status(self) -> DeviceStatus:
+        """Ask for the status now (GET_STATUS) and return it.
+
+        Raises
+        ------
+        ReplyTimeout
+            No reply, or no status followed it.
+        """
+        with self._lock:
+            n0 = self._status_count
+        self._request(GetStatus)
+        return self._wait_for(
+            lambda: self._status if self._status_count > n0 else None,
+            time.monotonic() + self.reply_timeout,
+            lambda: ReplyTimeout(
+                "GET_STATUS was accepted but no status followed it",
+                self.reply_timeout,
+                Opcode.GET_STATUS,
+                1,
+                False,
+            ),
+            supervise=False,
+        )
+
+    @property
+    def last_status(self) -> DeviceStatus | None:
+        """The most recent status received (heartbeat or requested), without asking."""
+        return self._status
+
+    def stats(self) -> LinkStats:
+        """Counters of what arrived and what was lost or rejected (see :class:`LinkStats`)."""
+        t = self._transport.counters()
+        c = self._counts
+        return LinkStats(
+            frames_received=t["frames_received"],
+            frames_rejected=t["frames_rejected"],
+            frames_foreign=t["frames_foreign"],
+            frames_lost=t["frames_lost"],
+            ticks_lost=t["ticks_lost"],
+            ticks_incomplete=t["ticks_incomplete"],
+            samples_received=c["samples"],
+            stray_replies=c["stray"],
+            retries=c["retries"],
+            reply_timeouts=c["timeouts"],
+            resets_detected=c["resets"],
+        )
+
+    def self_test(self) -> int:
+        """Run the built-in test (SELF_TEST, sent once); return the failure mask (0 = passed)."""
+        return int(
+            self._request(SelfTest, timeout=max(self.reply_timeout, 0.7)).self_test_failures()
+        )
+
+    # -- configuration ------------------------------------------------------------------------
+    @staticmethod
+    def _key(key: ConfigKey | int | str) -> ConfigKey:
+        try:
+            if isinstance(key, str):
+                return ConfigKey[key.upper()]
+            return ConfigKey(key)
+        except (KeyError, ValueError):
+            raise ValueError(
+                f"unknown configuration key {key!r}; keys are {_CONFIG_NAMES}"
+            ) from None
+
+    def get_config(self, key: ConfigKey | int | str) -> int:
+        """Read one configuration value (GET_CONFIG), e.g. ``get_config("sample_rate_hz")``.
+
+        Units are the key's (protocol.md 4.4): Hz, ms, 1e-3 deg/s, 1e-3 deg/s^2, bit/s.
+        """
+        k = self._key(key)
+        got_key, value = self._request(GetConfig, k).config_value()
+        if got_key != k:
+            raise ProtocolError(f"GET_CONFIG {k.name} answered for key {got_key!r}")
+        with self._lock:
+            self._config[k] = value
+            if k == ConfigKey.STREAMING:
+                self._streaming = bool(value)
+        return value
+
+    def set_config(self, key: ConfigKey | int | str, value: int) -> int:
+        """Write one configuration value (SET_CONFIG); return the value now in effect.
+
+        Raises
+        ------
+        DeviceRefused
+            E.g. READ_ONLY, OUT_OF_RANGE, RATE_EXCEEDS_LINK (read ``link_max_sample_rate_hz``),
+            BUSY for table keys while the table moves.
+        """
+        k = self._key(key)
+        if k == ConfigKey.STREAMING and value and not self._streaming:
+            self._prepare_stream_start()
+        got_key, in_effect = self._request(SetConfig, k, int(value)).config_value()
+        if got_key != k:
+            raise ProtocolError(f"SET_CONFIG {k.name} answered for key {got_key!r}")
+        with self._lock:
+            self._config[k] = in_effect
+            if k == ConfigKey.STREAMING:
+                self._streaming = bool(in_effect)
+        return in_effect
+
+    def config(self) -> dict[ConfigKey, int]:
+        """Every configuration value the protocol defines, read from the device now."""
+        return {k: self.get_config(k) for k in ConfigKey}
+
+    def _refresh_config(self) -> None:
+        for k in (
+            ConfigKey.SAMPLE_RATE_HZ,
+            ConfigKey.HEARTBEAT_PERIOD_MS,
+            ConfigKey.TABLE_MAX_RATE_MDPS,
+            ConfigKey.TABLE_MAX_ACCEL_MDPS2,
+            ConfigKey.SETTLE_TIME_MS,
+            ConfigKey.STREAMING,
+        ):
+            self.get_config(k)
+        self._config_stale = False
+
+    def _refresh_config_if_stale(self) -> None:
+        if self._config_stale:
+            self._refresh_config()
+
+    @property
+    def sample_rate_hz(self) -> int:
+        """The sample rate in effect (read from the device after a restart)."""
+        self._refresh_config_if_stale()
+        return self._config[ConfigKey.SAMPLE_RATE_HZ]
+
+    # -- streaming ----------------------------------------------------------------------------
+    @property
+    def streaming(self) -> bool:
+        """Whether the driver believes the device streams (set by the calls; cleared by a restart)."""
+        return self._streaming
+
+    def _prepare_stream_start(self) -> None:
+        # A fresh status anchors the CAN tick counter right before the stream starts
+        # (protocol.md 8), and ticks not sent while the stream was off are not losses.
+        self.status()
+        self._transport.restart_stream()
+
+    def start_streaming(self) -> None:
+        """Start the sample stream (STREAM_START). :meth:`acquire` does this when needed."""
+        if not self._streaming:
+            self._prepare_stream_start()
+        self._request(StreamStart)
+        self._streaming = True
+
+    def stop_streaming(self) -> None:
+        """Stop the sample stream (STREAM_STOP)."""
+        self._request(StreamStop)
+        self._streaming = False
+
+    # -- motion -------------------------------------------------------------------------------
+    def move_duration_s(self, distance_deg: float) -> float:
+        """Expected device seconds for a move of ``distance_deg`` and its settling, from the
+        table's configured rate and acceleration limits and settle time (trapezoid profile)."""
+        self._refresh_config_if_stale()
+        v = self._config[ConfigKey.TABLE_MAX_RATE_MDPS] / 1000.0
+        a = self._config[ConfigKey.TABLE_MAX_ACCEL_MDPS2] / 1000.0
+        d = abs(distance_deg)
+        motion = d / v + v / a if d >= v * v / a else 2.0 * math.sqrt(d / a)
+        return motion + self._config[ConfigKey.SETTLE_TIME_MS] / 1000.0
+
+    def _current_angle(self) -> float:
+        return self._status.angle_deg if self._status is not None else 0.0
+
+    def rotate_to(
+        self,
+        angle_deg: float,
+        *,
+        direction: Direction | str = "shortest",
+        wait: bool = True,
+        timeout: float | None = None,
+    ) -> DeviceStatus | None:
+        """Turn the table to an absolute encoder angle (ROTATE_TO, sent once).
+
+        Parameters
+        ----------
+        angle_deg : float
+            Target, deg (taken modulo 360).
+        direction : {"shortest", "positive", "negative"} or Direction
+            Positive is counter-clockwise seen from above.
+        wait : bool
+            Wait until the table has settled (state READY) and return that status.
+        timeout : float or None
+            Wall seconds to wait; default: the expected move and settle time (from the table
+            configuration) times 1.5 plus 2 s.
+
+        Raises
+        ------
+        DeviceRefused
+            BUSY while the table moves or settles, NOT_READY while warming up, FAULT.
+        DeviceFault, DeviceReset, MoveTimeout, LinkLost
+            While waiting.
+        """
+        d = self._direction(direction)
+        scale = self._scales.angle_deg
+        turn = round(360.0 / scale)
+        counts = round((angle_deg % 360.0) / scale) % turn
+        delta = (counts * scale - self._current_angle()) % 360.0
+        if d == Direction.SHORTEST:
+            distance = min(delta, 360.0 - delta)
+        else:
+            distance = delta if d == Direction.POSITIVE else (360.0 - delta) % 360.0
+        return self._move(RotateTo, (counts, d), distance, wait, timeout)
+
+    def rotate_by(
+        self, delta_deg: float, *, wait: bool = True, timeout: float | None = None
+    ) -> DeviceStatus | None:
+        """Turn the table by ``delta_deg`` (positive counter-clockwise; the device accepts
+        +-720 deg). See :meth:`rotate_to` for ``wait``, ``timeout`` and errors."""
+        counts = round(delta_deg / self._scales.angle_deg)
+        return self._move(RotateBy, (counts,), abs(delta_deg), wait, timeout)
+
+    def home(self, *, wait: bool = True, timeout: float | None = None) -> DeviceStatus | None:
+        """Turn the table to the encoder zero by the shortest way (HOME, sent once)."""
+        a = self._current_angle()
+        return self._move(Home, (), min(a, 360.0 - a), wait, timeout)
+
+    def stop(self, *, wait: bool = False, timeout: float | None = None) -> DeviceStatus | None:
+        """Stop the table (STOP; accepted in every state, repeated if its reply is lost).
+
+        With ``wait`` return the status once the table has settled (READY).
+        """
+        with self._lock:
+            n0, epoch = self._status_count, self._boot_epoch
+        t0 = time.monotonic()
+        self._request(Stop)
+        if not wait:
+            return None
+        self._refresh_config_if_stale()
+        limit = self.move_duration_s(0.0) * 1.5 + 5.0 if timeout is None else timeout
+        return self._wait_settled(n0, epoch, t0, 0.0, limit, "STOP")
+
+    def wait_ready(self, timeout: float = 5.0) -> DeviceStatus:
+        """Wait until the device reports READY (boot and warm-up done, table settled).
+
+        Raises
+        ------
+        DeviceFault
+            The device is in FAULT.
+        DriverTimeout
+            Not READY within ``timeout`` s.
+        """
+        t0 = time.monotonic()
+
+        def check() -> DeviceStatus | None:
+            st = self._status
+            if st is None:
+                return None
+            if st.state == DeviceState.FAULT:
+                raise DeviceFault(f"the device is in FAULT ({st.faults!r})", int(st.faults))
+            return st if st.state == DeviceState.READY else None
+
+        return self._wait_for(
+            check,
+            t0 + timeout,
+            lambda: DriverTimeout(
+                f"the device is not READY after {timeout:.1f} s (state {self._state_name()})",
+                timeout,
+            ),
+        )
+
+    def _state_name(self) -> str:
+        return self._status.state.name if self._status is not None else "unknown"
+
+    @staticmethod
+    def _direction(direction: Direction | str) -> Direction:
+        if isinstance(direction, Direction):
+            return direction
+        try:
+            return _DIRECTIONS[str(direction).lower()]
+        except KeyError:
+            raise ValueError(
+                f"direction={direction!r}: choose one of {', '.join(_DIRECTIONS)}"
+            ) from None
+
+    def _move(
+        self,
+        command: type[Command],
+        args: tuple[Any, ...],
+        distance_deg: float,
+        wait: bool,
+        timeout: float | None,
+    ) -> DeviceStatus | None:
+        self._refresh_config_if_stale()
+        expected = self.move_duration_s(distance_deg)
+        with self._lock:
+            n0, epoch = self._status_count, self._boot_epoch
+        t0 = time.monotonic()
+        self._request(command, *args)
+        if not wait:
+            return None
+        limit = expected * 1.5 + 2.0 if timeout is None else timeout
+        return self._wait_settled(n0, epoch, t0, expected, limit, command.OPCODE.name)
+
+    def _wait_settled(
+        self, n0: int, epoch: int, t0: float, min_s: float, limit: float, what: str
+    ) -> DeviceStatus:
+        """READY after having seen ROTATING or SETTLING since the command (or after ``min_s``)."""
+
+        def check() -> DeviceStatus | None:
+            if self._boot_epoch != epoch:
+                raise DeviceReset(f"the device restarted during {what}: {self._reset_reason}")
+            st = self._status
+            if st is None or self._status_count <= n0:
+                return None
+            if st.state == DeviceState.FAULT:
+                raise DeviceFault(
+                    f"the device entered FAULT during {what} ({st.faults!r}) at table angle "
+                    f"{st.angle_deg:.4f} deg; RESET clears it",
+                    int(st.faults),
+                )
+            moved = self._motion_count > n0 or time.monotonic() - t0 >= min_s
+            return st if st.state == DeviceState.READY and moved else None
+
+        return self._wait_for(
+            check,
+            t0 + limit,
+            lambda: MoveTimeout(
+                f"{what}: the table did not settle within {limit:.1f} s (state "
+                f"{self._state_name()}, angle {self._current_angle():.4f} deg)",
+                limit,
+            ),
+        )
+
+    def reset(self, *, wait: bool = True, timeout: float = 3.0) -> DeviceStatus | None:
+        """Restart the device (RESET, sent once): configuration and counters go back to
+        defaults and the stream stops. With ``wait``, return the first status after BOOT.
+
+        Raises
+        ------
+        DriverTimeout
+            The device did not leave BOOT within ``timeout`` s (protocol: at most 1 s).
+        """
+        with self._lock:
+            epoch = self._boot_epoch
+        t0 = time.monotonic()
+        self._request(Reset)
+        with self._lock:
+            self._streaming = False
+            self._config_stale = True
+        if not wait:
+            return None
+
+        def check() -> DeviceStatus | None:
+            st = self._status
+            if self._boot_epoch == epoch or st is None or st.state == DeviceState.BOOT:
+                return None
+            return st
+
+        st = self._wait_for(
+            check,
+            t0 + timeout,
+            lambda: DriverTimeout(
+                f"the device did not come back from RESET within {timeout:.1f} s "
+                f"(state {self._state_name()})",
+                timeout,
+            ),
+            supervise=False,
+        )
+        self._refresh_config()
+        return st
+
+    # -- acquisition --------------------------------------------------------------------------
+    def acquire(
+        self, seconds: float, *, on_gap: OnGap = "raise", timeout: float | None = None
+    ) -> Window:
+        """Collect one window of ``round(seconds * sample_rate_hz)`` consecutive sample ticks.
+
+        Starts the stream if it is off (and leaves it on; :meth:`stop_streaming` or
+        :meth:`close` stop it). The window begins with the first sample received after the
+        call, so it never holds a sample from before the request; it ends when the tick
+        ``first + requested - 1`` arrived or is known to be lost.
+
+        Parameters
+        ----------
+        seconds : float
+            Window length in device seconds.
+        on_gap : {"raise", "report"}
+            What a missing tick does: ``"raise"`` stops at once with :class:`StreamGap`;
+            ``"report"`` returns the window with ``missing`` and ``gaps`` stating them.
+        timeout : float or None
+            Wall seconds allowed; default ``seconds + 2`` plus the stall limit.
+
+        Raises
+        ------
+        StreamGap
+            ``on_gap="raise"`` and ticks are missing.
+        DeviceReset
+            The device restarted during the window (BOOT status, unrequested IDENTIFY, or the
+            sample counter went back).
+        StreamTimeout
+            No sample for max(0.5 s, 3 heartbeat periods) although statuses arrive.
+        LinkLost
+            No status either for 3 heartbeat periods, or the bus or port failed.
+        """
+        if on_gap not in ("raise", "report"):
+            raise ValueError(f"on_gap={on_gap!r}: choose one of 'raise', 'report'")
+        if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
+            raise ValueError(f"seconds={seconds!r}: must be a positive number")
+        with self._acquire_lock:
+            self._check_open()
+            if not self._link_alive():
+                raise self._link_lost_error()
+            self._refresh_config_if_stale()
+            rate = self._config[ConfigKey.SAMPLE_RATE_HZ]
+            n = round(seconds * rate)
+            if n < 1:
+                raise ValueError(f"seconds={seconds!r} is less than one sample at {rate} Hz")
+            collector: queue.SimpleQueue[tuple[str, Any, float]] = queue.SimpleQueue()
+            with self._lock:
+                epoch = self._boot_epoch
+                self._collector = collector
+            try:
+                if not self._streaming:
+                    self.start_streaming()
+                if self._boot_epoch != epoch:
+                    raise DeviceReset(
+                        f"the device restarted as the window began: {self._reset_reason}"
+                    )
+                return self._collect(collector, n, rate, on_gap, timeout)
+            finally:
+                with self._lock:
+                    self._collector = None
+
+    def _collect(
+        self,
+        collector: queue.SimpleQueue[tuple[str, Any, float]],
+        n: int,
+        rate: float,
+        on_gap: OnGap,
+        timeout: float | None,
+    ) -> Window:
+        stall_limit = max(0.5, HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s(), 5.0 / rate)
+        t_start = time.monotonic()
+        limit = n / rate + 2.0 + stall_limit if timeout is None else timeout
+        deadline = t_start + limit
+        samples: list[Sample] = []
+        counters: list[int] = []
+        arrivals: list[float] = []
+        gaps: list[tuple[int, int]] = []
+        missing = 0
+        first: int | None = None
+        prev_raw = prev = expected = end = 0
+        last_sample_at = t_start
+
+        def gap(a: int, b: int) -> None:
+            nonlocal missing
+            if b <= a:
+                return
+            gaps.append((a, b - a))
+            missing += b - a
+            if on_gap == "raise":
+                raise StreamGap(
+                    f"{b - a} sample tick(s) missing from counter {a} in the window of {n} "
+                    f"from counter {first} ({len(samples)} received so far): lost on the link "
+                    "or dropped by the device; pass on_gap='report' to receive the window "
+                    "with its gaps stated",
+                    tuple(gaps),
+                    missing,
+                    len(samples),
+                )
+
+        while True:
+            now = time.monotonic()
+            try:
+                kind, item, wall = collector.get(timeout=max(0.0, min(READ_POLL_S, deadline - now)))
+            except queue.Empty:
+                now = time.monotonic()
+                self._check_open()
+                if not self._link_alive():
+                    raise self._link_lost_error() from None
+                if now - last_sample_at > stall_limit:
+                    raise StreamTimeout(
+                        f"no sample for {now - last_sample_at:.2f} s while the device's status "
+                        f"still arrives ({len(samples)} of {n} received): the stream was "
+                        "stopped (STREAM_STOP or a configuration change by another host?)",
+                        stall_limit,
+                    ) from None
+                if now >= deadline:
+                    raise StreamTimeout(
+                        f"the window of {n} samples was not complete after {limit:.1f} s "
+                        f"({len(samples)} received)",
+                        limit,
+                    ) from None
+                continue
+            if kind == "lost":
+                raise LinkLost(f"the link was lost during the window: {item}") from item
+            if kind == "reset":
+                raise DeviceReset(
+                    f"the device restarted during the window after {len(samples)} of {n} "
+                    f"samples ({item}); its configuration and stream are back to defaults"
+                )
+            if kind == "loss":
+                assert isinstance(item, TickLoss)
+                if first is None:
+                    continue  # before the window
+                a = prev + ((item.first_counter - prev_raw) & _U32)
+                b = a + item.count
+                if b > expected:
+                    gap(expected, min(b, end))
+                    expected = b
+            else:
+                assert isinstance(item, Sample)
+                last_sample_at = time.monotonic()
+                c = item.counter
+                if first is None:
+                    first = prev = expected = c
+                    end = c + n
+                else:
+                    step = (c - prev_raw) & _U32
+                    if step == 0:
+                        continue  # a repeated sample
+                    if step >= 1 << 31:
+                        raise DeviceReset(
+                            f"the sample counter went back from {prev_raw} to {c} after "
+                            f"{len(samples)} of {n} samples: the device restarted"
+                        )
+                    c = prev + step
+                    prev = c
+                prev_raw = item.counter
+                if c >= end:
+                    gap(expected, end)
+                    expected = end
+                elif c >= expected:
+                    gap(expected, c)
+                    samples.append(item)
+                    counters.append(c)
+                    arrivals.append(wall)
+                    expected = c + 1
+            if first is not None and expected >= end:
+                break
+        return self._window(samples, counters, arrivals, rate, n, missing, gaps)
+
+    def _window(
+        self,
+        samples: list[Sample],
+        counters: list[int],
+        arrivals: list[float],
+        rate: float,
+        n: int,
+        missing: int,
+        gaps: list[tuple[int, int]],
+    ) -> Window:
+        sc = self._scales
+        m = len(samples)
+        gyro = np.array([s.gyro for s in samples], dtype=np.float64).reshape(m, 3) * sc.gyro_dph
+        accel = np.array([s.accel for s in samples], dtype=np.float64).reshape(m, 3)
+        temp_raw = np.array([s.temperature for s in samples], dtype=np.float64)
+        temp = np.where(temp_raw == TEMPERATURE_NOT_AVAILABLE, np.nan, temp_raw * sc.temperature_c)
+        counter = np.array(counters, dtype=np.int64)
+        arrays = {
+            "counter": counter,
+            "time_s": counter / float(rate),
+            "arrival_s": np.array(arrivals, dtype=np.float64),
+            "gyro_dph": gyro,
+            "accel_mps2": accel * sc.accel_mps2,
+            "table_deg": np.array([s.angle for s in samples], dtype=np.float64) * sc.angle_deg,
+            "temperature_c": temp,
+            "validity": np.array([int(s.validity) for s in samples], dtype=np.uint8),
+        }
+        for a in arrays.values():
+            a.setflags(write=False)
+        return Window(
+            **arrays,
+            sample_rate_hz=float(rate),
+            requested=n,
+            missing=missing,
+            gaps=tuple(gaps),
+        )

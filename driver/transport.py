@@ -1,0 +1,275 @@
+"""Transports: send one command, receive decoded messages with a timeout, close.
+
+A transport hides the link from :class:`driver.device.Device`: both deliver the same items,
+whole protocol messages (:class:`~driver.protocol.messages.Reply`, ``Status``, ``Identify``,
+``Sample``) and :class:`~driver.protocol.can.TickLoss` reports for sample ticks that did not
+arrive whole. On CAN the codec's :class:`~driver.protocol.can.CanReceiver` joins frames into
+messages; on serial a :class:`~driver.protocol.serial.Deframer` checks frames and this module
+compares consecutive sample counters. Neither opens anything: the bus or port is passed in (the
+device's classmethods open them), and ``close`` releases it only when the transport owns it.
+
+One thread (the device's reader) calls :meth:`recv`; :meth:`send` and :meth:`restart_stream` may
+be called from any thread (python-can buses and pyserial ports allow one reader and one writer).
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Protocol
+
+import can
+import serial
+
+from driver.errors import LinkLost, ProtocolError
+from driver.protocol.can import CanReceiver, TickLoss, encode_can
+from driver.protocol.messages import Command, Identify, Reply, Sample, Status
+from driver.protocol.serial import Deframer, SerialEncoder, decode_payload
+
+__all__ = ["CanTransport", "Received", "SerialTransport", "Transport"]
+
+Received = Reply | Status | Identify | Sample | TickLoss
+"""What a transport delivers."""
+
+#: Most CAN frames one :meth:`CanTransport.recv` call drains, so the caller keeps control.
+MAX_FRAMES_PER_RECV = 512
+_U32 = 0xFFFFFFFF
+
+
+class Transport(Protocol):
+    """What :class:`~driver.device.Device` needs from a link."""
+
+    kind: str
+    """``"can"`` or ``"serial"``."""
+
+    def send(self, command: Command) -> None: ...
+    def recv(self, timeout: float) -> list[Received]: ...
+    def restart_stream(self) -> list[TickLoss]: ...
+    def counters(self) -> dict[str, int]: ...
+    def close(self) -> None: ...
+
+
+class CanTransport:
+    """The protocol on a python-can bus, for one node.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        An opened bus (``virtual``, ``socketcan``, ``slcan``, ...).
+    node_id : int
+        The device's node id (1..15); frames of other nodes are counted and ignored.
+    own_bus : bool
+        Shut the bus down on :meth:`close` (True when the driver opened it).
+    """
+
+    kind = "can"
+
+    def __init__(self, bus: can.BusABC, node_id: int = 1, *, own_bus: bool = False) -> None:
+        self.bus = bus
+        self.node_id = node_id
+        self.own_bus = own_bus
+        self.receiver = CanReceiver(node_id=node_id)
+        self._send_lock = threading.Lock()
+        self._rx_lock = threading.RLock()
+        self._closed = False
+
+    def send(self, command: Command) -> None:
+        """Send one command (one frame).
+
+        Raises
+        ------
+        LinkLost
+            The bus refused the frame (bus off, transmit buffer full, interface gone).
+        """
+        (frame,) = encode_can(command, self.node_id)
+        msg = can.Message(
+            arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False
+        )
+        try:
+            with self._send_lock:
+                self.bus.send(msg, timeout=0.1)
+        except (can.CanError, OSError, ValueError) as exc:
+            raise LinkLost(f"cannot send on the CAN bus {self._name()}: {exc}") from exc
+
+    def recv(self, timeout: float) -> list[Received]:
+        """Wait up to ``timeout`` s for frames; return the messages and tick losses they complete.
+
+        Raises
+        ------
+        LinkLost
+            The bus reported an error or was shut down under the driver.
+        """
+        frames: list[can.Message] = []
+        try:
+            msg = self.bus.recv(timeout)
+            while msg is not None:
+                frames.append(msg)
+                if len(frames) >= MAX_FRAMES_PER_RECV:
+                    break
+                msg = self.bus.recv(0.0)
+        except (can.CanError, OSError, ValueError, serial.SerialException) as exc:
+            raise LinkLost(f"cannot receive from the CAN bus {self._name()}: {exc}") from exc
+        out: list[Any] = []
+        with self._rx_lock:
+            for msg in frames:
+                if not (msg.is_error_frame or msg.is_remote_frame):
+                    out += self.receiver.feed(
+                        msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id
+                    )
+        # Commands on the bus are another host's (or our own, echoed): not for us.
+        return [m for m in out if not isinstance(m, Command)]
+
+    def restart_stream(self) -> list[TickLoss]:
+        """The stream was off: the next tick does not continue the previous one (any thread)."""
+        with self._rx_lock:
+            return self.receiver.ticks.restart()
+
+    def counters(self) -> dict[str, int]:
+        """Frame statistics: received, rejected (could not be decoded), foreign, tick losses."""
+        r = self.receiver
+        return {
+            "frames_received": r.frames,
+            "frames_rejected": r.malformed + r.identify.errors,
+            "frames_foreign": r.unknown_id + r.other_node,
+            "frames_lost": 0,
+            "ticks_lost": r.ticks.lost,
+            "ticks_incomplete": r.ticks.incomplete,
+            "duplicates": r.ticks.duplicates,
+        }
+
+    def close(self) -> None:
+        """Shut the bus down if this transport owns it (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.own_bus:
+            self.bus.shutdown()
+
+    def _name(self) -> str:
+        return str(getattr(self.bus, "channel_info", type(self.bus).__name__))
+
+
+class SerialTransport:
+    """The protocol's binary frames on a serial port (pyserial ``Serial`` or URL handler).
+
+    Lost frames show in the frame sequence counter (:class:`Deframer`), lost samples in the
+    sample counter: a forward jump of the counter is reported as a :class:`TickLoss`.
+
+    Parameters
+    ----------
+    port : serial.Serial
+        An opened port; its ``timeout`` is set on every :meth:`recv`.
+    own_port : bool
+        Close the port on :meth:`close`.
+    """
+
+    kind = "serial"
+
+    def __init__(self, port: serial.SerialBase, *, own_port: bool = True) -> None:
+        self.port = port
+        self.own_port = own_port
+        self.deframer = Deframer()
+        self.encoder = SerialEncoder()
+        self._send_lock = threading.Lock()
+        self._rx_lock = threading.RLock()
+        self._last_counter: int | None = None
+        self.ticks_lost = 0
+        self.counter_restarts = 0
+        self.samples = 0
+        self._closed = False
+
+    def send(self, command: Command) -> None:
+        """Send one command frame.
+
+        Raises
+        ------
+        LinkLost
+            The port failed or the write did not complete within its write timeout.
+        """
+        try:
+            with self._send_lock:
+                self.port.write(self.encoder.encode(command))
+                self.port.flush()
+        except (serial.SerialException, OSError) as exc:
+            raise LinkLost(f"cannot write to the serial port {self.port.name}: {exc}") from exc
+
+    def recv(self, timeout: float) -> list[Received]:
+        """Wait up to ``timeout`` s for bytes; return the messages and tick losses they complete.
+
+        Raises
+        ------
+        LinkLost
+            The port failed (for a pseudo-terminal: the other end closed).
+        """
+        try:
+            self.port.timeout = timeout
+            data = self.port.read(1)
+            if data:
+                waiting = self.port.in_waiting
+                if waiting:
+                    data += self.port.read(waiting)
+        except (serial.SerialException, OSError, TypeError) as exc:
+            # pyserial raises TypeError when the port is closed under a blocked read.
+            raise LinkLost(f"cannot read from the serial port {self.port.name}: {exc}") from exc
+        if not data:
+            return []
+        with self._rx_lock:
+            return self._decode(data)
+
+    def _decode(self, data: bytes) -> list[Received]:
+        out: list[Received] = []
+        for frame in self.deframer.feed(data):
+            try:
+                message = decode_payload(frame.msg_type, frame.payload)
+            except ProtocolError as exc:
+                self.deframer.malformed += 1
+                self.deframer.last_error = exc
+                continue
+            if isinstance(message, Sample):
+                out += self._check_counter(message.counter)
+                self.samples += 1
+            if not isinstance(message, Command):
+                out.append(message)  # type: ignore[arg-type]
+        return out
+
+    def _check_counter(self, counter: int) -> list[TickLoss]:
+        last, self._last_counter = self._last_counter, counter
+        if last is None:
+            return []
+        step = (counter - last) & _U32
+        if step == 1:
+            return []
+        if step == 0 or step >= 1 << 31:
+            # Repeated or earlier counter: the device restarted. The device decides what that
+            # means; nothing is lost on this side.
+            self.counter_restarts += 1
+            return []
+        self.ticks_lost += step - 1
+        return [TickLoss((last + 1) & _U32, step - 1, False)]
+
+    def restart_stream(self) -> list[TickLoss]:
+        """The stream was off: the next sample does not continue the previous one (any thread)."""
+        with self._rx_lock:
+            self._last_counter = None
+        return []
+
+    def counters(self) -> dict[str, int]:
+        """Frame statistics: received, rejected (bad CRC or length, undecodable), lost (sequence
+        counter gaps, including rejected frames), tick losses."""
+        d = self.deframer
+        return {
+            "frames_received": d.frames,
+            "frames_rejected": d.crc_errors + d.length_errors + d.malformed,
+            "frames_foreign": 0,
+            "frames_lost": d.lost_frames,
+            "ticks_lost": self.ticks_lost,
+            "ticks_incomplete": 0,
+            "duplicates": 0,
+        }
+
+    def close(self) -> None:
+        """Close the port if this transport owns it (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.own_port:
+            self.port.close()

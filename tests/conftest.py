@@ -1,0 +1,208 @@
+"""Shared fixtures: the simulated instrument on every link it offers, and a driver connected to it.
+
+``sim`` (one simulator per link for the test module) and ``link`` (a fresh
+:class:`driver.device.Device` per test, with the simulator's control channel) are parametrised
+over the links of ``LINKS``:
+
+- ``virtual``: python-can's ``virtual`` bus, the simulator's runner in a thread of this process;
+- ``serial-pty``: ``northfinder sim --pty`` in another process, the driver on the pty with pyserial;
+- ``slcan-pty``: ``northfinder sim --slcan-pty`` in another process, the driver through python-can's
+  ``slcan`` interface;
+- ``socketcan``: ``northfinder sim -i socketcan -c vcan0``; skipped where the kernel has no vcan0.
+
+The simulators run ``SPEED`` times faster than real time (``SPEEDS`` per link; a test may change
+the speed through the control channel; the ``link`` fixture restores it and resets the simulated
+device afterwards).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pytest
+
+SPEED = 5.0
+"""Simulated seconds per wall second for the simulators of the driver tests."""
+SPEEDS = {"slcan-pty": 2.0}
+"""Exceptions to ``SPEED``: python-can's ``slcan`` reads its port one byte per call, which keeps
+up with about four times the real-time stream (4 x 820 frames/s) on a loaded machine; beyond that
+the pseudo-terminal fills and replies queue behind samples."""
+LINKS = ("virtual", "serial-pty", "slcan-pty", "socketcan")
+VCAN = "vcan0"
+_channels = itertools.count()
+
+
+@dataclass
+class SimHandle:
+    """A running simulator: how to reach it, and how to stop it."""
+
+    kind: str
+    open_device: Callable[[], Any]
+    control: Any  # firmware_sim.control.ControlClient
+    speed: float = SPEED
+    closers: list[Callable[[], None]] = field(default_factory=list)
+
+    def close(self) -> None:
+        for close in reversed(self.closers):
+            try:
+                close()
+            except Exception as exc:  # teardown goes on; the message shows in the log
+                print(f"simulator teardown: {exc!r}", file=sys.stderr)
+
+
+def _start_in_process(speed: float) -> SimHandle:
+    import can
+
+    from driver.device import Device
+    from firmware_sim.control import ControlClient, Controller, ControlServer
+    from firmware_sim.firmware import Firmware
+    from firmware_sim.imu import Truth
+    from firmware_sim.links import CanLink
+    from firmware_sim.runner import RealTimeClock, Runner
+    from firmware_sim.sensors import load_spec
+
+    channel = f"northfinder-test-{os.getpid()}-{next(_channels)}"
+    dev_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    firmware = Firmware(
+        load_spec("paper-rlg"),
+        Truth(azimuth_deg=30.0, latitude_deg=34.0),
+        np.random.default_rng(3),
+        warmup_s=0.0,
+    )
+    runner = Runner(firmware, CanLink(dev_bus, firmware, 1), RealTimeClock(speed))
+    stop = threading.Event()
+    thread = threading.Thread(target=runner.run, args=(stop,), name="simulator", daemon=True)
+    thread.start()
+    server = ControlServer(Controller(runner), "127.0.0.1:0").start()
+    control = ControlClient(server.address)
+
+    def stop_runner() -> None:
+        stop.set()
+        thread.join(5.0)
+
+    handle = SimHandle(
+        "virtual",
+        lambda: Device.open_can("virtual", channel, receive_own_messages=False),
+        control,
+        speed,
+    )
+    handle.closers += [dev_bus.shutdown, stop_runner, server.close, control.close]
+    return handle
+
+
+def _read_facts(proc: subprocess.Popen[str], wanted: set[str], timeout: float) -> dict[str, str]:
+    """The simulator's ``key value`` lines on stdout, until ``wanted`` are all seen."""
+    lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+    assert proc.stdout is not None
+    stdout = proc.stdout
+    # A thread, not select(): the text wrapper may hold several lines already read from the pipe.
+    threading.Thread(target=lambda: [lines.put(x) for x in stdout], daemon=True).start()
+    facts: dict[str, str] = {}
+    deadline = time.monotonic() + timeout
+    while not wanted <= set(facts):
+        try:
+            line = lines.get(timeout=max(0.0, deadline - time.monotonic()))
+        except queue.Empty:
+            raise RuntimeError(
+                f"the simulator did not print {sorted(wanted)} in {timeout} s "
+                f"(exit status {proc.poll()})"
+            ) from None
+        key, _, value = line.strip().partition(" ")
+        facts[key] = value
+    return facts
+
+
+def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
+    from driver.device import Device
+    from firmware_sim.control import ControlClient
+
+    link_args = {
+        "serial-pty": ["--pty"],
+        "slcan-pty": ["--slcan-pty"],
+        "socketcan": ["-i", "socketcan", "-c", VCAN],
+    }[kind]
+    cmd = [sys.executable, "-c", "from host.cli import main; raise SystemExit(main())", "sim"]
+    cmd += [*link_args, "--warmup", "0", "--seed", str(seed), "--speed", str(speed)]
+    cmd += ["--azimuth", "30", "--control", "127.0.0.1:0"]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, bufsize=1
+    )
+
+    def stop_process() -> None:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+    try:
+        wanted = {"control"} if kind == "socketcan" else {"pty", "control"}
+        facts = _read_facts(proc, wanted, 20.0)
+        control = ControlClient(facts["control"])
+    except BaseException:
+        stop_process()
+        raise
+    if kind == "serial-pty":
+        path = facts["pty"]
+        opener: Callable[[], Any] = lambda: Device.open_serial(path)  # noqa: E731
+    elif kind == "slcan-pty":
+        path = facts["pty"]
+        opener = lambda: Device.open_can("slcan", path, 500_000, sleep_after_open=0)  # noqa: E731
+    else:
+        opener = lambda: Device.open_can("socketcan", VCAN)  # noqa: E731
+    handle = SimHandle(kind, opener, control, speed)
+    handle.closers += [stop_process, control.close]
+    return handle
+
+
+@pytest.fixture(scope="module", params=LINKS)
+def sim(request: pytest.FixtureRequest) -> Iterator[SimHandle]:
+    """A simulator on one link, shared by the tests of a module (warm-up 0, ``SPEED`` x)."""
+    kind = request.param
+    speed = SPEEDS.get(kind, SPEED)
+    if kind == "socketcan" and not os.path.exists(f"/sys/class/net/{VCAN}"):
+        pytest.skip(
+            f"no {VCAN}: this kernel has no SocketCAN/vcan (scripts/hil runs the suite in a VM "
+            "whose kernel has it)"
+        )
+    if kind == "virtual":
+        handle = _start_in_process(speed)
+    else:
+        handle = _start_subprocess(kind, speed, seed=LINKS.index(kind) + 10)
+    try:
+        yield handle
+    finally:
+        handle.close()
+
+
+@pytest.fixture
+def link(sim: SimHandle) -> Iterator[tuple[Any, Any]]:
+    """A connected ``(Device, ControlClient)`` pair with the device READY.
+
+    Afterwards the device is closed, and the simulated device is reset (faults cleared, defaults
+    back) at the fixture's speed.
+    """
+    sim.control.call("speed", value=sim.speed)
+    device = sim.open_device()
+    try:
+        device.wait_ready(timeout=5.0)
+        yield device, sim.control
+    finally:
+        device.close()
+        sim.control.call("speed", value=sim.speed)
+        sim.control.call("reset")

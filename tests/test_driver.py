@@ -1,0 +1,355 @@
+"""The host driver against the simulated instrument on every link: each call, the 2000-sample
+window, and the faults the simulator's control channel injects (nothing may hang)."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import can
+import numpy as np
+import pytest
+
+from driver.device import Device, Window
+from driver.errors import (
+    DeviceFault,
+    DeviceRefused,
+    DeviceReset,
+    DriverError,
+    LinkError,
+    LinkLost,
+    ReplyTimeout,
+    StreamGap,
+)
+from driver.protocol.can import TickAssembler, TickLoss
+from driver.protocol.constants import ConfigKey, DeviceState, Fault, Opcode, Result, Validity
+from driver.protocol.messages import Sample, SampleAux, SampleX, SampleY, SampleZ
+
+G_34N = 9.7966  # normal gravity at 34 deg N, m/s^2
+
+
+@contextmanager
+def later(delay: float, fn, *args, **kwargs) -> Iterator[None]:
+    """Call ``fn`` ``delay`` wall seconds from now in another thread; join it on exit."""
+    timer = threading.Timer(delay, fn, args, kwargs)
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.join(5.0)
+
+
+def fast_table(dev: Device) -> None:
+    """A quick table so that moves take a fraction of a second at the simulator's speed."""
+    dev.set_config("table_max_rate_mdps", 50_000)
+    dev.set_config(ConfigKey.TABLE_MAX_ACCEL_MDPS2, 200_000)
+    dev.set_config("settle_time_ms", 200)
+
+
+def angle_error(a: float, b: float) -> float:
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def test_every_call_on_the_happy_path(link):
+    dev, _ = link
+    ident = dev.identify()
+    assert ident.model == "NF-SIM" and ident.protocol_version[0] == 1
+    assert ident.gyro_scale.value == pytest.approx(1e-4)
+    st = dev.status()
+    assert st.state == DeviceState.READY and st.faults == Fault(0)
+    assert 0.0 <= st.angle_deg < 360.0 and math.isfinite(st.temperature_c)
+    assert dev.get_config("sample_rate_hz") == 200 == dev.sample_rate_hz
+    assert dev.get_config(ConfigKey.NODE_ID) == 1
+    config = dev.config()
+    assert config[ConfigKey.HEARTBEAT_PERIOD_MS] == 100 and config[ConfigKey.STREAMING] == 0
+    fast_table(dev)
+    assert dev.get_config("settle_time_ms") == 200
+
+    done = dev.rotate_to(90.0)
+    assert done.state == DeviceState.READY and angle_error(done.angle_deg, 90.0) < 0.1
+    done = dev.rotate_by(-30.0)
+    assert angle_error(done.angle_deg, 60.0) < 0.1
+    done = dev.rotate_to(300.0, direction="negative", timeout=10.0)
+    assert angle_error(done.angle_deg, 300.0) < 0.1
+    assert dev.rotate_by(90.0, wait=False) is None
+    time.sleep(0.05)
+    assert dev.status().state == DeviceState.ROTATING
+    stopped = dev.stop(wait=True)
+    assert stopped.state == DeviceState.READY and angle_error(stopped.angle_deg, 300.0) > 1.0
+    done = dev.home()
+    assert angle_error(done.angle_deg, 0.0) < 0.1
+    assert dev.self_test() == 0
+
+    dev.start_streaming()
+    assert dev.streaming and dev.get_config("streaming") == 1
+    window = dev.acquire(0.5)
+    assert len(window) == 100 and window.complete and window.requested == 100
+    dev.stop_streaming()
+    assert not dev.streaming
+
+    back = dev.reset()
+    assert back.state in (DeviceState.WARMUP, DeviceState.READY)
+    assert dev.get_config("settle_time_ms") != 200  # configuration back to defaults
+    dev.wait_ready()
+    stats = dev.stats()
+    assert stats.frames_received > 0 and stats.reply_timeouts == 0 and stats.resets_detected >= 1
+
+
+@pytest.fixture
+def realtime_on_virtual(link, sim):
+    """Run the simulator at real time on the in-process link, accelerated on the others."""
+    speed = 1.0 if sim.kind == "virtual" else sim.speed
+    link[1].call("speed", value=speed)
+    return speed
+
+
+def test_ten_second_window_at_200_hz_has_2000_contiguous_samples(link, realtime_on_virtual):
+    dev, _ = link
+    requested_at = time.time()
+    t0 = time.monotonic()
+    window = dev.acquire(10.0)
+    elapsed = time.monotonic() - t0
+    assert isinstance(window, Window)
+    assert len(window) == 2000 and window.requested == 2000
+    assert window.missing == 0 and window.gaps == ()
+    assert np.all(np.diff(window.counter) == 1)
+    assert np.allclose(np.diff(window.time_s), 0.005)
+    assert window.counter.dtype == np.int64 and window.validity.dtype == np.uint8
+    assert window.gyro_dph.shape == window.accel_mps2.shape == (2000, 3)
+    assert np.all(window.arrival_s >= requested_at)  # nothing from before the request
+    assert np.all(window.valid_mask)
+    gyro, accel = window.mean()
+    assert np.linalg.norm(gyro) == pytest.approx(15.04, abs=0.5)  # Earth rate + bias, deg/h
+    assert accel[2] == pytest.approx(G_34N, abs=0.01)
+    assert np.allclose(window.gyro_rps, window.gyro_dph * math.pi / 180 / 3600)
+    # wall time: 10 s of device time at the simulator's speed
+    assert 0.95 * 10.0 / realtime_on_virtual <= elapsed <= 10.0 / realtime_on_virtual + 1.5
+    with pytest.raises(ValueError):
+        window.counter[0] = 0  # the window is read-only
+
+
+def inject(control, op: str, **args) -> None:
+    control.call(op, **args)
+
+
+def test_dropped_frames_are_detected_and_reported(link, sim):
+    dev, ctl = link
+    dev.start_streaming()
+    before = dev.stats()
+    with later(0.2, inject, ctl, "drop", count=5):
+        window = dev.acquire(1.0 * sim.speed, on_gap="report")  # 1 s of wall time
+    assert window.missing >= 1 and window.gaps
+    assert sum(count for _, count in window.gaps) == window.missing
+    assert len(window) + window.missing == window.requested
+    present = set(window.counter.tolist())
+    for first, count in window.gaps:
+        assert not present & set(range(first, first + count))
+    after = dev.stats()
+    if dev.link_kind == "serial":
+        assert after.frames_lost - before.frames_lost == 5  # the frame sequence counter says 5
+    else:
+        lost = after.ticks_lost + after.ticks_incomplete
+        assert lost - before.ticks_lost - before.ticks_incomplete >= 1
+
+    with later(0.2, inject, ctl, "drop", count=5), pytest.raises(StreamGap) as err:
+        dev.acquire(1.0 * sim.speed)
+    assert err.value.missing >= 1 and err.value.gaps and "on_gap='report'" in str(err.value)
+
+
+def test_corrupted_frames_are_ignored_and_counted(link, sim):
+    dev, ctl = link
+    dev.start_streaming()
+    before = dev.stats()
+    with later(0.2, inject, ctl, "corrupt", count=3):
+        window = dev.acquire(1.0 * sim.speed, on_gap="report")
+    after = dev.stats()
+    assert after.frames_rejected - before.frames_rejected >= 3
+    assert window.missing <= 3  # a corrupt frame costs at most its own tick
+    assert len(window) + window.missing == window.requested
+    assert dev.status().state == DeviceState.READY  # and the link goes on
+
+
+def test_silent_device_times_out_within_the_stated_deadline(link, sim):
+    dev, ctl = link
+    dev.start_streaming()
+    t0 = time.monotonic()
+    with later(0.2, inject, ctl, "silent", on=True), pytest.raises(LinkLost, match="no status"):
+        dev.acquire(5.0 * sim.speed)
+    assert time.monotonic() - t0 < 0.2 + 0.3 + 0.3  # three heartbeat periods after it fell silent
+    t0 = time.monotonic()
+    with pytest.raises(ReplyTimeout) as err:
+        dev.get_config("sample_rate_hz")
+    elapsed = time.monotonic() - t0
+    assert err.value.deadline_s == pytest.approx(0.75)
+    assert err.value.attempts == 3 and err.value.opcode == Opcode.GET_CONFIG
+    assert elapsed <= err.value.deadline_s + 0.2
+    assert not err.value.link_alive and "silent" in str(err.value)
+    assert isinstance(err.value, TimeoutError)
+    with pytest.raises(LinkLost):
+        dev.acquire(1.0)  # refused at once while the heartbeat is missing
+    ctl.call("silent", on=False)
+    assert dev.status().state == DeviceState.READY  # the link comes back
+
+
+def test_reset_in_the_middle_of_a_window_raises_a_clear_error(link, sim):
+    dev, ctl = link
+    t0 = time.monotonic()
+    with later(0.3, inject, ctl, "reset"), pytest.raises(DeviceReset, match="restarted"):
+        dev.acquire(3.0 * sim.speed)  # 3 s of wall time
+    assert time.monotonic() - t0 < 1.5
+    assert not dev.streaming
+    dev.wait_ready()
+    window = dev.acquire(0.2)  # starts the stream again
+    assert window.complete and len(window) == 40
+
+
+def test_busy_refusal_surfaces_with_its_code(link):
+    dev, ctl = link
+    dev.rotate_by(90.0, wait=False)  # 15 s of table motion at the default 6 deg/s
+    with pytest.raises(DeviceRefused) as err:
+        dev.rotate_by(10.0)
+    assert err.value.result == Result.BUSY and err.value.opcode == Opcode.ROTATE_BY
+    assert "rotating" in err.value.meaning and "BUSY" in str(err.value)
+    dev.stop(wait=True, timeout=5.0)
+    ctl.call("wrong_result", code=int(Result.BUSY))
+    with pytest.raises(DeviceRefused) as err:
+        dev.get_config("node_id")
+    assert err.value.result == Result.BUSY and err.value.opcode == Opcode.GET_CONFIG
+    with pytest.raises(DeviceRefused) as err:
+        dev.set_config("node_id", 3)
+    assert err.value.result == Result.READ_ONLY
+
+
+def test_a_fault_during_a_move_raises(link):
+    dev, ctl = link
+    ctl.call("stall", on=True)
+    with pytest.raises(DeviceFault) as err:
+        dev.rotate_by(30.0, timeout=10.0)
+    assert err.value.faults & Fault.DRIVE
+    ctl.call("stall", on=False)
+    assert dev.reset().state != DeviceState.FAULT
+
+
+def test_only_commands_safe_to_repeat_are_sent_again(link, sim):
+    dev, ctl = link
+    ctl.call("delay_replies", seconds=0.4 * sim.speed)  # each reply 0.4 s late: after the deadline
+    t0 = time.monotonic()
+    with pytest.raises(ReplyTimeout) as err:
+        dev.get_config("sample_rate_hz")
+    assert err.value.attempts == 3 and err.value.link_alive
+    assert time.monotonic() - t0 <= err.value.deadline_s + 0.2
+    with pytest.raises(ReplyTimeout) as err:
+        dev.rotate_by(1.0, wait=False)
+    assert err.value.attempts == 1 and "may have been carried out" in str(err.value)
+    ctl.call("delay_replies", seconds=0.0)
+    time.sleep(0.5)
+    stats = dev.stats()
+    assert stats.retries >= 2 and stats.stray_replies >= 3  # late replies are counted, not used
+    assert dev.get_config("sample_rate_hz") == 200
+
+
+def test_calls_from_several_threads_while_a_window_is_acquired(link, sim):
+    dev, _ = link
+    errors: list[BaseException] = []
+    results: list[int] = []
+
+    def query() -> None:
+        try:
+            for _ in range(10):
+                results.append(dev.get_config("heartbeat_period_ms"))
+                dev.status()
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=query) for _ in range(4)]
+    for t in threads:
+        t.start()
+    window = dev.acquire(0.5 * sim.speed)
+    for t in threads:
+        t.join(10.0)
+    assert not errors and results == [100] * 40
+    assert window.complete and np.all(np.diff(window.counter) == 1)
+    assert dev.stats().stray_replies == 0
+
+
+def test_a_long_gap_is_measured_in_full(link, sim):
+    dev, ctl = link
+    dev.start_streaming()
+    with later(0.2, inject, ctl, "skip_counter", count=300):
+        window = dev.acquire(1.0 * sim.speed, on_gap="report")
+    assert window.missing == 300 and len(window) == window.requested - 300
+
+
+def test_closing_releases_the_link_and_stops_the_reader(link, sim):
+    dev, _ = link
+    dev.start_streaming()
+    dev.close()
+    assert dev.closed and not dev._reader.is_alive()
+    with pytest.raises(LinkError):
+        dev.status()
+    dev.close()  # idempotent
+    with sim.open_device() as again:  # the bus or port is free for the next host
+        assert again.status().state == DeviceState.READY
+        assert not again.streaming  # the stream was stopped on close
+        transport = again._transport
+    if again.link_kind == "serial":
+        assert not transport.port.is_open
+    else:
+        assert transport.bus._is_shutdown
+
+
+def test_a_failed_open_releases_the_bus():
+    bus = can.Bus(interface="virtual", channel="northfinder-nobody", receive_own_messages=False)
+    t0 = time.monotonic()
+    with pytest.raises(ReplyTimeout, match="IDENTIFY"):
+        Device.from_bus(bus, own_bus=True)
+    assert time.monotonic() - t0 < 1.0
+    assert bus._is_shutdown
+
+
+def test_bad_arguments_name_the_choices():
+    with pytest.raises(ValueError, match="keys are"):
+        Device._key("colour")
+    with pytest.raises(ValueError, match="shortest"):
+        Device._direction("sideways")
+    with pytest.raises(LinkError, match="serial port"):
+        Device.open_serial("/dev/nonexistent-northfinder")
+
+
+def test_errors_share_one_root():
+    for exc in (DeviceRefused, ReplyTimeout, LinkLost, StreamGap, DeviceReset, DeviceFault):
+        assert issubclass(exc, DriverError)
+    err = DeviceRefused(Opcode.ROTATE_TO, Result.BUSY, Result.BUSY.meaning)
+    assert err.result == Result.BUSY and err.meaning == Result.BUSY.meaning
+
+
+def _tick(asm: TickAssembler, counter: int) -> list:
+    t = counter & 0xFF
+    out = []
+    for part in (
+        SampleX(t, 0, 0),
+        SampleY(t, 0, 0),
+        SampleZ(t, 0, 0),
+        SampleAux(t, 0, 0, Validity(3)),
+    ):
+        out += asm.add(part)
+    return out
+
+
+def test_can_tick_counter_measures_gaps_of_256_or_more_with_the_status_anchor():
+    asm = TickAssembler()
+    asm.sync(1000)
+    assert [s.counter for s in _tick(asm, 1001) if isinstance(s, Sample)] == [1001]
+    asm.sync(1001)
+    # 300 ticks lost, then a status (anchor) before the next tick: the gap is 300, not 44
+    asm.sync(1301)
+    out = _tick(asm, 1302)
+    assert out[0] == TickLoss(1002, 300, False) and out[1].counter == 1302
+    # the stream was switched off and on: ticks not sent are not lost
+    asm.sync(5000)
+    asm.restart()
+    out = _tick(asm, 5002)
+    assert len(out) == 1 and out[0].counter == 5002 and asm.lost == 300
