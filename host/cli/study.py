@@ -335,7 +335,11 @@ def study_rows(
     model = error_model(spec)
     pos = plan.positions_deg
     pairwise = errors.ndim == 2
-    subplans = [Plan((pos[0], pos[k]), plan.window_s, plan.settle_s) for k in range(1, len(pos))]
+    subplans = (
+        [Plan((pos[0], pos[k]), plan.window_s, plan.settle_s) for k in range(1, len(pos))]
+        if pairwise
+        else []
+    )
     rows = []
     stats = summarize(errors)
     for i, s in enumerate(stats if pairwise else [stats]):
@@ -433,14 +437,19 @@ def verify_plan(
     target_deg: float | None = None,
     max_rounds: int = 4,
 ) -> tuple[Plan, dict[str, Any]]:
-    """Monte Carlo of a plan; with a target, lengthen the window by 15 % until the RMSE meets it."""
+    """Monte Carlo of a plan; with a target, lengthen the window until the simulated RMSE meets it.
+
+    Each round scales the window by ``1.05 (RMSE / target)^2`` (white noise falls as the square
+    root of the dwell), at most ``max_rounds`` rounds.
+    """
     for _ in range(max_rounds):
         errors = monte_carlo(spec, plan, settings, runs, seed)
         row = study_rows(spec, plan, settings, errors)[0]
         if target_deg is None or row["rmse_deg"] <= target_deg:
             row["meets_target"] = target_deg is None or row["rmse_deg"] <= target_deg
             return plan, row
-        plan = Plan(plan.positions_deg, plan.window_s * 1.15, plan.settle_s)
+        grow = 1.05 * (row["rmse_deg"] / target_deg) ** 2
+        plan = Plan(plan.positions_deg, plan.window_s * grow, plan.settle_s)
     row["meets_target"] = False
     return plan, row
 
