@@ -1,0 +1,185 @@
+"""``northfinder conformance``: check a unit on any link against protocol.md.
+
+Links (choose one):
+  -i/-c/-b          any python-can bus, e.g. ``-i socketcan -c vcan0``, or an SLCAN adapter
+                    ``-i slcan -c /dev/ttyACM0 -b 500000`` (for a pseudo-terminal add
+                    ``--bus-kwargs sleep_after_open=0``)
+  --serial PORT     the protocol's serial frames on a serial port (path or pyserial URL)
+
+The report (one row per check: result, measured figures, message) goes to stdout as the checks
+run; ``--junit FILE`` also writes JUnit XML. Exit status: 0 all checks passed (skips allowed),
+1 a check failed, 2 bad arguments.
+
+Timing is judged in the unit's time: for a simulator running at ``--speed S`` give
+``--time-scale S``. Against a real instrument keep the defaults (time scale 1, a 30 s stream).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import can
+import can.cli
+import serial
+
+from host.cli.common import angle_list, finite_float, positive_float
+from host.conformance import (
+    CHECKS,
+    CanRawLink,
+    SerialRawLink,
+    SuiteOptions,
+    format_header,
+    format_result,
+    format_summary,
+    run_suite,
+    select_checks,
+    write_junit,
+)
+from host.errors import HostConfigError
+
+_DEFAULTS = SuiteOptions()
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "conformance",
+        help="check a unit on a link against protocol.md",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    can.cli.add_bus_arguments(p)
+    link = p.add_argument_group("serial link")
+    link.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
+    link.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
+    p.add_argument(
+        "--node-id", type=int, default=1, help="the unit's CAN node id 1..15 (default 1)"
+    )
+    g = p.add_argument_group("what to check and how strictly")
+    g.add_argument(
+        "--time-scale",
+        type=positive_float,
+        default=_DEFAULTS.time_scale,
+        metavar="S",
+        help="the unit's seconds per wall second (a simulator's --speed; default 1)",
+    )
+    g.add_argument(
+        "--stream-seconds",
+        type=positive_float,
+        default=_DEFAULTS.stream_seconds,
+        help="length of the stream and heartbeat observation, unit seconds (default 30)",
+    )
+    g.add_argument(
+        "--angles",
+        type=angle_list,
+        default=list(_DEFAULTS.angles_deg),
+        metavar="DEG,DEG,...",
+        help="rotation targets of rotation.accuracy (default 37.5,181.25,300)",
+    )
+    g.add_argument(
+        "--accuracy",
+        type=positive_float,
+        default=_DEFAULTS.accuracy_deg,
+        metavar="DEG",
+        help="largest |encoder - target| after a move (default 0.05 deg)",
+    )
+    g.add_argument(
+        "--reply-limit-ms",
+        type=positive_float,
+        default=_DEFAULTS.reply_limit_ms,
+        help="largest reply latency measured on the host, unit ms (default 100, the host timeout "
+        "of protocol.md 6; replies over the unit's 20 ms deadline are counted in the report)",
+    )
+    g.add_argument(
+        "--jitter-margin-ms",
+        type=finite_float,
+        default=_DEFAULTS.jitter_margin_ms,
+        help="host timestamp margin added to the 10 %% heartbeat jitter bound, wall ms (default 5)",
+    )
+    g.add_argument(
+        "--rate-tolerance",
+        type=positive_float,
+        default=_DEFAULTS.rate_tolerance,
+        help="relative tolerance of the sample rate and mean heartbeat period (default 0.01)",
+    )
+    g.add_argument(
+        "--settle-margin",
+        type=finite_float,
+        default=_DEFAULTS.settle_margin_s,
+        metavar="SECONDS",
+        help="added (with 10 %%) to profile + settle time before a move is late (default 0.5)",
+    )
+    g.add_argument(
+        "--ready-timeout",
+        type=positive_float,
+        default=_DEFAULTS.ready_timeout_s,
+        metavar="SECONDS",
+        help="longest wait for READY after boot or reset, unit seconds (default 180)",
+    )
+    g.add_argument(
+        "--only",
+        metavar="PATTERNS",
+        default="",
+        help="comma-separated glob patterns of checks to run, e.g. 'stream.*,refusal.busy'",
+    )
+    p.add_argument("--list", action="store_true", help="list the checks and exit")
+    p.add_argument("--junit", metavar="FILE", help="also write JUnit XML to FILE")
+    return p
+
+
+def _options(args: argparse.Namespace) -> SuiteOptions:
+    return SuiteOptions(
+        node_id=args.node_id,
+        time_scale=args.time_scale,
+        stream_seconds=args.stream_seconds,
+        angles_deg=tuple(args.angles),
+        accuracy_deg=args.accuracy,
+        reply_limit_ms=args.reply_limit_ms,
+        jitter_margin_ms=args.jitter_margin_ms,
+        rate_tolerance=args.rate_tolerance,
+        settle_margin_s=args.settle_margin,
+        ready_timeout_s=args.ready_timeout,
+        only=tuple(p.strip() for p in args.only.split(",") if p.strip()),
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.list:
+        width = max(len(c.name) for c in CHECKS)
+        for c in CHECKS:
+            print(f"{c.name:<{width}}  {c.summary}")
+        return 0
+    try:
+        options = _options(args)
+        select_checks(options.only)
+        can_given = bool(getattr(args, "interface", None) or getattr(args, "channel", None))
+        if can_given == bool(args.serial):
+            raise HostConfigError("choose exactly one link: -i/-c (python-can) or --serial PORT")
+    except HostConfigError as exc:
+        print(f"northfinder conformance: error: {exc}", file=sys.stderr)
+        return 2
+    closers = []
+    try:
+        if args.serial:
+            try:
+                port = serial.serial_for_url(args.serial, baudrate=args.baud, timeout=0)
+            except (serial.SerialException, ValueError) as exc:
+                raise HostConfigError(f"--serial {args.serial}: {exc}") from exc
+            closers.append(port.close)
+            link: CanRawLink | SerialRawLink = SerialRawLink(port)
+        else:
+            try:
+                bus = can.cli.create_bus_from_namespace(args)
+            except (argparse.ArgumentError, can.CanError, OSError, ValueError) as exc:
+                raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+            closers.append(bus.shutdown)
+            link = CanRawLink(bus, args.node_id)
+        print(format_header(link.kind, options), flush=True)
+        report = run_suite(link, options, progress=lambda r: print(format_result(r), flush=True))
+    finally:
+        for close in reversed(closers):
+            close()
+    print(f"\n{format_summary(report)}", flush=True)
+    if args.junit:
+        write_junit(report, args.junit)
+    return 0 if report.passed else 1

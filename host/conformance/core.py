@@ -1,0 +1,287 @@
+"""Options, results and the check registry of the conformance suite."""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from driver.protocol.constants import ConfigKey, DeviceState, Result
+from host.conformance.session import Answer, LinkFault, Session, describe_result
+from host.errors import HostConfigError
+
+__all__ = [
+    "CHECKS",
+    "Check",
+    "CheckResult",
+    "Ctx",
+    "Outcome",
+    "Report",
+    "Skipped",
+    "SuiteOptions",
+    "check",
+    "select_checks",
+]
+
+Outcome = str
+"""``"pass"``, ``"fail"`` or ``"skip"``."""
+
+
+@dataclass(frozen=True)
+class SuiteOptions:
+    """What the suite checks and how strictly.
+
+    Attributes
+    ----------
+    node_id : int
+        The unit's CAN node id (1..15).
+    time_scale : float
+        The unit's seconds per wall second: 1 for a real instrument, the speed of an accelerated
+        simulator. Periods, rates and durations are judged in the unit's time.
+    stream_seconds : float
+        Length of the stream observation in the unit's seconds (the issue asks for at least 30).
+    angles_deg : tuple of float
+        Rotation targets of ``rotation.accuracy``, deg.
+    accuracy_deg : float
+        Largest allowed ``|encoder - target|`` after a move, deg.
+    reply_limit_ms : float
+        Largest allowed reply latency as the host measures it, ms of the unit's time. The unit's
+        own deadline is 20 ms (protocol.md 6); the host measurement adds link and host latency, so
+        the limit defaults to the host timeout of protocol.md 6 (100 ms).
+    jitter_margin_ms : float
+        Host-side timestamp uncertainty added to the 10 % heartbeat jitter bound, wall ms.
+    rate_tolerance : float
+        Largest relative error of the measured sample rate and of the mean heartbeat period.
+    settle_margin_s : float
+        Added to the expected move time (profile + settle) before a move counts as late, unit s;
+        10 % of the expected time is added as well.
+    ready_timeout_s : float
+        How long to wait for READY after boot or reset (warm-up), unit s.
+    only : tuple of str
+        Glob patterns of check names to run (empty: all).
+    """
+
+    node_id: int = 1
+    time_scale: float = 1.0
+    stream_seconds: float = 30.0
+    angles_deg: tuple[float, ...] = (37.5, 181.25, 300.0)
+    accuracy_deg: float = 0.05
+    reply_limit_ms: float = 100.0
+    jitter_margin_ms: float = 5.0
+    rate_tolerance: float = 0.01
+    settle_margin_s: float = 0.5
+    ready_timeout_s: float = 180.0
+    only: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        positive = {
+            "time_scale": self.time_scale,
+            "stream_seconds": self.stream_seconds,
+            "accuracy_deg": self.accuracy_deg,
+            "reply_limit_ms": self.reply_limit_ms,
+            "rate_tolerance": self.rate_tolerance,
+            "ready_timeout_s": self.ready_timeout_s,
+        }
+        for name, value in positive.items():
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise HostConfigError(f"{name}: must be a positive number, got {value!r}")
+        for name, value in (
+            ("jitter_margin_ms", self.jitter_margin_ms),
+            ("settle_margin_s", self.settle_margin_s),
+        ):
+            if not (math.isfinite(value) and value >= 0):
+                raise HostConfigError(f"{name}: must be >= 0, got {value!r}")
+        if not 1 <= self.node_id <= 15:
+            raise HostConfigError(f"node_id: must be 1..15, got {self.node_id}")
+        if not self.angles_deg or not all(math.isfinite(a) for a in self.angles_deg):
+            raise HostConfigError("angles: give at least one finite angle in degrees")
+
+
+@dataclass
+class CheckResult:
+    """Outcome of one check.
+
+    Attributes
+    ----------
+    name : str
+    outcome : str
+        ``"pass"``, ``"fail"`` or ``"skip"``.
+    message : str
+        Why it failed or was skipped; for a pass, what was verified.
+    figures : dict
+        Measured figures, name -> text with unit.
+    duration_s : float
+        Wall seconds spent.
+    """
+
+    name: str
+    outcome: Outcome
+    message: str
+    figures: dict[str, str] = field(default_factory=dict)
+    duration_s: float = 0.0
+
+
+@dataclass
+class Report:
+    """All results of one run, in order."""
+
+    results: list[CheckResult]
+    link: str
+    options: SuiteOptions
+    duration_s: float = 0.0
+
+    @property
+    def passed(self) -> bool:
+        return not any(r.outcome == "fail" for r in self.results)
+
+    def count(self, outcome: Outcome) -> int:
+        return sum(r.outcome == outcome for r in self.results)
+
+    def result(self, name: str) -> CheckResult:
+        for r in self.results:
+            if r.name == name:
+                return r
+        raise KeyError(name)
+
+
+class Skipped(Exception):
+    """Raised by a check that cannot apply to this unit or link."""
+
+
+@dataclass(frozen=True)
+class Check:
+    """A named check: ``fn(ctx)`` records figures and problems on the context."""
+
+    name: str
+    summary: str
+    fn: Callable[[Ctx], None]
+
+
+CHECKS: list[Check] = []
+"""Every check in the order the suite runs them."""
+
+
+def check(name: str, summary: str) -> Callable[[Callable[[Ctx], None]], Callable[[Ctx], None]]:
+    """Register a check function under ``name``."""
+
+    def register(fn: Callable[[Ctx], None]) -> Callable[[Ctx], None]:
+        if any(c.name == name for c in CHECKS):
+            raise ValueError(f"check {name!r} registered twice")
+        CHECKS.append(Check(name, summary, fn))
+        return fn
+
+    return register
+
+
+def select_checks(patterns: tuple[str, ...]) -> list[Check]:
+    """The checks matching any glob pattern (all when none), in suite order.
+
+    Raises
+    ------
+    HostConfigError
+        A pattern that matches no check (the message lists the checks).
+    """
+    if not patterns:
+        return list(CHECKS)
+    for p in patterns:
+        if not any(fnmatch.fnmatchcase(c.name, p) for c in CHECKS):
+            names = ", ".join(c.name for c in CHECKS)
+            raise HostConfigError(f"no check matches {p!r}; checks are {names}")
+    return [c for c in CHECKS if any(fnmatch.fnmatchcase(c.name, p) for p in patterns)]
+
+
+class Ctx:
+    """What a check works with: the session, the options, state shared between checks, and the
+    figures and problems it records."""
+
+    def __init__(self, session: Session, options: SuiteOptions, shared: dict[str, Any]) -> None:
+        self.s = session
+        self.opt = options
+        self.shared = shared
+        self.figures: dict[str, str] = {}
+        self.problems: list[str] = []
+        self.notes: list[str] = []
+
+    # -- recording --------------------------------------------------------------------------------
+    def fig(self, name: str, value: object) -> None:
+        self.figures[name] = str(value)
+
+    def fail(self, problem: str) -> None:
+        self.problems.append(problem)
+
+    def note(self, text: str) -> None:
+        self.notes.append(text)
+
+    @staticmethod
+    def skip(reason: str) -> None:
+        raise Skipped(reason)
+
+    # -- units ------------------------------------------------------------------------------------
+    def ms(self, wall_s: float) -> float:
+        """A wall duration as ms of the unit's time."""
+        return self.s.unit(wall_s) * 1000.0
+
+    @property
+    def link_kind(self) -> str:
+        return self.s.link.kind
+
+    # -- replies ----------------------------------------------------------------------------------
+    def expect(self, a: Answer, result: Result, what: str | None = None) -> bool:
+        """Record a problem unless ``a`` got a reply with ``result`` (and no data if refused)."""
+        what = what or a.name
+        if a.reply is None:
+            wrong = [r for t, r in self.s.unsolicited if t >= a.sent and r.seq == a.seq]
+            if wrong:
+                r = wrong[0]
+                self.fail(
+                    f"{what}: the reply echoed seq {r.seq} opcode 0x{int(r.opcode):02X} "
+                    f"instead of seq {a.seq} opcode 0x{a.opcode:02X}"
+                )
+            else:
+                self.fail(f"{what}: no reply within {self.s.reply_wait_s:g} s (wall)")
+            return False
+        got = a.reply.result
+        if got != result:
+            self.fail(
+                f"{what}: answered {describe_result(got)}, expected {describe_result(result)}"
+            )
+            return False
+        if result != Result.OK and a.reply.data:
+            self.fail(f"{what}: a refusal must carry no data, got {a.reply.data.hex(' ')}")
+            return False
+        return True
+
+    # -- shared helpers ---------------------------------------------------------------------------
+    def config(self) -> dict[ConfigKey, int]:
+        """Every configuration value, read once and kept as the values to restore."""
+        if "config" not in self.shared:
+            self.shared["config"] = {k: self.s.get_config(k) for k in ConfigKey}
+        return self.shared["config"]
+
+    def ready(self) -> None:
+        """Make sure the unit is READY (wait for warm-up or a move to end).
+
+        Raises
+        ------
+        LinkFault
+            The unit is in FAULT or does not become READY within the ready timeout.
+        """
+        st = self.s.get_status()
+        if st.state == DeviceState.READY:
+            return
+        if st.state == DeviceState.FAULT:
+            raise LinkFault(f"the unit is in FAULT (fault flags 0x{int(st.faults):02X})")
+        if self.s.wait_state({DeviceState.READY}, self.opt.ready_timeout_s) is None:
+            raise LinkFault(
+                f"the unit did not become READY within {self.opt.ready_timeout_s:g} s "
+                f"(state {self.s.state.name if self.s.state is not None else 'unknown'})"
+            )
+
+    def stream_on(self) -> None:
+        """Switch the sample stream on (if the suite does not know it to be on)."""
+        if not self.s.streaming:
+            self.s.start_stream()
+            rate = self.config()[ConfigKey.SAMPLE_RATE_HZ]
+            self.s.idle(3.0 / rate)

@@ -1,0 +1,137 @@
+"""Running the checks in order, restoring the unit after a failure, and reporting."""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+import can
+import serial
+
+import host.conformance.checks  # noqa: F401  (registers the checks)
+from driver.errors import DriverError
+from driver.protocol.constants import ConfigKey, DeviceState
+from driver.protocol.messages import Reset, SetConfig, Stop
+from host.conformance.core import CheckResult, Ctx, Report, Skipped, SuiteOptions, select_checks
+from host.conformance.links import RawLink
+from host.conformance.session import LinkFault, Session
+from host.errors import HostError
+
+__all__ = ["restore", "run_suite"]
+
+_LINK_ERRORS = (
+    LinkFault,
+    HostError,
+    DriverError,
+    can.CanError,
+    serial.SerialException,
+    OSError,
+)
+
+
+def run_suite(
+    link: RawLink,
+    options: SuiteOptions,
+    progress: Callable[[CheckResult], None] | None = None,
+) -> Report:
+    """Run the selected checks against the unit on ``link``; never stops at a failure.
+
+    After a failed check the unit is restored (STOP, wait for rest, RESET if it is in FAULT or
+    does not answer, configuration written back) so that the next check starts from READY.
+
+    Parameters
+    ----------
+    link : RawLink
+        The suite's end of the link (a :class:`~host.conformance.links.CanRawLink` or
+        :class:`~host.conformance.links.SerialRawLink`).
+    options : SuiteOptions
+    progress : callable, optional
+        Called with each result as soon as it is known.
+
+    Returns
+    -------
+    Report
+    """
+    checks = select_checks(options.only)
+    reply_wait = max(1.0, 2 * options.reply_limit_ms / 1000.0)
+    session = Session(link, options.time_scale, reply_wait)
+    session.drain(0.2)
+    shared: dict[str, Any] = {}
+    results: list[CheckResult] = []
+    start = time.monotonic()
+    for chk in checks:
+        ctx = Ctx(session, options, shared)
+        t0 = time.monotonic()
+        outcome, message = "pass", ""
+        try:
+            chk.fn(ctx)
+        except Skipped as exc:
+            outcome, message = "skip", str(exc)
+        except _LINK_ERRORS as exc:
+            ctx.fail(f"{type(exc).__name__}: {exc}" if not isinstance(exc, LinkFault) else str(exc))
+        except Exception as exc:  # a bug in a check must not hide the remaining checks
+            ctx.fail(f"internal error: {type(exc).__name__}: {exc} ({_where(exc)})")
+        if ctx.problems:
+            outcome = "fail"
+            message = "; ".join(ctx.problems)
+        elif outcome == "pass":
+            message = chk.summary
+            if ctx.notes:
+                message += " [" + "; ".join(ctx.notes) + "]"
+        result = CheckResult(chk.name, outcome, message, ctx.figures, time.monotonic() - t0)
+        results.append(result)
+        if progress is not None:
+            progress(result)
+        if outcome == "fail":
+            note = restore(session, options, shared)
+            if note:
+                result.message += f" (restore: {note})"
+    return Report(results, link.kind, options, time.monotonic() - start)
+
+
+def _where(exc: BaseException) -> str:
+    tb = traceback.extract_tb(exc.__traceback__)
+    return f"{tb[-1].filename.rsplit('/', 1)[-1]}:{tb[-1].lineno}" if tb else "?"
+
+
+def restore(session: Session, options: SuiteOptions, shared: dict[str, Any]) -> str:
+    """Bring the unit back to READY with the configuration the suite found; return what it took."""
+    s = session
+    done: list[str] = []
+    try:
+        s.request(Stop(0))
+        st = s.get_status()
+        if st.state in (DeviceState.ROTATING, DeviceState.SETTLING):
+            s.wait_state({DeviceState.READY, DeviceState.FAULT}, 600.0)
+            st = s.get_status()
+        if st.state == DeviceState.FAULT:
+            raise LinkFault("FAULT")
+    except _LINK_ERRORS:
+        done.append("RESET")
+        try:
+            s.expect_restart()
+            s.request(Reset(0))
+            s.streaming = False
+            s.begin_segment()
+            s.wait_state({DeviceState.READY}, options.ready_timeout_s)
+        except _LINK_ERRORS as exc:
+            return f"the unit did not recover: {exc}"
+    config = shared.get("config")
+    if config:
+        try:
+            for key in (
+                ConfigKey.HEARTBEAT_PERIOD_MS,
+                ConfigKey.SAMPLE_RATE_HZ,
+                ConfigKey.TABLE_MAX_RATE_MDPS,
+                ConfigKey.TABLE_MAX_ACCEL_MDPS2,
+                ConfigKey.SETTLE_TIME_MS,
+            ):
+                if s.get_config(key) != config[key]:
+                    s.request(SetConfig(0, key, config[key]))
+                    done.append(f"{key.name}={config[key]}")
+        except _LINK_ERRORS as exc:
+            done.append(f"configuration not restored: {exc}")
+    s.idle(0.1)
+    return ", ".join(done)

@@ -1,0 +1,434 @@
+"""The suite's conversation with a unit: requests and replies, and a record of everything it sent.
+
+:class:`Session` sends commands on a raw link, matches replies by seq and opcode, and keeps what the
+unit sends in time order: statuses (and the state changes they show), identify messages, samples
+with their full counters, and every irregularity seen on the way (a counter gap, an incomplete CAN
+tick, a serial frame lost, an undecodable frame, a reply nobody asked for). Checks read these
+records; the session itself judges nothing.
+
+Times: ``t`` values are host monotonic seconds (wall clock). The unit may run faster than wall time
+(an accelerated simulator); ``time_scale`` is the unit's seconds per wall second, and
+:meth:`Session.unit` / :meth:`Session.wall` convert durations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
+from driver.protocol.messages import (
+    Command,
+    GetConfig,
+    GetStatus,
+    Identify,
+    Reply,
+    Sample,
+    Status,
+    StreamStart,
+    StreamStop,
+)
+from host.conformance.links import Arrival, RawLink, TickParts
+from host.errors import HostError
+
+__all__ = ["Answer", "LinkFault", "SampleRecord", "Session"]
+
+U32 = 0xFFFFFFFF
+
+
+class LinkFault(HostError):
+    """The unit stopped answering in a way that makes the current check meaningless."""
+
+
+@dataclass(frozen=True, slots=True)
+class SampleRecord:
+    """One sample tick as the suite saw it.
+
+    Attributes
+    ----------
+    t : float
+        Host receipt time, s.
+    counter : int
+        Full 32-bit sample counter (on CAN extended from the 8-bit tick and the status anchor).
+    validity : int
+        Validity bits (0 for an incomplete CAN tick without its AUX frame).
+    angle : int or None
+        Encoder angle, 1e-6 deg (None when the AUX frame is missing).
+    complete : bool
+        False for a CAN tick of which some frames did not arrive.
+    """
+
+    t: float
+    counter: int
+    validity: int
+    angle: int | None
+    complete: bool = True
+
+
+@dataclass(slots=True)
+class Answer:
+    """A command sent and its reply (if one came)."""
+
+    payload: bytes
+    sent: float
+    reply: Reply | None = None
+    received: float | None = None
+    extra: list[Reply] = field(default_factory=list)
+
+    @property
+    def seq(self) -> int:
+        return self.payload[0]
+
+    @property
+    def opcode(self) -> int:
+        return self.payload[1]
+
+    @property
+    def latency(self) -> float | None:
+        """Wall seconds from sending to the reply, or None."""
+        return None if self.received is None else self.received - self.sent
+
+    @property
+    def name(self) -> str:
+        try:
+            return Opcode(self.opcode).name
+        except ValueError:
+            return f"opcode 0x{self.opcode:02X}"
+
+
+def _nearest(low8: int, reference: int) -> int:
+    """The 32-bit counter with low byte ``low8`` nearest to ``reference``."""
+    return (reference + ((low8 - reference + 128) & 0xFF) - 128) & U32
+
+
+class Session:
+    """Requests, replies and the record of one unit on one raw link.
+
+    Parameters
+    ----------
+    link : RawLink
+        The suite's end of the link.
+    time_scale : float
+        The unit's seconds per wall second (1 for a real instrument).
+    reply_wait_s : float
+        Wall seconds to wait for a reply before declaring it missing (long enough to measure a
+        late reply; the check judges lateness separately).
+    """
+
+    def __init__(self, link: RawLink, time_scale: float = 1.0, reply_wait_s: float = 1.0) -> None:
+        self.link = link
+        self.time_scale = float(time_scale)
+        self.reply_wait_s = reply_wait_s
+        self._seq = 0
+        self.statuses: list[tuple[float, Status]] = []
+        self.identifies: list[tuple[float, Identify]] = []
+        self.samples: list[SampleRecord] = []
+        self.gaps: list[tuple[float, str]] = []
+        self.link_errors: list[tuple[float, str]] = []
+        self.unsolicited: list[tuple[float, Reply]] = []
+        self.answers: list[Answer] = []
+        self.transitions: list[tuple[float, DeviceState | None, DeviceState]] = []
+        self.state: DeviceState | None = None
+        self.streaming = False
+        """Whether the suite believes the stream is on (it switched it on, or saw samples)."""
+        self._pending: dict[tuple[int, int], Answer] = {}
+        self._last_counter: int | None = None
+        self._last_tick: int | None = None
+        self._anchored = False
+        self._anchor: int | None = None
+        self.status_offsets: list[int] = []
+        self._last_seq: int | None = None
+        self.seq_restart_pending = False
+        self.serial_frames_lost = 0
+
+    # -- time -------------------------------------------------------------------------------------
+    def unit(self, wall_s: float) -> float:
+        """A wall duration in the unit's seconds."""
+        return wall_s * self.time_scale
+
+    def wall(self, unit_s: float) -> float:
+        """A duration in the unit's seconds as wall seconds."""
+        return unit_s / self.time_scale
+
+    @staticmethod
+    def now() -> float:
+        return time.monotonic()
+
+    # -- receiving --------------------------------------------------------------------------------
+    def pump(self, timeout: float = 0.0) -> None:
+        """Receive and record what arrives within ``timeout`` wall seconds."""
+        for arrival in self.link.receive(timeout):
+            self._record(arrival)
+
+    def wait_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
+        """Receive until ``predicate()`` holds or ``timeout`` wall seconds pass; return whether it held."""
+        end = self.now() + timeout
+        while True:
+            if predicate():
+                return True
+            left = end - self.now()
+            if left <= 0:
+                return predicate()
+            self.pump(min(left, 0.01))
+
+    def idle(self, unit_s: float) -> None:
+        """Receive for ``unit_s`` of the unit's seconds."""
+        end = self.now() + self.wall(unit_s)
+        while (left := end - self.now()) > 0:
+            self.pump(min(left, 0.01))
+
+    def drain(self, wall_s: float = 0.1) -> None:
+        """Receive for a moment and forget link errors so far (a port opened mid-frame)."""
+        end = self.now() + wall_s
+        while (left := end - self.now()) > 0:
+            self.pump(min(left, 0.01))
+        self.link_errors.clear()
+        self.gaps.clear()
+
+    def _record(self, a: Arrival) -> None:
+        if a.seq is not None:
+            self._check_serial_seq(a)
+        m = a.message
+        if isinstance(m, str):
+            self.link_errors.append((a.t, m))
+        elif isinstance(m, Reply):
+            answer = self._pending.pop((m.seq, int(m.opcode)), None)
+            if answer is None:
+                self.unsolicited.append((a.t, m))
+            else:
+                answer.reply, answer.received = m, a.t
+        elif isinstance(m, Status):
+            self._on_status(a.t, m)
+        elif isinstance(m, Identify):
+            self.identifies.append((a.t, m))
+        elif isinstance(m, Sample):
+            self._on_sample(a.t, m.counter, int(m.validity), m.angle, True)
+        elif isinstance(m, TickParts):
+            self._on_tick(a.t, m)
+
+    def _check_serial_seq(self, a: Arrival) -> None:
+        seq = a.seq
+        assert seq is not None
+        if self._last_seq is not None and seq != (self._last_seq + 1) & 0xFF:
+            if self.seq_restart_pending and seq == 0:
+                self.seq_restart_pending = False
+            else:
+                lost = (seq - self._last_seq - 1) & 0xFF
+                self.serial_frames_lost += lost
+                self.gaps.append(
+                    (
+                        a.t,
+                        f"serial sequence counter {self._last_seq} -> {seq}: {lost} frame(s) lost",
+                    )
+                )
+        elif self.seq_restart_pending and seq == 0:
+            self.seq_restart_pending = False
+        self._last_seq = seq
+
+    def _on_status(self, t: float, s: Status) -> None:
+        self.statuses.append((t, s))
+        if s.state != self.state:
+            self.transitions.append((t, self.state, s.state))
+            if s.state == DeviceState.BOOT:
+                self.begin_segment()
+                self.streaming = False
+            self.state = s.state
+        self._anchor = s.sample_counter
+        if self._last_counter is not None and self.samples:
+            if not self._anchored:
+                # CAN counters before the first status are only known modulo 256.
+                self._last_counter = _nearest(self._last_counter & 0xFF, s.sample_counter)
+                self._anchored = True
+            elif t - self.samples[-1].t < 0.05:
+                diff = (self._last_counter - s.sample_counter + (1 << 31)) % (1 << 32) - (1 << 31)
+                self.status_offsets.append(diff)
+
+    def _on_tick(self, t: float, p: TickParts) -> None:
+        if self._last_counter is not None and self._last_tick is not None:
+            counter = (self._last_counter + ((p.tick - self._last_tick) & 0xFF)) & U32
+        elif self._anchor is not None:
+            counter = _nearest(p.tick, (self._anchor + 1) & U32)
+            self._anchored = True
+        else:
+            counter = p.tick
+            self._anchored = False
+        self._last_tick = p.tick
+        if not p.complete:
+            missing = [n for n, f in zip("XYZ", (p.x, p.y, p.z), strict=True) if f is None]
+            missing += ["AUX"] if p.aux is None else []
+            self.gaps.append(
+                (t, f"tick {p.tick} (counter {counter}) incomplete: no {', '.join(missing)}")
+            )
+        aux = p.aux
+        self._on_sample(
+            t,
+            counter,
+            int(aux.validity) if aux else 0,
+            aux.angle if aux else None,
+            p.complete,
+        )
+
+    def _on_sample(
+        self, t: float, counter: int, validity: int, angle: int | None, ok: bool
+    ) -> None:
+        last = self._last_counter
+        if last is not None and counter != (last + 1) & U32:
+            d = (counter - last) & U32
+            if d == 0:
+                self.gaps.append((t, f"sample counter {counter} repeated"))
+            elif d < 1 << 31:
+                self.gaps.append(
+                    (t, f"sample counter jumped from {last} to {counter}: {d - 1} tick(s) missing")
+                )
+            else:
+                self.gaps.append((t, f"sample counter went back from {last} to {counter}"))
+        self._last_counter = counter
+        self.streaming = True
+        self.samples.append(SampleRecord(t, counter, validity, angle, ok))
+
+    def begin_segment(self) -> None:
+        """The stream (re)starts: counters need not continue from the previous sample."""
+        self._last_counter = None
+        self._last_tick = None
+        self._anchored = False
+
+    def expect_restart(self) -> None:
+        """The unit is about to reset: its serial sequence counter will restart at 0."""
+        self.seq_restart_pending = True
+
+    # -- sending ----------------------------------------------------------------------------------
+    def next_seq(self) -> int:
+        self._seq = (self._seq + 1) & 0xFF
+        return self._seq
+
+    def send(self, command: Command | bytes) -> Answer:
+        """Send a command (its seq replaced by the next one) or a raw payload; do not wait."""
+        if isinstance(command, Command):
+            payload = dataclasses.replace(command, seq=self.next_seq()).encode()
+        else:
+            payload = bytes(command)
+        answer = Answer(payload, self.now())
+        if len(payload) >= 2:
+            self._pending[(payload[0], payload[1])] = answer
+            self.answers.append(answer)
+        self.link.send_command(payload)
+        return answer
+
+    def track(self, payload: bytes) -> Answer:
+        """Expect a reply to a command payload sent by other means (inside raw bytes)."""
+        answer = Answer(bytes(payload), self.now())
+        self._pending[(payload[0], payload[1])] = answer
+        self.answers.append(answer)
+        return answer
+
+    def request(self, command: Command | bytes, wait: float | None = None) -> Answer:
+        """Send a command and receive until its reply arrives or ``wait`` wall seconds pass."""
+        answer = self.send(command)
+        self.wait_until(
+            lambda: answer.reply is not None, self.reply_wait_s if wait is None else wait
+        )
+        if answer.reply is None:
+            self._pending.pop((answer.seq, answer.opcode), None)
+        return answer
+
+    def raw(self, opcode: int, args: bytes = b"") -> bytes:
+        """A command payload with the next seq, any opcode and any argument bytes."""
+        return bytes((self.next_seq(), opcode & 0xFF)) + bytes(args)
+
+    # -- common conversations ---------------------------------------------------------------------
+    def ok(self, command: Command | bytes, what: str | None = None) -> Answer:
+        """Send and demand an OK reply.
+
+        Raises
+        ------
+        LinkFault
+            No reply, or a reply other than OK.
+        """
+        a = self.request(command)
+        if a.reply is None:
+            raise LinkFault(f"no reply to {what or a.name} within {self.reply_wait_s:g} s")
+        if a.reply.result != Result.OK:
+            raise LinkFault(f"{what or a.name} answered {describe_result(a.reply.result)}")
+        return a
+
+    def get_config(self, key: ConfigKey | int) -> int:
+        """Read a configuration value (GET_CONFIG must succeed)."""
+        a = self.ok(GetConfig(0, key), f"GET_CONFIG {_key_name(key)}")
+        assert a.reply is not None
+        k, v = a.reply.config_value()
+        if int(k) != int(key):
+            raise LinkFault(f"GET_CONFIG {_key_name(key)} answered for key {int(k)}")
+        return v
+
+    def get_status(self) -> Status:
+        """GET_STATUS and the status that follows it."""
+        n = len(self.statuses)
+        a = self.ok(GetStatus(0))
+        t0 = a.received if a.received is not None else a.sent
+
+        def after() -> Status | None:
+            return next((st for t, st in self.statuses[n:] if t >= t0), None)
+
+        if not self.wait_until(lambda: after() is not None, self.reply_wait_s):
+            raise LinkFault("no status followed the OK reply to GET_STATUS")
+        status = after()
+        assert status is not None
+        return status
+
+    def start_stream(self) -> None:
+        if not self.streaming:
+            self.begin_segment()
+        self.ok(StreamStart(0))
+        self.streaming = True
+
+    def stop_stream(self) -> None:
+        self.ok(StreamStop(0))
+        self.streaming = False
+
+    def wait_state(
+        self, states: Iterable[DeviceState], timeout_unit: float, since: float | None = None
+    ) -> float | None:
+        """Wait for a status in one of ``states`` (received after ``since``); return its time."""
+        wanted = set(states)
+        start = len(self.statuses) if since is None else 0
+
+        def seen() -> float | None:
+            for t, s in self.statuses[start:]:
+                if s.state in wanted and (since is None or t >= since):
+                    return t
+            return None
+
+        self.wait_until(lambda: seen() is not None, self.wall(timeout_unit))
+        return seen()
+
+    def state_at(self, t: float) -> DeviceState | None:
+        """The state the unit's statuses showed at host time ``t``."""
+        state = None
+        for tt, _, new in self.transitions:
+            if tt > t:
+                break
+            state = new
+        return state
+
+    def samples_between(self, t0: float, t1: float) -> list[SampleRecord]:
+        return [s for s in self.samples if t0 <= s.t <= t1]
+
+    def gaps_since(self, t0: float) -> list[str]:
+        return [text for t, text in self.gaps if t >= t0]
+
+
+def describe_result(code: int) -> str:
+    """``BUSY (1)`` or ``undefined code 42``."""
+    try:
+        return f"{Result(code).name} ({int(code)})"
+    except ValueError:
+        return f"undefined result code {int(code)}"
+
+
+def _key_name(key: ConfigKey | int) -> str:
+    try:
+        return ConfigKey(key).name
+    except ValueError:
+        return f"key 0x{int(key):02X}"
