@@ -21,6 +21,7 @@ COMMANDS: dict[str, str] = {
     "simulate": "host.cli.simulate",
     "sim": "host.cli.sim",
     "simctl": "host.cli.simctl",
+    "conformance": "host.cli.conformance",
     "study": "host.cli.study",
     "solve": "host.cli.solve",
 }
