@@ -523,7 +523,6 @@ class Firmware:
         end_idx = np.arange(1, n_ticks + 1) * per_tick - 1 - (have - len(block))
         g = gyro[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
         a = accel[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
-        moving = np.zeros(n_ticks, dtype=bool)
         sat_g = np.zeros(n_ticks, dtype=bool)
         sat_a = np.zeros(n_ticks, dtype=bool)
         # per-tick flags from the block's samples that fall into each tick
@@ -532,9 +531,15 @@ class Firmware:
             lo, hi = max(i * per_tick - first, 0), (i + 1) * per_tick - first
             if hi <= 0:
                 continue
-            moving[i] = bool(np.any(block.table_rate_dps[lo:hi] != 0.0))
             sat_g[i] = bool(np.any(block.gyro_saturated[lo:hi]))
             sat_a[i] = bool(np.any(block.accel_saturated[lo:hi]))
+        # TABLE_MOVING marks ticks that overlap the motion profile (state ROTATING); the ring-down
+        # after the stop belongs to SETTLING (protocol.md 4.5).
+        table = self.instrument.table
+        t_end = block.time_s[np.clip(end_idx, 0, len(block) - 1)]
+        moving = (t_end > table.motion_start_s) & (
+            t_end - 1.0 / self.sample_rate_hz < table.motion_end_s
+        )
         if not self.streaming:
             self._counter += n_ticks
             self._counter &= 0xFFFFFFFF

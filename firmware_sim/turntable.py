@@ -59,6 +59,7 @@ class Turntable:
         self.spec = spec
         self._rng = rng
         self._segments: list[_Segment] = [_Segment(-math.inf, float(angle_deg), 0.0, 0.0)]
+        self._motion_start = -math.inf  # start of the latest profile
         self._motion_end = -math.inf  # end of the commanded profile
         self._target = float(angle_deg)  # commanded angle (continuous)
         self._overshoot = 0.0
@@ -88,6 +89,7 @@ class Turntable:
             else 0.0
         )
         self._target = float(start) + delta_deg
+        self._motion_start = t
         d = self._target + err - float(start)
         s = math.copysign(1.0, d)
         dist = abs(d)
@@ -167,6 +169,10 @@ class Turntable:
         return self._stalled
 
     @property
+    def motion_start_s(self) -> float:
+        return self._motion_start
+
+    @property
     def motion_end_s(self) -> float:
         return self._motion_end
 
@@ -198,9 +204,9 @@ class Turntable:
             dt = tt[sel] - seg.t0 if math.isfinite(seg.t0) else np.zeros(np.count_nonzero(sel))
             angle[sel], rate[sel] = seg.at(dt)
         if self._overshoot and math.isfinite(self._motion_end):
-            # Damped ring-down after the stop; tau = settle/4 leaves 2 % at the end of settling.
+            # Damped ring-down after the stop; tau = settle/8 leaves 0.03 % at the end of settling.
             x = tt - self._motion_end
-            tau = max(self.spec.settle_s / 4.0, 1e-3)
+            tau = max(self.spec.settle_s / 8.0, 1e-3)
             on = (x > 0) & (x < 40.0 * tau)  # exp(-40) is far below any encoder resolution
             if np.any(on):
                 w = 2 * math.pi * self.spec.overshoot_hz

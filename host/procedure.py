@@ -1,7 +1,7 @@
 """The north-finding procedure on a device: wait for warm-up, rotate, settle, acquire, check, solve.
 
 The procedure talks to anything with the driver's :class:`~driver.device.Device` methods it uses
-(``status``, ``get_config``, ``rotate_to``, ``acquire``, ``stop_stream``), so it runs the same on
+(``status``, ``get_config``, ``rotate_to``, ``acquire``, ``stop_streaming``), so it runs the same on
 the simulator and on a real unit. It uses the encoder angles the device reports, never the
 commanded ones.
 """
@@ -63,7 +63,7 @@ class DeviceLike(Protocol):
         self, angle_deg: float, *, wait: bool = True, timeout: float | None = None
     ) -> Any: ...
     def acquire(self, seconds: float, *, on_gap: str = "raise") -> WindowLike: ...
-    def stop_stream(self) -> None: ...
+    def stop_streaming(self) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -395,7 +395,7 @@ def find_north(
             sleep(plan.settle_s)
         report(Progress("acquire", i + 1, n, target % 360.0, seconds_left(i, None) - plan.settle_s))
         window = device.acquire(plan.window_s, on_gap="raise")
-        device.stop_stream()
+        device.stop_streaming()
         raw.append(window)
         summary = summarise_window(window, target, plan.denoise)
         windows.append(summary)

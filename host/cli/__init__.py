@@ -24,6 +24,8 @@ COMMANDS: dict[str, str] = {
     "conformance": "host.cli.conformance",
     "study": "host.cli.study",
     "solve": "host.cli.solve",
+    "find": "host.cli.find",
+    "record": "host.cli.record",
 }
 
 
