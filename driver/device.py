@@ -375,6 +375,7 @@ class Device:
         self._boot_epoch = 0
         self._reset_reason = ""
         self._collector: queue.SimpleQueue[tuple[str, Any, float]] | None = None
+        self._collector_since = 0.0  # monotonic time the collector was registered
         self._config: dict[ConfigKey, int] = {}
         self._config_stale = True
         self._streaming = False
@@ -558,7 +559,8 @@ class Device:
                 if isinstance(item, Sample | TickLoss):
                     if isinstance(item, Sample):
                         self._counts["samples"] += 1
-                    if self._collector is not None:
+                    # Only what was received after acquire() was called belongs to its window.
+                    if self._collector is not None and mono >= self._collector_since:
                         kind = "sample" if isinstance(item, Sample) else "loss"
                         self._collector.put((kind, item, wall))
                 elif isinstance(item, Reply):
@@ -1181,6 +1183,7 @@ class Device:
             with self._lock:
                 epoch = self._boot_epoch
                 self._collector = collector
+                self._collector_since = time.monotonic()
             try:
                 if not self._streaming:
                     self.start_streaming()
