@@ -336,6 +336,10 @@ class Device:
         Seconds to wait for each reply before declaring it lost (at least 0.1).
     retries : int
         Extra attempts for commands in :data:`RETRYABLE`.
+    min_supervision_s : float
+        Lower limit, in wall seconds, of the time without a status (or without samples while
+        acquiring) before the link counts as lost. 0 keeps protocol.md's three heartbeat periods;
+        a simulator embedded in the same busy process may need more.
 
     Raises
     ------
@@ -351,6 +355,7 @@ class Device:
         *,
         reply_timeout: float = REPLY_TIMEOUT_S,
         retries: int = RETRIES,
+        min_supervision_s: float = 0.0,
     ) -> None:
         if not reply_timeout >= 0.1:
             raise ValueError(f"reply_timeout={reply_timeout!r}: must be at least 0.1 s")
@@ -359,6 +364,7 @@ class Device:
         self._transport = transport
         self.reply_timeout = float(reply_timeout)
         self.retries = int(retries)
+        self.min_supervision_s = float(min_supervision_s)
         self._lock = threading.RLock()
         self._cond = threading.Condition(self._lock)
         self._acquire_lock = threading.Lock()
@@ -641,14 +647,18 @@ class Device:
         last = self._status.received_at if self._status is not None else self._opened_at
         return time.monotonic() - last
 
+    def _supervision_s(self) -> float:
+        """Wall seconds without a status before the link counts as lost (protocol.md 6: three
+        heartbeat periods; never less than ``min_supervision_s``)."""
+        return max(HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s(), self.min_supervision_s)
+
     def _link_alive(self) -> bool:
-        return self._status_age_s() <= HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s()
+        return self._status_age_s() <= self._supervision_s()
 
     def _link_lost_error(self) -> LinkLost:
-        hb = self._heartbeat_period_s()
         return LinkLost(
             f"no status from the device for {self._status_age_s():.2f} s "
-            f"({HEARTBEATS_UNTIL_LOST} heartbeat periods = {HEARTBEATS_UNTIL_LOST * hb:.2f} s): "
+            f"(limit {self._supervision_s():.2f} s, {HEARTBEATS_UNTIL_LOST} heartbeat periods): "
             "the device is silent, off or restarting, or the link is down"
         )
 
@@ -1204,7 +1214,7 @@ class Device:
         on_gap: OnGap,
         timeout: float | None,
     ) -> Window:
-        stall_limit = max(0.5, HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s(), 5.0 / rate)
+        stall_limit = max(0.5, self._supervision_s(), 5.0 / rate)
         t_start = time.monotonic()
         limit = n / rate + 2.0 + stall_limit if timeout is None else timeout
         deadline = t_start + limit

@@ -127,10 +127,15 @@ class Runner:
         self.lock = threading.RLock()
         self.sent = 0
 
+    #: Most simulated time one step covers. When the simulator runs behind (a fast speed factor or
+    #: a busy machine) it catches up in steps this long, polling the link between them, so
+    #: commands are still answered within the protocol's reply deadline.
+    MAX_STEP_S = 0.02
+
     def step(self, poll_timeout: float = 0.0) -> None:
         self.link.poll(poll_timeout)
         with self.lock:
-            dt = self.clock.now() - self.firmware.now
+            dt = min(self.clock.now() - self.firmware.now, self.MAX_STEP_S)
             if dt > 0:
                 out = self.firmware.process(dt)
                 self.sent += len(out)

@@ -857,7 +857,8 @@ def solve_multi_position(
     jac[:, 1:] = np.tile(np.eye(2), (n, 1))
     jw = jac * w[:, None]
     normal = jw.T @ jw
-    if np.linalg.cond(normal) > 1e12:
+    # Geometry alone decides separability: extreme weights (noise-free windows) must not.
+    if np.linalg.cond(jac.T @ jac) > 1e12:
         raise GeometryError(
             f"mu_deg = {mus_in.tolist()}: the positions do not separate heading from gyro bias"
         )

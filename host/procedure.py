@@ -301,8 +301,9 @@ def solve_windows(
     mu = np.array([w.encoder_deg for w in windows])
     gyro = np.array([w.gyro_dph for w in windows])
     accel = np.array([w.accel_mps2 for w in windows])
-    g_sem = np.array([w.gyro_sem_dph for w in windows])[:, :2]
-    a_sem = np.array([w.accel_sem_mps2 for w in windows])[:, :2]
+    # Floors far below any sensor's noise keep noise-free (simulated ideal) windows well posed.
+    g_sem = np.maximum(np.array([w.gyro_sem_dph for w in windows])[:, :2], 1e-9)
+    a_sem = np.maximum(np.array([w.accel_sem_mps2 for w in windows])[:, :2], 1e-12)
     pairwise: list[float] = []
     for i in range(len(windows) - 1):
         d = (mu[i + 1] - mu[i]) % 360.0

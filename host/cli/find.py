@@ -41,6 +41,10 @@ from host.procedure import METHOD_CHOICES, Plan, Progress, find_north
 
 #: Default acceleration of the embedded simulator (simulated seconds per wall second).
 SIM_SPEED = 100.0
+#: The embedded simulator shares this process's interpreter with the driver; on a busy machine a
+#: reply can wait for the other thread, so allow more than a real unit's reply deadline.
+EMBEDDED_REPLY_TIMEOUT_S = 2.0
+EMBEDDED_SUPERVISION_S = 3.0
 
 
 def add_device_arguments(p: argparse.ArgumentParser) -> None:
@@ -171,7 +175,11 @@ def embedded_simulator(args: argparse.Namespace) -> Iterator[tuple[Device, dict[
         with (
             BackgroundRunner(runner),
             Device.from_bus(
-                can.Bus(interface="virtual", channel=channel), node_id=args.node_id, own_bus=True
+                can.Bus(interface="virtual", channel=channel),
+                node_id=args.node_id,
+                own_bus=True,
+                reply_timeout=EMBEDDED_REPLY_TIMEOUT_S,
+                min_supervision_s=EMBEDDED_SUPERVISION_S,
             ) as device,
         ):
             yield device, {**dataclasses.asdict(truth), "sensor": spec.name, "speed": args.speed}
