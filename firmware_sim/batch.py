@@ -24,12 +24,13 @@ model as the instrument: Gauss-Markov components from 1 s to 10^4 s on a 0.1 s g
 walks, warm-up transient, temperature sensitivity, Poisson impulses (half-sine, random
 direction), vibration line, optional bias step, range clipping and quantisation. The quantiser
 carries its remainder within a window; the remainder at a window start is drawn uniformly (what
-the samples before it left over). The post-stop ring-down enters linearised (its amplitude at a
-window start is far below any other term).
+the samples before it left over). The post-stop ring-down comes from the turntable model and enters
+linearised (its amplitude at a window start is far below any other term).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -42,7 +43,7 @@ from firmware_sim.earth import G0, alpha_from_azimuth, earth_rate_n, gravity, ma
 from firmware_sim.errors import SimConfigError
 from firmware_sim.imu import MAX_SAMPLE_RATE_HZ, MIN_SAMPLE_RATE_HZ, Truth, _SlowNoise
 from firmware_sim.sensors import SensorSpec, TableSpec
-from firmware_sim.turntable import trapezoid_duration
+from firmware_sim.turntable import Turntable, trapezoid_duration
 
 __all__ = ["BatchWindows", "plan_timeline", "simulate_windows"]
 
@@ -232,15 +233,19 @@ def _slow_noise(
         if first > g0:  # this window begins one grid step before the previous one ended
             coarse = np.concatenate([prev[-2:-1], coarse])
         prev = coarse
-        # Linear interpolation as a product with an (m, n) weight matrix (two entries a column).
         x = pos[p] - g0
         j = np.minimum(np.floor(x).astype(np.int64), len(coarse) - 2)
         f = x - j
-        weights = np.zeros((len(coarse), n))
-        cols = np.arange(n)
-        weights[j, cols] = 1.0 - f
-        weights[j + 1, cols] = f
-        vals = np.moveaxis(coarse, 0, -1) @ weights  # (runs, nc, n)
+        if len(coarse) * n <= 4_000_000:
+            # Short windows: linear interpolation as a product with an (m, n) weight matrix.
+            weights = np.zeros((len(coarse), n))
+            cols = np.arange(n)
+            weights[j, cols] = 1.0 - f
+            weights[j + 1, cols] = f
+            vals = np.moveaxis(coarse, 0, -1) @ weights  # (runs, nc, n)
+        else:
+            c = np.ascontiguousarray(np.moveaxis(coarse, 0, -1))
+            vals = c[..., j] * (1.0 - f) + c[..., j + 1] * f
         if chans.size == 6:
             out[:, p] += vals
         else:
@@ -476,21 +481,20 @@ def _ring_down(
     Returns the mean angle offset of each window, deg (what the encoder sees on average).
     """
     mean_offset = np.zeros(len(starts))
-    tau = max(tab.settle_s / 4.0, 1e-3)
-    w = 2 * math.pi * tab.overshoot_hz
-    last_end, last_delta = -math.inf, 0.0
+    # The turntable's own model of the stop (indexing error aside: it is added per run).
+    quiet = dataclasses.replace(tab, indexing_error_deg=0.0)
+    last = None  # (move start s, move, angle before the move)
+    angle = 0.0
     for p in range(len(starts)):
         if math.isfinite(move_end[p]):
-            last_end, last_delta = move_end[p], delta[p]
-        if not math.isfinite(last_end):
+            last = ((starts[p - 1] + n) / fs, delta[p], angle)
+        angle += delta[p]
+        if last is None:
             continue
+        table = Turntable(quiet, np.random.default_rng(0), last[2])
+        table.move_by(last[0], last[1])
         edges = (starts[p] + np.arange(n + 1)) / fs
-        x = edges - last_end
-        on = (x > 0) & (x < 40.0 * tau)
-        if not on.any():
-            continue
-        amp = math.copysign(tab.overshoot_deg, last_delta)
-        osc = np.where(on, amp * np.exp(-x / tau) * np.sin(w * x), 0.0)  # deg, at the edges
+        osc = table.state(edges)[0] - (last[2] + last[1])  # deg, at the sample edges
         if np.abs(osc).max() < 1e-15:
             continue
         mean_offset[p] = osc[1:].mean()
