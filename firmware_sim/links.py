@@ -282,7 +282,11 @@ class SlcanAdapter:
             text = f"T{msg.arbitration_id:08X}{msg.dlc}{bytes(msg.data).hex().upper()}\r"
         else:
             text = f"t{msg.arbitration_id:03X}{msg.dlc}{bytes(msg.data).hex().upper()}\r"
-        self.stream.write(text.encode("ascii"))
+        try:
+            self.stream.write(text.encode("ascii"))
+        except OSError as exc:  # BlockingIOError included: the host does not read
+            # Like a real adapter's full transmit queue: the caller counts the frame as dropped.
+            raise can.CanOperationError(f"SLCAN adapter: {exc}") from exc
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         if self._frames:
