@@ -178,7 +178,10 @@ def run(args: argparse.Namespace) -> int:
         report = run_suite(link, options, progress=lambda r: print(format_result(r), flush=True))
     finally:
         for close in reversed(closers):
-            close()
+            try:
+                close()
+            except (can.CanError, serial.SerialException, OSError):
+                pass  # the link is already gone; the report says what failed
     print(f"\n{format_summary(report)}", flush=True)
     if args.junit:
         write_junit(report, args.junit)

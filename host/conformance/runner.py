@@ -133,5 +133,8 @@ def restore(session: Session, options: SuiteOptions, shared: dict[str, Any]) -> 
                     done.append(f"{key.name}={config[key]}")
         except _LINK_ERRORS as exc:
             done.append(f"configuration not restored: {exc}")
-    s.idle(0.1)
+    try:
+        s.idle(0.1)
+    except _LINK_ERRORS as exc:
+        done.append(f"link failed: {exc}")
     return ", ".join(done)
