@@ -242,7 +242,9 @@ def _slow_noise(
             cols = np.arange(n)
             weights[j, cols] = 1.0 - f
             weights[j + 1, cols] = f
-            vals = np.moveaxis(coarse, 0, -1) @ weights  # (runs, nc, n)
+            c = np.ascontiguousarray(np.moveaxis(coarse, 0, -1))  # (runs, nc, m)
+            # One 2-D product: a stack of strided matrices would miss the fast BLAS path.
+            vals = (c.reshape(-1, c.shape[-1]) @ weights).reshape(n_runs, nc, n)
         else:
             c = np.ascontiguousarray(np.moveaxis(coarse, 0, -1))
             vals = c[..., j] * (1.0 - f) + c[..., j + 1] * f
