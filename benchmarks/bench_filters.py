@@ -10,13 +10,13 @@ Scenarios (added to the white noise):
 
 - white: nothing else. The mean is optimal; no method can beat it (notes, section 4).
 - impulses: door slams and footsteps, Poisson 0.5 /s, half-sine 0.05 s, 50 deg/h peak.
-- vibration: a 37.3 Hz line (above 20 Hz), 100 deg/h on each gyro axis (a whole number of
-  periods per window would cancel in the mean exactly; 37.3 Hz does not).
+- vibration: a 37.37 Hz line (above 20 Hz), 100 deg/h on each gyro axis (a whole number of
+  periods per window would cancel in the mean exactly; 37.37 Hz does not).
 - drift: temperature drift, sensor warming by 10 degC with a 600 s time constant, 0.05 deg/h/degC.
   Also run with the symmetric order 0,180,180,0 (a plan remedy, not a filter).
 - bias step: one 0.1 deg/h gyro bias step per run at a random time within the recording.
 
-``moving-average`` uses a 5-sample window (one period of the vibration line rounded, 200 / 37.3).
+``moving-average`` uses a 5-sample window (one period of the vibration line rounded, 200 / 37.37).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ SCENARIOS: dict[str, tuple[dict, float]] = {
         {"disturbance.impulse_rate_hz": 0.5, "gyro.impulse_dph": 50.0, "accel.impulse_ug": 5000.0},
         0.0,
     ),
-    "vibration 37.3 Hz": ({"disturbance.vibration_hz": 37.3, "gyro.vibration_dph": 100.0}, 0.0),
+    "vibration 37.37 Hz": ({"disturbance.vibration_hz": 37.37, "gyro.vibration_dph": 100.0}, 0.0),
     "temperature drift": (
         {
             "thermal.warmup_rise_c": 10.0,
