@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
 from driver.protocol.messages import (
@@ -75,7 +75,8 @@ class Answer:
     sent: float
     reply: Reply | None = None
     received: float | None = None
-    extra: list[Reply] = field(default_factory=list)
+    statuses_before: int | None = None
+    """How many statuses had arrived before the reply (orders the reply among the statuses)."""
 
     @property
     def seq(self) -> int:
@@ -138,7 +139,8 @@ class Session:
         self._last_tick: int | None = None
         self._anchored = False
         self._anchor: int | None = None
-        self.status_offsets: list[int] = []
+        self.status_offsets: list[tuple[float, int]] = []
+        """(time, latest sample counter - status sample counter) while streaming."""
         self._last_seq: int | None = None
         self.seq_restart_pending = False
         self.serial_frames_lost = 0
@@ -199,6 +201,7 @@ class Session:
                 self.unsolicited.append((a.t, m))
             else:
                 answer.reply, answer.received = m, a.t
+                answer.statuses_before = len(self.statuses)
         elif isinstance(m, Status):
             self._on_status(a.t, m)
         elif isinstance(m, Identify):
@@ -243,7 +246,7 @@ class Session:
                 self._anchored = True
             elif t - self.samples[-1].t < 0.05:
                 diff = (self._last_counter - s.sample_counter + (1 << 31)) % (1 << 32) - (1 << 31)
-                self.status_offsets.append(diff)
+                self.status_offsets.append((t, diff))
 
     def _on_tick(self, t: float, p: TickParts) -> None:
         if self._last_counter is not None and self._last_tick is not None:
@@ -388,16 +391,18 @@ class Session:
         self.streaming = False
 
     def wait_state(
-        self, states: Iterable[DeviceState], timeout_unit: float, since: float | None = None
-    ) -> float | None:
-        """Wait for a status in one of ``states`` (received after ``since``); return its time."""
+        self, states: Iterable[DeviceState], timeout_unit: float, start: int | None = None
+    ) -> int | None:
+        """Wait for a status in one of ``states`` among ``statuses[start:]`` (default: statuses
+        still to come); return its index in :attr:`statuses`, or None. Indices, not receipt
+        times, order the statuses: frames read in one chunk share a time."""
         wanted = set(states)
-        start = len(self.statuses) if since is None else 0
+        first = len(self.statuses) if start is None else start
 
-        def seen() -> float | None:
-            for t, s in self.statuses[start:]:
-                if s.state in wanted and (since is None or t >= since):
-                    return t
+        def seen() -> int | None:
+            for i in range(first, len(self.statuses)):
+                if self.statuses[i][1].state in wanted:
+                    return i
             return None
 
         self.wait_until(lambda: seen() is not None, self.wall(timeout_unit))
@@ -411,6 +416,11 @@ class Session:
                 break
             state = new
         return state
+
+    def state_when_answered(self, answer: Answer) -> DeviceState | None:
+        """The state the last status before the reply showed (None if no reply or no status)."""
+        n = answer.statuses_before
+        return self.statuses[n - 1][1].state if n else None
 
     def samples_between(self, t0: float, t1: float) -> list[SampleRecord]:
         return [s for s in self.samples if t0 <= s.t <= t1]
