@@ -459,6 +459,7 @@ class Device:
         *,
         reply_timeout: float = REPLY_TIMEOUT_S,
         retries: int = RETRIES,
+        min_supervision_s: float = 0.0,
         **port_options: Any,
     ) -> Device:
         """Open a serial port (a path such as ``/dev/ttyUSB0`` or ``/dev/pts/3``, or a pyserial
@@ -480,7 +481,12 @@ class Device:
             port.reset_input_buffer()  # bytes from before this host opened the port
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LinkError(f"cannot open the serial port {port_or_url!r}: {exc}") from exc
-        return cls(SerialTransport(port), reply_timeout=reply_timeout, retries=retries)
+        return cls(
+            SerialTransport(port),
+            reply_timeout=reply_timeout,
+            retries=retries,
+            min_supervision_s=min_supervision_s,
+        )
 
     # -- life cycle ---------------------------------------------------------------------------
     def __enter__(self) -> Device:

@@ -98,7 +98,8 @@ class Controller:
             "wrong_result": self._wrong_result,
             "stall": lambda a: self._call(fw.stall_table, bool(a.get("on", True))),
             "bias_step": lambda a: self._call(
-                fw.instrument.inject_bias_step, _vec3(a, "gyro_dph"), _vec3(a, "accel_ug")
+                fw.apply,
+                lambda: fw.instrument.inject_bias_step(_vec3(a, "gyro_dph"), _vec3(a, "accel_ug")),
             ),
             "impulses": self._impulses,
             "vibration": self._vibration,
@@ -169,7 +170,8 @@ class Controller:
         return {"sensor": spec.to_dict()}
 
     def _set_fault(self, name: str, value: Any) -> dict[str, Any]:
-        setattr(self.runner.firmware.faults, name, value)
+        faults = self.runner.firmware.faults
+        self.runner.firmware.apply(lambda: setattr(faults, name, value))
         return {"faults": dataclasses.asdict(self.runner.firmware.faults)}
 
     @staticmethod
@@ -186,27 +188,30 @@ class Controller:
         return self._set_fault("wrong_result", code)
 
     def _impulses(self, args: dict[str, Any]) -> dict[str, Any]:
-        self.runner.firmware.instrument.inject_impulses(
-            _count(args),
+        count = _count(args)
+        fw = self.runner.firmware
+        fw.apply(lambda: fw.instrument.inject_impulses(
+            count,
             interval_s=_number(args, "interval_s", 0.5),
             gyro_dph=_number(args, "gyro_dph", 50.0),
             accel_ug=_number(args, "accel_ug", 5000.0),
-        )
+        ))  # fmt: skip
         return {}
 
     def _vibration(self, args: dict[str, Any]) -> dict[str, Any]:
-        self.runner.firmware.instrument.set_vibration(
+        fw = self.runner.firmware
+        fw.apply(lambda: fw.instrument.set_vibration(
             bool(args.get("on", True)),
             hz=_number(args, "hz", 35.0),
             gyro_dph=_number(args, "gyro_dph", 5.0),
             accel_ug=_number(args, "accel_ug", 2000.0),
-        )
+        ))  # fmt: skip
         return {}
 
     def _reset(self) -> None:
         fw = self.runner.firmware
+        fw.apply(lambda: fw.instrument.table.stall(fw.now, False))
         fw.faults = type(fw.faults)()
-        fw.instrument.table.stall(fw.now, False)
         fw.reboot()
 
 

@@ -13,6 +13,8 @@ its validity bits.
 
 from __future__ import annotations
 
+import bisect
+import copy
 import logging
 import math
 from collections.abc import Callable
@@ -65,6 +67,8 @@ _GYRO_COUNT = 1e-4 * _DPH  # rad/s per count
 _ACCEL_COUNT = 1e-6 * 9.80665  # m/s^2 per count
 #: A move that ends further than this from its command is a drive fault, deg.
 DRIVE_FAULT_LIMIT_DEG = 0.5
+#: How far ahead of the present the firmware computes its output, s (see Firmware.process).
+LOOKAHEAD_S = 0.2
 #: Time from receiving a command to sending its reply, s.
 REPLY_LATENCY_S = 0.001
 MOTION_OPCODES = (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME)
@@ -167,7 +171,12 @@ class Firmware:
         self.tx_dropped = 0
         self.cmd_rejected = 0
         self._fault = Fault(0)
+        self._fault_time = math.inf
         self._pending: list[Outgoing] = []
+        self._now = 0.0  # time up to which the device has sent its output
+        self._horizon = 0.0  # time up to which output has been computed ahead
+        self._ahead: list[Outgoing] = []
+        self._snapshot: tuple[float, dict[str, object], int] | None = None
         self.boot_count = 0
         self._reboot(0.0)
         self._last_state = self.state_at(0.0)
@@ -184,6 +193,7 @@ class Firmware:
         self._settle_end = -math.inf
         self._checked_move = True
         self._fault = Fault(0)
+        self._fault_time = math.inf
         self.config: dict[ConfigKey, int] = {
             ConfigKey.SAMPLE_RATE_HZ: 200,
             ConfigKey.HEARTBEAT_PERIOD_MS: 100,
@@ -201,6 +211,7 @@ class Firmware:
     def reboot(self) -> None:
         """Restart the firmware now (RESET, or a reset from the control channel): BOOT, counter 0,
         configuration back to defaults, streaming off. Warm-up is thermal and counts from power-on."""
+        self._rewind()
         self._pending.clear()
         self._reboot(self.now)
         # protocol.md 4.6 and 6: the counters restart, and the reply to RESET leaves before the
@@ -211,8 +222,8 @@ class Firmware:
 
     @property
     def now(self) -> float:
-        """Simulated time since power-on, s."""
-        return self.instrument.clock_s
+        """Simulated time since power-on up to which the device has acted and sent, s."""
+        return self._now
 
     @property
     def sample_rate_hz(self) -> int:
@@ -228,7 +239,7 @@ class Firmware:
 
     def state_at(self, t: float) -> DeviceState:
         """The state at simulated time ``t`` (not before the last command)."""
-        if self._fault:
+        if self._fault and t >= self._fault_time:
             return DeviceState.FAULT
         if t < self._boot_end:
             return DeviceState.BOOT
@@ -249,11 +260,20 @@ class Firmware:
             return self.link.max_rate(self.config[ConfigKey.HEARTBEAT_PERIOD_MS])
         return self.config[key]
 
+    def apply(self, change: Callable[[], object]) -> None:
+        """Make a change to the physics or the fault settings take effect now.
+
+        Output is computed ahead (:data:`LOOKAHEAD_S`); a change first rewinds that computation to
+        the present, so the device behaves as if it had happened exactly now.
+        """
+        self._rewind()
+        change()
+
     def set_truth(self, truth: Truth) -> None:
-        self.instrument.set_truth(truth)
+        self.apply(lambda: self.instrument.set_truth(truth))
 
     def set_spec(self, spec: SensorSpec) -> None:
-        self.instrument.set_spec(spec)
+        self.apply(lambda: self.instrument.set_spec(spec))
 
     # -- commands ------------------------------------------------------------------------------
     def identity(self) -> Identify:
@@ -266,15 +286,19 @@ class Firmware:
         )
 
     def status(self) -> Status:
-        """The heartbeat's content now."""
-        t = self.now
-        angle = float(self.instrument.table.encoder(self.instrument.table.state(t)[0]))
+        """The status now (as GET_STATUS answers it)."""
+        self._rewind()
+        return self._status_at(self.now, (self._counter - 1) & 0xFFFFFFFF)
+
+    def _status_at(self, t: float, sample_counter: int) -> Status:
+        table = self.instrument.table
+        angle = float(table.encoder(table.state(t)[0]))
         return Status(
             state=self.state_at(t),
             angle=_angle_counts(angle),
             temperature=_temperature_counts(float(self.instrument.temperature(t))),
-            faults=self._fault,
-            sample_counter=(self._counter - 1) & 0xFFFFFFFF,
+            faults=self._fault if t >= self._fault_time else Fault(0),
+            sample_counter=sample_counter,
             rx_malformed=self.rx_malformed & 0xFFFF,
             tx_dropped=self.tx_dropped & 0xFF,
             cmd_rejected=self.cmd_rejected & 0xFF,
@@ -293,6 +317,7 @@ class Firmware:
         """Act on one decoded command received now; its reply goes out with the next process()."""
         if self.faults.silent:
             return
+        self._rewind()
         before = self.state
         result, data, follow = self._execute(command)
         self._reply(Reply(command.seq, command.OPCODE, result, data))
@@ -430,40 +455,98 @@ class Firmware:
 
     def stall_table(self, stalled: bool = True) -> None:
         """Jam (or free) the table, as a control-channel fault."""
+        self._rewind()
         self.instrument.table.stall(self.now, stalled)
         if stalled:
             self._settle_end = min(self._settle_end, self.now)
 
     # -- time ----------------------------------------------------------------------------------
+    #: Attributes the output computation changes; a snapshot of them allows a rewind.
+    _ENGINE = (
+        "instrument", "_counter", "_tick_start", "_tick", "_remainder", "_next_heartbeat",
+        "_settle_end", "_checked_move", "_fault", "_fault_time",
+    )  # fmt: skip
+
     def process(self, dt: float) -> list[Outgoing]:
-        """Advance simulated time by ``dt`` seconds; return what the device sends, in time order."""
+        """Advance simulated time by ``dt`` seconds; return what the device sends, in time order.
+
+        Output is computed in chunks of :data:`LOOKAHEAD_S` ahead of time, because one large
+        step of the physics costs little more than one small one; anything that changes the
+        device rewinds to the present first (see :meth:`apply`), so the result is the same as
+        computing every tick as it comes.
+        """
         if not (math.isfinite(dt) and dt >= 0):
             raise SimConfigError(f"dt: must be a finite number of seconds >= 0, got {dt!r}")
-        t0 = self.now
-        block = self.instrument.advance(dt)
-        t1 = self.now
-        out: list[Outgoing] = []
-        self._check_move(t1)
-        period = self.config[ConfigKey.HEARTBEAT_PERIOD_MS] / 1000.0
-        while self._next_heartbeat <= t1:
-            out.append(Outgoing(self._next_heartbeat, self._status_at(self._next_heartbeat)))
-            self._next_heartbeat += period
-        if len(block):
-            out.extend(self._ticks(block))
-        for t_change in self._transitions(t0, t1):
-            out.append(Outgoing(t_change, self._status_at(t_change)))
-        due = [p for p in self._pending if p.time_s <= t1]
-        self._pending = [p for p in self._pending if p.time_s > t1]
-        out.extend(due)
-        out.sort(key=lambda o: o.time_s)
-        state = self.state_at(t1)
+        target = self._now + dt
+        while self._horizon < target:
+            engine = {name: getattr(self, name) for name in self._ENGINE}
+            self._snapshot = (self._horizon, copy.deepcopy(engine), self.faults.skip_counter)
+            self._ahead.extend(self._compute(LOOKAHEAD_S))
+            self._horizon = self.instrument.clock_s
+        n = bisect.bisect_right(self._ahead, target, key=lambda o: o.time_s)
+        out, self._ahead = self._ahead[:n], self._ahead[n:]
+        due = [p for p in self._pending if p.time_s <= target]
+        if due:
+            self._pending = [p for p in self._pending if p.time_s > target]
+            out = sorted(out + due, key=lambda o: o.time_s)
+        self._now = target
+        state = self.state_at(target)
         if state != self._last_state:
-            log.info("t=%.3f s state %s -> %s", t1, self._last_state.name, state.name)
+            log.info("t=%.3f s state %s -> %s", target, self._last_state.name, state.name)
             if self.on_state_change is not None:
-                self.on_state_change(self._last_state, state, t1)
+                self.on_state_change(self._last_state, state, target)
             self._last_state = state
         if self.faults.silent:
             return []
+        # Counters are the link's, not the computation's: a status carries their values when sent.
+        counts = {
+            "rx_malformed": self.rx_malformed & 0xFFFF,
+            "tx_dropped": self.tx_dropped & 0xFF,
+            "cmd_rejected": self.cmd_rejected & 0xFF,
+        }
+        return [
+            Outgoing(o.time_s, replace(o.message, **counts)) if isinstance(o.message, Status) else o
+            for o in out
+        ]
+
+    def _rewind(self) -> None:
+        """Bring the computed state back to :attr:`now`, dropping output computed beyond it."""
+        if self._horizon <= self._now or self._snapshot is None:
+            return
+        start, engine, skip = self._snapshot
+        for name, value in engine.items():
+            setattr(self, name, value)
+        self.faults.skip_counter = skip
+        self._snapshot = None
+        if self._now > start:
+            self._compute(self._now - start)  # the same output again, already sent
+        self._ahead.clear()
+        self._horizon = self._now
+
+    def _compute(self, dt: float) -> list[Outgoing]:
+        """Run the physics and the firmware for ``dt`` seconds from the computed horizon."""
+        t0 = self.instrument.clock_s
+        counter0 = self._counter
+        block = self.instrument.advance(dt)
+        t1 = self.instrument.clock_s
+        self._check_move(t1)
+        out, tick_times, tick_counters = (
+            self._ticks(block) if len(block) else ([], np.empty(0), None)
+        )
+
+        def counter_at(t: float) -> int:
+            """Counter of the latest tick at or before ``t``."""
+            i = int(np.searchsorted(tick_times, t, side="right"))
+            return int(tick_counters[i - 1]) if i else (counter0 - 1) & 0xFFFFFFFF
+
+        period = self.config[ConfigKey.HEARTBEAT_PERIOD_MS] / 1000.0
+        while self._next_heartbeat <= t1:
+            t = self._next_heartbeat
+            out.append(Outgoing(t, self._status_at(t, counter_at(t))))
+            self._next_heartbeat += period
+        for t in self._transitions(t0, t1):
+            out.append(Outgoing(t, self._status_at(t, counter_at(t))))
+        out.sort(key=lambda o: o.time_s)
         return out
 
     def _transitions(self, t0: float, t1: float) -> list[float]:
@@ -480,10 +563,6 @@ class Firmware:
             if t0 < t <= t1 and self.state_at(t - 1e-9) != self.state_at(t)
         )
 
-    def _status_at(self, t: float) -> Status:
-        s = self.status()
-        return replace(s, state=self.state_at(t))
-
     def _check_move(self, t: float) -> None:
         table = self.instrument.table
         if self._checked_move or table.is_moving(t):
@@ -493,6 +572,7 @@ class Firmware:
         error = (actual - table.target_deg + 180.0) % 360.0 - 180.0
         if abs(error) > DRIVE_FAULT_LIMIT_DEG:
             self._fault |= Fault.DRIVE
+            self._fault_time = min(self._fault_time, max(table.motion_end_s, self._now))
             log.warning(
                 "t=%.3f s drive fault: table at %.4f deg, commanded %.4f deg",
                 t,
@@ -506,7 +586,9 @@ class Firmware:
         self._tick = _Tick()
         self._tick_start = self.now
 
-    def _ticks(self, block: SampleBlock) -> list[Outgoing]:
+    def _ticks(self, block: SampleBlock) -> tuple[list[Outgoing], np.ndarray, np.ndarray]:
+        """The sample ticks completed by ``block``; also each tick's end time and the counter
+        of each tick (for statuses computed between them)."""
         per_tick = round(BASE_RATE_HZ / self.sample_rate_hz)
         self._tick.gyro.append(block.gyro_rps)
         self._tick.accel.append(block.accel_mps2)
@@ -518,7 +600,7 @@ class Firmware:
         used = n_ticks * per_tick
         self._tick = _Tick([gyro[used:]], [accel[used:]])
         if n_ticks == 0:
-            return []
+            return [], np.empty(0), np.empty(0, dtype=np.int64)
         # Times and table data at the end of each completed tick.
         end_idx = np.arange(1, n_ticks + 1) * per_tick - 1 - (have - len(block))
         g = gyro[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
@@ -541,9 +623,9 @@ class Firmware:
             t_end - 1.0 / self.sample_rate_hz < table.motion_end_s
         )
         if not self.streaming:
-            self._counter += n_ticks
-            self._counter &= 0xFFFFFFFF
-            return []
+            counters = (self._counter + np.arange(n_ticks)) & 0xFFFFFFFF
+            self._counter = (self._counter + n_ticks) & 0xFFFFFFFF
+            return [], t_end, counters
         gc = np.column_stack(
             [quantise_carry(g[:, j] / _GYRO_COUNT, self._remainder, j) for j in range(3)]
         )
@@ -555,6 +637,7 @@ class Firmware:
         gc = np.clip(gc, INT32_MIN, INT32_MAX).astype(np.int64)
         ac = np.clip(ac, INT24_MIN, INT24_MAX).astype(np.int64)
         out = []
+        counters = np.empty(n_ticks, dtype=np.int64)
         for i in range(n_ticks):
             j = min(max(int(end_idx[i]), 0), len(block) - 1)
             t = float(block.time_s[j])
@@ -585,9 +668,10 @@ class Firmware:
                 temperature=_temperature_counts(float(block.temperature_c[j])),
                 validity=validity,
             )
+            counters[i] = sample.counter
             self._counter = (self._counter + 1) & 0xFFFFFFFF
             out.append(Outgoing(t, sample))
-        return out
+        return out, t_end, counters
 
 
 _BOOT_ALLOWED = frozenset({Opcode.IDENTIFY, Opcode.GET_STATUS, Opcode.GET_CONFIG, Opcode.RESET})

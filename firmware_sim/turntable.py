@@ -96,6 +96,7 @@ class Turntable:
         if self._stalled or dist == 0.0:
             self._segments = [_Segment(-math.inf, float(start), 0.0, 0.0)]
             self._motion_end = t
+            self._overshoot = 0.0  # no move, no ring-down
             return t
         if dist <= v * v / a:
             ta, tc = math.sqrt(dist / a), 0.0

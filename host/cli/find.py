@@ -53,6 +53,11 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
     g.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
     g.add_argument("--node-id", type=int, default=1, help="CAN node id 1..15 (default 1)")
+    g.add_argument(
+        "--link-timeout", type=positive_float, default=None, metavar="SECONDS",
+        help="seconds without a status before the link counts as lost (default: 3 heartbeat periods, "
+        "as protocol.md says; raise it on a slow or busy host)",
+    )  # fmt: skip
     g.add_argument("--sim", action="store_true", help="use the embedded simulated instrument")
     g.add_argument(
         "--speed",
@@ -133,14 +138,15 @@ def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, An
         with embedded_simulator(args) as (device, truth):
             yield device, truth
         return
+    options = {"min_supervision_s": args.link_timeout} if args.link_timeout else {}
     if args.serial:
-        device = Device.open_serial(args.serial, baudrate=args.baud)
+        device = Device.open_serial(args.serial, baudrate=args.baud, **options)
     else:
         try:
             bus = can.cli.create_bus_from_namespace(args)
         except (argparse.ArgumentError, can.CanError, OSError, ValueError) as exc:
             raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
-        device = Device.from_bus(bus, node_id=args.node_id, own_bus=True)
+        device = Device.from_bus(bus, node_id=args.node_id, own_bus=True, **options)
     with device:
         yield device, None
 
