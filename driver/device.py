@@ -427,6 +427,7 @@ class Device:
         node_id: int = 1,
         reply_timeout: float = REPLY_TIMEOUT_S,
         retries: int = RETRIES,
+        min_supervision_s: float = 0.0,
         **bus_options: Any,
     ) -> Device:
         """Open a python-can bus and the device on it; :meth:`close` shuts the bus down.
@@ -448,7 +449,12 @@ class Device:
                 f"cannot open the CAN bus interface={interface!r} channel={channel!r}: {exc}"
             ) from exc
         return cls.from_bus(
-            bus, node_id, own_bus=True, reply_timeout=reply_timeout, retries=retries
+            bus,
+            node_id,
+            own_bus=True,
+            reply_timeout=reply_timeout,
+            retries=retries,
+            min_supervision_s=min_supervision_s,
         )
 
     @classmethod

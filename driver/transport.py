@@ -14,6 +14,7 @@ be called from any thread (python-can buses and pyserial ports allow one reader 
 
 from __future__ import annotations
 
+import socket
 import threading
 from typing import Any, Protocol
 
@@ -48,6 +49,32 @@ class Transport(Protocol):
     def close(self) -> None: ...
 
 
+#: Receive buffer asked for on kernel CAN sockets: about 5 s of a saturated 1 Mbit/s bus, so a
+#: host that is briefly busy (a loaded machine, a virtual machine) loses no frame.
+SOCKET_RCVBUF = 8 * 1024 * 1024
+
+
+def enlarge_receive_buffer(bus: can.BusABC, size: int = SOCKET_RCVBUF) -> int | None:
+    """Ask the kernel for a larger receive buffer on a SocketCAN bus; return what it granted.
+
+    Best effort: buses without a kernel socket (``virtual``, ``slcan``, ...) are left alone
+    (None), and the kernel caps the size at ``net.core.rmem_max`` unless the process may
+    override it.
+    """
+    sock = getattr(bus, "socket", None)
+    if not isinstance(sock, socket.socket):
+        return None
+    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if option is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, option, size)
+            break
+        except OSError:
+            continue
+    return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+
 class CanTransport:
     """The protocol on a python-can bus, for one node.
 
@@ -68,6 +95,7 @@ class CanTransport:
         self.node_id = node_id
         self.own_bus = own_bus
         self.receiver = CanReceiver(node_id=node_id)
+        self.rcvbuf = enlarge_receive_buffer(bus)
         self._send_lock = threading.Lock()
         self._rx_lock = threading.RLock()
         self._closed = False

@@ -58,6 +58,13 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         help="seconds without a status before the link counts as lost (default: 3 heartbeat periods, "
         "as protocol.md says; raise it on a slow or busy host)",
     )  # fmt: skip
+    g.add_argument(
+        "--reply-timeout",
+        type=positive_float,
+        default=None,
+        metavar="SECONDS",
+        help="seconds to wait for each reply before resending a safe command (default: the driver's)",
+    )
     g.add_argument("--sim", action="store_true", help="use the embedded simulated instrument")
     g.add_argument(
         "--speed",
@@ -138,7 +145,11 @@ def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, An
         with embedded_simulator(args) as (device, truth):
             yield device, truth
         return
-    options = {"min_supervision_s": args.link_timeout} if args.link_timeout else {}
+    options: dict[str, float] = {}
+    if args.link_timeout:
+        options["min_supervision_s"] = args.link_timeout
+    if args.reply_timeout:
+        options["reply_timeout"] = args.reply_timeout
     if args.serial:
         device = Device.open_serial(args.serial, baudrate=args.baud, **options)
     else:

@@ -60,9 +60,12 @@ def analyse_candump(path: Path, dbc: Path, bad_input_from: float) -> dict:
     """
     import cantools
 
+    from driver.protocol.constants import Opcode
+
     db = cantools.database.load_file(str(dbc))
     known = {m.frame_id for m in db.messages}
-    frames = unknown = undecodable = deliberate = 0
+    frames = unknown = undecodable = deliberate = undefined_echo = 0
+    opcodes = {int(op) for op in Opcode}
     aux_times: list[float] = []
     aux_ticks: list[int] = []
     status_times: list[float] = []
@@ -80,6 +83,11 @@ def analyse_candump(path: Path, dbc: Path, bad_input_from: float) -> dict:
             continue
         if arb not in known:
             unknown += 1
+            continue
+        if arb & 0x7F0 == 0x050 and len(payload) >= 2 and payload[1] not in opcodes:
+            # A reply echoing an undefined opcode (the answer to the conformance suite's bad
+            # input): the DBC multiplexes replies on the opcode, so cantools cannot name it.
+            undefined_echo += 1
             continue
         try:
             decoded = db.decode_message(arb, payload, decode_choices=False, allow_truncated=True)
@@ -107,6 +115,7 @@ def analyse_candump(path: Path, dbc: Path, bad_input_from: float) -> dict:
         "unknown_frames": unknown,
         "undecodable_frames": undecodable,
         "conformance_bad_input_frames": deliberate,
+        "replies_to_undefined_opcodes": undefined_echo,
         "sample_ticks": len(aux_ticks),
         "ticks_lost": lost,
         "sample_period_ms_p50": 1e3 * percentile(sample_periods, 50),
@@ -148,7 +157,7 @@ def main() -> int:
         t0 = time.monotonic()
         find = subprocess.run(
             [nf, "find", "-i", "socketcan", "-c", ch, "--json", "--latitude", str(TRUTH["latitude"]),
-             "--link-timeout", "2", "--timeout", "300", "--record", str(out / "windows.npz")],
+             "--link-timeout", "3", "--reply-timeout", "2", "--timeout", "300", "--record", str(out / "windows.npz")],
             capture_output=True, text=True, timeout=900,
         )  # fmt: skip
         result["find_wall_s"] = round(time.monotonic() - t0, 1)
