@@ -43,9 +43,15 @@ SPEED = 2.0
 #: Host-side margins for a simulator that shares a loaded machine with other work: its process can
 #: be descheduled for tens of milliseconds, which the suite (rightly) sees as the unit being late.
 #: The CLI defaults (5 ms jitter margin, 100 ms reply limit, 0.5 s settle margin) are for instruments.
-MARGINS = {"jitter_margin_ms": 60.0, "reply_limit_ms": 400.0, "settle_margin_s": 1.0}
+MARGINS = {
+    "jitter_margin_ms": 60.0,
+    "reply_limit_ms": 400.0,
+    "settle_margin_s": 1.0,
+    "ready_timeout_s": 10.0,  # the simulator boots in 0.5 s and has no warm-up here
+}
 QUICK = ["--time-scale", str(SPEED), "--stream-seconds", "3"]
 QUICK += ["--jitter-margin-ms", "60", "--reply-limit-ms", "400", "--settle-margin", "1"]
+QUICK += ["--ready-timeout", "10"]
 FAST_TABLE = {
     "max_rate_dps": 45.0,
     "max_accel_dps2": 200.0,
@@ -95,6 +101,7 @@ def virtual_unit(speed: float = SPEED) -> Iterator[tuple[can.BusABC, Runner]]:
     thread.start()
     try:
         yield host_bus, runner
+        assert thread.is_alive(), "the simulator's thread stopped (see its traceback above)"
     finally:
         stop.set()
         thread.join(5)

@@ -21,6 +21,8 @@ from host.errors import HostError
 
 __all__ = ["restore", "run_suite"]
 
+_NO_RECOVERY = "the unit did not recover"
+
 _LINK_ERRORS = (
     LinkFault,
     HostError,
@@ -61,7 +63,14 @@ def run_suite(
     shared: dict[str, Any] = {}
     results: list[CheckResult] = []
     start = time.monotonic()
+    dead: str | None = None
     for chk in checks:
+        if dead is not None:
+            # Every further check would wait out its timeouts against a unit that does not answer.
+            results.append(CheckResult(chk.name, "fail", f"not run: {dead}"))
+            if progress is not None:
+                progress(results[-1])
+            continue
         ctx = Ctx(session, options, shared)
         t0 = time.monotonic()
         outcome, message = "pass", ""
@@ -88,6 +97,8 @@ def run_suite(
             note = restore(session, options, shared)
             if note:
                 result.message += f" (restore: {note})"
+            if note.startswith(_NO_RECOVERY):
+                dead = f"the unit stopped answering after {chk.name}"
     return Report(results, link.kind, options, time.monotonic() - start)
 
 
@@ -104,7 +115,7 @@ def restore(session: Session, options: SuiteOptions, shared: dict[str, Any]) -> 
         s.request(Stop(0))
         st = s.get_status()
         if st.state in (DeviceState.ROTATING, DeviceState.SETTLING):
-            s.wait_state({DeviceState.READY, DeviceState.FAULT}, 600.0)
+            s.wait_state({DeviceState.READY, DeviceState.FAULT}, options.ready_timeout_s)
             st = s.get_status()
         if st.state == DeviceState.FAULT:
             raise LinkFault("FAULT")
@@ -115,9 +126,10 @@ def restore(session: Session, options: SuiteOptions, shared: dict[str, Any]) -> 
             s.request(Reset(0))
             s.streaming = False
             s.begin_segment()
-            s.wait_state({DeviceState.READY}, options.ready_timeout_s)
+            if s.wait_state({DeviceState.READY}, options.ready_timeout_s) is None:
+                return f"{_NO_RECOVERY}: no READY within {options.ready_timeout_s:g} s of RESET"
         except _LINK_ERRORS as exc:
-            return f"the unit did not recover: {exc}"
+            return f"{_NO_RECOVERY}: {exc}"
     config = shared.get("config")
     if config:
         try:
