@@ -177,9 +177,20 @@ def main() -> int:
                     f"azimuth error {err:+.4f} deg exceeds 5 sigma ({res['sigma_deg']:.4f})"
                 )
         conformance_start = time.time()
+        # Under software emulation the interpreters run about 18 times slower and stall for
+        # hundreds of milliseconds: host-side timing at millisecond scale means nothing there, so
+        # its margins are wide in a VM (and recorded); every logical check stays as strict.
+        relaxed = os.environ.get("HIL_MODE") == "vm"
+        timing = ["--reply-limit-ms", "2000", "--jitter-margin-ms", "1000", "--rate-tolerance", "0.05",
+                  "--settle-margin", "5", "--ready-timeout", "300"] if relaxed else []  # fmt: skip
+        result["conformance_timing"] = (
+            "relaxed for software emulation: " + " ".join(timing)
+            if relaxed
+            else "protocol defaults"
+        )
         conf = subprocess.run(
             [nf, "conformance", "-i", "socketcan", "-c", ch, "--stream-seconds", str(args.stream_seconds),
-             "--junit", str(out / "conformance.xml")],
+             "--junit", str(out / "conformance.xml"), *timing],
             capture_output=True, text=True, timeout=900,
         )  # fmt: skip
         (out / "conformance.txt").write_text(conf.stdout + conf.stderr)
