@@ -37,7 +37,7 @@ from host.cli.common import (
 )
 from host.denoise import METHODS
 from host.errors import HostConfigError
-from host.procedure import METHOD_CHOICES, Plan, Progress, find_north
+from host.procedure import METHOD_CHOICES, FindResult, Plan, Progress, find_north
 
 #: Default acceleration of the embedded simulator (simulated seconds per wall second).
 SIM_SPEED = 100.0
@@ -226,7 +226,11 @@ class ProgressLine:
             self.stream.write("\n")
 
 
-def run(args: argparse.Namespace) -> int:
+def run_plan(
+    args: argparse.Namespace,
+) -> tuple[FindResult, list[Any], Plan, float, int, dict[str, Any] | None]:
+    """Open the device, run the plan and solve: result, raw windows, plan, latitude, sample rate
+    and (when simulated) the truth. Shared by ``find`` and ``record``."""
     plan = plan_from_args(args)
     with open_device(args) as (device, truth):
         latitude = sim_latitude(args) if args.sim else args.latitude
@@ -237,10 +241,15 @@ def run(args: argparse.Namespace) -> int:
         result, windows = find_north(
             device, plan, latitude, warmup_timeout_s=args.timeout, progress=ProgressLine()
         )
-        if args.record:
-            from host.cli.record import save_recording
+        return result, windows, plan, latitude, device.sample_rate_hz, truth
 
-            save_recording(args.record, windows, plan, latitude, device.sample_rate_hz, truth)
+
+def run(args: argparse.Namespace) -> int:
+    result, windows, plan, latitude, rate, truth = run_plan(args)
+    if args.record:
+        from host.cli.record import save_recording
+
+        save_recording(args.record, windows, plan, latitude, rate, truth)
     if args.plot:
         report.plot(args.plot, result, windows, plan.denoise)
     print(report.as_json(result, truth) if args.json else report.text(result, truth))

@@ -10,16 +10,9 @@ import argparse
 import dataclasses
 from typing import Any
 
-from host.cli.common import sim_latitude
-from host.cli.find import (
-    ProgressLine,
-    add_device_arguments,
-    add_plan_arguments,
-    open_device,
-    plan_from_args,
-)
+from host.cli.find import add_device_arguments, add_plan_arguments, run_plan
 from host.errors import HostConfigError
-from host.procedure import Plan, find_north
+from host.procedure import Plan
 from host.recording import RecordedWindow, Recording
 
 
@@ -37,17 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     if not args.file.endswith((".csv", ".npz")):
         raise HostConfigError(f"{args.file}: the file name must end in .csv or .npz")
-    plan = plan_from_args(args)
-    with open_device(args) as (device, truth):
-        latitude = sim_latitude(args) if args.sim else args.latitude
-        if latitude is None:
-            raise HostConfigError(
-                "--latitude: give the site's latitude in degrees (north positive)"
-            )
-        _, windows = find_north(
-            device, plan, latitude, warmup_timeout_s=args.timeout, progress=ProgressLine()
-        )
-        rate = device.sample_rate_hz
+    _, windows, plan, latitude, rate, truth = run_plan(args)
     recording = save_recording(args.file, windows, plan, latitude, rate, truth)
     samples = sum(len(w.counter) for w in recording.windows)
     print(f"wrote {len(recording.windows)} windows ({samples} samples) to {args.file}")
