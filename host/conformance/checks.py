@@ -709,12 +709,22 @@ def command_set_config(c: Ctx) -> None:
     if set_value(ConfigKey.HEARTBEAT_PERIOD_MS, new_hb):
         t0 = s.now()
         s.idle(max(6 * new_hb / 1000.0, 0.5))
-        sts = [t for t, _ in s.statuses if t >= t0]
-        iv = [c.ms(b - a) for a, b in itertools.pairwise(sts[1:])]
+        sts = [(t, st) for t, st in s.statuses if t >= t0]
+        iv = [c.ms(b - a) for (a, _), (b, _) in itertools.pairwise(sts[1:])]
+        # The same intervals on the unit's own clock, its sample counter: a host that is itself
+        # late (a loaded machine, an emulator) must not make a punctual unit fail.
+        dev = [
+            1000.0 * ((y.sample_counter - x.sample_counter) & 0xFFFFFFFF) / rate
+            for (_, x), (_, y) in itertools.pairwise(sts[1:])
+        ]
         if len(iv) >= 3:
             mean = statistics.median(iv)  # one late arrival must not decide
-            c.fig("heartbeat", f"{mean:.1f} ms (set {new_hb})")
-            if abs(mean - new_hb) > 0.1 * new_hb:
+            on_unit = statistics.median(dev)
+            c.fig(
+                "heartbeat",
+                f"{mean:.1f} ms wall, {on_unit:.1f} ms by the sample counter (set {new_hb})",
+            )
+            if min(abs(mean - new_hb), abs(on_unit - new_hb)) > 0.1 * new_hb:
                 c.fail(f"after setting {new_hb} ms the heartbeat period is {mean:.1f} ms")
         else:
             c.fail(f"only {len(iv)} heartbeat interval(s) after setting {new_hb} ms")
@@ -734,7 +744,7 @@ def command_set_config(c: Ctx) -> None:
                 ).slope
                 measured = slope / s.time_scale
                 c.fig("sample rate", f"{measured:.2f} Hz (set {new_rate})")
-                if abs(measured - new_rate) > 0.02 * new_rate:
+                if abs(measured - new_rate) > max(0.02, c.opt.rate_tolerance) * new_rate:
                     c.fail(f"after setting {new_rate} Hz the stream runs at {measured:.2f} Hz")
             else:
                 c.fail(f"only {len(recs)} samples after setting {new_rate} Hz")

@@ -31,6 +31,7 @@ from driver.protocol.messages import (
     StatusMain,
 )
 from driver.protocol.serial import Deframer, SerialFrame, decode_payload
+from driver.transport import enlarge_receive_buffer
 
 __all__ = ["Arrival", "CanRawLink", "RawLink", "SerialRawLink", "TickParts"]
 
@@ -106,6 +107,7 @@ class CanRawLink:
     def __init__(self, bus: can.BusABC, node_id: int = 1) -> None:
         self.bus = bus
         self.node_id = node_id
+        self.rcvbuf = enlarge_receive_buffer(bus)
         self.command_id = can_id(CanFunction.COMMAND, node_id)
         self._identify = IdentifyAssembler()
         self._status: StatusMain | None = None

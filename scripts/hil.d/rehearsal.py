@@ -214,9 +214,11 @@ def main() -> int:
             )
         if stats["ticks_lost"]:
             failures.append(f"{stats['ticks_lost']} sample ticks lost on the bus")
-        if not abs(stats["sample_period_ms_mean"] - 5.0) <= 0.05:
+        # Under emulation the simulator's interpreter can fall a little behind real time.
+        period_tol = 0.02 if os.environ.get("HIL_MODE") == "vm" else 0.01
+        if not abs(stats["sample_period_ms_mean"] - 5.0) <= 5.0 * period_tol:
             failures.append(
-                f"mean sample period {stats['sample_period_ms_mean']:.3f} ms, not 5 ms +- 1 %"
+                f"mean sample period {stats['sample_period_ms_mean']:.3f} ms, not 5 ms +- {period_tol:.0%}"
             )
         if not abs(stats["heartbeat_period_ms_p50"] - 100.0) <= 10.0:
             failures.append(
