@@ -509,6 +509,13 @@ class Firmware:
             for o in out
         ]
 
+    def next_output_s(self) -> float:
+        """Simulated time of the next message the device will send (or of the computed horizon)."""
+        t = self._ahead[0].time_s if self._ahead else self._horizon
+        if self._pending:
+            t = min(t, min(p.time_s for p in self._pending))
+        return t
+
     def _rewind(self) -> None:
         """Bring the computed state back to :attr:`now`, dropping output computed beyond it."""
         if self._horizon <= self._now or self._snapshot is None:

@@ -131,6 +131,8 @@ class Runner:
     #: a busy machine) it catches up in steps this long, polling the link between them, so
     #: commands are still answered within the protocol's reply deadline.
     MAX_STEP_S = 0.02
+    #: Longest wait for incoming frames between steps, wall seconds.
+    MAX_WAIT_S = 0.05
 
     def step(self, poll_timeout: float = 0.0) -> None:
         self.link.poll(poll_timeout)
@@ -143,10 +145,10 @@ class Runner:
 
     def run(self, stop: threading.Event) -> None:
         while not stop.is_set():
-            # Wake for the next output tick or for incoming frames, whichever comes first.
-            tick = 1.0 / self.firmware.sample_rate_hz
-            timeout = min(0.002, self.clock.wall_until(self.firmware.now + tick))
-            self.step(timeout)
+            # Sleep until the next message is due; a frame arriving ends the wait at once.
+            with self.lock:
+                due = self.firmware.next_output_s()
+            self.step(min(self.MAX_WAIT_S, self.clock.wall_until(due)))
 
 
 class BackgroundRunner:
