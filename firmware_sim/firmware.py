@@ -479,10 +479,7 @@ class Firmware:
             raise SimConfigError(f"dt: must be a finite number of seconds >= 0, got {dt!r}")
         target = self._now + dt
         while self._horizon < target:
-            engine = {name: getattr(self, name) for name in self._ENGINE}
-            self._snapshot = (self._horizon, copy.deepcopy(engine), self.faults.skip_counter)
-            self._ahead.extend(self._compute(LOOKAHEAD_S))
-            self._horizon = self.instrument.clock_s
+            self._compute_ahead()
         n = bisect.bisect_right(self._ahead, target, key=lambda o: o.time_s)
         out, self._ahead = self._ahead[:n], self._ahead[n:]
         due = [p for p in self._pending if p.time_s <= target]
@@ -508,6 +505,21 @@ class Firmware:
             Outgoing(o.time_s, replace(o.message, **counts)) if isinstance(o.message, Status) else o
             for o in out
         ]
+
+    def _compute_ahead(self) -> None:
+        engine = {name: getattr(self, name) for name in self._ENGINE}
+        self._snapshot = (self._horizon, copy.deepcopy(engine), self.faults.skip_counter)
+        self._ahead.extend(self._compute(LOOKAHEAD_S))
+        self._horizon = self.instrument.clock_s
+
+    def prefetch(self) -> None:
+        """Compute the next chunk of output early, when less than half a chunk is left.
+
+        A runner calls this right after sending, so that the computation does not delay a
+        message that is due (the chunk then starts where the last one ended, as it would anyway).
+        """
+        if self._horizon - self._now < LOOKAHEAD_S / 2:
+            self._compute_ahead()
 
     def next_output_s(self) -> float:
         """Simulated time of the next message the device will send (or of the computed horizon)."""

@@ -142,6 +142,7 @@ class Runner:
                 out = self.firmware.process(dt)
                 self.sent += len(out)
                 self.link.send(out)
+                self.firmware.prefetch()
 
     def run(self, stop: threading.Event) -> None:
         while not stop.is_set():
