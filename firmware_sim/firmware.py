@@ -176,7 +176,7 @@ class Firmware:
         self._now = 0.0  # time up to which the device has sent its output
         self._horizon = 0.0  # time up to which output has been computed ahead
         self._ahead: list[Outgoing] = []
-        self._snapshot: tuple[float, dict[str, object], int] | None = None
+        self._snapshots: list[tuple[float, dict[str, object], int]] = []
         self.boot_count = 0
         self._reboot(0.0)
         self._last_state = self.state_at(0.0)
@@ -487,6 +487,8 @@ class Firmware:
             self._pending = [p for p in self._pending if p.time_s > target]
             out = sorted(out + due, key=lambda o: o.time_s)
         self._now = target
+        while len(self._snapshots) > 1 and self._snapshots[1][0] <= target:
+            self._snapshots.pop(0)  # chunks wholly in the past are never rewound to
         state = self.state_at(target)
         if state != self._last_state:
             log.info("t=%.3f s state %s -> %s", target, self._last_state.name, state.name)
@@ -507,8 +509,9 @@ class Firmware:
         ]
 
     def _compute_ahead(self) -> None:
+        """Compute one more chunk, keeping a snapshot of the state at its start for a rewind."""
         engine = {name: getattr(self, name) for name in self._ENGINE}
-        self._snapshot = (self._horizon, copy.deepcopy(engine), self.faults.skip_counter)
+        self._snapshots.append((self._horizon, copy.deepcopy(engine), self.faults.skip_counter))
         self._ahead.extend(self._compute(LOOKAHEAD_S))
         self._horizon = self.instrument.clock_s
 
@@ -530,13 +533,17 @@ class Firmware:
 
     def _rewind(self) -> None:
         """Bring the computed state back to :attr:`now`, dropping output computed beyond it."""
-        if self._horizon <= self._now or self._snapshot is None:
+        if self._horizon <= self._now or not self._snapshots:
             return
-        start, engine, skip = self._snapshot
+        # The latest chunk that starts at or before the present: its output before the present
+        # has been sent, everything after it is dropped and computed again.
+        start, engine, skip = next(
+            snap for snap in reversed(self._snapshots) if snap[0] <= self._now
+        )
         for name, value in engine.items():
             setattr(self, name, value)
         self.faults.skip_counter = skip
-        self._snapshot = None
+        self._snapshots.clear()
         if self._now > start:
             self._compute(self._now - start)  # the same output again, already sent
         self._ahead.clear()

@@ -78,7 +78,8 @@ def test_every_call_on_the_happy_path(link):
     time.sleep(0.05)
     assert dev.status().state == DeviceState.ROTATING
     stopped = dev.stop(wait=True)
-    assert stopped.state == DeviceState.READY and angle_error(stopped.angle_deg, 300.0) > 1.0
+    # STOP leaves the table short of the target of the move it interrupted (300 + 90 = 30 deg)
+    assert stopped.state == DeviceState.READY and angle_error(stopped.angle_deg, 30.0) > 1.0
     done = dev.home()
     assert angle_error(done.angle_deg, 0.0) < 0.1
     assert dev.self_test() == 0
