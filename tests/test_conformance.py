@@ -142,6 +142,8 @@ TIMING = {
     "heartbeat.jitter",
     "stream.rate",
     "command.set_config",
+    "command.stream_start",
+    "command.stop_while_rotating",
     "rotation.settle_time",
     "timing.reply",
 }
