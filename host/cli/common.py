@@ -24,6 +24,36 @@ def positive_float(text: str) -> float:
     return value
 
 
+def node_id(text: str) -> int:
+    """argparse type: a CAN node id, 1..15 (protocol.md 2.1)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if not 1 <= value <= 15:
+        raise argparse.ArgumentTypeError(f"must be 1..15, got {value}")
+    return value
+
+
+def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
+    """The links every command speaks: python-can bus options (``-i/-c/-b``, as python-can's own
+    tools spell them), ``--serial PORT``, ``--baud`` and ``--node-id``. Returns the serial group so
+    a command can add its own links to it."""
+    import can.cli
+
+    can.cli.add_bus_arguments(parser)
+    group = parser.add_argument_group(title)
+    group.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
+    group.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
+    group.add_argument("--node-id", type=node_id, default=1, help="CAN node id 1..15 (default 1)")
+    return group
+
+
+def bus_given(args: argparse.Namespace) -> bool:
+    """Whether python-can bus options were given."""
+    return any(getattr(args, k, None) is not None for k in ("interface", "channel"))
+
+
 def angle_list(text: str) -> list[float]:
     """argparse type: comma-separated angles in degrees, e.g. ``0,60`` or ``0,90,180,270``."""
     parts = [p.strip() for p in text.split(",") if p.strip()]

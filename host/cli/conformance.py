@@ -23,7 +23,7 @@ import can
 import can.cli
 import serial
 
-from host.cli.common import angle_list, finite_float, positive_float
+from host.cli.common import add_link_arguments, angle_list, bus_given, finite_float, positive_float
 from host.conformance import (
     CHECKS,
     CanRawLink,
@@ -48,13 +48,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    can.cli.add_bus_arguments(p)
-    link = p.add_argument_group("serial link")
-    link.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
-    link.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
-    p.add_argument(
-        "--node-id", type=int, default=1, help="the unit's CAN node id 1..15 (default 1)"
-    )
+    add_link_arguments(p, "serial link")
     g = p.add_argument_group("what to check and how strictly")
     g.add_argument(
         "--time-scale",
@@ -152,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         options = _options(args)
         select_checks(options.only)
-        can_given = bool(getattr(args, "interface", None) or getattr(args, "channel", None))
+        can_given = bus_given(args)
         if can_given == bool(args.serial):
             raise HostConfigError("choose exactly one link: -i/-c (python-can) or --serial PORT")
     except HostConfigError as exc:

@@ -28,9 +28,11 @@ import numpy as np
 from driver.device import Device
 from host.cli import report
 from host.cli.common import (
+    add_link_arguments,
     add_sensor_argument,
     add_truth_arguments,
     angle_list,
+    bus_given,
     finite_float,
     positive_float,
     sim_latitude,
@@ -48,11 +50,7 @@ EMBEDDED_SUPERVISION_S = 3.0
 
 
 def add_device_arguments(p: argparse.ArgumentParser) -> None:
-    can.cli.add_bus_arguments(p)
-    g = p.add_argument_group("serial link and simulation")
-    g.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
-    g.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
-    g.add_argument("--node-id", type=int, default=1, help="CAN node id 1..15 (default 1)")
+    g = add_link_arguments(p, "serial link and simulation")
     g.add_argument(
         "--link-timeout", type=positive_float, default=None, metavar="SECONDS",
         help="seconds without a status before the link counts as lost (default: 3 heartbeat periods, "
@@ -133,14 +131,11 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
 @contextlib.contextmanager
 def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, Any] | None]]:
     """The device named by the arguments, and the simulated truth when it is simulated."""
-    bus_given = any(getattr(args, k, None) is not None for k in ("interface", "channel"))
-    links = sum((bus_given, bool(args.serial), bool(args.sim)))
+    links = sum((bus_given(args), bool(args.serial), bool(args.sim)))
     if links != 1:
         raise HostConfigError(
             "choose exactly one device: -i/-c (python-can), --serial PORT, or --sim"
         )
-    if not 1 <= args.node_id <= 15:
-        raise HostConfigError(f"--node-id: must be 1..15, got {args.node_id}")
     if args.sim:
         with embedded_simulator(args) as (device, truth):
             yield device, truth

@@ -31,8 +31,10 @@ from firmware_sim.links import CanLink, PseudoTerminal, SerialLink, SerialStream
 from firmware_sim.runner import RealTimeClock, Runner
 from firmware_sim.sensors import load_spec
 from host.cli.common import (
+    add_link_arguments,
     add_sensor_argument,
     add_truth_arguments,
+    bus_given,
     finite_float,
     positive_float,
     sim_latitude,
@@ -47,10 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    can.cli.add_bus_arguments(p)
-    link = p.add_argument_group("serial and pseudo-terminal links")
-    link.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
-    link.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
+    link = add_link_arguments(p, "serial and pseudo-terminal links")
     link.add_argument("--pty", action="store_true", help="serial frames on a new pseudo-terminal")
     link.add_argument(
         "--slcan-pty", action="store_true", help="an SLCAN adapter on a new pseudo-terminal"
@@ -70,7 +69,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default=1.0,
         help="simulated seconds per wall second (default 1)",
     )
-    p.add_argument("--node-id", type=int, default=1, help="CAN node id 1..15 (default 1)")
     p.add_argument(
         "--control",
         metavar="ADDRESS",
@@ -83,14 +81,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _links(args: argparse.Namespace) -> int:
-    return sum(
-        (
-            bool(getattr(args, "interface", None) or getattr(args, "channel", None)),
-            bool(args.serial),
-            args.pty,
-            args.slcan_pty,
-        )
-    )
+    return sum((bus_given(args), bool(args.serial), args.pty, args.slcan_pty))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -98,8 +89,6 @@ def run(args: argparse.Namespace) -> int:
         raise HostConfigError(
             "choose exactly one link: -i/-c (python-can), --serial PORT, --pty or --slcan-pty"
         )
-    if not 1 <= args.node_id <= 15:
-        raise HostConfigError(f"--node-id: must be 1..15, got {args.node_id}")
     if args.warmup < 0:
         raise HostConfigError(f"--warmup: must be >= 0 seconds, got {args.warmup}")
     logging.basicConfig(

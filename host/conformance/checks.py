@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import math
 import statistics
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from driver.protocol.budget import max_sample_rate, rate_fits
@@ -191,6 +192,22 @@ def _no_reply_since(c: Ctx, t0: float, what: str) -> None:
         c.fail(
             f"{what} was answered (seq {r.seq}, opcode 0x{int(r.opcode):02X}, result {int(r.result)})"
         )
+
+
+def _dropped_silently(
+    c: Ctx, send: Callable[[], None], count: int, reply_what: str, count_what: str
+) -> None:
+    """Send bad input with the stream on; expect no reply, ``count`` more in rx malformed and a
+    stream that runs on undisturbed (protocol.md 9)."""
+    s = c.s
+    c.ready()
+    c.stream_on()
+    before = s.get_status()
+    t0 = s.now()
+    send()
+    _no_reply_since(c, t0, reply_what)
+    _malformed_delta(c, before, count, count_what)
+    _undisturbed(c, t0)
 
 
 def _malformed_delta(c: Ctx, before: Status, expected: int | None, what: str) -> None:
@@ -965,15 +982,12 @@ def refusal_rate_exceeds_link(c: Ctx) -> None:
 )
 def bad_input_short_command(c: Ctx) -> None:
     s = c.s
-    c.ready()
-    c.stream_on()
-    before = s.get_status()
-    t0 = s.now()
-    s.link.send_command(b"")
-    s.link.send_command(bytes((s.next_seq(),)))
-    _no_reply_since(c, t0, "a command without an opcode")
-    _malformed_delta(c, before, 2, "two commands without an opcode")
-    _undisturbed(c, t0)
+
+    def send() -> None:
+        s.link.send_command(b"")
+        s.link.send_command(bytes((s.next_seq(),)))
+
+    _dropped_silently(c, send, 2, "a command without an opcode", "two commands without an opcode")
 
 
 @check(
@@ -984,8 +998,6 @@ def bad_input_unknown_id(c: Ctx) -> None:
     s = c.s
     if c.link_kind != "can":
         c.skip("CAN only (serial: see bad_input.unknown_type)")
-    c.ready()
-    c.stream_on()
     node = c.opt.node_id
     other = node + 1 if node < 15 else node - 1
     probe = bytes((s.next_seq(), Opcode.GET_STATUS))
@@ -997,14 +1009,15 @@ def bad_input_unknown_id(c: Ctx) -> None:
         (CanFunction.COMMAND + other, probe, False),
         (CanFunction.COMMAND + node, probe, True),  # 29-bit id equal to ours
     ]
-    before = s.get_status()
-    t0 = s.now()
-    for arb, data, ext in frames:
-        s.link.send_frame(arb, data, extended=ext)  # type: ignore[attr-defined]
     c.fig("frames", len(frames))
-    _no_reply_since(c, t0, "a frame not addressed to the unit")
-    _malformed_delta(c, before, 0, "frames that are not the unit's")
-    _undisturbed(c, t0)
+
+    def send() -> None:
+        for arb, data, ext in frames:
+            s.link.send_frame(arb, data, extended=ext)  # type: ignore[attr-defined]
+
+    _dropped_silently(
+        c, send, 0, "a frame not addressed to the unit", "frames that are not the unit's"
+    )
 
 
 @check(
@@ -1015,16 +1028,19 @@ def bad_input_unknown_type(c: Ctx) -> None:
     s = c.s
     if c.link_kind != "serial":
         c.skip("serial only (CAN: see bad_input.unknown_id)")
-    c.ready()
-    c.stream_on()
-    before = s.get_status()
-    t0 = s.now()
     types = (0x00, 0x06, 0x7F, 0xFF)
-    for ty in types:
-        s.link.send_frame(ty, bytes((s.next_seq(), Opcode.GET_STATUS)))  # type: ignore[attr-defined]
-    _no_reply_since(c, t0, "a frame of an undefined type")
-    _malformed_delta(c, before, len(types), f"{len(types)} frames of undefined types")
-    _undisturbed(c, t0)
+
+    def send() -> None:
+        for ty in types:
+            s.link.send_frame(ty, bytes((s.next_seq(), Opcode.GET_STATUS)))  # type: ignore[attr-defined]
+
+    _dropped_silently(
+        c,
+        send,
+        len(types),
+        "a frame of an undefined type",
+        f"{len(types)} frames of undefined types",
+    )
 
 
 def _frame(c: Ctx, cmd: Command) -> bytes:
@@ -1040,17 +1056,14 @@ def bad_input_bad_crc(c: Ctx) -> None:
     s = c.s
     if c.link_kind != "serial":
         c.skip("serial only (the CAN controller checks the CRC)")
-    c.ready()
-    c.stream_on()
-    before = s.get_status()
-    t0 = s.now()
-    bad = bytearray(_frame(c, GetStatus(s.next_seq())))
-    bad[-1] ^= 0x5A
-    s.link.send_bytes(bytes(bad))  # type: ignore[attr-defined]
-    s.link.send_bytes(bytes((0xA5, 0x5A, 65, SerialType.COMMAND, 0)) + bytes(8))  # type: ignore[attr-defined]
-    _no_reply_since(c, t0, "a frame with a bad CRC")
-    _malformed_delta(c, before, 2, "one bad CRC and one length above 64")
-    _undisturbed(c, t0)
+
+    def send() -> None:
+        bad = bytearray(_frame(c, GetStatus(s.next_seq())))
+        bad[-1] ^= 0x5A
+        s.link.send_bytes(bytes(bad))  # type: ignore[attr-defined]
+        s.link.send_bytes(bytes((0xA5, 0x5A, 65, SerialType.COMMAND, 0)) + bytes(8))  # type: ignore[attr-defined]
+
+    _dropped_silently(c, send, 2, "a frame with a bad CRC", "one bad CRC and one length above 64")
 
 
 @check(
