@@ -186,7 +186,6 @@ class Firmware:
         table = self.instrument.spec.table
         self._boot_end = t + self.boot_s
         self._counter = 0
-        self._tick_start = t  # start of the current tick's interval
         self._tick = _Tick()
         self._remainder = np.zeros(6)
         self._next_heartbeat = t
@@ -463,7 +462,7 @@ class Firmware:
     # -- time ----------------------------------------------------------------------------------
     #: Attributes the output computation changes; a snapshot of them allows a rewind.
     _ENGINE = (
-        "instrument", "_counter", "_tick_start", "_tick", "_remainder", "_next_heartbeat",
+        "instrument", "_counter", "_tick", "_remainder", "_next_heartbeat",
         "_settle_end", "_checked_move", "_fault", "_fault_time",
     )  # fmt: skip
 
@@ -610,7 +609,6 @@ class Firmware:
         # Increments already collected for the old rate would be mis-timed in a tick of the new
         # one; a rate change starts a fresh tick at the next physics sample.
         self._tick = _Tick()
-        self._tick_start = self.now
 
     def _ticks(self, block: SampleBlock) -> tuple[list[Outgoing], np.ndarray, np.ndarray]:
         """The sample ticks completed by ``block``; also each tick's end time and the counter
