@@ -18,10 +18,16 @@ from __future__ import annotations
 import argparse
 import time
 
-from firmware_sim.sensors import load_spec, preset_names
-from host.cli.study import StudySettings, error_model, monte_carlo, study_rows, verify_plan
-from host.heading import PAPER_SWEEP
-from host.study import Plan, plan_time_s, search_plans, shortest_plan
+from northfinder.firmware_sim.sensors import load_spec, preset_names
+from northfinder.host.cli.study import (
+    StudySettings,
+    error_model,
+    monte_carlo,
+    study_rows,
+    verify_plan,
+)
+from northfinder.host.heading import PAPER_SWEEP
+from northfinder.host.study import Plan, plan_time_s, search_plans, shortest_plan
 
 LATITUDE = 34.0
 WARMUP = 120.0

@@ -12,9 +12,9 @@ import statistics
 import time
 from collections.abc import Callable
 
-from driver.protocol import DeviceState, Fault, Sample, Status, Validity
-from driver.protocol.can import CanReceiver, decode_can, encode_can
-from driver.protocol.serial import Deframer, SerialEncoder
+from northfinder.driver.protocol import DeviceState, Fault, Sample, Status, Validity
+from northfinder.driver.protocol.can import CanReceiver, decode_can, encode_can
+from northfinder.driver.protocol.serial import Deframer, SerialEncoder
 
 SATURATED_1MBIT_FRAMES_PER_S = 9000
 

@@ -1,7 +1,7 @@
 """Denoising methods against the raw window mean under each disturbance scenario.
 
 Run: ``.venv/bin/python benchmarks/bench_filters.py [--runs 300] [--seed 2]``. Prints one markdown
-table: azimuth RMSE (deg) of every method of ``host.denoise.METHODS`` over the same seeded runs
+table: azimuth RMSE (deg) of every method of ``northfinder.host.denoise.METHODS`` over the same seeded runs
 (every method sees exactly the same samples), its ratio to the raw mean, and the winner of each
 scenario. Plan 0,180 deg, 2 x 10 s at 200 Hz, 34 deg N, level instrument (no accelerometers, so
 only the gyro processing is compared), gyro white noise ARW 0.0015 deg/sqrt(h) in every scenario.
@@ -26,11 +26,11 @@ import time
 
 import numpy as np
 
-from firmware_sim.batch import simulate_windows
-from firmware_sim.imu import Truth
-from firmware_sim.sensors import load_spec
-from host.denoise import METHODS
-from host.study import bound_deg, chunk_errors
+from northfinder.firmware_sim.batch import simulate_windows
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.denoise import METHODS
+from northfinder.host.study import bound_deg, chunk_errors
 
 LATITUDE = 34.0
 ARW = 0.0015

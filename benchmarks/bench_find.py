@@ -15,7 +15,7 @@ only the 160 s plan as simulated.
 
 Modes: ``subprocess`` runs the venv's ``northfinder find --sim ... --json --record FILE`` as a
 new process and times it from start to exit (interpreter start and imports included, as a user
-sees it); ``inprocess`` calls ``host.cli.main([...])`` in this process after the imports (the
+sees it); ``inprocess`` calls ``northfinder.host.cli.main([...])`` in this process after the imports (the
 run itself). Every repeat uses another ``--seed`` (another true azimuth); the error against the
 simulated truth is printed as a sanity figure with the white-noise bound for the plan.
 """
@@ -46,7 +46,7 @@ WARMUP_S = 120.0
 
 def plan_time_s(sensor: str, window_s: float) -> tuple[float, float]:
     """Plan time (two windows + the 180 deg move + settle) and the move + settle, s."""
-    from firmware_sim.sensors import load_spec
+    from northfinder.firmware_sim.sensors import load_spec
 
     t = load_spec(sensor).table
     v, a, d = t.max_rate_dps, t.max_accel_dps2, 180.0
@@ -56,8 +56,8 @@ def plan_time_s(sensor: str, window_s: float) -> tuple[float, float]:
 
 def bound_deg(sensor: str, window_s: float, latitude_deg: float = 34.0) -> float:
     """White-noise bound of the 0,180 plan (both windows' dwell), deg."""
-    from firmware_sim.sensors import load_spec
-    from host.heading import two_position_bound_deg
+    from northfinder.firmware_sim.sensors import load_spec
+    from northfinder.host.heading import two_position_bound_deg
 
     return two_position_bound_deg(
         load_spec(sensor).gyro.arw_dpsh, 2 * window_s, 180.0, latitude_deg
@@ -89,7 +89,7 @@ def run_once(mode: str, seed: int, speed: float, window_s: float, sensor: str) -
                 raise SystemExit(f"northfinder find failed: {done.stderr.strip()}")
             out = done.stdout
         else:
-            from host.cli import main as cli_main
+            from northfinder.host.cli import main as cli_main
 
             buf = io.StringIO()
             t0 = time.perf_counter()
@@ -133,7 +133,7 @@ def main() -> None:
     modes = ("subprocess", "inprocess") if args.mode == "both" else (args.mode,)
     plan_s, move_s = plan_time_s(args.sensor, args.window)
     if "inprocess" in modes:
-        from host.cli import build_parser
+        from northfinder.host.cli import build_parser
 
         build_parser()  # imports every subcommand once, outside the timed runs
     print(

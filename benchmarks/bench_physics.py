@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 
-from firmware_sim.imu import Instrument, Truth
-from firmware_sim.sensors import load_spec, preset_names
+from northfinder.firmware_sim.imu import Instrument, Truth
+from northfinder.firmware_sim.sensors import load_spec, preset_names
 
 
 def main() -> None:

@@ -6,7 +6,7 @@ Run: ``.venv/bin/python benchmarks/bench_realtime.py [--duration 600] [--window 
 Links:
 
 - ``can``: the simulated instrument (``Firmware`` + ``CanLink`` driven by a ``Runner`` with
-  ``RealTimeClock(1.0)`` on a background thread) and the host :class:`driver.device.Device` on the
+  ``RealTimeClock(1.0)`` on a background thread) and the host :class:`northfinder.driver.device.Device` on the
   same python-can ``virtual`` channel, in this one process (they share its interpreter).
 - ``serial``: ``northfinder sim --pty --warmup 0`` as a separate process, the host
   ``Device.open_serial(PATH, 115200)`` on the pty it prints (a pty has no baud rate: bytes move
@@ -52,10 +52,10 @@ from typing import Any
 import can
 import numpy as np
 
-from driver.device import Device
-from driver.errors import DriverError
-from driver.protocol.messages import Sample
-from driver.transport import CanTransport, Received, Transport
+from northfinder.driver.device import Device
+from northfinder.driver.errors import DriverError
+from northfinder.driver.protocol.messages import Sample
+from northfinder.driver.transport import CanTransport, Received, Transport
 
 PERIOD_S = 0.005
 TARGET_P99_S = 0.002
@@ -162,11 +162,11 @@ def collect(
 
 
 def run_can(duration_s: float, window_s: float, seed: int) -> RunResult:
-    from firmware_sim.firmware import Firmware, LinkInfo
-    from firmware_sim.imu import Truth
-    from firmware_sim.links import CanLink
-    from firmware_sim.runner import BackgroundRunner, RealTimeClock, Runner
-    from firmware_sim.sensors import load_spec
+    from northfinder.firmware_sim.firmware import Firmware, LinkInfo
+    from northfinder.firmware_sim.imu import Truth
+    from northfinder.firmware_sim.links import CanLink
+    from northfinder.firmware_sim.runner import BackgroundRunner, RealTimeClock, Runner
+    from northfinder.firmware_sim.sensors import load_spec
 
     result = RunResult("virtual CAN, one process")
     channel = f"bench-realtime-{uuid.uuid4().hex}"
@@ -215,7 +215,7 @@ def run_timer(duration_s: float) -> RunResult:
 
 
 def run_serial(duration_s: float, window_s: float, seed: int) -> RunResult:
-    from driver.transport import SerialTransport
+    from northfinder.driver.transport import SerialTransport
 
     result = RunResult("serial pty, two processes")
     log = open(os.devnull, "wb")  # the simulator logs its state changes on stderr
@@ -272,7 +272,7 @@ def jitter(arrivals: np.ndarray, counters: np.ndarray) -> np.ndarray:
 def chunk_phase_share(arrivals: np.ndarray, counters: np.ndarray) -> tuple[int, float]:
     """Late intervals (|dt - 5 ms| > 2 ms) and the share of them in the 3 busiest consecutive
     tick phases of the firmware's look-ahead chunk (LOOKAHEAD_S x 200 Hz ticks)."""
-    from firmware_sim.firmware import LOOKAHEAD_S
+    from northfinder.firmware_sim.firmware import LOOKAHEAD_S
 
     chunk = round(LOOKAHEAD_S / PERIOD_S)
     if len(counters) < 2:

@@ -17,11 +17,11 @@ import time
 
 import numpy as np
 
-from firmware_sim.batch import simulate_windows
-from firmware_sim.imu import Truth
-from firmware_sim.sensors import load_spec
-from host.cli.study import StudySettings, monte_carlo, study_rows
-from host.study import Plan, chunk_errors
+from northfinder.firmware_sim.batch import simulate_windows
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.cli.study import StudySettings, monte_carlo, study_rows
+from northfinder.host.study import Plan, chunk_errors
 
 TARGET_S = 60.0
 

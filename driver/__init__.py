@@ -1,10 +1,10 @@
 """Host-side device driver for the north finder and the wire codec it shares with the simulator.
 
-- :mod:`driver.device`: :class:`~driver.device.Device`, what a host application uses (identify,
+- :mod:`northfinder.driver.device`: :class:`~northfinder.driver.device.Device`, what a host application uses (identify,
   status, moves, configuration, streaming, ``acquire`` windows in physical units).
-- :mod:`driver.transport`: CAN (python-can) and serial (pyserial) transports under it.
-- :mod:`driver.errors`: one root, :class:`~driver.errors.DriverError`, and specific errors.
-- :mod:`driver.protocol`: the wire codec (no I/O), also used by the simulated firmware.
+- :mod:`northfinder.driver.transport`: CAN (python-can) and serial (pyserial) transports under it.
+- :mod:`northfinder.driver.errors`: one root, :class:`~northfinder.driver.errors.DriverError`, and specific errors.
+- :mod:`northfinder.driver.protocol`: the wire codec (no I/O), also used by the simulated firmware.
 
 ``driver`` imports neither ``host`` nor ``firmware_sim``. This module imports nothing, so that
 the codec can be used without the driver's dependencies being loaded.

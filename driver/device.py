@@ -14,7 +14,7 @@ in progress and are dropped otherwise. Every public method may be called from an
 Timing (wall clock). A command is sent with a fresh sequence number and waits
 ``reply_timeout`` (default 0.25 s; protocol.md 6 asks for at least 0.1 s) for its reply. Commands
 that are safe to repeat (:data:`RETRYABLE`) are sent again with a new sequence number, up to
-``retries`` more times (default 2), so a query fails with :class:`~driver.errors.ReplyTimeout`
+``retries`` more times (default 2), so a query fails with :class:`~northfinder.driver.errors.ReplyTimeout`
 after at most ``(1 + retries) * reply_timeout`` = 0.75 s. Moves, HOME, RESET and SELF_TEST are
 sent once: a lost reply leaves open whether they were carried out. The link counts as lost when
 no status arrived for three heartbeat periods (0.3 s by default).
@@ -35,7 +35,7 @@ import can
 import numpy as np
 import serial
 
-from driver.errors import (
+from northfinder.driver.errors import (
     DeviceFault,
     DeviceRefused,
     DeviceReset,
@@ -49,8 +49,8 @@ from driver.errors import (
     StreamGap,
     StreamTimeout,
 )
-from driver.protocol.can import TickLoss
-from driver.protocol.constants import (
+from northfinder.driver.protocol.can import TickLoss
+from northfinder.driver.protocol.constants import (
     G0_MPS2,
     PROTOCOL_VERSION_MAJOR,
     TEMPERATURE_NOT_AVAILABLE,
@@ -62,7 +62,7 @@ from driver.protocol.constants import (
     Result,
     result_meaning,
 )
-from driver.protocol.messages import (
+from northfinder.driver.protocol.messages import (
     Command,
     GetConfig,
     GetStatus,
@@ -81,7 +81,7 @@ from driver.protocol.messages import (
     StreamStart,
     StreamStop,
 )
-from driver.transport import CanTransport, Received, SerialTransport, Transport
+from northfinder.driver.transport import CanTransport, Received, SerialTransport, Transport
 
 __all__ = [
     "RETRYABLE",
@@ -185,7 +185,7 @@ class LinkStats:
     retries : int
         Commands sent again after a reply timeout.
     reply_timeouts : int
-        Commands that failed with :class:`~driver.errors.ReplyTimeout`.
+        Commands that failed with :class:`~northfinder.driver.errors.ReplyTimeout`.
     resets_detected : int
         Device restarts noticed (BOOT status, unrequested IDENTIFY).
     """
@@ -229,7 +229,7 @@ class Window:
     temperature_c : ndarray, shape (n,)
         Sensor temperature, degC (NaN: no reading).
     validity : ndarray, shape (n,), uint8
-        Validity bits (:class:`~driver.protocol.constants.Validity`).
+        Validity bits (:class:`~northfinder.driver.protocol.constants.Validity`).
     sample_rate_hz : float
     requested : int
         Ticks the window spans: ``round(seconds * sample_rate_hz)``.
@@ -330,8 +330,8 @@ class Device:
     Parameters
     ----------
     transport : Transport
-        The link (:class:`~driver.transport.CanTransport` or
-        :class:`~driver.transport.SerialTransport`); closed by :meth:`close`.
+        The link (:class:`~northfinder.driver.transport.CanTransport` or
+        :class:`~northfinder.driver.transport.SerialTransport`); closed by :meth:`close`.
     reply_timeout : float
         Seconds to wait for each reply before declaring it lost (at least 0.1).
     retries : int

@@ -1,7 +1,7 @@
 """Exceptions of the driver package.
 
 Every error raised by :mod:`driver` derives from :class:`DriverError`. Errors about bytes on the
-wire derive from :class:`ProtocolError`; the codec in :mod:`driver.protocol` raises nothing else
+wire derive from :class:`ProtocolError`; the codec in :mod:`northfinder.driver.protocol` raises nothing else
 for any input it is given.
 """
 
@@ -64,7 +64,7 @@ class BadCommandError(PayloadError):
     opcode : int
         Opcode byte of the refused command (0..255).
     result : int
-        The :class:`driver.protocol.constants.Result` code the device replies with.
+        The :class:`northfinder.driver.protocol.constants.Result` code the device replies with.
     """
 
     def __init__(self, message: str, seq: int, opcode: int, result: int) -> None:
@@ -75,7 +75,7 @@ class BadCommandError(PayloadError):
 
 
 # --------------------------------------------------------------------------------------------
-# Errors of the device driver (driver.device): what a caller of Device sees
+# Errors of the device driver (northfinder.driver.device): what a caller of Device sees
 # --------------------------------------------------------------------------------------------
 
 
@@ -85,9 +85,9 @@ class DeviceRefused(DriverError):
     Parameters
     ----------
     opcode : int
-        Opcode of the refused command (a :class:`~driver.protocol.constants.Opcode` value).
+        Opcode of the refused command (a :class:`~northfinder.driver.protocol.constants.Opcode` value).
     result : int
-        The result code of the reply (a :class:`~driver.protocol.constants.Result` value, or an
+        The result code of the reply (a :class:`~northfinder.driver.protocol.constants.Result` value, or an
         undefined one from a newer minor version).
     meaning : str
         One-line meaning of the code (protocol.md table 4.2).
@@ -195,7 +195,7 @@ class DeviceFault(DriverError):
     Attributes
     ----------
     faults : int
-        The fault flags of its status (a :class:`~driver.protocol.constants.Fault` value).
+        The fault flags of its status (a :class:`~northfinder.driver.protocol.constants.Fault` value).
     """
 
     def __init__(self, message: str, faults: int) -> None:

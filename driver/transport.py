@@ -1,10 +1,10 @@
 """Transports: send one command, receive decoded messages with a timeout, close.
 
-A transport hides the link from :class:`driver.device.Device`: both deliver the same items,
-whole protocol messages (:class:`~driver.protocol.messages.Reply`, ``Status``, ``Identify``,
-``Sample``) and :class:`~driver.protocol.can.TickLoss` reports for sample ticks that did not
-arrive whole. On CAN the codec's :class:`~driver.protocol.can.CanReceiver` joins frames into
-messages; on serial a :class:`~driver.protocol.serial.Deframer` checks frames and this module
+A transport hides the link from :class:`northfinder.driver.device.Device`: both deliver the same items,
+whole protocol messages (:class:`~northfinder.driver.protocol.messages.Reply`, ``Status``, ``Identify``,
+``Sample``) and :class:`~northfinder.driver.protocol.can.TickLoss` reports for sample ticks that did not
+arrive whole. On CAN the codec's :class:`~northfinder.driver.protocol.can.CanReceiver` joins frames into
+messages; on serial a :class:`~northfinder.driver.protocol.serial.Deframer` checks frames and this module
 compares consecutive sample counters. Neither opens anything: the bus or port is passed in (the
 device's classmethods open them), and ``close`` releases it only when the transport owns it.
 
@@ -21,10 +21,10 @@ from typing import Any, Protocol
 import can
 import serial
 
-from driver.errors import LinkLost, ProtocolError
-from driver.protocol.can import CanReceiver, TickLoss, encode_can
-from driver.protocol.messages import Command, Identify, Reply, Sample, Status
-from driver.protocol.serial import Deframer, SerialEncoder, decode_payload
+from northfinder.driver.errors import LinkLost, ProtocolError
+from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
+from northfinder.driver.protocol.messages import Command, Identify, Reply, Sample, Status
+from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
 
 __all__ = ["CanTransport", "Received", "SerialTransport", "Transport"]
 
@@ -37,7 +37,7 @@ _U32 = 0xFFFFFFFF
 
 
 class Transport(Protocol):
-    """What :class:`~driver.device.Device` needs from a link."""
+    """What :class:`~northfinder.driver.device.Device` needs from a link."""
 
     kind: str
     """``"can"`` or ``"serial"``."""

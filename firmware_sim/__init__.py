@@ -25,6 +25,6 @@ Randomness
     wall clock.
 """
 
-from firmware_sim.errors import SimConfigError, SimError
+from northfinder.firmware_sim.errors import SimConfigError, SimError
 
 __all__ = ["SimConfigError", "SimError"]

@@ -3,7 +3,7 @@
 :func:`simulate_windows` produces, for ``n_runs`` independent power-ons of the instrument, the
 samples of every recording window of a plan (table positions, window length, settle time) as
 arrays of shape ``(runs, positions, samples, 3)``. It follows the conventions and error terms of
-:class:`firmware_sim.imu.Instrument` (same closed-form means, same noise statistics) but draws
+:class:`northfinder.firmware_sim.imu.Instrument` (same closed-form means, same noise statistics) but draws
 whole arrays of runs with numpy instead of stepping one instrument, and it only generates the
 samples inside the windows: the slow noise processes jump across the moves exactly.
 
@@ -39,11 +39,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import lfilter
 
-from firmware_sim.earth import G0, alpha_from_azimuth, earth_rate_n, gravity, mat_nb
-from firmware_sim.errors import SimConfigError
-from firmware_sim.imu import MAX_SAMPLE_RATE_HZ, MIN_SAMPLE_RATE_HZ, Truth, _SlowNoise
-from firmware_sim.sensors import SensorSpec, TableSpec
-from firmware_sim.turntable import Turntable, trapezoid_duration
+from northfinder.firmware_sim.earth import G0, alpha_from_azimuth, earth_rate_n, gravity, mat_nb
+from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.imu import MAX_SAMPLE_RATE_HZ, MIN_SAMPLE_RATE_HZ, Truth, _SlowNoise
+from northfinder.firmware_sim.sensors import SensorSpec, TableSpec
+from northfinder.firmware_sim.turntable import Turntable, trapezoid_duration
 
 __all__ = ["BatchWindows", "plan_timeline", "simulate_windows"]
 
@@ -159,7 +159,7 @@ def _truth_arrays(truth: Truth | Sequence[Truth], n_runs: int) -> tuple[NDArray[
     if len(truths) != n_runs:
         raise SimConfigError(f"truths: expected one Truth per run ({n_runs}), got {len(truths)}")
     if not all(isinstance(t, Truth) for t in truths):
-        raise SimConfigError("truths: expected firmware_sim.imu.Truth values")
+        raise SimConfigError("truths: expected northfinder.firmware_sim.imu.Truth values")
     return tuple(
         np.array([getattr(t, f) for t in truths], dtype=float)
         for f in ("azimuth_deg", "latitude_deg", "pitch_deg", "roll_deg")

@@ -18,9 +18,9 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from firmware_sim.errors import SimConfigError, SimError
-from firmware_sim.imu import Truth
-from firmware_sim.runner import Runner
+from northfinder.firmware_sim.errors import SimConfigError, SimError
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.runner import Runner
 
 
 class ControlError(SimError):

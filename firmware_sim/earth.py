@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.errors import SimConfigError
 
 #: Earth rotation rate (WGS84), rad/s.
 OMEGA_IE = 7.292115e-5

@@ -1,8 +1,8 @@
 """The simulated instrument's firmware: a state machine advanced by ``process(dt)``.
 
 The firmware speaks protocol messages (the codec's dataclasses), not bytes: link adapters in
-:mod:`firmware_sim.links` turn them into CAN frames or serial frames. It never sleeps and never
-reads the wall clock; a runner (:mod:`firmware_sim.runner`) or a test decides how far time moves.
+:mod:`northfinder.firmware_sim.links` turn them into CAN frames or serial frames. It never sleeps and never
+reads the wall clock; a runner (:mod:`northfinder.firmware_sim.runner`) or a test decides how far time moves.
 
 The state is a function of time and of the commands received: BOOT until ``boot_s`` after power-on
 or reset, WARMUP until ``warmup_s`` after power-on, then READY; a move makes it ROTATING until the
@@ -22,8 +22,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from driver.protocol.budget import max_sample_rate, rate_fits
-from driver.protocol.constants import (
+from northfinder.driver.protocol.budget import max_sample_rate, rate_fits
+from northfinder.driver.protocol.constants import (
     ANGLE_FULL_TURN,
     CONFIG_LIMITS,
     INT24_MAX,
@@ -42,7 +42,7 @@ from driver.protocol.constants import (
     SelfTestFailure,
     Validity,
 )
-from driver.protocol.messages import (
+from northfinder.driver.protocol.messages import (
     Command,
     GetConfig,
     Identify,
@@ -53,9 +53,9 @@ from driver.protocol.messages import (
     SetConfig,
     Status,
 )
-from firmware_sim.errors import SimConfigError
-from firmware_sim.imu import Instrument, SampleBlock, Truth, quantise_carry
-from firmware_sim.sensors import SensorSpec
+from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.imu import Instrument, SampleBlock, Truth, quantise_carry
+from northfinder.firmware_sim.sensors import SensorSpec
 
 log = logging.getLogger("northfinder.sim")
 

@@ -18,10 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import lfilter
 
-from firmware_sim.earth import G0, body_rates, check_latitude
-from firmware_sim.errors import SimConfigError
-from firmware_sim.sensors import SensorSpec
-from firmware_sim.turntable import Turntable
+from northfinder.firmware_sim.earth import G0, body_rates, check_latitude
+from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.sensors import SensorSpec
+from northfinder.firmware_sim.turntable import Turntable
 
 #: Sample rates the model honours, Hz. Below 10 Hz the slow-noise grid (0.1 s) would alias.
 MIN_SAMPLE_RATE_HZ = 10.0

@@ -17,12 +17,12 @@ from typing import Protocol
 import can
 import serial
 
-from driver.errors import BadCommandError, ProtocolError
-from driver.protocol.can import encode_can, split_can_id
-from driver.protocol.constants import CanFunction
-from driver.protocol.messages import Command
-from driver.protocol.serial import Deframer, SerialEncoder, decode_payload
-from firmware_sim.firmware import Firmware, Outgoing
+from northfinder.driver.errors import BadCommandError, ProtocolError
+from northfinder.driver.protocol.can import encode_can, split_can_id
+from northfinder.driver.protocol.constants import CanFunction
+from northfinder.driver.protocol.messages import Command
+from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
+from northfinder.firmware_sim.firmware import Firmware, Outgoing
 
 #: Most frames one poll handles before letting time advance, so a flood cannot starve the stream.
 MAX_FRAMES_PER_POLL = 256

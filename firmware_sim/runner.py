@@ -14,8 +14,8 @@ import time
 from collections.abc import Callable
 from typing import Protocol
 
-from firmware_sim.errors import SimConfigError
-from firmware_sim.firmware import Firmware, Outgoing
+from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.firmware import Firmware, Outgoing
 
 
 class Link(Protocol):

@@ -15,7 +15,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.errors import SimConfigError
 
 _VEC3 = "vec3"
 _NONNEG = "nonneg"
@@ -205,7 +205,7 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> SensorSpec:
 
 def preset_names() -> list[str]:
     """Names of the presets shipped with the package."""
-    files = resources.files("firmware_sim").joinpath("presets").iterdir()
+    files = resources.files("northfinder.firmware_sim").joinpath("presets").iterdir()
     return sorted(f.name[: -len(".toml")] for f in files if f.name.endswith(".toml"))
 
 
@@ -231,7 +231,7 @@ def load_spec(name_or_path: str | Path) -> SensorSpec:
                 f"unknown sensor preset {text!r}; presets are {', '.join(preset_names())} "
                 "(or give a path to a .toml file)"
             )
-        raw = resources.files("firmware_sim").joinpath("presets", f"{text}.toml").read_bytes()
+        raw = resources.files("northfinder.firmware_sim").joinpath("presets", f"{text}.toml").read_bytes()
         source = text
     try:
         data = tomllib.loads(raw.decode("utf-8"))

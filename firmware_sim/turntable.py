@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from firmware_sim.errors import SimError
-from firmware_sim.sensors import TableSpec
+from northfinder.firmware_sim.errors import SimError
+from northfinder.firmware_sim.sensors import TableSpec
 
 
 class TableBusyError(SimError):

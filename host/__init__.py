@@ -4,6 +4,6 @@ Imports go one way: ``host`` uses ``driver``; it never imports ``firmware_sim`` 
 commands that embed the simulated instrument.
 """
 
-from host.errors import HostError
+from northfinder.host.errors import HostError
 
 __all__ = ["HostError"]

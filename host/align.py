@@ -56,8 +56,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from host.errors import AlignmentError, InputError, LatitudeError
-from host.heading import G0, MAX_LATITUDE_DEG, OMEGA_IE, normal_gravity
+from northfinder.host.errors import AlignmentError, InputError, LatitudeError
+from northfinder.host.heading import G0, MAX_LATITUDE_DEG, OMEGA_IE, normal_gravity
 
 __all__ = [
     "ALIGNMENT_STATES",

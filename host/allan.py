@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from host.errors import HostConfigError
+from northfinder.host.errors import HostConfigError
 
 
 def allan_deviation(

@@ -41,7 +41,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import median_filter
 
-from host.errors import DenoiseError, HostConfigError, InputError
+from northfinder.host.errors import DenoiseError, HostConfigError, InputError
 
 __all__ = [
     "EXTENSIONS",

@@ -44,7 +44,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from host.errors import GeometryError, HostConfigError, InputError, LatitudeError, TiltError
+from northfinder.host.errors import (
+    GeometryError,
+    HostConfigError,
+    InputError,
+    LatitudeError,
+    TiltError,
+)
 
 __all__ = [
     "ACCEL_UNITS",

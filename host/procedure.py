@@ -1,6 +1,6 @@
 """The north-finding procedure on a device: wait for warm-up, rotate, settle, acquire, check, solve.
 
-The procedure talks to anything with the driver's :class:`~driver.device.Device` methods it uses
+The procedure talks to anything with the driver's :class:`~northfinder.driver.device.Device` methods it uses
 (``status``, ``get_config``, ``rotate_to``, ``acquire``, ``stop_streaming``), so it runs the same on
 the simulator and on a real unit. It uses the encoder angles the device reports, never the
 commanded ones.
@@ -17,10 +17,10 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from driver.protocol.constants import ConfigKey, DeviceState, Validity
-from host.denoise import METHODS, denoise
-from host.errors import HostConfigError, HostError
-from host.heading import (
+from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Validity
+from northfinder.host.denoise import METHODS, denoise
+from northfinder.host.errors import HostConfigError, HostError
+from northfinder.host.heading import (
     MIN_MU_SEPARATION_DEG,
     MultiPositionSolution,
     solve_multi_position,
@@ -71,7 +71,7 @@ class Plan:
     """What to measure: table angles (any, deg), window length and extra settle time (s).
 
     ``settle_s`` is waited after the device reports READY (the device has its own settle time);
-    ``denoise`` names a method of :data:`host.denoise.METHODS`; ``method`` picks the solver:
+    ``denoise`` names a method of :data:`northfinder.host.denoise.METHODS`; ``method`` picks the solver:
     ``two-position`` (seed 000, exactly two positions), ``least-squares`` (any number), or ``auto``.
     """
 

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from host.errors import HostError
+from northfinder.host.errors import HostError
 
 FORMAT = "northfinder-recording"
 VERSION = 1

@@ -2,7 +2,7 @@
 
 Everything here is pure numpy on arrays of many runs at once; the samples come from the caller
 (the ``northfinder study`` command draws them from the simulated instrument). Conventions are
-those of :mod:`host.heading`: azimuth of body x clockwise from true north, table angles
+those of :mod:`northfinder.host.heading`: azimuth of body x clockwise from true north, table angles
 right-handed about up, gyro means in rad/s, accelerometer means (specific force) in m/s^2.
 
 Plan and time
@@ -18,7 +18,7 @@ Bound and prediction
 :func:`bound_deg` is the white-noise limit of the notes (section 4): for two positions with total
 dwell T, ``N / (Omega_H |sin(mu/2)| sqrt(T))``; for N positions the least-squares covariance of
 the heading with both horizontal gyro biases estimated (the same as
-:func:`host.heading.solve_multi_position` with known noise). A simulated result that beats it is
+:func:`northfinder.host.heading.solve_multi_position` with known noise). A simulated result that beats it is
 a bug. :func:`predict` adds what a datasheet predicts beyond white noise: bias instability
 (flicker, as Gauss-Markov components from 1 s to 10^4 s), rate random walk, the covariance of
 window means across the gaps of the plan, a deterministic drift, table indexing error (when the
@@ -37,9 +37,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from host.denoise import METHODS, denoise
-from host.errors import GeometryError, HostConfigError, InputError
-from host.heading import MIN_MU_SEPARATION_DEG, OMEGA_IE, _latitude_rad, normal_gravity
+from northfinder.host.denoise import METHODS, denoise
+from northfinder.host.errors import GeometryError, HostConfigError, InputError
+from northfinder.host.heading import MIN_MU_SEPARATION_DEG, OMEGA_IE, _latitude_rad, normal_gravity
 
 __all__ = [
     "ANGLE_SOURCES",
@@ -596,7 +596,7 @@ def solve_two_position_batch(
 ) -> NDArray[np.float64]:
     """Azimuths of many two-position runs (paper eqs. 12-14, or eq. 15 without accelerometers).
 
-    The vectorised twin of :func:`host.heading.solve_two_position` (rad/s and m/s^2 units).
+    The vectorised twin of :func:`northfinder.host.heading.solve_two_position` (rad/s and m/s^2 units).
 
     Parameters
     ----------
@@ -666,7 +666,7 @@ def solve_least_squares_batch(
 ) -> NDArray[np.float64]:
     """Azimuths of many multi-position runs by least squares (gyro biases estimated).
 
-    The vectorised twin of :func:`host.heading.solve_multi_position` with equal weights: tilt
+    The vectorised twin of :func:`northfinder.host.heading.solve_multi_position` with equal weights: tilt
     and accelerometer biases from ``f_i = R(mu_i) f0 + b_a`` (linear), then Gauss-Newton on
     ``w_i = R(mu_i) h(alpha, tilt) + b`` from the linear fit's starting point.
 
@@ -734,7 +734,7 @@ def window_means(
     axis: int = -1,
     options: Mapping[str, Any] | None = None,
 ) -> NDArray[np.float64]:
-    """Mean of every window after denoising with a :data:`host.denoise.METHODS` method.
+    """Mean of every window after denoising with a :data:`northfinder.host.denoise.METHODS` method.
 
     Parameters
     ----------
@@ -795,7 +795,7 @@ def chunk_errors(
     solver : str
         A key of :data:`SOLVERS`.
     denoise_method : str
-        A key of :data:`host.denoise.METHODS`, applied to every window of gyro x and y.
+        A key of :data:`northfinder.host.denoise.METHODS`, applied to every window of gyro x and y.
     denoise_options : mapping, optional
         Options of the method.
     denoise_accel : bool

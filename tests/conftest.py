@@ -1,7 +1,7 @@
 """Shared fixtures: the simulated instrument on every link it offers, and a driver connected to it.
 
 ``sim`` (one simulator per link for the test module) and ``link`` (a fresh
-:class:`driver.device.Device` per test, with the simulator's control channel) are parametrised
+:class:`northfinder.driver.device.Device` per test, with the simulator's control channel) are parametrised
 over the links of ``LINKS``:
 
 - ``virtual``: python-can's ``virtual`` bus, the simulator's runner in a thread of this process;
@@ -51,7 +51,7 @@ class SimHandle:
 
     kind: str
     open_device: Callable[[], Any]
-    control: Any  # firmware_sim.control.ControlClient
+    control: Any  # northfinder.firmware_sim.control.ControlClient
     speed: float = SPEED
     closers: list[Callable[[], None]] = field(default_factory=list)
 
@@ -66,13 +66,13 @@ class SimHandle:
 def _start_in_process(speed: float) -> SimHandle:
     import can
 
-    from driver.device import Device
-    from firmware_sim.control import ControlClient, Controller, ControlServer
-    from firmware_sim.firmware import Firmware
-    from firmware_sim.imu import Truth
-    from firmware_sim.links import CanLink
-    from firmware_sim.runner import RealTimeClock, Runner
-    from firmware_sim.sensors import load_spec
+    from northfinder.driver.device import Device
+    from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
+    from northfinder.firmware_sim.firmware import Firmware
+    from northfinder.firmware_sim.imu import Truth
+    from northfinder.firmware_sim.links import CanLink
+    from northfinder.firmware_sim.runner import RealTimeClock, Runner
+    from northfinder.firmware_sim.sensors import load_spec
 
     channel = f"northfinder-test-{os.getpid()}-{next(_channels)}"
     dev_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
@@ -126,15 +126,15 @@ def _read_facts(proc: subprocess.Popen[str], wanted: set[str], timeout: float) -
 
 
 def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
-    from driver.device import Device
-    from firmware_sim.control import ControlClient
+    from northfinder.driver.device import Device
+    from northfinder.firmware_sim.control import ControlClient
 
     link_args = {
         "serial-pty": ["--pty"],
         "slcan-pty": ["--slcan-pty"],
         "socketcan": ["-i", "socketcan", "-c", VCAN],
     }[kind]
-    cmd = [sys.executable, "-c", "from host.cli import main; raise SystemExit(main())", "sim"]
+    cmd = [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())", "sim"]
     cmd += [*link_args, "--warmup", "0", "--seed", str(seed), "--speed", str(speed)]
     cmd += ["--azimuth", "30", "--control", "127.0.0.1:0"]
     proc = subprocess.Popen(

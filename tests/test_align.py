@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from firmware_sim.earth import OMEGA_IE, alpha_from_azimuth, body_rates, mat_nb
-from host.align import (
+from northfinder.firmware_sim.earth import OMEGA_IE, alpha_from_azimuth, body_rates, mat_nb
+from northfinder.host.align import (
     ALIGNMENT_STATES,
     PAPER_SETTINGS,
     KalmanSettings,
     coarse_alignment,
     sage_husa_alignment,
 )
-from host.errors import AlignmentError, InputError, LatitudeError
+from northfinder.host.errors import AlignmentError, InputError, LatitudeError
 
 FS_HZ = 200.0
 LATITUDE_DEG = 39.804  # the source paper's site

@@ -30,14 +30,14 @@ import can
 import numpy as np
 import pytest
 
-from firmware_sim.control import ControlClient
-from firmware_sim.firmware import Firmware
-from firmware_sim.imu import Truth
-from firmware_sim.links import CanLink
-from firmware_sim.runner import RealTimeClock, Runner
-from firmware_sim.sensors import load_spec
-from host.cli import main
-from host.conformance import CHECKS, CanRawLink, SuiteOptions, format_report, run_suite
+from northfinder.firmware_sim.control import ControlClient
+from northfinder.firmware_sim.firmware import Firmware
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.links import CanLink
+from northfinder.firmware_sim.runner import RealTimeClock, Runner
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.cli import main
+from northfinder.host.conformance import CHECKS, CanRawLink, SuiteOptions, format_report, run_suite
 
 SPEED = 2.0
 #: Host-side margins for a simulator that shares a loaded machine with other work: its process can
@@ -112,7 +112,7 @@ def virtual_unit(speed: float = SPEED) -> Iterator[tuple[can.BusABC, Runner]]:
 @contextmanager
 def simulator(link: str, sensor: Path, seed: int = 3) -> Iterator[tuple[str, str]]:
     """``northfinder sim`` on a new pty at ``SPEED``; yields (pty path, control address)."""
-    cmd = [sys.executable, "-c", "from host.cli import main; raise SystemExit(main())", "sim"]
+    cmd = [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())", "sim"]
     cmd += [link, "--warmup", "0", "--seed", str(seed), "--speed", str(SPEED)]
     cmd += ["--sensor", str(sensor), "--control", "127.0.0.1:0"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -10,7 +10,7 @@ import pytest
 import pywt
 from numpy.testing import assert_allclose, assert_array_equal
 
-from host.denoise import (
+from northfinder.host.denoise import (
     METHODS,
     THRESHOLD_MODES,
     denoise,
@@ -25,7 +25,7 @@ from host.denoise import (
     universal_threshold,
     wavelet_denoise,
 )
-from host.errors import DenoiseError, HostConfigError, InputError
+from northfinder.host.errors import DenoiseError, HostConfigError, InputError
 
 # ---------------------------------------------------------------------------------------------
 # Threshold functions

@@ -13,8 +13,8 @@ import can
 import numpy as np
 import pytest
 
-from driver.device import Device, Window
-from driver.errors import (
+from northfinder.driver.device import Device, Window
+from northfinder.driver.errors import (
     DeviceFault,
     DeviceRefused,
     DeviceReset,
@@ -24,9 +24,16 @@ from driver.errors import (
     ReplyTimeout,
     StreamGap,
 )
-from driver.protocol.can import TickAssembler, TickLoss
-from driver.protocol.constants import ConfigKey, DeviceState, Fault, Opcode, Result, Validity
-from driver.protocol.messages import Sample, SampleAux, SampleX, SampleY, SampleZ
+from northfinder.driver.protocol.can import TickAssembler, TickLoss
+from northfinder.driver.protocol.constants import (
+    ConfigKey,
+    DeviceState,
+    Fault,
+    Opcode,
+    Result,
+    Validity,
+)
+from northfinder.driver.protocol.messages import Sample, SampleAux, SampleX, SampleY, SampleZ
 
 G_34N = 9.7966  # normal gravity at 34 deg N, m/s^2
 

@@ -9,12 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from driver.protocol.constants import Validity
-from host.cli import main
-from host.cli.find import ProgressLine
-from host.errors import HostConfigError
-from host.procedure import Plan, Progress, QualityError, summarise_window
-from host.recording import Recording
+from northfinder.driver.protocol.constants import Validity
+from northfinder.host.cli import main
+from northfinder.host.cli.find import ProgressLine
+from northfinder.host.errors import HostConfigError
+from northfinder.host.procedure import Plan, Progress, QualityError, summarise_window
+from northfinder.host.recording import Recording
 
 BIASED_IDEAL = """
 name = "ideal-biased"

@@ -8,8 +8,8 @@ import can
 import numpy as np
 import pytest
 
-from driver.protocol.can import CanReceiver, encode_can
-from driver.protocol.constants import (
+from northfinder.driver.protocol.can import CanReceiver, encode_can
+from northfinder.driver.protocol.constants import (
     ConfigKey,
     DeviceState,
     Direction,
@@ -18,7 +18,7 @@ from driver.protocol.constants import (
     Result,
     Validity,
 )
-from driver.protocol.messages import (
+from northfinder.driver.protocol.messages import (
     GetConfig,
     GetStatus,
     Home,
@@ -36,11 +36,11 @@ from driver.protocol.messages import (
     StreamStart,
     StreamStop,
 )
-from firmware_sim.firmware import Firmware, LinkInfo
-from firmware_sim.imu import Truth
-from firmware_sim.links import CanLink
-from firmware_sim.runner import LockstepClock, Runner
-from firmware_sim.sensors import load_spec
+from northfinder.firmware_sim.firmware import Firmware, LinkInfo
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.links import CanLink
+from northfinder.firmware_sim.runner import LockstepClock, Runner
+from northfinder.firmware_sim.sensors import load_spec
 
 IDEAL = load_spec("ideal")
 DPH = math.pi / 180 / 3600
@@ -276,7 +276,7 @@ def test_sample_counts_carry_the_physics_exactly():
     out = [m for m in run(fw, 10.0, step=0.5) if isinstance(m, Sample)]
     assert len(out) == 2000
     gyro_dph = np.array([s.gyro for s in out]) * 1e-4
-    from firmware_sim.imu import Instrument
+    from northfinder.firmware_sim.imu import Instrument
 
     ins = Instrument(IDEAL, Truth(azimuth_deg=30.0, latitude_deg=34.0), np.random.default_rng(0))
     exact = ins.generate(len(out)).gyro_rps / DPH

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from firmware_sim.earth import (
+from northfinder.firmware_sim.earth import (
     alpha_from_azimuth,
     earth_rate_n,
     gravity,
     mat_nb,
     mat_table,
 )
-from host.errors import (
+from northfinder.host.errors import (
     GeometryError,
     HostConfigError,
     HostError,
@@ -23,7 +23,7 @@ from host.errors import (
     LatitudeError,
     TiltError,
 )
-from host.heading import (
+from northfinder.host.heading import (
     MAX_TILT_DEG,
     PAPER_SWEEP,
     PLANS,

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from firmware_sim.earth import OMEGA_IE, check_latitude, gravity
-from firmware_sim.errors import SimConfigError
-from firmware_sim.imu import Instrument, SampleBlock, Truth
-from firmware_sim.sensors import (
+from northfinder.firmware_sim.earth import OMEGA_IE, check_latitude, gravity
+from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.imu import Instrument, SampleBlock, Truth
+from northfinder.firmware_sim.sensors import (
     AccelSpec,
     DisturbanceSpec,
     GyroSpec,
@@ -22,8 +22,8 @@ from firmware_sim.sensors import (
     preset_names,
     spec_from_dict,
 )
-from firmware_sim.turntable import TableBusyError, trapezoid_duration
-from host.allan import allan_deviation
+from northfinder.firmware_sim.turntable import TableBusyError, trapezoid_duration
+from northfinder.host.allan import allan_deviation
 
 DPH = math.pi / 180 / 3600
 IDEAL = load_spec("ideal")

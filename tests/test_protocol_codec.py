@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from test_protocol_golden import GOLDEN
 
-from driver.errors import (
+from northfinder.driver.errors import (
     BadCommandError,
     CrcError,
     DriverError,
@@ -14,7 +14,7 @@ from driver.errors import (
     ProtocolError,
     UnknownMessageError,
 )
-from driver.protocol import (
+from northfinder.driver.protocol import (
     Identify,
     Opcode,
     Result,
@@ -27,10 +27,21 @@ from driver.protocol import (
     Validity,
     result_meaning,
 )
-from driver.protocol.budget import can_bus_load, can_frame_bits, max_sample_rate, rate_fits
-from driver.protocol.can import TickAssembler, TickLoss, can_id, decode_can, split_can_id
-from driver.protocol.constants import CanFunction
-from driver.protocol.serial import crc16_ccitt, encode_serial, parse_frame
+from northfinder.driver.protocol.budget import (
+    can_bus_load,
+    can_frame_bits,
+    max_sample_rate,
+    rate_fits,
+)
+from northfinder.driver.protocol.can import (
+    TickAssembler,
+    TickLoss,
+    can_id,
+    decode_can,
+    split_can_id,
+)
+from northfinder.driver.protocol.constants import CanFunction
+from northfinder.driver.protocol.serial import crc16_ccitt, encode_serial, parse_frame
 
 
 def crc_bitwise(data: bytes) -> int:

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from test_protocol_golden import GOLDEN
 from test_protocol_roundtrip import messages
 
-from driver.protocol import (
+from northfinder.driver.protocol import (
     CanFunction,
     Command,
     Fault,
@@ -24,7 +24,7 @@ from driver.protocol import (
     StatusMain,
     Validity,
 )
-from driver.protocol.can import decode_can, encode_can
+from northfinder.driver.protocol.can import decode_can, encode_can
 
 DBC = Path(__file__).resolve().parents[1] / "protocol.dbc"
 

@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from test_protocol_golden import GOLDEN, SERIAL_SEQ
 from test_protocol_roundtrip import messages, samples
 
-from driver.errors import ProtocolError
-from driver.protocol import (
+from northfinder.driver.errors import ProtocolError
+from northfinder.driver.protocol import (
     Command,
     Identify,
     IdentifyPage,
@@ -23,8 +23,8 @@ from driver.protocol import (
     StatusCounters,
     StatusMain,
 )
-from driver.protocol.can import CanDecoded, CanReceiver, decode_can, encode_can
-from driver.protocol.serial import (
+from northfinder.driver.protocol.can import CanDecoded, CanReceiver, decode_can, encode_can
+from northfinder.driver.protocol.serial import (
     MAX_FRAME_SIZE,
     Deframer,
     SerialEncoder,

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from driver.protocol import (
+from northfinder.driver.protocol import (
     ConfigKey,
     DeviceState,
     Direction,
@@ -45,8 +45,8 @@ from driver.protocol import (
     StreamStop,
     Validity,
 )
-from driver.protocol.can import CanFrame, CanReceiver, decode_can, encode_can
-from driver.protocol.serial import Deframer, decode_frame, encode_serial, parse_frame
+from northfinder.driver.protocol.can import CanFrame, CanReceiver, decode_can, encode_can
+from northfinder.driver.protocol.serial import Deframer, decode_frame, encode_serial, parse_frame
 
 PROTOCOL_MD = Path(__file__).resolve().parents[1] / "protocol.md"
 SERIAL_SEQ = 0x2A

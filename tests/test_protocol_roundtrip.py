@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from driver.protocol import (
+from northfinder.driver.protocol import (
     Command,
     ConfigKey,
     DeviceState,
@@ -32,8 +32,8 @@ from driver.protocol import (
     StreamStop,
     Validity,
 )
-from driver.protocol.can import CanReceiver, encode_can
-from driver.protocol.serial import Deframer, SerialEncoder, decode_frame, parse_frame
+from northfinder.driver.protocol.can import CanReceiver, encode_can
+from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_frame, parse_frame
 
 u8 = st.integers(0, 0xFF)
 u16 = st.integers(0, 0xFFFF)

@@ -10,11 +10,11 @@ import sys
 import numpy as np
 import pytest
 
-from firmware_sim.imu import Instrument, Truth
-from firmware_sim.sensors import load_spec
-from host.cli.solve import solve_recording
-from host.procedure import QualityError
-from host.recording import SAMPLE_ARRAYS, RecordedWindow, Recording, RecordingError
+from northfinder.firmware_sim.imu import Instrument, Truth
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.cli.solve import solve_recording
+from northfinder.host.procedure import QualityError
+from northfinder.host.recording import SAMPLE_ARRAYS, RecordedWindow, Recording, RecordingError
 
 DPH = math.pi / 180 / 3600
 TRUTH = Truth(azimuth_deg=251.3, latitude_deg=34.0, pitch_deg=2.5, roll_deg=-1.0)
@@ -77,7 +77,7 @@ def test_solve_cli_prints_json(tmp_path):
     path = tmp_path / "rec.npz"
     simulated_recording().save(path)
     out = subprocess.run(
-        [sys.executable, "-c", "from host.cli import main; raise SystemExit(main())", "solve", str(path), "--json"],
+        [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())", "solve", str(path), "--json"],
         capture_output=True, text=True, timeout=60, check=True,
     )  # fmt: skip
     data = json.loads(out.stdout)

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import serial
 
-from driver.protocol.can import CanReceiver, TickLoss, encode_can
-from driver.protocol.constants import Opcode, Result, SerialType
-from driver.protocol.messages import (
+from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
+from northfinder.driver.protocol.constants import Opcode, Result, SerialType
+from northfinder.driver.protocol.messages import (
     GetStatus,
     Identify,
     Reply,
@@ -27,8 +27,8 @@ from driver.protocol.messages import (
     Status,
     StreamStart,
 )
-from driver.protocol.serial import Deframer, SerialEncoder, SerialFrame
-from firmware_sim.control import ControlClient
+from northfinder.driver.protocol.serial import Deframer, SerialEncoder, SerialFrame
+from northfinder.firmware_sim.control import ControlClient
 
 pytestmark = pytest.mark.subprocess
 
@@ -39,7 +39,7 @@ def simulator(*link: str, seed: int = 1) -> Iterator[tuple[str, str]]:
     cmd = [
         sys.executable,
         "-c",
-        "from host.cli import main; raise SystemExit(main())",
+        "from northfinder.host.cli import main; raise SystemExit(main())",
         "sim",
         *link,
     ]
@@ -204,7 +204,7 @@ def test_sim_refuses_bad_arguments_with_one_clear_line():
             [
                 sys.executable,
                 "-c",
-                "from host.cli import main; raise SystemExit(main())",
+                "from northfinder.host.cli import main; raise SystemExit(main())",
                 "sim",
                 *args,
             ],

@@ -9,14 +9,18 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from firmware_sim.batch import plan_timeline, simulate_windows
-from firmware_sim.imu import Instrument, Truth
-from firmware_sim.sensors import load_spec
-from host.cli import main
-from host.cli.study import StudySettings, error_model, monte_carlo
-from host.errors import GeometryError, HostConfigError
-from host.heading import solve_multi_position, solve_two_position, two_position_bound_deg
-from host.study import (
+from northfinder.firmware_sim.batch import plan_timeline, simulate_windows
+from northfinder.firmware_sim.imu import Instrument, Truth
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.cli import main
+from northfinder.host.cli.study import StudySettings, error_model, monte_carlo
+from northfinder.host.errors import GeometryError, HostConfigError
+from northfinder.host.heading import (
+    solve_multi_position,
+    solve_two_position,
+    two_position_bound_deg,
+)
+from northfinder.host.study import (
     ErrorModel,
     Plan,
     TableModel,
@@ -171,7 +175,7 @@ def test_batch_noise_statistics_match_the_instrument():
 
 
 # ----------------------------------------------------------------------------------------------
-# Vectorised solvers against host.heading
+# Vectorised solvers against northfinder.host.heading
 # ----------------------------------------------------------------------------------------------
 
 

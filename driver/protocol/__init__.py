@@ -2,16 +2,16 @@
 
 Pure code: no I/O, no clock, no threads. Byte order is little-endian everywhere.
 
-- :mod:`~driver.protocol.constants`: codes (states, opcodes, results, config keys), flags
+- :mod:`~northfinder.driver.protocol.constants`: codes (states, opcodes, results, config keys), flags
   (validity, faults) and the physical value of one count.
-- :mod:`~driver.protocol.messages`: one frozen dataclass per message, ``encode() -> bytes`` of
+- :mod:`~northfinder.driver.protocol.messages`: one frozen dataclass per message, ``encode() -> bytes`` of
   its payload and a ``decode(payload)`` classmethod.
-- :mod:`~driver.protocol.can`: CAN 2.0A identifiers, frame mapping and reassembly.
-- :mod:`~driver.protocol.serial`: serial framing, CRC-16/CCITT-FALSE and the de-framer.
-- :mod:`~driver.protocol.budget`: link load and which sample rates fit a link.
+- :mod:`~northfinder.driver.protocol.can`: CAN 2.0A identifiers, frame mapping and reassembly.
+- :mod:`~northfinder.driver.protocol.serial`: serial framing, CRC-16/CCITT-FALSE and the de-framer.
+- :mod:`~northfinder.driver.protocol.budget`: link load and which sample rates fit a link.
 """
 
-from driver.protocol.constants import (
+from northfinder.driver.protocol.constants import (
     PROTOCOL_VERSION_MAJOR,
     PROTOCOL_VERSION_MINOR,
     Axis,
@@ -27,7 +27,7 @@ from driver.protocol.constants import (
     Validity,
     result_meaning,
 )
-from driver.protocol.messages import (
+from northfinder.driver.protocol.messages import (
     Command,
     GetConfig,
     GetStatus,

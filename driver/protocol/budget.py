@@ -7,9 +7,9 @@ traffic does not fit: on CAN the worst-case (maximally bit-stuffed) load must st
 
 from __future__ import annotations
 
-from driver.protocol.constants import HEARTBEAT_PERIOD_DEFAULT_MS, SAMPLE_RATES_HZ
-from driver.protocol.messages import Sample, Status
-from driver.protocol.serial import CRC_SIZE, HEADER_SIZE
+from northfinder.driver.protocol.constants import HEARTBEAT_PERIOD_DEFAULT_MS, SAMPLE_RATES_HZ
+from northfinder.driver.protocol.messages import Sample, Status
+from northfinder.driver.protocol.serial import CRC_SIZE, HEADER_SIZE
 
 __all__ = [
     "CAN_LOAD_LIMIT",

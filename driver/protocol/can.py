@@ -1,6 +1,6 @@
 """CAN 2.0A mapping: messages to and from ``(arbitration_id, data)``, and reassembly.
 
-Identifier = :class:`~driver.protocol.constants.CanFunction` base + node id (1..15). Data is
+Identifier = :class:`~northfinder.driver.protocol.constants.CanFunction` base + node id (1..15). Data is
 little-endian; every frame has the exact length of its message (no padding). CAN FD is not
 offered. :class:`TickAssembler` joins the four frames of a sample tick, :class:`IdentifyAssembler`
 the identify pages, and :class:`CanReceiver` does both plus status merging and counting.
@@ -11,9 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from driver.errors import EncodeError, PayloadError, ProtocolError, UnknownMessageError
-from driver.protocol.constants import NODE_ID_MAX, NODE_ID_MIN, CanFunction
-from driver.protocol.messages import (
+from northfinder.driver.errors import EncodeError, PayloadError, ProtocolError, UnknownMessageError
+from northfinder.driver.protocol.constants import NODE_ID_MAX, NODE_ID_MIN, CanFunction
+from northfinder.driver.protocol.messages import (
     Command,
     Identify,
     IdentifyPage,
@@ -171,7 +171,7 @@ def decode_can(
         Extended (29-bit) id, or an id outside the protocol's table.
     PayloadError
         More than 8 data bytes, wrong length for the message, undefined field value
-        (:class:`~driver.errors.BadCommandError` for a command the device must refuse).
+        (:class:`~northfinder.driver.errors.BadCommandError` for a command the device must refuse).
     """
     if is_extended_id:
         raise UnknownMessageError(f"extended CAN id 0x{arbitration_id:08X} is not used")

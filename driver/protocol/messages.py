@@ -1,14 +1,14 @@
 """Message payloads of the wire protocol: one frozen dataclass per message (see ``protocol.md``).
 
 Each class has ``encode() -> bytes`` giving its payload (little-endian) and a ``decode(payload)``
-classmethod. Link framing (CAN identifiers, serial frames) lives in :mod:`driver.protocol.can`
-and :mod:`driver.protocol.serial`.
+classmethod. Link framing (CAN identifiers, serial frames) lives in :mod:`northfinder.driver.protocol.can`
+and :mod:`northfinder.driver.protocol.serial`.
 
 ``encode`` checks only that every field fits its wire type and raises
-:class:`~driver.errors.EncodeError` otherwise; whether a value is acceptable (an angle below
+:class:`~northfinder.driver.errors.EncodeError` otherwise; whether a value is acceptable (an angle below
 360 deg, a known config key) is the device's decision, answered with a result code. ``decode``
-raises :class:`~driver.errors.PayloadError` (or its subclass
-:class:`~driver.errors.BadCommandError` for commands) for a wrong length or an undefined code,
+raises :class:`~northfinder.driver.errors.PayloadError` (or its subclass
+:class:`~northfinder.driver.errors.BadCommandError` for commands) for a wrong length or an undefined code,
 and nothing else for any input.
 """
 
@@ -18,8 +18,8 @@ import struct
 from dataclasses import dataclass
 from typing import ClassVar, Self
 
-from driver.errors import BadCommandError, EncodeError, PayloadError
-from driver.protocol.constants import (
+from northfinder.driver.errors import BadCommandError, EncodeError, PayloadError
+from northfinder.driver.protocol.constants import (
     INT24_MAX,
     INT24_MIN,
     INT32_MAX,

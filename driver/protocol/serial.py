@@ -16,9 +16,15 @@ from __future__ import annotations
 import binascii
 from dataclasses import dataclass
 
-from driver.errors import CrcError, EncodeError, FrameError, ProtocolError, UnknownMessageError
-from driver.protocol.constants import SerialType
-from driver.protocol.messages import Command, Identify, Message, Reply, Sample, Status
+from northfinder.driver.errors import (
+    CrcError,
+    EncodeError,
+    FrameError,
+    ProtocolError,
+    UnknownMessageError,
+)
+from northfinder.driver.protocol.constants import SerialType
+from northfinder.driver.protocol.messages import Command, Identify, Message, Reply, Sample, Status
 
 __all__ = [
     "CRC_INIT",
@@ -144,7 +150,7 @@ def decode_payload(msg_type: int, payload: bytes) -> Message:
     UnknownMessageError
         Undefined message type.
     PayloadError
-        Wrong length or undefined field value (:class:`~driver.errors.BadCommandError` for a
+        Wrong length or undefined field value (:class:`~northfinder.driver.errors.BadCommandError` for a
         command the device must refuse).
     """
     decoder = _DECODER.get(msg_type)

@@ -12,27 +12,27 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from firmware_sim.errors import SimError
-from host.errors import HostError
+from northfinder.firmware_sim.errors import SimError
+from northfinder.host.errors import HostError
 
 #: Subcommand name -> module in this package. Modules are imported lazily so that a broken optional
 #: dependency of one command does not break the others.
 COMMANDS: dict[str, str] = {
-    "simulate": "host.cli.simulate",
-    "sim": "host.cli.sim",
-    "simctl": "host.cli.simctl",
-    "conformance": "host.cli.conformance",
-    "study": "host.cli.study",
-    "solve": "host.cli.solve",
-    "find": "host.cli.find",
-    "record": "host.cli.record",
+    "simulate": "northfinder.host.cli.simulate",
+    "sim": "northfinder.host.cli.sim",
+    "simctl": "northfinder.host.cli.simctl",
+    "conformance": "northfinder.host.cli.conformance",
+    "study": "northfinder.host.cli.study",
+    "solve": "northfinder.host.cli.solve",
+    "find": "northfinder.host.cli.find",
+    "record": "northfinder.host.cli.record",
 }
 
 
 def _root_errors() -> tuple[type[BaseException], ...]:
     roots: list[type[BaseException]] = [HostError, SimError]
     try:
-        from driver.errors import DriverError
+        from northfinder.driver.errors import DriverError
 
         roots.append(DriverError)
     except ImportError:  # the driver package is built up issue by issue

@@ -23,8 +23,14 @@ import can
 import can.cli
 import serial
 
-from host.cli.common import add_link_arguments, angle_list, bus_given, finite_float, positive_float
-from host.conformance import (
+from northfinder.host.cli.common import (
+    add_link_arguments,
+    angle_list,
+    bus_given,
+    finite_float,
+    positive_float,
+)
+from northfinder.host.conformance import (
     CHECKS,
     CanRawLink,
     SerialRawLink,
@@ -36,7 +42,7 @@ from host.conformance import (
     select_checks,
     write_junit,
 )
-from host.errors import HostConfigError
+from northfinder.host.errors import HostConfigError
 
 _DEFAULTS = SuiteOptions()
 

@@ -5,7 +5,7 @@ or ``--serial PORT``. With ``--sim`` an in-process simulated instrument on pytho
 bus runs accelerated (``--speed``), and its truth is printed beside the result.
 
 The plan: ``--positions`` any table angles (default 0,180), ``--window`` seconds per position,
-``--settle`` extra seconds after the device reports READY, ``--denoise`` a method of host.denoise,
+``--settle`` extra seconds after the device reports READY, ``--denoise`` a method of northfinder.host.denoise,
 ``--method`` the solver. A progress line shows on a terminal; ``--json`` prints a machine-readable
 result; ``--plot FILE`` draws the windows and per-pair azimuths (needs matplotlib).
 """
@@ -25,9 +25,9 @@ import can
 import can.cli
 import numpy as np
 
-from driver.device import Device
-from host.cli import report
-from host.cli.common import (
+from northfinder.driver.device import Device
+from northfinder.host.cli import report
+from northfinder.host.cli.common import (
     add_link_arguments,
     add_sensor_argument,
     add_truth_arguments,
@@ -37,9 +37,9 @@ from host.cli.common import (
     positive_float,
     sim_latitude,
 )
-from host.denoise import METHODS
-from host.errors import HostConfigError
-from host.procedure import METHOD_CHOICES, FindResult, Plan, Progress, find_north
+from northfinder.host.denoise import METHODS
+from northfinder.host.errors import HostConfigError
+from northfinder.host.procedure import METHOD_CHOICES, FindResult, Plan, Progress, find_north
 
 #: Default acceleration of the embedded simulator (simulated seconds per wall second).
 SIM_SPEED = 100.0
@@ -159,11 +159,11 @@ def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, An
 
 @contextlib.contextmanager
 def embedded_simulator(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, Any]]]:
-    from firmware_sim.firmware import Firmware, LinkInfo
-    from firmware_sim.imu import Truth
-    from firmware_sim.links import CanLink
-    from firmware_sim.runner import BackgroundRunner, RealTimeClock, Runner
-    from firmware_sim.sensors import load_spec
+    from northfinder.firmware_sim.firmware import Firmware, LinkInfo
+    from northfinder.firmware_sim.imu import Truth
+    from northfinder.firmware_sim.links import CanLink
+    from northfinder.firmware_sim.runner import BackgroundRunner, RealTimeClock, Runner
+    from northfinder.firmware_sim.sensors import load_spec
 
     if args.warmup < 0:
         raise HostConfigError(f"--warmup: must be >= 0 seconds, got {args.warmup}")
@@ -242,7 +242,7 @@ def run_plan(
 def run(args: argparse.Namespace) -> int:
     result, windows, plan, latitude, rate, truth = run_plan(args)
     if args.record:
-        from host.cli.record import save_recording
+        from northfinder.host.cli.record import save_recording
 
         save_recording(args.record, windows, plan, latitude, rate, truth)
     if args.plot:

@@ -1,6 +1,6 @@
 """``northfinder record FILE``: run a plan on a device and write the raw windows (.csv or .npz).
 
-Device and plan options are those of ``find``. The columns are documented in ``host.recording``
+Device and plan options are those of ``find``. The columns are documented in ``northfinder.host.recording``
 and the README; ``northfinder solve FILE`` solves the recording offline.
 """
 
@@ -10,10 +10,10 @@ import argparse
 import dataclasses
 from typing import Any
 
-from host.cli.find import add_device_arguments, add_plan_arguments, run_plan
-from host.errors import HostConfigError
-from host.procedure import Plan
-from host.recording import RecordedWindow, Recording
+from northfinder.host.cli.find import add_device_arguments, add_plan_arguments, run_plan
+from northfinder.host.errors import HostConfigError
+from northfinder.host.procedure import Plan
+from northfinder.host.recording import RecordedWindow, Recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from host.errors import HostConfigError
-from host.procedure import FindResult
+from northfinder.host.errors import HostConfigError
+from northfinder.host.procedure import FindResult
 
 
 def angle_error(a_deg: float, b_deg: float) -> float:
@@ -57,7 +57,7 @@ def plot(path: str | Path, result: FindResult, windows: list[Any], denoise_metho
         import matplotlib.pyplot as plt
     except ImportError as exc:
         raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
-    from host.denoise import denoise
+    from northfinder.host.denoise import denoise
 
     n = len(windows)
     fig, axes = plt.subplots(n + 1, 1, figsize=(9, 2.2 * (n + 1)), squeeze=False)

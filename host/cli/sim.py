@@ -24,13 +24,19 @@ import can.cli
 import numpy as np
 import serial
 
-from firmware_sim.control import Controller, ControlServer
-from firmware_sim.firmware import Firmware, LinkInfo
-from firmware_sim.imu import Truth
-from firmware_sim.links import CanLink, PseudoTerminal, SerialLink, SerialStream, SlcanAdapter
-from firmware_sim.runner import RealTimeClock, Runner
-from firmware_sim.sensors import load_spec
-from host.cli.common import (
+from northfinder.firmware_sim.control import Controller, ControlServer
+from northfinder.firmware_sim.firmware import Firmware, LinkInfo
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.links import (
+    CanLink,
+    PseudoTerminal,
+    SerialLink,
+    SerialStream,
+    SlcanAdapter,
+)
+from northfinder.firmware_sim.runner import RealTimeClock, Runner
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.cli.common import (
     add_link_arguments,
     add_sensor_argument,
     add_truth_arguments,
@@ -39,7 +45,7 @@ from host.cli.common import (
     positive_float,
     sim_latitude,
 )
-from host.errors import HostConfigError
+from northfinder.host.errors import HostConfigError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from firmware_sim.control import ControlClient
-from host.errors import HostConfigError
+from northfinder.firmware_sim.control import ControlClient
+from northfinder.host.errors import HostConfigError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

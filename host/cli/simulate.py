@@ -12,10 +12,10 @@ import math
 
 import numpy as np
 
-from firmware_sim.earth import mat_table
-from firmware_sim.imu import Instrument, Truth, body_rates
-from firmware_sim.sensors import load_spec
-from host.cli.common import (
+from northfinder.firmware_sim.earth import mat_table
+from northfinder.firmware_sim.imu import Instrument, Truth, body_rates
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.cli.common import (
     add_sensor_argument,
     add_truth_arguments,
     angle_list,

@@ -8,12 +8,18 @@ from __future__ import annotations
 
 import argparse
 
-from host.cli import report
-from host.cli.common import finite_float
-from host.denoise import METHODS
-from host.errors import HostConfigError
-from host.procedure import METHOD_CHOICES, FindResult, Plan, solve_windows, summarise_window
-from host.recording import Recording
+from northfinder.host.cli import report
+from northfinder.host.cli.common import finite_float
+from northfinder.host.denoise import METHODS
+from northfinder.host.errors import HostConfigError
+from northfinder.host.procedure import (
+    METHOD_CHOICES,
+    FindResult,
+    Plan,
+    solve_windows,
+    summarise_window,
+)
+from northfinder.host.recording import Recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

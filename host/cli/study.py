@@ -25,19 +25,19 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.batch import simulate_windows
-from firmware_sim.imu import Truth
-from firmware_sim.sensors import SensorSpec, load_spec
-from host.cli.common import (
+from northfinder.firmware_sim.batch import simulate_windows
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.sensors import SensorSpec, load_spec
+from northfinder.host.cli.common import (
     add_sensor_argument,
     angle_list,
     finite_float,
     positive_float,
 )
-from host.denoise import METHODS
-from host.errors import HostConfigError
-from host.heading import PLANS
-from host.study import (
+from northfinder.host.denoise import METHODS
+from northfinder.host.errors import HostConfigError
+from northfinder.host.heading import PLANS
+from northfinder.host.study import (
     ANGLE_SOURCES,
     SOLVERS,
     TILT_SOURCES,

@@ -19,7 +19,7 @@ Example::
     print(format_report(report))
 """
 
-from host.conformance.core import (
+from northfinder.host.conformance.core import (
     CHECKS,
     Check,
     CheckResult,
@@ -27,8 +27,8 @@ from host.conformance.core import (
     SuiteOptions,
     select_checks,
 )
-from host.conformance.links import CanRawLink, RawLink, SerialRawLink
-from host.conformance.report import (
+from northfinder.host.conformance.links import CanRawLink, RawLink, SerialRawLink
+from northfinder.host.conformance.report import (
     format_header,
     format_report,
     format_result,
@@ -36,7 +36,7 @@ from host.conformance.report import (
     junit_xml,
     write_junit,
 )
-from host.conformance.runner import restore, run_suite
+from northfinder.host.conformance.runner import restore, run_suite
 
 __all__ = [
     "CHECKS",

@@ -1,5 +1,5 @@
 """The checks of the conformance suite, in the order they run (protocol.md section numbers in
-brackets). Each records figures and problems on its :class:`~host.conformance.core.Ctx`."""
+brackets). Each records figures and problems on its :class:`~northfinder.host.conformance.core.Ctx`."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import statistics
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from driver.protocol.budget import max_sample_rate, rate_fits
-from driver.protocol.constants import (
+from northfinder.driver.protocol.budget import max_sample_rate, rate_fits
+from northfinder.driver.protocol.constants import (
     ANGLE_FULL_TURN,
     CAN_BITRATES,
     CONFIG_DEFAULTS,
@@ -30,7 +30,7 @@ from driver.protocol.constants import (
     SerialType,
     Validity,
 )
-from driver.protocol.messages import (
+from northfinder.driver.protocol.messages import (
     Command,
     GetConfig,
     GetStatus,
@@ -46,9 +46,9 @@ from driver.protocol.messages import (
     StreamStart,
     StreamStop,
 )
-from driver.protocol.serial import SerialFrame
-from host.conformance.core import Ctx, check
-from host.conformance.session import Answer, SampleRecord
+from northfinder.driver.protocol.serial import SerialFrame
+from northfinder.host.conformance.core import Ctx, check
+from northfinder.host.conformance.session import Answer, SampleRecord
 
 ANGLE_DEG = 1e-6  # deg per angle count (the default; IDENTIFY may report another)
 _NOT_GOOD = 0xFC  # validity bits 2..7

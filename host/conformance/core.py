@@ -8,9 +8,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from driver.protocol.constants import ConfigKey, DeviceState, Result
-from host.conformance.session import Answer, LinkFault, Session, describe_result
-from host.errors import HostConfigError
+from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Result
+from northfinder.host.conformance.session import Answer, LinkFault, Session, describe_result
+from northfinder.host.errors import HostConfigError
 
 __all__ = [
     "CHECKS",

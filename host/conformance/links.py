@@ -15,10 +15,10 @@ from typing import Protocol
 import can
 import serial
 
-from driver.errors import ProtocolError, UnknownMessageError
-from driver.protocol.can import IdentifyAssembler, can_id, decode_can
-from driver.protocol.constants import CanFunction, SerialType
-from driver.protocol.messages import (
+from northfinder.driver.errors import ProtocolError, UnknownMessageError
+from northfinder.driver.protocol.can import IdentifyAssembler, can_id, decode_can
+from northfinder.driver.protocol.constants import CanFunction, SerialType
+from northfinder.driver.protocol.messages import (
     IdentifyPage,
     Reply,
     SampleAux,
@@ -30,8 +30,8 @@ from driver.protocol.messages import (
     StatusCounters,
     StatusMain,
 )
-from driver.protocol.serial import Deframer, SerialFrame, decode_payload
-from driver.transport import enlarge_receive_buffer
+from northfinder.driver.protocol.serial import Deframer, SerialFrame, decode_payload
+from northfinder.driver.transport import enlarge_receive_buffer
 
 __all__ = ["Arrival", "CanRawLink", "RawLink", "SerialRawLink", "TickParts"]
 

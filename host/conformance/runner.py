@@ -10,14 +10,21 @@ from typing import Any
 import can
 import serial
 
-import host.conformance.checks  # noqa: F401  (registers the checks)
-from driver.errors import DriverError
-from driver.protocol.constants import ConfigKey, DeviceState
-from driver.protocol.messages import Reset, SetConfig, Stop
-from host.conformance.core import CheckResult, Ctx, Report, Skipped, SuiteOptions, select_checks
-from host.conformance.links import RawLink
-from host.conformance.session import LinkFault, Session
-from host.errors import HostError
+import northfinder.host.conformance.checks  # noqa: F401  (registers the checks)
+from northfinder.driver.errors import DriverError
+from northfinder.driver.protocol.constants import ConfigKey, DeviceState
+from northfinder.driver.protocol.messages import Reset, SetConfig, Stop
+from northfinder.host.conformance.core import (
+    CheckResult,
+    Ctx,
+    Report,
+    Skipped,
+    SuiteOptions,
+    select_checks,
+)
+from northfinder.host.conformance.links import RawLink
+from northfinder.host.conformance.session import LinkFault, Session
+from northfinder.host.errors import HostError
 
 __all__ = ["restore", "run_suite"]
 
@@ -46,8 +53,8 @@ def run_suite(
     Parameters
     ----------
     link : RawLink
-        The suite's end of the link (a :class:`~host.conformance.links.CanRawLink` or
-        :class:`~host.conformance.links.SerialRawLink`).
+        The suite's end of the link (a :class:`~northfinder.host.conformance.links.CanRawLink` or
+        :class:`~northfinder.host.conformance.links.SerialRawLink`).
     options : SuiteOptions
     progress : callable, optional
         Called with each result as soon as it is known.

@@ -18,8 +18,8 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
-from driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
-from driver.protocol.messages import (
+from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
+from northfinder.driver.protocol.messages import (
     Command,
     GetConfig,
     GetStatus,
@@ -30,8 +30,8 @@ from driver.protocol.messages import (
     StreamStart,
     StreamStop,
 )
-from host.conformance.links import Arrival, RawLink, TickParts
-from host.errors import HostError
+from northfinder.host.conformance.links import Arrival, RawLink, TickParts
+from northfinder.host.errors import HostError
 
 __all__ = ["Answer", "LinkFault", "SampleRecord", "Session"]
 

@@ -78,7 +78,7 @@ def analyse_candump(path: Path, dbc: Path, bad_input_from: float) -> dict:
     """
     import cantools
 
-    from driver.protocol.constants import Opcode
+    from northfinder.driver.protocol.constants import Opcode
 
     db = cantools.database.load_file(str(dbc))
     known = {m.frame_id for m in db.messages}
