@@ -1,0 +1,48 @@
+"""Units and physical constants, defined once for the wire format, the simulator and the host.
+
+Everything inside the packages is SI (rad, rad/s, m/s^2, s); datasheet units appear only at the
+edges (sensor files, CLI options, printed results) and are converted with the factors below:
+multiply a datasheet value by the factor to get SI, divide an SI value by it to get the datasheet
+unit.
+
+This module lives beside the codec because the wire format is the one package that the simulated
+firmware, the driver and the host all may import (see the README's "Architecture").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: Earth rotation rate (WGS84), rad/s.
+OMEGA_IE = 7.292115e-5
+#: Standard gravity, m/s^2: defines the unit "g" (and micro-g) of accelerometer values.
+G0 = 9.80665
+
+#: One degree, rad.
+DEG = math.pi / 180.0
+#: One degree per hour, rad/s.
+DPH = DEG / 3600.0
+#: One degree per second, rad/s.
+DPS = DEG
+#: One degree per root hour (angle random walk), rad/sqrt(s).
+DPSH = DEG / 60.0
+#: One degree per hour per root hour (rate random walk), rad/s/sqrt(s).
+DPH_PSH = DPH / 60.0
+#: One micro-g, m/s^2.
+UG = 1e-6 * G0
+
+
+def normal_gravity(latitude_rad: ArrayLike) -> NDArray[np.float64] | float:
+    """Normal gravity on the WGS84 ellipsoid (Somigliana's formula), m/s^2.
+
+    Parameters
+    ----------
+    latitude_rad : array_like
+        Geodetic latitude, rad.
+    """
+    s2 = np.sin(np.asarray(latitude_rad, dtype=float)) ** 2
+    g = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / np.sqrt(1.0 - 6.69437999013e-3 * s2)
+    return float(g) if np.ndim(g) == 0 else g
