@@ -2,7 +2,7 @@
 
 A move is rest to rest with a trapezoidal rate profile: constant acceleration up to the rate
 limit, constant rate, constant deceleration (triangular when the distance is too short to reach
-the rate). the driver's move deadlines (protocol.md section 6) and the host's plan times are built on
+the rate). The driver's move deadlines (protocol.md section 6) and the host's plan times are built on
 :func:`move_time_s`.
 """
 
