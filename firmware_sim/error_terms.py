@@ -51,7 +51,9 @@ __all__ = [
     "GYRO",
     "MAX_SAMPLE_RATE_HZ",
     "MIN_SAMPLE_RATE_HZ",
+    "Channels",
     "ErrorTerms",
+    "Triads",
     "TurnOnDraws",
     "channels_si",
     "check_sample_rate",
@@ -73,6 +75,10 @@ MAX_SAMPLE_RATE_HZ = 2000.0
 #: The gyro and accelerometer channels of a six-channel array (last axis).
 GYRO = slice(0, 3)
 ACCEL = slice(3, 6)
+#: A value per channel, shape (..., 6): gyro x, y, z then accelerometer x, y, z, SI.
+Channels = NDArray[np.float64]
+#: A value per triad, shape (2,): gyro, then accelerometer.
+Triads = NDArray[np.float64]
 
 #: Step of the grid on which flicker noise and random walks are generated, s.
 FLICKER_GRID_S = 0.1
@@ -150,20 +156,20 @@ class ErrorTerms:
         Peak of one impulse (shock), amplitude of the vibration line.
     """
 
-    bias: NDArray[np.float64]
-    turn_on_bias: NDArray[np.float64]
-    white_density: NDArray[np.float64]
-    flicker_b: NDArray[np.float64]
-    walk_k: NDArray[np.float64]
-    scale_factor: NDArray[np.float64]
-    misalignment: NDArray[np.float64]
-    lsb: NDArray[np.float64]
-    range: NDArray[np.float64]
-    warmup_bias: NDArray[np.float64]
-    warmup_tau_s: NDArray[np.float64]
-    temp_coeff: NDArray[np.float64]
-    impulse_amp: NDArray[np.float64]
-    vibration_amp: NDArray[np.float64]
+    bias: Channels
+    turn_on_bias: Channels
+    white_density: Channels
+    flicker_b: Channels
+    walk_k: Channels
+    scale_factor: Triads
+    misalignment: Triads
+    lsb: Channels
+    range: Channels
+    warmup_bias: Channels
+    warmup_tau_s: Channels
+    temp_coeff: Channels
+    impulse_amp: Channels
+    vibration_amp: Channels
 
     @classmethod
     def from_spec(cls, spec: SensorSpec) -> ErrorTerms:

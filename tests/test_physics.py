@@ -453,16 +453,12 @@ def test_flicker_components_sum_to_a_one_over_f_spectrum():
 
 
 def test_drift_is_the_warm_up_transient_plus_the_temperature_term():
-    spec = IDEAL.with_values(
-        {
-            "gyro.warmup_bias_dph": [2.0, 0.0, 0.0],
-            "gyro.warmup_tau_s": 30.0,
-            "accel.temp_coeff_ug_per_c": [0.0, 0.0, 4.0],
-            "thermal.ambient_c": 15.0,
-            "thermal.warmup_rise_c": 6.0,
-            "thermal.warmup_tau_s": 300.0,
-            "thermal.ramp_c_per_h": 1.8,
-        }
+    spec = SensorSpec(
+        gyro=GyroSpec(warmup_bias_dph=(2.0, 0.0, 0.0), warmup_tau_s=30.0),
+        accel=AccelSpec(temp_coeff_ug_per_c=(0.0, 0.0, 4.0)),
+        thermal=ThermalSpec(
+            ambient_c=15.0, warmup_rise_c=6.0, warmup_tau_s=300.0, ramp_c_per_h=1.8
+        ),
     )
     t = np.array([0.0, 30.0, 600.0, 3600.0])
     rise = 6.0 * (1.0 - np.exp(-t / 300.0)) + 1.8 * t / 3600.0
