@@ -21,7 +21,8 @@ starts at the first sample boundary at or after the end of move plus settle.
 Error terms
 -----------
 Per run: constant and turn-on bias, scale-factor and misalignment draws, table indexing error per
-move, vibration phase. Per sample: white noise (ARW, VRW), bias instability (Gauss-Markov
+move (a repeated position keeps the last stop's error), vibration phase, and per move the bias
+step and transient it starts. Rate ramp with the other deterministic terms. Per sample: white noise (ARW, VRW), bias instability (Gauss-Markov
 components from 1 s to 10^4 s on a 0.1 s grid) and random walks, warm-up transient, temperature sensitivity, Poisson impulses (half-sine, random
 direction), vibration line, optional bias step, range clipping and quantisation. The quantiser
 carries its remainder within a window; the remainder at a window start is drawn uniformly (what
@@ -48,8 +49,10 @@ from northfinder.firmware_sim.error_terms import (
     FLICKER_TAUS_S,
     ErrorTerms,
     check_sample_rate,
+    draw_move,
     draw_turn_on,
     half_sine,
+    move_bias,
     quantise_carry,
     random_directions,
     slow_noise_jump,
@@ -298,7 +301,7 @@ def simulate_windows(
     tab, d = spec.table, spec.disturbance
     terms = ErrorTerms.from_spec(spec)
     az, lat, pitch, roll = _truth_arrays(truth, n_runs)
-    turn_on, white, slow, impulses, table_rng = rng.spawn(5)
+    turn_on, white, slow, impulses, table_rng, moves_rng = rng.spawn(6)
 
     # Sample times: sample k covers ((k)/fs, (k+1)/fs].
     k = starts[:, None] + np.arange(n)[None, :]
@@ -314,7 +317,10 @@ def simulate_windows(
     moved = delta != 0.0
     if tab.indexing_error_deg and moved.any():
         idx_err[:, moved] = table_rng.normal(0.0, tab.indexing_error_deg, (n_runs, moved.sum()))
-    # Continuous angle: the commanded angle as reached the shorter way, plus this move's error.
+        # A repeated position needs no move: the table keeps the error of its last stop.
+        last_stop = np.maximum.accumulate(np.where(moved, np.arange(pc), 0))
+        idx_err = idx_err[:, last_stop]
+    # Continuous angle: the commanded angle as reached the shorter way, plus the last stop's error.
     angle = np.asarray(positions_deg, dtype=float)[0] + np.cumsum(delta)
     true_angle = angle[None, :] + idx_err  # (R, P)
     mu = np.radians(true_angle)
@@ -355,8 +361,20 @@ def simulate_windows(
         det += np.moveaxis(terms.warmup(t), -1, 1)
     if terms.temp_coeff.any():
         det += np.moveaxis(terms.thermal(temperature_c(spec.thermal, t), spec.thermal), -1, 1)
+    if terms.ramp.any():
+        det += np.moveaxis(terms.ramp_bias(t), -1, 1)
     if det.any():
         out += det[None]
+    if terms.has_move_terms and moved.any():
+        # Each move starts at the end of the window before it (plan_timeline).
+        move_start = (starts[moved.nonzero()[0] - 1] + n) / fs
+        z = draw_move(moves_rng, (n_runs, int(moved.sum())))
+        done = np.cumsum(moved)  # moves made before each window
+        for p in range(pc):
+            if done[p]:
+                m = done[p]
+                bias = move_bias(terms, t[p], move_start[:m], delta[moved][:m], z[:, :m])
+                out[:, p] += np.moveaxis(bias, -1, 1)
     ring = np.zeros(pc)
     if tab.overshoot_deg:
         ring = _ring_down(out, tab, move_end, delta, starts, n, fs, true, mats)

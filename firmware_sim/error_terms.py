@@ -6,8 +6,9 @@ definitions here, so that both describe the same sensor: the conversion of a :cl
 from datasheet units to SI (:class:`ErrorTerms`), the sample rates the model honours, the turn-on
 draws and error matrices, the temperature model, the warm-up transient, the flicker-noise model
 (a sum of Gauss-Markov processes) with its random walks, impulses, the vibration line and
-quantisation with carry. Host code that predicts accuracy from a spec (the study's error model)
-uses the same conversion and flicker constants.
+quantisation with carry, the rate ramp, and the bias disturbances that table moves start. Host
+code that predicts accuracy from a spec (the study's error model) uses the same conversion and
+flicker constants.
 
 Channel layout
 --------------
@@ -25,6 +26,16 @@ components with correlation times :data:`FLICKER_TAUS_S` (1 s to 10^4 s, spaced 
 few seconds and a few thousand seconds. Components are kept at unit variance and scaled on
 output, so noise levels can change while running without a jump in the random sequence. Random
 walks (gyro rate random walk, accelerometer bias random walk) are integrated on the same grid.
+
+Moves
+-----
+Every table move of ``d`` degrees (the commanded angle turned) starting at ``t0`` draws two
+standard normal vectors ``z_walk`` and ``z_transient`` (:func:`draw_move`) and adds, from ``t0``
+on, ``sqrt(|d|) * (move_walk * z_walk + move_transient * z_transient * exp(-(t - t0) / tau))``:
+a lasting bias step (a random walk in the angle turned) and a transient that decays with the
+time constant ``tau`` (motor heat, the mechanical disturbance of the sensor). Both scale with the
+square root of the angle, so that two half moves disturb as much as one whole move. A position
+the table already holds needs no move and adds nothing.
 """
 
 from __future__ import annotations
@@ -57,8 +68,10 @@ __all__ = [
     "TurnOnDraws",
     "channels_si",
     "check_sample_rate",
+    "draw_move",
     "draw_turn_on",
     "half_sine",
+    "move_bias",
     "quantise_carry",
     "random_directions",
     "slow_noise_jump",
@@ -154,6 +167,12 @@ class ErrorTerms:
         Bias change per degC of sensor temperature.
     impulse_amp, vibration_amp : (6,) float
         Peak of one impulse (shock), amplitude of the vibration line.
+    ramp : (6,) float
+        Linear bias trend from power-on, per second (rate ramp).
+    move_walk, move_transient : (6,) float
+        Lasting bias step and initial transient amplitude of a move, 1 sigma per sqrt(deg) turned.
+    move_tau_s : (6,) float
+        Time constant of the move transient, s.
     """
 
     bias: Channels
@@ -170,6 +189,10 @@ class ErrorTerms:
     temp_coeff: Channels
     impulse_amp: Channels
     vibration_amp: Channels
+    ramp: Channels
+    move_walk: Channels
+    move_transient: Channels
+    move_tau_s: Channels
 
     @classmethod
     def from_spec(cls, spec: SensorSpec) -> ErrorTerms:
@@ -190,6 +213,12 @@ class ErrorTerms:
             temp_coeff=channels_si(g.temp_coeff_dph_per_c, a.temp_coeff_ug_per_c),
             impulse_amp=channels_si(g.impulse_dph, a.impulse_ug),
             vibration_amp=channels_si(g.vibration_dph, a.vibration_ug),
+            ramp=channels_si(g.rate_ramp_dph_per_h, a.ramp_ug_per_h) / 3600.0,
+            move_walk=channels_si(g.move_walk_dph_per_rtdeg, a.move_walk_ug_per_rtdeg),
+            move_transient=channels_si(
+                g.move_transient_dph_per_rtdeg, a.move_transient_ug_per_rtdeg
+            ),
+            move_tau_s=np.repeat([g.move_transient_tau_s, a.move_transient_tau_s], 3),
         )
 
     def white_sigma(self, sample_rate_hz: float) -> NDArray[np.float64]:
@@ -232,9 +261,19 @@ class ErrorTerms:
         """Bias from the sensor temperature (degC) above ambient, shape ``temperature.shape + (6,)``."""
         return (temperature - thermal.ambient_c)[..., None] * self.temp_coeff
 
+    def ramp_bias(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Rate ramp at times ``t`` (s since power-on), shape ``t.shape + (6,)``."""
+        return np.asarray(t, dtype=float)[..., None] * self.ramp
+
     def drift(self, t: NDArray[np.float64], thermal: ThermalSpec) -> NDArray[np.float64]:
-        """Deterministic bias of time since power-on: warm-up plus temperature, ``t.shape + (6,)``."""
-        return self.warmup(t) + self.thermal(temperature_c(thermal, t), thermal)
+        """Deterministic bias of time since power-on: warm-up, temperature and rate ramp,
+        ``t.shape + (6,)``."""
+        return self.warmup(t) + self.thermal(temperature_c(thermal, t), thermal) + self.ramp_bias(t)
+
+    @property
+    def has_move_terms(self) -> bool:
+        """True when table moves disturb the bias."""
+        return bool(self.move_walk.any() or self.move_transient.any())
 
 
 def temperature_c(thermal: ThermalSpec, t: ArrayLike) -> NDArray[np.float64]:
@@ -279,6 +318,52 @@ def draw_turn_on(rng: np.random.Generator, shape: tuple[int, ...] = ()) -> TurnO
         z_mis=rng.standard_normal((*shape, 2, 6)),
         vib_phase=rng.uniform(0.0, 2 * math.pi, (*shape, 6)),
     )
+
+
+def draw_move(rng: np.random.Generator, shape: tuple[int, ...] = ()) -> NDArray[np.float64]:
+    """Draw the z-scores of ``shape`` moves, ``(*shape, 2, 6)``: the lasting step (row 0) and the
+    transient (row 1) of every channel, move after move in C order."""
+    return rng.standard_normal((*shape, 2, 6))
+
+
+def move_bias(
+    terms: ErrorTerms,
+    t: NDArray[np.float64],
+    start_s: NDArray[np.float64],
+    size_deg: NDArray[np.float64],
+    z: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """The bias that earlier table moves add at times ``t`` (see the module doc), SI.
+
+    Parameters
+    ----------
+    terms : ErrorTerms
+        The move terms (``move_walk``, ``move_transient``, ``move_tau_s``).
+    t : (n,) float
+        Sample times, s since power-on.
+    start_s, size_deg : (M,) float
+        Start time (s) and commanded angle turned (deg) of each move.
+    z : (..., M, 2, 6) float
+        The z-scores of the moves (:func:`draw_move`); leading axes: runs, if any.
+
+    Returns
+    -------
+    (..., n, 6) float
+        A move adds nothing to samples at or before its start.
+    """
+    tt = np.asarray(t, dtype=float)
+    out = np.zeros((*z.shape[:-3], tt.size, 6))
+    root = np.sqrt(np.abs(np.asarray(size_deg, dtype=float)))
+    for m, t0 in enumerate(np.asarray(start_s, dtype=float)):
+        on = tt > t0
+        if not on.any():
+            continue
+        zm = z[..., m, :, :] * root[m]  # (..., 2, 6)
+        step = zm[..., 0, :] * terms.move_walk  # (..., 6)
+        amp = zm[..., 1, :] * terms.move_transient
+        decay = np.exp(-np.maximum(tt[:, None] - t0, 0.0) / terms.move_tau_s)  # (n, 6)
+        out += on[:, None] * (step[..., None, :] + amp[..., None, :] * decay)
+    return out
 
 
 def triad_matrices(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -26,8 +26,10 @@ from northfinder.firmware_sim.error_terms import (
     ErrorTerms,
     channels_si,
     check_sample_rate,
+    draw_move,
     draw_turn_on,
     half_sine,
+    move_bias,
     quantise_carry,
     random_directions,
     slow_noise_steps,
@@ -180,8 +182,14 @@ class Instrument:
         table_angle_deg: float = 0.0,
     ) -> None:
         self.sample_rate_hz = check_sample_rate(sample_rate_hz)
-        turn_on, white, slow, impulses, table = rng.spawn(5)
+        turn_on, white, slow, impulses, table, moves = rng.spawn(6)
         self._draws = draw_turn_on(turn_on)
+        self._move_rng = moves
+        self._moves_seen = 0  # moves of the table registered so far
+        self._move_start = np.empty(0)  # moves whose transient still matters: start s,
+        self._move_size = np.empty(0)  # commanded angle deg,
+        self._move_z = np.empty((0, 2, 6))  # z-scores
+        self._move_steps = np.zeros(6)  # sum of sqrt(|size|) z_walk of the moves dropped from those
         self._white = white
         self._slow = _SlowNoise(slow, 6)
         self._imp_rng = impulses
@@ -336,6 +344,10 @@ class Instrument:
         temperature = self.temperature(t)
         if terms.temp_coeff.any():
             out += terms.thermal(temperature, self.spec.thermal)
+        if terms.ramp.any():
+            out += terms.ramp_bias(t)
+        if n:
+            self._add_moves(out, t)
         if n and self._white_sigma.any():
             noise = self._white.standard_normal((n, 6))
             noise *= self._white_sigma
@@ -366,6 +378,30 @@ class Instrument:
             gyro_saturated=np.any(sat[:, :3], axis=1),
             accel_saturated=np.any(sat[:, 3:], axis=1),
         )
+
+    def _add_moves(self, out: NDArray[np.float64], t: NDArray[np.float64]) -> None:
+        """Register the table's new moves (drawing their z-scores in order) and add their bias."""
+        new = self.table.moves[self._moves_seen :]
+        if new:
+            self._moves_seen += len(new)
+            self._move_start = np.append(self._move_start, [m[0] for m in new])
+            self._move_size = np.append(self._move_size, [m[1] for m in new])
+            self._move_z = np.concatenate([self._move_z, draw_move(self._move_rng, (len(new),))])
+        terms = self._terms
+        if not terms.has_move_terms:
+            return
+        # A transient 60 time constants old is below 1e-26 of its size: keep only its step.
+        old = t[0] - self._move_start > 60.0 * terms.move_tau_s.max()
+        if old.any():
+            self._move_steps += (np.sqrt(np.abs(self._move_size[old]))[:, None]
+                                 * self._move_z[old, 0]).sum(axis=0)  # fmt: skip
+            keep = ~old
+            self._move_start = self._move_start[keep]
+            self._move_size = self._move_size[keep]
+            self._move_z = self._move_z[keep]
+        out += self._move_steps * terms.move_walk
+        if self._move_start.size:
+            out += move_bias(terms, t, self._move_start, self._move_size, self._move_z)
 
     def _add_impulses(self, out: NDArray[np.float64], t: NDArray[np.float64]) -> None:
         rate = self.spec.disturbance.impulse_rate_hz

@@ -33,10 +33,17 @@ def _v(doc: str = "") -> Any:
 
 @dataclass(frozen=True)
 class GyroSpec:
-    """Gyro triad errors. Random terms (``turn_on_*``, scale factor, misalignment) are 1-sigma draws."""
+    """Gyro triad errors. Random terms (``turn_on_*``, scale factor, misalignment) are 1-sigma draws.
+
+    Turn-on terms are drawn once per power-on (one :class:`~northfinder.firmware_sim.imu.Instrument`,
+    one run of the batch generator); a firmware reset keeps them, as a restart of the electronics
+    leaves a powered sensor alone. Move terms are drawn at the start of every table move.
+    """
 
     bias_dph: tuple[float, float, float] = _v("constant bias per axis, deg/h")
-    turn_on_bias_dph: float = _f(0.0, doc="turn-on to turn-on bias repeatability, 1 sigma, deg/h")
+    turn_on_bias_dph: float = _f(
+        0.0, doc="turn-on to turn-on bias repeatability (per power-on), 1 sigma, deg/h"
+    )
     bias_instability_dph: float = _f(
         0.0, doc="flicker bias instability B; Allan floor 0.664 B, deg/h"
     )
@@ -51,6 +58,22 @@ class GyroSpec:
     )
     warmup_bias_dph: tuple[float, float, float] = _v("warm-up transient at power-on, deg/h")
     warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s")
+    rate_ramp_dph_per_h: tuple[float, float, float] = _v(
+        "rate ramp: linear bias trend from power-on, deg/h per hour"
+    )
+    move_walk_dph_per_rtdeg: float = _f(
+        0.0,
+        doc="bias random walk in the angle turned: each move adds a lasting bias step of "
+        "1 sigma this times sqrt(|move| in deg), deg/h/sqrt(deg)",
+    )
+    move_transient_dph_per_rtdeg: float = _f(
+        0.0,
+        doc="each move starts a bias transient of random amplitude, 1 sigma this times "
+        "sqrt(|move| in deg) at the start of the move, deg/h/sqrt(deg)",
+    )
+    move_transient_tau_s: float = _f(
+        10.0, _POSITIVE, "time constant of the move transient's decay from the start of the move, s"
+    )
     impulse_dph: float = _f(0.0, doc="peak rate of one impulse (shock), deg/h")
     vibration_dph: float = _f(0.0, doc="vibration amplitude seen by each gyro axis, deg/h")
 
@@ -71,6 +94,14 @@ class AccelSpec:
     temp_coeff_ug_per_c: tuple[float, float, float] = _v("bias temperature sensitivity, ug/degC")
     warmup_bias_ug: tuple[float, float, float] = _v("warm-up transient at power-on, ug")
     warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s")
+    ramp_ug_per_h: tuple[float, float, float] = _v("linear bias trend from power-on, ug per hour")
+    move_walk_ug_per_rtdeg: float = _f(
+        0.0, doc="lasting bias step per move, 1 sigma per sqrt(deg turned), ug/sqrt(deg)"
+    )
+    move_transient_ug_per_rtdeg: float = _f(
+        0.0, doc="decaying bias transient per move, 1 sigma per sqrt(deg turned), ug/sqrt(deg)"
+    )
+    move_transient_tau_s: float = _f(10.0, _POSITIVE, "time constant of that transient, s")
     impulse_ug: float = _f(0.0, doc="peak specific force of one impulse, ug")
     vibration_ug: float = _f(0.0, doc="vibration amplitude seen by each accelerometer axis, ug")
 

@@ -1,8 +1,11 @@
 """The turntable: trapezoidal moves about body z, settling, encoder and indexing error.
 
 The table angle is continuous (not wrapped) in the model; the encoder reports it modulo 360 deg,
-quantised to its resolution. A move stops at the commanded angle plus an indexing error drawn per
-move; the encoder sees where the table really is.
+quantised to its resolution. A move stops at the commanded angle plus an indexing error drawn
+afresh for every move (the drive positions on its encoder, so one stop's error does not carry into
+the next); the encoder sees where the table really is. An order to go where the table was last
+sent is no move: the table stays, with the error of its last stop. Every move is logged
+(:attr:`Turntable.moves`) for the bias disturbances that moves start in the sensors.
 """
 
 from __future__ import annotations
@@ -57,16 +60,40 @@ class Turntable:
         self._target = float(angle_deg)  # commanded angle (continuous)
         self._overshoot = 0.0
         self._stalled = False
+        self._moves: list[tuple[float, float]] = []
 
     # -- commands -----------------------------------------------------------------------------
     def move_by(self, t: float, delta_deg: float, max_rate_dps: float | None = None) -> float:
-        """Start a move by ``delta_deg`` at time ``t``; return the time the profile ends.
+        """Start a move by ``delta_deg`` from where the table is at time ``t``; return the time
+        the profile ends. It stops at that angle plus a fresh indexing error.
 
         Raises
         ------
         TableBusyError
             The previous profile has not ended at ``t``.
         """
+        return self._start(t, delta_deg, delta_deg, max_rate_dps)
+
+    def move_to(self, t: float, target_deg: float, max_rate_dps: float | None = None) -> float:
+        """Move to an absolute angle (modulo 360) by the shorter way; return the profile end time.
+
+        The move is measured from where the table really is (as a drive positioning on its
+        encoder does), so it stops at ``target_deg`` plus a fresh indexing error. When
+        ``target_deg`` is where the table was last sent and it is at rest, nothing moves.
+        """
+        if self.is_moving(t):
+            raise TableBusyError(f"table still moving at t={t:.3f} s")
+        commanded = shortest_delta_deg(self._target, target_deg)
+        if commanded == 0.0:
+            return t
+        actual = float(self.state(t)[0])
+        return self._start(t, shortest_delta_deg(actual, target_deg), commanded, max_rate_dps)
+
+    def _start(
+        self, t: float, delta_deg: float, commanded_deg: float, max_rate_dps: float | None
+    ) -> float:
+        """Move by ``delta_deg`` from the present angle; ``commanded_deg`` is the move as ordered
+        (the angle from the last commanded position), which sizes the sensor disturbance."""
         if self.is_moving(t):
             raise TableBusyError(f"table still moving at t={t:.3f} s")
         start, _ = self.state(t)
@@ -91,6 +118,7 @@ class Turntable:
             self._motion_end = t
             self._overshoot = 0.0  # no move, no ring-down
             return t
+        self._moves.append((float(t), float(commanded_deg)))
         if dist <= v * v / a:
             ta, tc = math.sqrt(dist / a), 0.0
         else:
@@ -108,11 +136,6 @@ class Turntable:
         self._motion_end = t + 2 * ta + tc
         self._overshoot = s * self.spec.overshoot_deg
         return self._motion_end
-
-    def move_to(self, t: float, target_deg: float, max_rate_dps: float | None = None) -> float:
-        """Move to an absolute angle (modulo 360) by the shorter way; return the profile end time."""
-        current = self._target if not self.is_moving(t) else float(self.state(t)[0])
-        return self.move_by(t, shortest_delta_deg(current, target_deg), max_rate_dps)
 
     def stop(self, t: float) -> float:
         """Decelerate at the acceleration limit from time ``t``; return when the table is at rest."""
@@ -156,6 +179,11 @@ class Turntable:
     def target_deg(self) -> float:
         """The commanded angle modulo 360 (the table ends near it, off by the indexing error)."""
         return self._target % 360.0
+
+    @property
+    def moves(self) -> list[tuple[float, float]]:
+        """Every move started so far: (start time s, commanded angle turned deg), in order."""
+        return self._moves
 
     @property
     def stalled(self) -> bool:

@@ -493,7 +493,9 @@ def test_quantise_carry_keeps_every_run_sum_within_one_count():
 
 def test_one_batch_run_draws_the_same_power_on_as_the_instrument():
     """Same seed, same error terms: turn-on bias, scale factor, misalignment, indexing error of
-    one move, warm-up and temperature come out alike sample by sample from both generators."""
+    every move, the bias steps and transients that moves start, warm-up, temperature and rate
+    ramp come out alike sample by sample from both generators, over several moves and a repeated
+    position (no move: the table keeps its last stop)."""
     spec = IDEAL.with_values(
         {
             "gyro.bias_dph": [0.3, -0.2, 0.1],
@@ -502,18 +504,22 @@ def test_one_batch_run_draws_the_same_power_on_as_the_instrument():
             "gyro.misalignment_urad": 200.0,
             "gyro.warmup_bias_dph": [1.0, -1.0, 0.5],
             "gyro.temp_coeff_dph_per_c": [0.02, 0.01, 0.0],
+            "gyro.rate_ramp_dph_per_h": [0.5, -0.3, 0.2],
+            "gyro.move_walk_dph_per_rtdeg": 0.01,
+            "gyro.move_transient_dph_per_rtdeg": 0.05,
+            "gyro.move_transient_tau_s": 4.0,
             "accel.turn_on_bias_ug": 50.0,
             "accel.scale_factor_ppm": 100.0,
             "accel.misalignment_urad": 100.0,
             "accel.temp_coeff_ug_per_c": [2.0, -1.0, 0.5],
+            "accel.move_walk_ug_per_rtdeg": 2.0,
+            "accel.move_transient_ug_per_rtdeg": 3.0,
             "thermal.warmup_rise_c": 4.0,
             "table.indexing_error_deg": 0.01,
         }
     )
     truth = Truth(azimuth_deg=75.0, latitude_deg=40.0, pitch_deg=1.5, roll_deg=-0.5)
-    # One move: over several moves the instrument's table carries each stop error into the next
-    # move, while the batch draws every stop error afresh around the commanded angle.
-    positions = [0.0, 120.0]
+    positions = [0.0, 120.0, 120.0, 30.0, 300.0]
     starts, n, _, _ = plan_timeline(spec, positions, 5.0, warmup_s=30.0)
     batch = simulate_windows(
         spec, truth, positions, 5.0, n_runs=1, rng=np.random.default_rng(9), warmup_s=30.0
@@ -527,10 +533,146 @@ def test_one_batch_run_draws_the_same_power_on_as_the_instrument():
         assert_allclose(batch.gyro_rps[0, i], block.gyro_rps, rtol=0, atol=1e-12 * OMEGA_IE)
         assert_allclose(batch.accel_mps2[0, i], block.accel_mps2, rtol=0, atol=1e-12 * 9.8)
         assert_allclose(batch.table_deg[0, i], block.table_deg, atol=0)
+    assert len(ins.table.moves) == 3  # the repeated position is no move
+    assert batch.table_deg[0, 2] == batch.table_deg[0, 1] != 120.0
     # The error terms are really there: far from the ideal instrument.
     ideal = Instrument(IDEAL, truth, np.random.default_rng(9)).generate(10).gyro_rps
     first = simulate_windows(spec, truth, [0.0], 0.05, n_runs=1, rng=np.random.default_rng(9))
     assert np.abs(first.gyro_rps[0, 0] - ideal).max() > 0.1 * DPH
+
+
+def stop_errors_deg(reached: np.ndarray, commanded: np.ndarray) -> np.ndarray:
+    return (np.asarray(reached) - np.asarray(commanded) + 180.0) % 360.0 - 180.0
+
+
+def assert_fresh_stop_errors(err: np.ndarray, sigma: float) -> None:
+    """Stop errors (moves along the last axis) scatter by ``sigma`` and adjacent ones do not
+    correlate: a stop error carried into the next move gives sqrt(2) sigma and +0.5."""
+    n = err.size
+    # The sample std of n normal values is within 4 standard errors (sigma / sqrt(2 n)).
+    assert abs(err.std() / sigma - 1.0) < 4.0 / math.sqrt(2 * n), err.std()
+    a, b = err[..., :-1].ravel(), err[..., 1:].ravel()
+    assert abs(np.corrcoef(a, b)[0, 1]) < 4.0 / math.sqrt(a.size)
+
+
+def test_turntable_stop_errors_are_fresh_for_every_move():
+    sigma = 0.01
+    spec = TableSpec(indexing_error_deg=sigma, encoder_resolution_deg=0.0, settle_s=0.0)
+    ins = Instrument(SensorSpec(table=spec), Truth(), np.random.default_rng(14))
+    table, t = ins.table, 0.0
+    targets = (30.0 * np.arange(1, 801)) % 360.0
+    reached = []
+    for target in targets:
+        t = table.move_to(t, target) + 0.5
+        reached.append(float(table.state(t)[0]))
+    assert_fresh_stop_errors(stop_errors_deg(reached, targets), sigma)
+    # Going where the table was last sent is no move: the error of the last stop stays.
+    before = float(table.state(t)[0])
+    assert table.move_to(t, targets[-1]) == t
+    assert float(table.state(t + 5.0)[0]) == before and len(table.moves) == len(targets)
+
+
+def test_batch_stop_errors_are_fresh_for_every_move():
+    sigma = 0.01
+    spec = IDEAL.with_values({"table.indexing_error_deg": sigma, "table.settle_s": 0.0})
+    positions = [0.0, 30.0, 60.0, 60.0, 90.0, 120.0, 150.0, 180.0, 210.0]
+    batch = simulate_windows(
+        spec, Truth(), positions, 0.1, n_runs=300, rng=np.random.default_rng(15)
+    )
+    err = stop_errors_deg(batch.table_deg, batch.commanded_deg)
+    assert np.all(err[:, 0] == 0.0)  # no move before the first window
+    assert np.array_equal(err[:, 3], err[:, 2])  # the repeated position keeps its stop
+    assert_fresh_stop_errors(np.delete(err, [0, 3], axis=1), sigma)
+
+
+def test_move_terms_scatter_window_means_as_specified():
+    """Window-mean bias differences across many runs: the lasting step adds
+    move_walk^2 |d| to the variance, the transient sqrt(|d|) move_transient times its mean
+    decay over the window; both scale with the square root of the angle turned."""
+    walk, transient, tau = 0.02, 0.3, 5.0
+    spec = IDEAL.with_values(
+        {
+            "gyro.move_walk_dph_per_rtdeg": walk,
+            "gyro.move_transient_dph_per_rtdeg": transient,
+            "gyro.move_transient_tau_s": tau,
+            "table.settle_s": 6.0,
+            "table.max_rate_dps": 10.0,
+            "table.max_accel_dps2": 100.0,
+        }
+    )
+    positions, window = [0.0, 30.0, 150.0], 10.0
+    starts, n, _, delta = plan_timeline(spec, positions, window)
+    runs = 4000
+    batch = simulate_windows(
+        spec, Truth(), positions, window, n_runs=runs, rng=np.random.default_rng(16)
+    )
+    means = batch.gyro_rps.mean(axis=2) / DPH  # (runs, positions, 3)
+    dev = means - means.mean(axis=0)  # the Earth rate is the same in every run
+    fs = batch.sample_rate_hz
+    # Moves start at the ends of windows 0 and 1; window p averages exp(-(t - t0) / tau).
+    t0 = [(starts[0] + n) / fs, (starts[1] + n) / fs]
+    t = (starts[:, None] + 1 + np.arange(n)) / fs
+
+    def decay(p: int, m: int) -> float:
+        return float(np.exp(-(t[p] - t0[m]) / tau).mean())
+
+    size = np.abs(delta[1:])
+    var1 = size[0] * (walk**2 + transient**2 * decay(1, 0) ** 2)
+    var2 = size[0] * (walk**2 + transient**2 * decay(2, 0) ** 2) + size[1] * (
+        walk**2 + transient**2 * decay(2, 1) ** 2
+    )
+    cov12 = size[0] * (walk**2 + transient**2 * decay(1, 0) * decay(2, 0))
+    tol = 4.0 * math.sqrt(2.0 / runs)  # 4 standard errors of a variance ratio, about 9 %
+    for axis in range(3):
+        assert np.abs(dev[:, 0, axis]).max() < 1e-9  # nothing before the first move
+        assert abs(dev[:, 1, axis].var() / var1 - 1.0) < tol
+        assert abs(dev[:, 2, axis].var() / var2 - 1.0) < tol
+        c = np.mean(dev[:, 1, axis] * dev[:, 2, axis])
+        assert abs(c - cov12) < 4.0 * math.sqrt(var1 * var2 / runs)
+    # The accelerometers are left alone (their move terms are zero).
+    assert np.ptp(batch.accel_mps2.mean(axis=2), axis=0).max() == 0.0
+
+
+def test_the_move_transient_decays_with_its_time_constant_and_the_ramp_is_linear():
+    spec = IDEAL.with_values(
+        {
+            "gyro.move_transient_dph_per_rtdeg": 1.0,
+            "gyro.move_transient_tau_s": 3.0,
+            "gyro.rate_ramp_dph_per_h": [0.0, 0.0, 36.0],
+            "table.settle_s": 0.0,
+        }
+    )
+    ins = Instrument(spec, Truth(), np.random.default_rng(17))
+    clean = Instrument(IDEAL, Truth(), np.random.default_rng(17))
+    ins.advance(1.0)
+    clean.advance(1.0)
+    t0 = ins.time_s
+    end = ins.table.move_by(t0, 90.0)
+    assert clean.table.move_by(t0, 90.0) == end
+    d = (ins.advance(end - t0 + 20.0).gyro_rps - clean.advance(end - t0 + 20.0).gyro_rps) / DPH
+    t = t0 + np.arange(1, len(d) + 1) / ins.sample_rate_hz
+    # Less the ramp on z (36 deg/h per hour = 0.01 deg/h per second since power-on), what is
+    # left is one random amplitude per axis decaying as exp(-(t - t0) / 3 s) from the move start.
+    d[:, 2] -= 0.01 * t
+    shape = np.exp(-(t - t0) / 3.0)
+    amp = d / shape[:, None]
+    assert_allclose(amp, np.broadcast_to(amp[0], amp.shape), rtol=1e-8)
+    assert np.all(np.abs(amp[0]) > 0.01)  # sqrt(90) x N(0, 1) deg/h: not zero
+
+
+def test_turn_on_bias_scatters_between_power_ons_as_specified():
+    """turn_on_bias_dph is the power-on to power-on repeatability: one draw per run."""
+    sigma = 0.002
+    spec = IDEAL.with_values({"gyro.turn_on_bias_dph": sigma, "accel.turn_on_bias_ug": 20.0})
+    runs = 2000
+    batch = simulate_windows(spec, Truth(), [0.0], 1.0, n_runs=runs, rng=np.random.default_rng(18))
+    gyro = batch.gyro_rps.mean(axis=2) / DPH
+    accel = batch.accel_mps2.mean(axis=2) / 9.80665e-6
+    tol = 4.0 / math.sqrt(2 * runs)
+    assert_allclose(gyro.std(axis=0).ravel() / sigma, 1.0, atol=tol)
+    assert_allclose(accel.std(axis=0).ravel() / 20.0, 1.0, atol=tol)
+    # Within one power-on it does not change.
+    assert np.ptp(batch.gyro_rps[:, 0], axis=1).max() < 1e-12 * DPH
 
 
 def test_the_instrument_and_the_batch_refuse_the_same_sample_rates():
