@@ -1,0 +1,1 @@
+"""Calibration of a gyro north finder from its own recordings (``northfinder calibrate``)."""
