@@ -53,6 +53,7 @@ from northfinder.firmware_sim.error_terms import (
     draw_turn_on,
     half_sine,
     move_bias,
+    move_heat,
     quantise_carry,
     random_directions,
     slow_noise_jump,
@@ -369,11 +370,12 @@ def simulate_windows(
         # Each move starts at the end of the window before it (plan_timeline).
         move_start = (starts[moved.nonzero()[0] - 1] + n) / fs
         z = draw_move(moves_rng, (n_runs, int(moved.sum())))
+        size = move_heat(move_start, delta[moved], terms.move_heat_tau_s)
         done = np.cumsum(moved)  # moves made before each window
         for p in range(pc):
             if done[p]:
                 m = done[p]
-                bias = move_bias(terms, t[p], move_start[:m], delta[moved][:m], z[:, :m])
+                bias = move_bias(terms, t[p], move_start[:m], size[:m], z[:, :m])
                 out[:, p] += np.moveaxis(bias, -1, 1)
     ring = np.zeros(pc)
     if tab.overshoot_deg:

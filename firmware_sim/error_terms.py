@@ -31,11 +31,13 @@ Moves
 -----
 Every table move of ``d`` degrees (the commanded angle turned) starting at ``t0`` draws two
 standard normal vectors ``z_walk`` and ``z_transient`` (:func:`draw_move`) and adds, from ``t0``
-on, ``sqrt(|d|) * (move_walk * z_walk + move_transient * z_transient * exp(-(t - t0) / tau))``:
+on, ``sqrt(q) * (move_walk * z_walk + move_transient * z_transient * exp(-(t - t0) / tau))``:
 a lasting bias step (a random walk in the angle turned) and a transient that decays with the
-time constant ``tau`` (motor heat, the mechanical disturbance of the sensor). Both scale with the
-square root of the angle, so that two half moves disturb as much as one whole move. A position
-the table already holds needs no move and adds nothing.
+time constant ``tau`` (the mechanical and thermal disturbance of the sensor by the drive). The
+size ``q`` (deg) is the heat the motor holds when the move starts (:func:`move_heat`): the angles
+of this and every earlier move, each decayed with the table's ``heat_tau_s``; with that at 0,
+``q = |d|``, so that two half moves disturb as much as one whole move. A position the table
+already holds needs no move and adds nothing.
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ __all__ = [
     "draw_turn_on",
     "half_sine",
     "move_bias",
+    "move_heat",
     "quantise_carry",
     "random_directions",
     "slow_noise_jump",
@@ -173,6 +176,8 @@ class ErrorTerms:
         Lasting bias step and initial transient amplitude of a move, 1 sigma per sqrt(deg) turned.
     move_tau_s : (6,) float
         Time constant of the move transient, s.
+    move_heat_tau_s : float
+        Time constant of the motor's heat that sizes the move terms, s (0: each move alone).
     """
 
     bias: Channels
@@ -193,6 +198,7 @@ class ErrorTerms:
     move_walk: Channels
     move_transient: Channels
     move_tau_s: Channels
+    move_heat_tau_s: float
 
     @classmethod
     def from_spec(cls, spec: SensorSpec) -> ErrorTerms:
@@ -219,6 +225,7 @@ class ErrorTerms:
                 g.move_transient_dph_per_rtdeg, a.move_transient_ug_per_rtdeg
             ),
             move_tau_s=np.repeat([g.move_transient_tau_s, a.move_transient_tau_s], 3),
+            move_heat_tau_s=spec.table.heat_tau_s,
         )
 
     def white_sigma(self, sample_rate_hz: float) -> NDArray[np.float64]:
@@ -326,6 +333,36 @@ def draw_move(rng: np.random.Generator, shape: tuple[int, ...] = ()) -> NDArray[
     return rng.standard_normal((*shape, 2, 6))
 
 
+def move_heat(
+    start_s: ArrayLike, angle_deg: ArrayLike, heat_tau_s: float, last: int | None = None
+) -> NDArray[np.float64]:
+    """Size of each move's disturbance (deg): the heat the motor holds as it starts.
+
+    Parameters
+    ----------
+    start_s, angle_deg : (M,) float
+        Start time (s) and commanded angle turned (deg) of every move so far, in order.
+    heat_tau_s : float
+        Time constant of the motor's heat, s; 0 sizes each move by its own angle.
+    last : int, optional
+        Size only the last ``last`` moves (the earlier ones still heat the motor).
+
+    Returns
+    -------
+    (M,) or (last,) float
+        ``sum over moves j <= m of |d_j| exp(-(t_m - t_j) / heat_tau_s)``.
+    """
+    t = np.asarray(start_s, dtype=float)
+    d = np.abs(np.asarray(angle_deg, dtype=float))
+    rows = slice(None) if last is None else slice(d.size - last, None)
+    if heat_tau_s <= 0.0 or d.size < 2:
+        return d[rows]
+    lag = t[rows, None] - t[None, :]
+    return np.asarray(
+        (np.where(lag >= 0.0, np.exp(-np.maximum(lag, 0.0) / heat_tau_s), 0.0) * d).sum(axis=1)
+    )
+
+
 def move_bias(
     terms: ErrorTerms,
     t: NDArray[np.float64],
@@ -342,7 +379,7 @@ def move_bias(
     t : (n,) float
         Sample times, s since power-on.
     start_s, size_deg : (M,) float
-        Start time (s) and commanded angle turned (deg) of each move.
+        Start time (s) and size ``q`` (deg, :func:`move_heat`) of each move.
     z : (..., M, 2, 6) float
         The z-scores of the moves (:func:`draw_move`); leading axes: runs, if any.
 

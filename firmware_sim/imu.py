@@ -30,6 +30,7 @@ from northfinder.firmware_sim.error_terms import (
     draw_turn_on,
     half_sine,
     move_bias,
+    move_heat,
     quantise_carry,
     random_directions,
     slow_noise_steps,
@@ -381,13 +382,17 @@ class Instrument:
 
     def _add_moves(self, out: NDArray[np.float64], t: NDArray[np.float64]) -> None:
         """Register the table's new moves (drawing their z-scores in order) and add their bias."""
-        new = self.table.moves[self._moves_seen :]
-        if new:
-            self._moves_seen += len(new)
-            self._move_start = np.append(self._move_start, [m[0] for m in new])
-            self._move_size = np.append(self._move_size, [m[1] for m in new])
-            self._move_z = np.concatenate([self._move_z, draw_move(self._move_rng, (len(new),))])
         terms = self._terms
+        moves = self.table.moves
+        new = len(moves) - self._moves_seen
+        if new:
+            # Sized as they start, from every move so far (the motor's heat).
+            start, angle = np.array(moves).T
+            size = move_heat(start, angle, terms.move_heat_tau_s, last=new)
+            self._moves_seen = len(moves)
+            self._move_start = np.append(self._move_start, start[-new:])
+            self._move_size = np.append(self._move_size, size)
+            self._move_z = np.concatenate([self._move_z, draw_move(self._move_rng, (new,))])
         if not terms.has_move_terms:
             return
         # A transient 60 time constants old is below 1e-26 of its size: keep only its step.

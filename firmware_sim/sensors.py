@@ -136,6 +136,11 @@ class TableSpec:
     indexing_error_deg: float = _f(0.0, doc="stop-position error per move, 1 sigma, deg")
     overshoot_deg: float = _f(0.0, doc="amplitude of the damped oscillation after a stop, deg")
     overshoot_hz: float = _f(4.0, _POSITIVE, "frequency of that oscillation, Hz")
+    heat_tau_s: float = _f(
+        0.0,
+        doc="time constant of the heat the motor holds, s: the bias disturbance a move starts has "
+        "the variance of all angles turned, each decayed with it; 0 = of this move's angle alone",
+    )
 
 
 _SECTIONS: dict[str, type] = {

@@ -17,6 +17,7 @@ from northfinder.firmware_sim.error_terms import (
     FLICKER_TAUS_S,
     FLICKER_VARIANCE,
     ErrorTerms,
+    move_heat,
     quantise_carry,
     temperature_c,
 )
@@ -516,6 +517,7 @@ def test_one_batch_run_draws_the_same_power_on_as_the_instrument():
             "accel.move_transient_ug_per_rtdeg": 3.0,
             "thermal.warmup_rise_c": 4.0,
             "table.indexing_error_deg": 0.01,
+            "table.heat_tau_s": 60.0,
         }
     )
     truth = Truth(azimuth_deg=75.0, latitude_deg=40.0, pitch_deg=1.5, roll_deg=-0.5)
@@ -658,6 +660,20 @@ def test_the_move_transient_decays_with_its_time_constant_and_the_ramp_is_linear
     amp = d / shape[:, None]
     assert_allclose(amp, np.broadcast_to(amp[0], amp.shape), rtol=1e-8)
     assert np.all(np.abs(amp[0]) > 0.01)  # sqrt(90) x N(0, 1) deg/h: not zero
+
+
+def test_move_heat_sizes_the_move_disturbance_by_the_angles_turned_and_their_age():
+    start = np.array([0.0, 20.0, 50.0])
+    angle = np.array([30.0, -90.0, 10.0])
+    assert_allclose(move_heat(start, angle, 0.0), [30.0, 90.0, 10.0])
+    e = math.exp
+    expected = [
+        30.0,
+        90.0 + 30.0 * e(-20.0 / 40.0),
+        10.0 + 90.0 * e(-30.0 / 40.0) + 30.0 * e(-50.0 / 40.0),
+    ]
+    assert_allclose(move_heat(start, angle, 40.0), expected, rtol=1e-14)
+    assert_allclose(move_heat(start, angle, 40.0, last=1), expected[-1:], rtol=1e-14)
 
 
 def test_turn_on_bias_scatters_between_power_ons_as_specified():

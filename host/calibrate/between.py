@@ -13,7 +13,8 @@ the variance of each random part (a variance-component fit, by restricted maximu
     more runs).
 ``move_walk``
     A lasting bias step at every move, 1 sigma per sqrt(deg) turned: window means after ``k``
-    moves carry the sum of ``k`` steps.
+    moves carry the sum of ``k`` steps. (With a drive that warms up, ``heat_tau_s`` > 0, a move's
+    size is the heat it finds: all angles turned so far, each decayed with that time constant.)
 ``move_transient``
     A bias transient started by every move, 1 sigma per sqrt(deg) turned at the start of the move
     and decaying with a time constant ``tau_s`` that the caller states: each window carries the
@@ -38,7 +39,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq, minimize
 
 from northfinder.host.errors import InputError
@@ -107,6 +108,19 @@ class RunWindows:
         if np.any(np.asarray(self.end_s) <= np.asarray(self.start_s)):
             raise InputError("end_s: every window must end after it starts")
 
+    @classmethod
+    def regular(
+        cls, gyro_dph: ArrayLike, positions_deg: Sequence[float], window_s: float, step_s: float
+    ) -> RunWindows:
+        """A run of a regular plan: windows of ``window_s`` every ``step_s`` seconds at the
+        table angles ``positions_deg``, each move starting as the window before it ends."""
+        pos = np.asarray(positions_deg, dtype=float)
+        start = np.arange(pos.size) * float(step_s)
+        end = start + float(window_s)
+        move = np.concatenate([[0.0], (np.diff(pos) + 180.0) % 360.0 - 180.0])
+        move_start = np.concatenate([[math.nan], end[:-1]])
+        return cls(np.asarray(gyro_dph, dtype=float), pos, pos, start, end, move, move_start)
+
     @property
     def windows(self) -> int:
         return len(self.table_deg)
@@ -148,6 +162,8 @@ class BetweenFit:
         The reference window length of ``white``, s.
     tau_s : float
         Time constant assumed for ``move_transient``, s.
+    heat_tau_s : float
+        Time constant assumed for the drive's heat, s (0: none).
     design : str
         The fixed part used (:data:`DESIGNS`).
     runs, windows, moves : int
@@ -164,6 +180,7 @@ class BetweenFit:
     interval: dict[str, tuple[float, float]]
     window_s: float
     tau_s: float
+    heat_tau_s: float
     design: str
     runs: int
     windows: int
@@ -224,15 +241,27 @@ def _slow_cov(run: RunWindows, slow: SlowNoise) -> NDArray[np.float64]:
     return cov
 
 
+def _heat_sizes(start_s: NDArray[np.float64], angle_deg: NDArray[np.float64], heat_tau_s: float):
+    """Size of each move's disturbance, deg: the angles turned so far, each decayed with the
+    motor's heat time constant (the simulator's model of a drive that warms up)."""
+    d = np.abs(angle_deg)
+    if heat_tau_s <= 0.0:
+        return d
+    lag = start_s[:, None] - start_s[None, :]
+    return (np.where(lag >= 0.0, np.exp(-np.maximum(lag, 0.0) / heat_tau_s), 0.0) * d).sum(1)
+
+
 def _component_blocks(
-    run: RunWindows, tau_s: float, window_s: float
+    run: RunWindows, tau_s: float, window_s: float, heat_tau_s: float
 ) -> dict[str, NDArray[np.float64]]:
     """Covariance of one run's window means (one axis) per component at unit sigma, (k, k)."""
     start = np.asarray(run.start_s, dtype=float)
     end = np.asarray(run.end_s, dtype=float)
     moves = np.flatnonzero(run.move_deg)
-    root = np.sqrt(np.abs(np.asarray(run.move_deg, dtype=float)[moves]))[:, None]
-    t0 = np.asarray(run.move_start_s, dtype=float)[moves][:, None]
+    t0 = np.asarray(run.move_start_s, dtype=float)[moves]
+    size = _heat_sizes(t0, np.asarray(run.move_deg, dtype=float)[moves], heat_tau_s)
+    root = np.sqrt(size)[:, None]
+    t0 = t0[:, None]
     after = start[None, :] >= t0  # (moves, k): the move came before the window
     step = after * root
     delay0 = np.maximum(start[None, :] - t0, 0.0)
@@ -347,6 +376,7 @@ def fit_between_positions(
     slow: SlowNoise | None = None,
     window_s: float | None = None,
     fixed: Mapping[str, float] | None = None,
+    heat_tau_s: float = 0.0,
 ) -> BetweenFit:
     """Variance components of the x and y gyro window means over runs (see the module doc).
 
@@ -366,6 +396,9 @@ def fit_between_positions(
     fixed : mapping, optional
         Components held at a given value (names of :data:`COMPONENTS`, their units) rather than
         estimated, e.g. a turn-on repeatability known from elsewhere.
+    heat_tau_s : float
+        Time constant of the drive's heat, s: a move's disturbance then has the variance of all
+        angles turned so far, each decayed with it (0: of its own angle alone).
 
     Returns
     -------
@@ -389,7 +422,9 @@ def fit_between_positions(
     x = _design(runs, design)
     y = [np.asarray(r.gyro_dph, dtype=float) for r in runs]
     slow = slow or SlowNoise()
-    blocks = [_component_blocks(r, tau_s, ref) for r in runs]
+    if not (math.isfinite(heat_tau_s) and heat_tau_s >= 0):
+        raise InputError(f"heat_tau_s: must be a finite number of seconds >= 0, got {heat_tau_s!r}")
+    blocks = [_component_blocks(r, tau_s, ref, heat_tau_s) for r in runs]
     known = [_slow_cov(r, slow) for r in runs]
     n_moves = sum(r.moves for r in runs)
     # What the records can show: the turn-on value needs a second run, the move terms moves.
@@ -452,9 +487,7 @@ def fit_between_positions(
         out[free] = res.x
         return float(res.fun), out
 
-    held = {
-        i: fixed[name] * unit[i] / scale for i, name in enumerate(names) if name in fixed
-    }
+    held = {i: fixed[name] * unit[i] / scale for i, name in enumerate(names) if name in fixed}
     # Starts: every component alike, and each one alone carrying the residual variance.
     starts = [np.full(len(names), v) for v in (0.2, 0.6)]
     starts += [np.where(np.arange(len(names)) == i, 1.0, 0.05) for i in range(len(names))]
@@ -490,6 +523,7 @@ def fit_between_positions(
         interval=interval,
         window_s=ref,
         tau_s=float(tau_s),
+        heat_tau_s=float(heat_tau_s),
         design=design,
         runs=len(runs),
         windows=sum(r.windows for r in runs),
