@@ -579,10 +579,12 @@ def solve_multi_position(
     Model, both horizontal gyros at every position i:
     ``w_i = R(mu_i) h(alpha, pitch, roll) + b``, where R is the horizontal block of C_m^m1,
     h the horizontal Earth rate in the body frame at table angle 0 (its size fixed by the known
-    latitude) and b the constant gyro bias. Unknowns: alpha and b (Gauss-Newton; only alpha
-    enters non-linearly). With accelerometer means the tilt and accelerometer biases are
-    estimated first from ``f_i = R(mu_i) f_0 + b_a`` (linear), and their covariance is carried
-    into the heading's; without them the tilt is the known ``pitch_deg``, ``roll_deg``.
+    latitude) and b the constant gyro bias. Unknowns: alpha and b; only alpha enters
+    non-linearly (the biases are projected out and alpha found by Newton's method, see
+    :func:`northfinder.host.kernels.fit_heading`). With accelerometer means the tilt and
+    accelerometer biases are estimated first from ``f_i = R(mu_i) f_0 + b_a`` (linear), and
+    their covariance is carried into the heading's; without them the tilt is the known
+    ``pitch_deg``, ``roll_deg``.
 
     Parameters
     ----------
@@ -606,7 +608,7 @@ def solve_multi_position(
     accel_noise : float or array_like, optional
         Likewise for the accelerometer means (redundancy needs N >= 3).
     max_iterations : int
-        Gauss-Newton iteration limit.
+        Iteration limit of the heading fit.
 
     Returns
     -------

@@ -340,7 +340,7 @@ class HeadingFit:
     bias : ndarray, shape (R, 2)
         x and y gyro biases, in the unit of the means.
     converged : ndarray of bool, shape (R,)
-        Whether the last Gauss-Newton step fell below the tolerance.
+        Whether the last alpha step fell below the tolerance.
     """
 
     alpha: Array
@@ -398,14 +398,18 @@ def fit_heading(
     weights: Array | None = None,
     *,
     max_iterations: int = 50,
-    tolerance: float = 1e-15,
+    tolerance: float = 1e-12,
 ) -> HeadingFit:
-    """Heading and gyro biases of every run by Gauss-Newton on ``w_i = R(mu_i) h(alpha) + b``.
+    """Heading and gyro biases of every run: least squares of ``w_i = R(mu_i) h(alpha) + b``.
 
-    The start is the unconstrained linear fit ``w_i = R(mu_i) u + b`` with alpha taken from u
-    given the tilt; only alpha enters non-linearly. A run has converged when its alpha step is
-    below ``tolerance`` rad and its bias steps below ``tolerance (1 + |omega_n|)``; converged runs
-    are no longer changed.
+    Only alpha enters non-linearly, so the biases are projected out (for a given alpha they are
+    a linear fit) and alpha is found by Newton's method on the projected cost, starting from the
+    unconstrained linear fit ``w_i = R(mu_i) u + b`` (alpha from u given the tilt). Newton, not
+    Gauss-Newton: with noise comparable to the Earth rate (MEMS gyros) Gauss-Newton's step
+    overshoots and oscillates about the minimum; the residual term of the curvature removes that
+    (where that curvature is not positive, far from a minimum, the Gauss-Newton step is taken).
+    A run has converged when its alpha step is below ``tolerance`` rad; converged runs are no
+    longer changed.
 
     Parameters
     ----------
@@ -420,34 +424,46 @@ def fit_heading(
     weights : ndarray, shape (R, 2N), optional
         1 / sigma of each mean.
     max_iterations : int
-        Gauss-Newton steps at most.
+        Newton steps at most.
     tolerance : float
-        Convergence threshold (see above).
+        Convergence threshold on the alpha step, rad.
     """
     r_count, n = gyro.shape[:2]
+    w = np.ones((r_count, 2 * n)) if weights is None else np.broadcast_to(weights, (r_count, 2 * n))
     x_lin, _, _ = lstsq(_linear_design(rot), gyro.reshape(r_count, 2 * n), weights)
     st, ct, sg, cg = np.sin(theta), np.cos(theta), np.sin(gamma), np.cos(gamma)
     # h = M (cos a, sin a) + c0 with M = [[on ct, 0], [on st sg, -on cg]]: solve for (cos a, sin a).
-    u0 = (x_lin[:, 0] + omega_u * st) / (omega_n * ct)
-    u1 = -((x_lin[:, 1] - omega_u * ct * sg) - omega_n * st * sg * u0) / (omega_n * cg)
+    c0 = np.stack([-omega_u * st, omega_u * ct * sg], -1)
+    u0 = (x_lin[:, 0] - c0[:, 0]) / (omega_n * ct)
+    u1 = -((x_lin[:, 1] - c0[:, 1]) - omega_n * st * sg * u0) / (omega_n * cg)
     alpha = np.arctan2(u1, u0)
-    bias = x_lin[:, 2:].copy()
+    # Weighted bias design B (R, 2N, 2) and the projection P v = v - B (B^T B)^-1 B^T v.
+    b_w = np.broadcast_to(np.eye(2), (r_count, n, 2, 2)).reshape(r_count, 2 * n, 2) * w[..., None]
+    b_pinv = np.linalg.solve(np.swapaxes(b_w, 1, 2) @ b_w, np.swapaxes(b_w, 1, 2))  # (R, 2, 2N)
+
+    def project(v: Array) -> Array:
+        return v - np.einsum("rmk,rk->rm", b_w, np.einsum("rkm,rm->rk", b_pinv, v))
+
+    def weighted(v: Array) -> Array:
+        return v.reshape(r_count, 2 * n) * w
+
     converged = np.zeros(r_count, dtype=bool)
-    eye = np.broadcast_to(np.eye(2), (r_count, n, 2, 2))
-    bias_tol = tolerance * (1.0 + abs(omega_n))
     for _ in range(int(max_iterations)):
         h, dh = earth_rate_body(alpha, theta, gamma, omega_n, omega_u)
-        res = (gyro - np.einsum("rnij,rj->rni", rot, h) - bias[:, None, :]).reshape(r_count, 2 * n)
-        jac = np.concatenate([np.einsum("rnij,rj->rni", rot, dh[..., 0])[..., None], eye], axis=-1)
-        step, _, _ = lstsq(jac.reshape(r_count, 2 * n, 3), res, weights)
+        e = project(weighted(gyro - np.einsum("rnij,rj->rni", rot, h)))
+        d1 = project(weighted(np.einsum("rnij,rj->rni", rot, dh[..., 0])))
+        d2 = project(weighted(-np.einsum("rnij,rj->rni", rot, h - c0)))  # R h'', h'' = c0 - h
+        slope = np.sum(d1 * e, axis=1)
+        curv_gn = np.sum(d1 * d1, axis=1)
+        curv = curv_gn - np.sum(d2 * e, axis=1)
+        step = slope / np.where(curv > 0.0, curv, curv_gn)
         active = ~converged
-        alpha = np.where(active, alpha + step[:, 0], alpha)
-        bias = np.where(active[:, None], bias + step[:, 1:], bias)
-        converged |= (np.abs(step[:, 0]) < tolerance) & np.all(
-            np.abs(step[:, 1:]) <= bias_tol, axis=1
-        )
+        alpha = np.where(active, alpha + step, alpha)
+        converged |= np.abs(step) < tolerance
         if converged.all():
             break
+    h, _ = earth_rate_body(alpha, theta, gamma, omega_n, omega_u)
+    bias = np.einsum("rkm,rm->rk", b_pinv, weighted(gyro - np.einsum("rnij,rj->rni", rot, h)))
     return HeadingFit(alpha, bias, converged)
 
 
@@ -462,8 +478,8 @@ def solve_least_squares_batch(
     """Azimuths of many multi-position runs by least squares (gyro biases estimated).
 
     The vectorised form of :func:`northfinder.host.heading.solve_multi_position` with equal
-    weights: tilt and accelerometer biases from ``f_i = R(mu_i) f0 + b_a`` (linear), then
-    Gauss-Newton on ``w_i = R(mu_i) h(alpha, tilt) + b`` (:func:`fit_heading`).
+    weights: tilt and accelerometer biases from ``f_i = R(mu_i) f0 + b_a`` (linear), then the
+    heading from ``w_i = R(mu_i) h(alpha, tilt) + b`` (:func:`fit_heading`).
 
     Parameters
     ----------
@@ -475,7 +491,7 @@ def solve_least_squares_batch(
     accel_means : array_like, shape (R, N, 2) or (R, N, 3), optional
         Accelerometer window means, m/s^2; without them the instrument is taken as level.
     max_iterations : int
-        Gauss-Newton steps at most (the start is close: a few usually suffice).
+        Newton steps at most (the start is close: a few usually suffice).
 
     Returns
     -------

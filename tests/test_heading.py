@@ -10,6 +10,7 @@ import pytest
 from numpy.testing import assert_allclose
 from numpy.typing import ArrayLike
 
+from northfinder.driver.protocol.units import OMEGA_IE
 from northfinder.firmware_sim.earth import (
     alpha_from_azimuth,
     earth_rate_n,
@@ -32,6 +33,7 @@ from northfinder.host.heading import (
     solve_two_position,
     two_position_bound_deg,
 )
+from northfinder.host.kernels import solve_least_squares_batch
 from northfinder.host.plan import PAPER_SWEEP, PLANS
 
 # The source paper's Table 1: mean outputs (mV) of the x and y gyros of the prototype at table
@@ -427,3 +429,29 @@ def test_monte_carlo_predicted_sigmas_with_tilt_and_many_positions() -> None:
     errors = angle_error_deg([s.azimuth_deg for s in multi], az)
     predicted = float(np.mean([s.sigma_deg for s in multi]))
     assert abs(errors.std() / predicted - 1.0) < 0.10
+
+
+def test_least_squares_finds_the_minimum_when_noise_exceeds_the_earth_rate() -> None:
+    """Gyro noise twice the horizontal Earth rate (a MEMS gyro): every fit converges, to the
+    least-squares minimum over all headings, and the scalar and vectorised solvers agree. (Plain
+    Gauss-Newton oscillates about the minimum for some of these runs.)"""
+    rng = np.random.default_rng(42)
+    lat, runs = 34.0, 300
+    mus = np.array([0.0, 120.0, 240.0])
+    omega_h = OMEGA_IE * math.cos(math.radians(lat))
+    gyro, _ = closed_form_means(10.0, 0.0, 0.0, lat, mus)
+    means = gyro[None, :, :2] + rng.normal(0.0, 2.0 * omega_h, (runs, 3, 2))
+    batch = solve_least_squares_batch(means, mus, latitude_deg=lat)
+    assert not np.isnan(batch).any()
+    # The profiled cost (biases fitted for each heading) on a fine grid of headings.
+    alphas = np.radians(np.arange(0.0, 360.0, 0.01))
+    h = omega_h * np.stack([np.cos(alphas), -np.sin(alphas)], -1)  # level: h(alpha)
+    model = np.einsum("nij,aj->ani", mat_table(np.radians(mus))[:, :2, :2], h)  # (A, N, 2)
+    for r in range(runs):
+        res = means[r][None] - model
+        res -= res.mean(axis=1, keepdims=True)  # the best biases for each heading
+        cost = np.sum(res**2, axis=(1, 2))
+        best = np.degrees(-alphas[np.argmin(cost)]) % 360.0
+        assert abs(angle_error_deg(batch[r], best)) < 0.02
+        scalar = solve_multi_position(means[r], mus, latitude_deg=lat)
+        assert abs(angle_error_deg(scalar.azimuth_deg, batch[r])) < 1e-9
