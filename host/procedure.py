@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Validity
+from northfinder.driver.protocol.motion import shortest_delta_deg
 from northfinder.host.denoise import denoise
 from northfinder.host.errors import HostConfigError, HostError, QualityError
 from northfinder.host.heading import (
@@ -36,7 +37,9 @@ from northfinder.host.plan import Plan
 __all__ = [
     "BAD_BITS",
     "MAX_ENCODER_SPAN_DEG",
+    "MAX_SETTLE_S",
     "METHOD_CHOICES",
+    "WINDOW_RANGE_S",
     "FindResult",
     "Plan",
     "PositionWindow",
@@ -66,7 +69,7 @@ BAD_BITS = (
 )
 #: Solvers the procedure offers (a plan's ``pairwise`` is for studies: it gives no one heading).
 METHOD_CHOICES = ("auto", "two-position", "least-squares")
-#: Window and extra-settle limits of a run on a device, s.
+#: Window and settle-time limits of a run on a device, s.
 WINDOW_RANGE_S = (0.5, 3600.0)
 MAX_SETTLE_S = 600.0
 
@@ -406,7 +409,7 @@ def find_north(
         left, angle = 0.0, here
         for p in plan.positions_deg[i:]:
             if angle is not None:
-                d = abs((p - angle + 180.0) % 360.0 - 180.0)
+                d = abs(shortest_delta_deg(angle, p))
                 left += d / max(rate_dps, 1e-6) + settle_dev
             angle = p
             left += extra + plan.window_s
