@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.driver.protocol.units import DPH
 from northfinder.firmware_sim.batch import BatchWindows, simulate_windows
+from northfinder.firmware_sim.error_terms import GYRO, ErrorTerms
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ErrorModel
@@ -68,18 +68,9 @@ class SpecDrift:
     spec: SensorSpec
 
     def __call__(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
-        # The one place the host side evaluates the simulator's deterministic error terms. It
-        # repeats firmware_sim's temperature model and warm-up transient (imu.Instrument and
-        # batch.simulate_windows); call the simulator's single definition here once it has one.
-        g, th = self.spec.gyro, self.spec.thermal
-        warm = np.asarray(g.warmup_bias_dph[:2]) * DPH
-        coeff = np.asarray(g.temp_coeff_dph_per_c[:2]) * DPH
-        temp = (
-            th.warmup_rise_c * (1.0 - np.exp(-t / th.warmup_tau_s)) + th.ramp_c_per_h * t / 3600.0
-        )
-        out: NDArray[np.float64] = (
-            np.exp(-t / g.warmup_tau_s)[:, None] * warm + temp[:, None] * coeff
-        )
+        # The simulator's own definition of its deterministic terms (firmware_sim.error_terms).
+        drift = ErrorTerms.from_spec(self.spec).drift(np.asarray(t, dtype=float), self.spec.thermal)
+        out: NDArray[np.float64] = drift[..., GYRO][..., :2]
         return out
 
 
