@@ -157,8 +157,11 @@ class Recording:
             raise RecordingError(f"{p}: cannot write ({exc.strerror})") from exc
 
     @staticmethod
-    def load(path: str | Path) -> Recording:
-        """Read a CSV or NPZ recording; every problem is reported with the file and the field."""
+    def load(path: str | Path, *, min_windows: int = 2) -> Recording:
+        """Read a CSV or NPZ recording; every problem is reported with the file and the field.
+
+        ``min_windows``: fewer windows is an error (north finding needs two positions; a static
+        recording for calibration may hold one)."""
         p = Path(path)
         if p.suffix not in (".csv", ".npz"):
             raise RecordingError(f"{p}: the file name must end in .csv or .npz")
@@ -177,7 +180,7 @@ class Recording:
             raise RecordingError(
                 f"{p}: recording version {meta.get('version')!r}; this reader knows {VERSION}"
             )
-        return Recording(_split(arrays, p), meta)
+        return Recording(_split(arrays, p, min_windows), meta)
 
 
 def _concat(windows: tuple[RecordedWindow, ...]) -> dict[str, NDArray[Any]]:
@@ -279,7 +282,9 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _split(arrays: dict[str, NDArray[Any]], p: Path) -> tuple[RecordedWindow, ...]:
+def _split(
+    arrays: dict[str, NDArray[Any]], p: Path, min_windows: int = 2
+) -> tuple[RecordedWindow, ...]:
     needed = ("window", "commanded_deg", *SAMPLE_ARRAYS)
     for name in needed:
         if name not in arrays:
@@ -302,8 +307,11 @@ def _split(arrays: dict[str, NDArray[Any]], p: Path) -> tuple[RecordedWindow, ..
         fields = {name: arrays[name][sel] for name in SAMPLE_ARRAYS}
         fields["validity"] = fields["validity"].astype(np.uint8)
         windows.append(RecordedWindow(float(commanded[0]), **fields))
-    if len(windows) < 2:
-        raise RecordingError(
-            f"{p}: {len(windows)} window(s); north finding needs at least two positions"
+    if len(windows) < min_windows:
+        need = (
+            "north finding needs at least two positions"
+            if min_windows == 2
+            else f"need at least {min_windows}"
         )
+        raise RecordingError(f"{p}: {len(windows)} window(s); {need}")
     return tuple(windows)

@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "solve": "northfinder.host.cli.solve",
     "find": "northfinder.host.cli.find",
     "record": "northfinder.host.cli.record",
+    "calibrate": "northfinder.host.cli.calibrate",
 }
 
 

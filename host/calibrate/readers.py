@@ -1,0 +1,171 @@
+"""Recordings as calibration input: every format the project reads, behind one reader table.
+
+A reader turns one file into a :class:`RecordedRun`: the windows of one power-on in time order,
+each with its samples (gyro in deg/h, accelerometer in m/s^2), device times, table angles and
+validity bits. :data:`READERS` maps a file name's ending to its reader; a new format (a CAN log,
+say) plugs in with :func:`register_reader` and nothing else changes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from northfinder.driver.protocol.constants import Validity
+from northfinder.host.errors import RecordingError
+from northfinder.host.recording import Recording
+
+__all__ = [
+    "BAD_BITS",
+    "READERS",
+    "RecordedRun",
+    "RunWindow",
+    "read_runs",
+    "register_reader",
+]
+
+#: Validity bits that keep a sample out of the calibration (protocol.md 4.5).
+BAD_BITS = (
+    Validity.TABLE_MOVING
+    | Validity.TABLE_SETTLING
+    | Validity.GYRO_SATURATED
+    | Validity.ACCEL_SATURATED
+    | Validity.WARMING_UP
+    | Validity.FAULT
+)
+
+
+@dataclass(frozen=True)
+class RunWindow:
+    """One still window of a run.
+
+    Attributes
+    ----------
+    commanded_deg : float
+        Table angle ordered for the window, deg.
+    counter : (n,) int64
+        Sample counter (consecutive where no sample was lost).
+    time_s : (n,) float
+        Device time at the end of each sample, s.
+    gyro_dph : (n, 3) float
+        Gyro, deg/h.
+    accel_mps2 : (n, 3) float
+        Accelerometer, m/s^2.
+    table_deg : (n,) float
+        Encoder angle, deg.
+    validity : (n,) uint8
+        Validity bits.
+    """
+
+    commanded_deg: float
+    counter: NDArray[np.int64]
+    time_s: NDArray[np.float64]
+    gyro_dph: NDArray[np.float64]
+    accel_mps2: NDArray[np.float64]
+    table_deg: NDArray[np.float64]
+    validity: NDArray[np.uint8]
+
+    def pieces(self, min_samples: int = 1) -> list[slice]:
+        """Runs of consecutive good samples (no bad validity bit, no counter gap), as slices."""
+        good = (np.asarray(self.validity, dtype=np.int64) & int(BAD_BITS)) == 0
+        breaks = np.flatnonzero(np.diff(self.counter) != 1) + 1
+        out = []
+        for seg in np.split(np.arange(len(self.counter)), breaks):
+            g = good[seg]
+            # Split each gap-free stretch again at bad samples.
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], g.astype(np.int8), [0]])))
+            for a, b in zip(edges[::2], edges[1::2], strict=True):
+                if b - a >= min_samples:
+                    out.append(slice(int(seg[a]), int(seg[b - 1]) + 1))
+        return out
+
+
+@dataclass(frozen=True)
+class RecordedRun:
+    """The windows of one recording (one power-on), in time order.
+
+    Attributes
+    ----------
+    source : str
+        Where it came from (the file name).
+    sample_rate_hz : float
+        Sample rate, Hz.
+    windows : tuple of RunWindow
+    latitude_deg : float or None
+        Latitude, if the recording states it.
+    meta : dict
+        Whatever else the recording states.
+    """
+
+    source: str
+    sample_rate_hz: float
+    windows: tuple[RunWindow, ...]
+    latitude_deg: float | None = None
+    meta: dict[str, Any] = field(default_factory=dict, repr=False)
+
+
+#: File-name ending -> reader.
+READERS: dict[str, Callable[[Path], RecordedRun]] = {}
+
+
+def register_reader(suffix: str, reader: Callable[[Path], RecordedRun]) -> None:
+    """Make ``read_runs`` read files ending in ``suffix`` (``".asc"``, say) with ``reader``."""
+    if not suffix.startswith("."):
+        raise RecordingError(f"reader suffix: must start with '.', got {suffix!r}")
+    READERS[suffix.lower()] = reader
+
+
+def _read_northfinder(path: Path) -> RecordedRun:
+    rec = Recording.load(path, min_windows=1)
+    rate = rec.meta.get("sample_rate_hz")
+    if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
+        raise RecordingError(f"{path}: no sample_rate_hz in the metadata (got {rate!r})")
+    lat = rec.meta.get("latitude_deg")
+    latitude = float(lat) if isinstance(lat, int | float) and math.isfinite(lat) else None
+    windows = tuple(
+        RunWindow(
+            commanded_deg=w.commanded_deg,
+            counter=np.asarray(w.counter, dtype=np.int64),
+            time_s=np.asarray(w.time_s, dtype=float),
+            gyro_dph=np.asarray(w.gyro_dph, dtype=float),
+            accel_mps2=np.asarray(w.accel_mps2, dtype=float),
+            table_deg=np.asarray(w.table_deg, dtype=float),
+            validity=np.asarray(w.validity, dtype=np.uint8),
+        )
+        for w in rec.windows
+    )
+    order = np.argsort([w.time_s[0] for w in windows], kind="stable")
+    return RecordedRun(str(path), float(rate), tuple(windows[i] for i in order), latitude, rec.meta)
+
+
+register_reader(".csv", _read_northfinder)
+register_reader(".npz", _read_northfinder)
+
+
+def read_runs(paths: Sequence[str | Path]) -> list[RecordedRun]:
+    """Read every file, one run each, by the reader its ending names.
+
+    Raises
+    ------
+    RecordingError
+        No files, a format no reader knows (the message lists those known), or the reader's own
+        error naming the file and what is wrong.
+    """
+    if not paths:
+        raise RecordingError("recordings: give at least one file")
+    runs = []
+    for p in map(Path, paths):
+        reader = READERS.get(p.suffix.lower())
+        if reader is None:
+            raise RecordingError(
+                f"{p}: no reader for {p.suffix or 'files without an ending'!r}; readable: "
+                f"{', '.join(sorted(READERS))}"
+            )
+        runs.append(reader(p))
+    return runs

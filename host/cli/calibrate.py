@@ -1,0 +1,94 @@
+"""``northfinder calibrate RECORDING...``: the sensor terms of an instrument from its recordings.
+
+Static windows give the overlapping Allan deviation per axis and an IEEE 952 fit (quantisation,
+angle random walk, bias instability, rate random walk, rate ramp); recordings of several windows
+with table moves between them give the between-position terms (turn-on repeatability over
+recordings, a lasting bias step and a transient per move) and the table's stop error. Each
+recording is one power-on. The result is a sensor TOML file that ``--sensor FILE`` takes
+(``--output``; printed when not given), a report (printed, or ``--report FILE``) and a plot of
+the Allan deviation and the fitted terms (``--plot FILE``, needs matplotlib).
+
+Readable recordings: those of ``northfinder record`` and ``find --record`` (.csv, .npz).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from northfinder.firmware_sim.sensors import load_spec, spec_from_dict
+from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
+from northfinder.host.calibrate.readers import READERS
+from northfinder.host.cli.common import positive_float
+from northfinder.host.errors import HostConfigError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "calibrate", help="fit sensor terms to recordings and write a sensor TOML",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    p.add_argument(
+        "recordings", nargs="+", metavar="RECORDING",
+        help=f"recordings, one per power-on ({', '.join(sorted(READERS))})",
+    )  # fmt: skip
+    p.add_argument("-o", "--output", metavar="FILE", help="write the sensor TOML here")
+    p.add_argument("--name", default=None, help="sensor name in the TOML (default: the file stem)")
+    p.add_argument(
+        "--base", metavar="PRESET|FILE", default=None,
+        help="complete the TOML with this sensor's other fields (table, ranges, ...)",
+    )  # fmt: skip
+    p.add_argument("--report", metavar="FILE", help="write the report here instead of printing it")
+    p.add_argument("--plot", metavar="FILE", help="plot the Allan deviation and the fit (PNG)")
+    p.add_argument("--json", action="store_true", help="print the fitted terms as JSON")
+    g = p.add_argument_group("between-position assumptions")
+    g.add_argument(
+        "--move-tau", type=positive_float, default=10.0, metavar="SECONDS",
+        help="time constant of the bias transient a move starts (default 10)",
+    )  # fmt: skip
+    g.add_argument(
+        "--heat-tau", type=float, default=0.0, metavar="SECONDS",
+        help="time constant of the drive's heat that sizes move disturbances (default 0: none)",
+    )  # fmt: skip
+    g.add_argument(
+        "--between", choices=DESIGNS, default="per-run",
+        help="per-run: each recording its own heading; same-mount: one plan on one mount, "
+        "repeated effects at a position removed (default per-run)",
+    )  # fmt: skip
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.heat_tau < 0 or not math.isfinite(args.heat_tau):
+        raise HostConfigError(f"--heat-tau: must be a finite number >= 0, got {args.heat_tau}")
+    runs = read_runs(args.recordings)
+    cal = calibrate(runs, tau_s=args.move_tau, heat_tau_s=args.heat_tau, design=args.between)
+    name = args.name or (Path(args.output).stem if args.output else "calibrated")
+    base: dict[str, Any] | None = load_spec(args.base).to_dict() if args.base else None
+    text = cal.to_toml(name, base)
+    # The simulator must take what is written: load it as --sensor FILE would.
+    spec_from_dict(tomllib.loads(text), source=args.output or "<calibrated>")
+    if args.plot:
+        from northfinder.host.calibrate.plot import plot_calibration
+
+        plot_calibration(cal, args.plot)
+    report = cal.report()
+    if args.report:
+        Path(args.report).write_text(report + "\n")
+    if args.output:
+        Path(args.output).write_text(text)
+    if args.json:
+        print(json.dumps(cal.to_json_dict(name), indent=2))
+        return 0
+    if not args.report:
+        print(report)
+    if args.output:
+        print(f"wrote {args.output}")
+    else:
+        print()
+        print(text, end="")
+    return 0
