@@ -16,8 +16,8 @@ edf for the noise type that dominates the model there), iterated to convergence.
 variances at neighbouring tau are correlated, which this weighting ignores, so the coefficient
 uncertainties from the fit alone are too small: they are scaled by the root of the residual
 chi-squared per degree of freedom when that exceeds one. A term counts as *resolved* when it is
-at least three times its uncertainty and supplies a quarter or more of the model variance
-somewhere in the fitted range; otherwise :attr:`NoiseFit.upper` gives the largest value the
+at least three times its uncertainty and supplies a quarter or more of the model variance at
+some cluster time where the curve has ten or more degrees of freedom; otherwise :attr:`NoiseFit.upper` gives the largest value the
 measured curve's 95 % upper bound allows.
 """
 
@@ -135,11 +135,11 @@ class AllanCurve:
     terms : (k,) int
         Number of overlapping second differences behind each value.
     samples : (k,) int
-        Samples of the record(s) behind each value (for the edf).
+        Samples of the records behind each value (for the edf).
     clusters : (k,) int
         Cluster size in samples.
-    segments : int
-        Independent records pooled into the curve.
+    records : (k,) int
+        Independent records behind each value (those long enough for its cluster time).
     """
 
     taus_s: NDArray[np.float64]
@@ -147,21 +147,26 @@ class AllanCurve:
     terms: NDArray[np.int64]
     samples: NDArray[np.int64] = field(repr=False)
     clusters: NDArray[np.int64] = field(repr=False)
-    segments: int = 1
+    records: NDArray[np.int64] = field(repr=False)
+
+    @property
+    def segments(self) -> int:
+        """Records pooled into the curve (those behind its shortest cluster time)."""
+        return int(self.records[0])
 
     def edf(self, alpha: ArrayLike = 0) -> NDArray[np.float64]:
         """Equivalent degrees of freedom of each value for the noise types ``alpha`` (one or one
-        per value), summed over the pooled records."""
+        per value), summed over the pooled records (taken as of their mean length)."""
         al = np.broadcast_to(np.asarray(alpha), self.taus_s.shape)
         per = np.array(
             [
                 allantools.edf_greenhall(
-                    alpha=int(a), d=2, m=int(m), N=int(n // self.segments), overlapping=True
+                    alpha=int(a), d=2, m=int(m), N=int(n // r), overlapping=True
                 )
-                for a, m, n in zip(al, self.clusters, self.samples, strict=True)
+                for a, m, n, r in zip(al, self.clusters, self.samples, self.records, strict=True)
             ]
         )
-        return per * self.segments
+        return per * self.records
 
     def interval(
         self, level: float = 0.6826894921370859, alpha: ArrayLike = 0
@@ -201,12 +206,14 @@ def allan_curve(
         terms=np.asarray(n, dtype=np.int64),
         samples=np.full(m.size, y.size, dtype=np.int64),
         clusters=m,
+        records=np.ones(m.size, dtype=np.int64),
     )
 
 
 def pool_curves(curves: Sequence[AllanCurve]) -> AllanCurve:
     """One curve from independent records of one sensor axis: the Allan variance at each
-    cluster size averaged over the records that reach it, weighted by their term counts.
+    cluster size averaged over the records that reach it, weighted by their term counts (long
+    records carry the long cluster times alone, with the degrees of freedom they have).
 
     The records must share the sample rate (cluster sizes are matched in samples).
     """
@@ -226,17 +233,14 @@ def pool_curves(curves: Sequence[AllanCurve]) -> AllanCurve:
         terms[idx] += c.terms
         samples[idx] += c.samples
         count[idx] += 1
-    # Keep cluster sizes most records reach: a value from one short record is not the pool's.
-    keep = count >= max(1, (len(curves) + 1) // 2)
     t = float(curves[0].taus_s[0] / curves[0].clusters[0])
-    segments = int(np.median(count[keep])) if keep.any() else 1
     return AllanCurve(
-        taus_s=ms[keep] * t,
-        adev=np.sqrt(var[keep] / terms[keep]),
-        terms=terms[keep],
-        samples=samples[keep],
-        clusters=ms[keep],
-        segments=max(segments, 1),
+        taus_s=ms * t,
+        adev=np.sqrt(var / terms),
+        terms=terms,
+        samples=samples,
+        clusters=ms,
+        records=count,
     )
 
 
@@ -348,7 +352,10 @@ def fit_ieee952(
         sd = math.sqrt(var_c2) / (2.0 * c) if c > 0 else math.nan
         out_c[name] = c
         out_s[name] = sd
-        out_r[name] = bool(c > 0 and c2 >= 3.0 * math.sqrt(var_c2) and share[:, j].max() >= 0.25)
+        # Dominance counts only where the curve has ten or more degrees of freedom: the last few
+        # cluster times of a record have a handful, and a rise there is as often chance.
+        dominant = (share[:, j] >= 0.25) & (edf >= 10.0)
+        out_r[name] = bool(c > 0 and c2 >= 3.0 * math.sqrt(var_c2) and dominant.any())
         if not out_r[name]:
             out_u[name] = float(np.sqrt(np.min(upper95**2 / a[:, j])))
     return NoiseFit(

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq, minimize
+from threadpoolctl import threadpool_limits
 
 from northfinder.host.errors import InputError
 
@@ -334,40 +335,85 @@ class _Reml:
             )  # (m, k, 2, p)
             ks = np.stack([known[i] for i in members])  # (m, k, k)
             gs = np.stack([np.stack([gc[i] for i in members]) for gc in g])  # (c, m, k, k)
+            if np.array_equal(ks, ks[:1].repeat(len(members), 0)) and np.array_equal(
+                gs, gs[:, :1].repeat(len(members), 1)
+            ):
+                # Runs of one plan share their covariance: keep it once.
+                ks, gs = ks[:1], gs[:, :1]
             self.groups.append((ys, xs, ks, gs))
         self.n = int(offsets[-1])
 
     def __call__(self, sig: NDArray[np.float64]) -> float:
+        return self.value_and_grad(sig, grad=False)[0]
+
+    def value_and_grad(
+        self, sig: NDArray[np.float64], grad: bool = True
+    ) -> tuple[float, NDArray[np.float64]]:
+        """The negative restricted log-likelihood and its gradient in the sigmas.
+
+        With P = V^-1 - V^-1 X (X^T V^-1 X)^-1 X^T V^-1 and r = P y, d/d sigma_i of
+        (log|V| + log|X^T V^-1 X| + y^T P y) / 2 is sigma_i (tr(P G_i) - r^T G_i r).
+        """
+        sig = np.asarray(sig, dtype=float)
+        sq = np.square(sig)
+        p = self.rank
         logdet = 0.0
-        xvx = np.zeros((self.rank, self.rank))
-        xvy = np.zeros(self.rank)
+        xvx = np.zeros((p, p))
+        xvy = np.zeros(p)
         yvy = 0.0
+        cache = []
+        bad = (1e30, np.zeros(sig.size))
         for ys, xs, ks, gs in self.groups:
-            v = ks + np.tensordot(np.square(sig), gs, axes=1)
-            k = v.shape[-1]
-            # A floor far below the residual scale (1 here) keeps V invertible at zero sigmas.
-            ridge = 1e-12 * np.trace(v, axis1=1, axis2=2) / k + 1e-10
-            v = v + ridge[:, None, None] * np.eye(k)
+            m, k = ys.shape[0], ys.shape[1]
+            v = ks + np.tensordot(sq, gs, axes=1)  # (1 or m, k, k)
+            v = v + (1e-12 * np.trace(v, axis1=1, axis2=2) / k + 1e-10)[:, None, None] * np.eye(k)
             try:
                 c = np.linalg.cholesky(v)
             except np.linalg.LinAlgError:
-                return 1e30
-            # log det V = 2 sum log diag(L) per covariance; two axes share it: counted twice.
-            logdet += 4.0 * float(np.sum(np.log(np.diagonal(c, axis1=1, axis2=2))))
-            wy = np.linalg.solve(c, ys)
-            wx = np.linalg.solve(c, xs.reshape(*xs.shape[:2], -1)).reshape(xs.shape)
-            yvy += float(np.sum(wy * wy))
-            xvy += np.einsum("mkap,mka->p", wx, wy)
-            xvx += np.einsum("mkap,mkaq->pq", wx, wx)
+                return bad
+            # log det V = 2 sum log diag(L) per covariance; the two axes share each, and one
+            # shared covariance serves every run of its group.
+            shared = len(c) == 1
+            logdet += (
+                4.0 * float(np.sum(np.log(np.diagonal(c, axis1=1, axis2=2)))) * (m if shared else 1)
+            )
+            w = np.linalg.solve(c, np.broadcast_to(np.eye(k), c.shape))
+            vinv = np.swapaxes(w, 1, 2) @ w  # (1 or m, k, k)
+            vy = vinv @ ys  # (m, k, 2)
+            vx = (vinv @ xs.reshape(m, k, -1)).reshape(xs.shape)  # (m, k, 2, p)
+            yvy += float(np.sum(ys * vy))
+            xf = xs.reshape(-1, p)
+            xvy += xf.T @ vy.reshape(-1)
+            xvx += xf.T @ vx.reshape(-1, p)
+            cache.append((vinv, vy, vx, shared))
         try:
             cx = np.linalg.cholesky(xvx)
         except np.linalg.LinAlgError:
-            return 1e30
+            return bad
         proj = np.linalg.solve(cx, xvy)
-        out = 0.5 * (logdet + 2.0 * float(np.sum(np.log(np.diag(cx)))) + yvy - proj @ proj)
-        return out if math.isfinite(out) else 1e30
+        value = 0.5 * (logdet + 2.0 * float(np.sum(np.log(np.diag(cx)))) + yvy - proj @ proj)
+        if not math.isfinite(value):
+            return bad
+        out = np.zeros(sig.size)
+        if not grad:
+            return value, out
+        xvx_inv = np.linalg.inv(xvx)
+        beta = xvx_inv @ xvy
+        for (ys, _xs, _ks, gs), (vinv, vy, vx, shared) in zip(self.groups, cache, strict=True):
+            m, k = ys.shape[0], ys.shape[1]
+            r = vy - vx @ beta  # V^-1 (y - X beta), (m, k, 2)
+            for i in range(sig.size):
+                g = gs[i]  # (1 or m, k, k)
+                gr = g @ r
+                gvx = (g @ vx.reshape(m, k, -1)).reshape(vx.shape)
+                trace = 2.0 * float(np.sum(vinv * g)) * (m if shared else 1)
+                zgz = vx.reshape(-1, p).T @ gvx.reshape(-1, p)
+                out[i] += trace - float(np.sum(xvx_inv * zgz)) - float(np.sum(r * gr))
+        return value, sig * out
 
 
+# Thousands of likelihoods of small matrices: BLAS threads only contend for them.
+@threadpool_limits.wrap(limits=1, user_api="blas")
 def fit_between_positions(
     runs: Sequence[RunWindows],
     *,
@@ -377,6 +423,7 @@ def fit_between_positions(
     window_s: float | None = None,
     fixed: Mapping[str, float] | None = None,
     heat_tau_s: float = 0.0,
+    intervals: Sequence[str] | None = None,
 ) -> BetweenFit:
     """Variance components of the x and y gyro window means over runs (see the module doc).
 
@@ -399,6 +446,9 @@ def fit_between_positions(
     heat_tau_s : float
         Time constant of the drive's heat, s: a move's disturbance then has the variance of all
         angles turned so far, each decayed with it (0: of its own angle alone).
+    intervals : sequence of str, optional
+        Components whose profile interval to compute (default all; each costs a few hundred
+        refits). Those left out get ``(nan, nan)``.
 
     Returns
     -------
@@ -478,11 +528,12 @@ def fit_between_positions(
         if not free:
             return nll(s), s
 
-        def f(v: NDArray[np.float64]) -> float:
+        def f(v: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
             s[free] = v
-            return nll(s)
+            value, grad = nll.value_and_grad(s)
+            return value, grad[free]
 
-        res = minimize(f, s[free], method="L-BFGS-B", bounds=[(0.0, None)] * len(free))
+        res = minimize(f, s[free], jac=True, method="L-BFGS-B", bounds=[(0.0, None)] * len(free))
         out = s.copy()
         out[free] = res.x
         return float(res.fun), out
@@ -504,16 +555,18 @@ def fit_between_positions(
             sigma[name] = fixed[name]
             interval[name] = (fixed[name], fixed[name])
             continue
+        sigma[name] = v * scale / unit[i]
+        if intervals is not None and name not in intervals:
+            continue
         lo = 0.0
         if v > 0.0 and profile(i, 0.0) > 0.0:
-            lo = brentq(lambda s, i=i: profile(i, s), 0.0, v, xtol=1e-4 * v)
+            lo = brentq(lambda s, i=i: profile(i, s), 0.0, v, xtol=1e-3 * v)
         hi = max(2.0 * v, 0.05)
         while profile(i, hi) < 0.0 and hi < 1e3:
             hi *= 2.0
         up = math.inf
         if profile(i, hi) >= 0.0:
-            up = brentq(lambda s, i=i: profile(i, s), v, hi, xtol=1e-4 * hi)
-        sigma[name] = v * scale / unit[i]
+            up = brentq(lambda s, i=i: profile(i, s), v, hi, xtol=1e-3 * hi)
         interval[name] = (lo * scale / unit[i], up * scale / unit[i])
     bias = np.full(2, math.nan)
     if design == "per-run":
