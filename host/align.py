@@ -40,7 +40,17 @@ Settings of the source paper, and how they are read here:
 
 The Sage-Husa estimate can lose positive definiteness (the velocity of a resting instrument has
 almost no measurement noise); its diagonal is kept at or above ``r_floor``. The covariance update
-uses the Joseph form for the same reason. Predicted sigmas come from P: with gyro biases
+uses the Joseph form for the same reason.
+
+Disturbances (seed 001: an engine running, people on the vehicle) put far more noise into the
+gyro and accelerometer records than the paper's Q, which describes the sensors alone. The Sage-
+Husa R absorbs what reaches the innovations, but the covariance of the azimuth stays at the
+quiet value, and its error grows by an order of magnitude: 0.44 deg claimed against several
+degrees. So the filter reads the record's own noise density (the Allan deviation of the block
+means at :data:`NOISE_TAU_S`, where a folded vibration line has averaged out and impulses have
+not) and, where it exceeds the settings, uses it for Q and for the coarse azimuth's initial
+uncertainty (``KalmanSettings.measured_noise``); the result then says that it is not the quiet
+model's (``consistent`` False, with ``notes``). Predicted sigmas come from P: with gyro biases
 unobservable at rest, the azimuth sigma settles near the combination of the P0 terms
 sigma(phi_U) and sigma(eps_E) / (Omega cos L), about 0.45 deg at 40 deg latitude with the
 paper's values. That P0 treats the initial azimuth error as independent of the east gyro bias,
@@ -57,15 +67,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from northfinder.driver.protocol.units import DEG, DPH, G0, OMEGA_IE, normal_gravity
+from northfinder.host.allan import allan_deviation
 from northfinder.host.errors import AlignmentError, InputError
 from northfinder.host.kernels import latitude_rad
 
 __all__ = [
     "ALIGNMENT_STATES",
+    "NOISE_RATIO_LIMIT",
+    "NOISE_TAU_S",
     "PAPER_SETTINGS",
+    "R_RATIO_LIMIT",
     "AlignmentResult",
     "KalmanSettings",
     "coarse_alignment",
+    "measured_noise_density",
     "sage_husa_alignment",
 ]
 
@@ -108,6 +123,10 @@ class KalmanSettings:
         False runs a conventional Kalman filter with R fixed at R0.
     r_floor_sigma : float
         Lower bound on the adapted observation 1-sigma, m/s.
+    measured_noise : bool
+        Raise the noise densities, and the initial azimuth uncertainty they imply, to what the
+        record itself shows when that is more (see :func:`sage_husa_alignment`); False runs the
+        filter with the settings as they are.
     """
 
     p0_sigma: tuple[float, ...] = (
@@ -128,6 +147,7 @@ class KalmanSettings:
     forgetting: float = 0.95
     adaptive: bool = True
     r_floor_sigma: float = 1e-3
+    measured_noise: bool = True
 
 
 #: The source paper's settings.
@@ -158,6 +178,18 @@ class AlignmentResult:
         Time of each filter step from the start of the record, s.
     azimuth_history_deg, sigma_history_deg : ndarray, shape (K,)
         Azimuth and its predicted sigma after each step, deg.
+    gyro_noise_density, accel_noise_density : float
+        Noise densities the filter used (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)): the settings', or
+        the record's own when larger.
+    noise_ratio : tuple of float
+        The record's gyro and accelerometer noise over the settings' (1 when quiet).
+    consistent : bool
+        False when the record is noisier than the settings by more than
+        :data:`NOISE_RATIO_LIMIT` or the adapted measurement noise ends far above its floor:
+        disturbances the filter's model does not describe. ``sigma_deg`` then covers the noise
+        that was measured, but the result cannot be vouched for as the model's.
+    notes : tuple of str
+        Why ``consistent`` is False, in words.
     """
 
     azimuth_deg: float
@@ -171,6 +203,34 @@ class AlignmentResult:
     times_s: NDArray[np.float64] = field(repr=False)
     azimuth_history_deg: NDArray[np.float64] = field(repr=False)
     sigma_history_deg: NDArray[np.float64] = field(repr=False)
+    gyro_noise_density: float = field(default=math.nan, repr=False)
+    accel_noise_density: float = field(default=math.nan, repr=False)
+    noise_ratio: tuple[float, float] = (1.0, 1.0)
+    consistent: bool = True
+    notes: tuple[str, ...] = ()
+
+
+#: Cluster time at which the record's own noise density is read, s.
+NOISE_TAU_S = 2.0
+#: Record noise over the settings' beyond which a result is flagged as not the model's.
+NOISE_RATIO_LIMIT = 3.0
+#: Adapted measurement noise over its floor (1-sigma) beyond which the same holds.
+R_RATIO_LIMIT = 3.0
+
+
+def measured_noise_density(
+    blocks: NDArray[np.float64], dt: float, tau_s: float = NOISE_TAU_S
+) -> float:
+    """White-noise density (unit/sqrt(Hz)) of block means ``blocks`` (K, axes) spaced ``dt`` s
+    apart, averaged over the axes: ``sigma_A(tau) sqrt(tau)`` at the cluster time ``tau_s``.
+
+    What matters to an alignment that averages for minutes is the noise at long times: a
+    vibration line folded into the blocks averages out by a few seconds, impulses and white
+    noise do not, and a slow drift has not yet risen there.
+    """
+    tau = min(tau_s, dt * (blocks.shape[0] // 3))
+    taus, adev = allan_deviation(blocks, 1.0 / dt, [tau])
+    return math.sqrt(float(np.mean(np.square(adev))) * float(taus[0]))
 
 
 def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -320,8 +380,24 @@ def sage_husa_alignment(
 
     s = settings
     x = np.zeros(10)
-    p = np.diag(np.square(np.asarray(s.p0_sigma, dtype=float)))
-    q = np.diag([s.accel_noise_density**2] * 2 + [s.gyro_noise_density**2] * 3 + [0.0] * 5) * dt
+    p0 = np.asarray(s.p0_sigma, dtype=float).copy()
+    gyro_density, accel_density = s.gyro_noise_density, s.accel_noise_density
+    ratio = (
+        measured_noise_density(gyro_blocks, dt) / s.gyro_noise_density,
+        measured_noise_density(accel_blocks[:, :2], dt) / s.accel_noise_density,
+    )
+    if s.measured_noise:
+        # At rest, what the block means do from one to the next is noise: when the record shows
+        # more than the settings (vibration, impulses), the filter's Q must say so, or its
+        # covariance claims an accuracy the data cannot give.
+        gyro_density *= max(ratio[0], 1.0)
+        accel_density *= max(ratio[1], 1.0)
+        # The coarse azimuth is the east rate over the horizontal Earth rate: its error from
+        # that noise averaged over the coarse span.
+        coarse_sigma = gyro_density / math.sqrt(n_coarse * dt) / omega_n
+        p0[4] = max(p0[4], coarse_sigma)
+    p = np.diag(np.square(p0))
+    q = np.diag([accel_density**2] * 2 + [gyro_density**2] * 3 + [0.0] * 5) * dt
     r = np.eye(2) * s.r0_sigma**2
     r_floor = s.r_floor_sigma**2
     h = np.zeros((2, 10))
@@ -369,6 +445,19 @@ def sage_husa_alignment(
         sig_hist[k] = math.degrees(math.sqrt(p[4, 4]))
 
     azimuth, pitch, roll = _enu_to_attitude(c_bn)
+    notes = []
+    if max(ratio) > NOISE_RATIO_LIMIT:
+        notes.append(
+            f"the record is noisier than the filter's settings (gyro x{ratio[0]:.3g}, "
+            f"accelerometer x{ratio[1]:.3g}): disturbances"
+            + ("; the noise used is the record's" if s.measured_noise else "")
+        )
+    r_ratio = math.sqrt(float(np.max(np.diag(r))) / r_floor)
+    if s.adaptive and r_ratio > R_RATIO_LIMIT:
+        notes.append(
+            f"the adapted measurement noise ends x{r_ratio:.3g} above its floor: the velocity "
+            "innovations hold more than the model's noise"
+        )
     return AlignmentResult(
         azimuth_deg=azimuth,
         pitch_deg=pitch,
@@ -381,6 +470,11 @@ def sage_husa_alignment(
         times_s=times,
         azimuth_history_deg=az_hist,
         sigma_history_deg=sig_hist,
+        gyro_noise_density=gyro_density,
+        accel_noise_density=accel_density,
+        noise_ratio=(float(ratio[0]), float(ratio[1])),
+        consistent=not notes,
+        notes=tuple(notes),
     )
 
 

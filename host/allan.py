@@ -16,8 +16,8 @@ edf for the noise type that dominates the model there), iterated to convergence.
 variances at neighbouring tau are correlated, which this weighting ignores, so the coefficient
 uncertainties from the fit alone are too small: they are scaled by the root of the residual
 chi-squared per degree of freedom when that exceeds one. A term counts as *resolved* when it is
-at least three times its uncertainty and supplies a quarter or more of the model variance at
-some cluster time where the curve has ten or more degrees of freedom; otherwise :attr:`NoiseFit.upper` gives the largest value the
+at least three times its uncertainty and supplies most of the model variance at some cluster
+time where the curve has ten or more degrees of freedom; otherwise :attr:`NoiseFit.upper` gives the largest value the
 measured curve's 95 % upper bound allows.
 """
 
@@ -354,7 +354,7 @@ def fit_ieee952(
         out_s[name] = sd
         # Dominance counts only where the curve has ten or more degrees of freedom: the last few
         # cluster times of a record have a handful, and a rise there is as often chance.
-        dominant = (share[:, j] >= 0.25) & (edf >= 10.0)
+        dominant = (share[:, j] >= 0.5) & (edf >= 10.0)
         out_r[name] = bool(c > 0 and c2 >= 3.0 * math.sqrt(var_c2) and dominant.any())
         if not out_r[name]:
             out_u[name] = float(np.sqrt(np.min(upper95**2 / a[:, j])))

@@ -9,6 +9,8 @@ import pytest
 from numpy.testing import assert_allclose
 
 from northfinder.firmware_sim.earth import OMEGA_IE, alpha_from_azimuth, body_rates, mat_nb
+from northfinder.firmware_sim.imu import Instrument, Truth
+from northfinder.firmware_sim.sensors import AccelSpec, DisturbanceSpec, GyroSpec, SensorSpec
 from northfinder.host.align import (
     ALIGNMENT_STATES,
     PAPER_SETTINGS,
@@ -176,3 +178,64 @@ def test_alignment_predicted_sigma_is_honest_over_many_runs() -> None:
     # What remains is white noise: mostly the accelerometers' (50 ug/sqrt(Hz)), which blur the
     # slow tilt drift Omega_N phi_U that carries the azimuth; about 0.1 deg after 150 s.
     assert math.sqrt(np.mean(np.square(beyond_limit))) < 0.2
+
+
+# ----------------------------------------------------------------------------------------------
+# Disturbances: the reported sigma against the real error
+# ----------------------------------------------------------------------------------------------
+
+
+def disturbed_record(seed: int, impulse_dph: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """300 s of a resting FOG triad (noise as the filter's Q, biases from its P0) with an engine's
+    vibration line (37.37 Hz, 1800 deg/h and 0.2 g) and people's impulses (0.5 per second,
+    0.05 s, ``impulse_dph`` and 20 mg peaks), from the simulated instrument."""
+    spec = SensorSpec(
+        gyro=GyroSpec(
+            arw_dpsh=0.05 / 60.0, turn_on_bias_dph=0.1, vibration_dph=1800.0,
+            impulse_dph=impulse_dph,
+        ),
+        accel=AccelSpec(
+            vrw_ug_rthz=50.0, turn_on_bias_ug=100.0, vibration_ug=200_000.0, impulse_ug=20_000.0
+        ),
+        disturbance=DisturbanceSpec(
+            vibration_hz=37.37, impulse_rate_hz=0.5 if impulse_dph else 0.0,
+            impulse_duration_s=0.05,
+        ),
+    )  # fmt: skip
+    rng = np.random.default_rng(seed)
+    az = float(rng.uniform(0.0, 360.0))
+    block = Instrument(spec, Truth(az, LATITUDE_DEG, 1.0, -2.0), rng).generate(round(300 * FS_HZ))
+    return block.gyro_rps, block.accel_mps2, az
+
+
+def test_under_impulses_the_sigma_covers_the_error_and_the_result_says_so() -> None:
+    """With the paper's fixed Q the filter claims 0.44 deg while impulses put it degrees off;
+    reading the record's own noise it reports a sigma that covers the error, and flags it."""
+    normalised_paper, normalised_measured = [], []
+    for seed in (3, 4):
+        gyro, accel, az = disturbed_record(seed, impulse_dph=1000.0)
+        paper = sage_husa_alignment(
+            gyro, accel, FS_HZ, LATITUDE_DEG, settings=KalmanSettings(measured_noise=False)
+        )
+        measured = sage_husa_alignment(gyro, accel, FS_HZ, LATITUDE_DEG)
+        normalised_paper.append(angle_error_deg(paper.azimuth_deg, az) / paper.sigma_deg)
+        normalised_measured.append(angle_error_deg(measured.azimuth_deg, az) / measured.sigma_deg)
+        assert paper.sigma_deg < 0.5 and not paper.consistent
+        assert not measured.consistent and measured.notes
+        assert measured.noise_ratio[0] > 10.0  # impulses: the gyro far noisier than Q says
+        assert measured.sigma_deg > 2.0
+    assert max(np.abs(normalised_paper)) > 3.0  # the problem: far outside the claimed sigma
+    assert max(np.abs(normalised_measured)) < 2.0
+
+
+def test_a_quiet_record_is_consistent_and_keeps_its_sigma() -> None:
+    rng = np.random.default_rng(5)
+    gyro, accel = resting_record(rng, 200.0, 1.0, -1.0, duration_s=150.0)
+    result = sage_husa_alignment(gyro, accel, FS_HZ, LATITUDE_DEG)
+    fixed = sage_husa_alignment(
+        gyro, accel, FS_HZ, LATITUDE_DEG, settings=KalmanSettings(measured_noise=False)
+    )
+    assert result.consistent and not result.notes
+    assert_allclose(result.noise_ratio, 1.0, atol=0.15)  # the record's noise is the settings'
+    assert result.sigma_deg == pytest.approx(fixed.sigma_deg, rel=0.02)
+    assert abs(angle_error_deg(result.azimuth_deg, 200.0)) < result.sigma_deg
