@@ -354,15 +354,20 @@ class Calibration:
         def clean(d: dict[str, float]) -> dict[str, float | None]:
             return {k: (float(v) if math.isfinite(v) else None) for k, v in d.items()}
 
-        out: dict[str, Any] = {"sensor": self.sensor_dict(name), "axes": {}}
-        for axis, fit in self.fits.items():
-            out["axes"][axis] = {
+        def fit_dict(fit: NoiseFit) -> dict[str, Any]:
+            return {
                 "coefficients": clean(fit.coefficients),
                 "sigma": clean(fit.sigma),
                 "resolved": fit.resolved,
                 "upper": clean(fit.upper),
                 "chi2_per_dof": fit.chi2_per_dof,
             }
+
+        out: dict[str, Any] = {
+            "sensor": self.sensor_dict(name),
+            "axes": {axis: fit_dict(fit) for axis, fit in self.fits.items()},
+            "triads": {triad: fit_dict(fit) for triad, fit in self.triad_fits.items()},
+        }
         b = self.between
         if b is not None:
             out["between"] = {

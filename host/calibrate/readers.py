@@ -17,28 +17,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.driver.protocol.constants import Validity
 from northfinder.host.errors import RecordingError
+from northfinder.host.procedure import BAD_BITS
 from northfinder.host.recording import Recording
 
 __all__ = [
-    "BAD_BITS",
     "READERS",
     "RecordedRun",
     "RunWindow",
     "read_runs",
     "register_reader",
 ]
-
-#: Validity bits that keep a sample out of the calibration (protocol.md 4.5).
-BAD_BITS = (
-    Validity.TABLE_MOVING
-    | Validity.TABLE_SETTLING
-    | Validity.GYRO_SATURATED
-    | Validity.ACCEL_SATURATED
-    | Validity.WARMING_UP
-    | Validity.FAULT
-)
 
 
 @dataclass(frozen=True)
@@ -72,7 +61,8 @@ class RunWindow:
     validity: NDArray[np.uint8]
 
     def pieces(self, min_samples: int = 1) -> list[slice]:
-        """Runs of consecutive good samples (no bad validity bit, no counter gap), as slices."""
+        """Runs of consecutive good samples (none of the procedure's bad validity bits, no counter
+        gap), as slices."""
         good = (np.asarray(self.validity, dtype=np.int64) & int(BAD_BITS)) == 0
         breaks = np.flatnonzero(np.diff(self.counter) != 1) + 1
         out = []
