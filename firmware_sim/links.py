@@ -17,9 +17,9 @@ from typing import Protocol
 import can
 import serial
 
-from northfinder.driver.errors import BadCommandError, ProtocolError
 from northfinder.driver.protocol.can import encode_can, split_can_id
 from northfinder.driver.protocol.constants import CanFunction
+from northfinder.driver.protocol.errors import BadCommandError, ProtocolError
 from northfinder.driver.protocol.messages import Command
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
 from northfinder.firmware_sim.firmware import Firmware, Outgoing
