@@ -30,6 +30,13 @@ import can
 import numpy as np
 import pytest
 
+from northfinder.driver.conformance import (
+    CHECKS,
+    CanRawLink,
+    SuiteOptions,
+    format_report,
+    run_suite,
+)
 from northfinder.firmware_sim.control import ControlClient
 from northfinder.firmware_sim.firmware import Firmware
 from northfinder.firmware_sim.imu import Truth
@@ -37,7 +44,6 @@ from northfinder.firmware_sim.links import CanLink
 from northfinder.firmware_sim.runner import RealTimeClock, Runner
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.cli import main
-from northfinder.host.conformance import CHECKS, CanRawLink, SuiteOptions, format_report, run_suite
 
 SPEED = 2.0
 #: Host-side margins for a simulator that shares a loaded machine with other work: its process can

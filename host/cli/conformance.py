@@ -23,14 +23,7 @@ import can
 import can.cli
 import serial
 
-from northfinder.host.cli.common import (
-    add_link_arguments,
-    angle_list,
-    bus_given,
-    finite_float,
-    positive_float,
-)
-from northfinder.host.conformance import (
+from northfinder.driver.conformance import (
     CHECKS,
     CanRawLink,
     SerialRawLink,
@@ -41,6 +34,14 @@ from northfinder.host.conformance import (
     run_suite,
     select_checks,
     write_junit,
+)
+from northfinder.driver.conformance.errors import SuiteConfigError
+from northfinder.host.cli.common import (
+    add_link_arguments,
+    angle_list,
+    bus_given,
+    finite_float,
+    positive_float,
 )
 from northfinder.host.errors import HostConfigError
 
@@ -155,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         can_given = bus_given(args)
         if can_given == bool(args.serial):
             raise HostConfigError("choose exactly one link: -i/-c (python-can) or --serial PORT")
-    except HostConfigError as exc:
+    except (HostConfigError, SuiteConfigError) as exc:
         print(f"northfinder conformance: error: {exc}", file=sys.stderr)
         return 2
     closers = []

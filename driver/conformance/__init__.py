@@ -19,16 +19,16 @@ Example::
     print(format_report(report))
 """
 
-from northfinder.host.conformance.core import (
-    CHECKS,
-    Check,
-    CheckResult,
-    Report,
-    SuiteOptions,
-    select_checks,
+from northfinder.driver.conformance.checks import CHECKS, select_checks
+from northfinder.driver.conformance.core import Check, CheckResult, Report, SuiteOptions
+from northfinder.driver.conformance.errors import (
+    ConformanceError,
+    LinkFault,
+    Skipped,
+    SuiteConfigError,
 )
-from northfinder.host.conformance.links import CanRawLink, RawLink, SerialRawLink
-from northfinder.host.conformance.report import (
+from northfinder.driver.conformance.links import CanRawLink, RawLink, SerialRawLink
+from northfinder.driver.conformance.report import (
     format_header,
     format_report,
     format_result,
@@ -36,16 +36,20 @@ from northfinder.host.conformance.report import (
     junit_xml,
     write_junit,
 )
-from northfinder.host.conformance.runner import restore, run_suite
+from northfinder.driver.conformance.runner import restore, run_suite
 
 __all__ = [
     "CHECKS",
     "CanRawLink",
     "Check",
     "CheckResult",
+    "ConformanceError",
+    "LinkFault",
     "RawLink",
     "Report",
     "SerialRawLink",
+    "Skipped",
+    "SuiteConfigError",
     "SuiteOptions",
     "format_header",
     "format_report",
