@@ -17,7 +17,6 @@ device afterwards).
 
 from __future__ import annotations
 
-import itertools
 import os
 import queue
 import signal
@@ -29,7 +28,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import pytest
 
 SPEED = 5.0
@@ -42,7 +40,6 @@ statuses and replies queue behind samples until the driver declares the link los
 keeps the margin."""
 LINKS = ("virtual", "serial-pty", "slcan-pty", "socketcan")
 VCAN = "vcan0"
-_channels = itertools.count()
 
 
 @dataclass
@@ -64,42 +61,19 @@ class SimHandle:
 
 
 def _start_in_process(speed: float) -> SimHandle:
-    import can
-
-    from northfinder.driver.device import Device
-    from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
-    from northfinder.firmware_sim.firmware import Firmware
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.firmware_sim.links import CanLink
-    from northfinder.firmware_sim.runner import RealTimeClock, Runner
-    from northfinder.firmware_sim.sensors import load_spec
+    from northfinder.host.embed import SimulatedInstrument
 
-    channel = f"northfinder-test-{os.getpid()}-{next(_channels)}"
-    dev_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-    firmware = Firmware(
-        load_spec("paper-rlg"),
+    sim = SimulatedInstrument(
+        "paper-rlg",
         Truth(azimuth_deg=30.0, latitude_deg=34.0),
-        np.random.default_rng(3),
+        seed=3,
+        speed=speed,
         warmup_s=0.0,
-    )
-    runner = Runner(firmware, CanLink(dev_bus, firmware, 1), RealTimeClock(speed))
-    stop = threading.Event()
-    thread = threading.Thread(target=runner.run, args=(stop,), name="simulator", daemon=True)
-    thread.start()
-    server = ControlServer(Controller(runner), "127.0.0.1:0").start()
-    control = ControlClient(server.address)
-
-    def stop_runner() -> None:
-        stop.set()
-        thread.join(5.0)
-
-    handle = SimHandle(
-        "virtual",
-        lambda: Device.open_can("virtual", channel, receive_own_messages=False),
-        control,
-        speed,
-    )
-    handle.closers += [dev_bus.shutdown, stop_runner, server.close, control.close]
+        control="127.0.0.1:0",
+    ).start()
+    handle = SimHandle("virtual", sim.open_device, sim.control, speed)
+    handle.closers.append(sim.close)
     return handle
 
 
@@ -134,7 +108,12 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
         "slcan-pty": ["--slcan-pty"],
         "socketcan": ["-i", "socketcan", "-c", VCAN],
     }[kind]
-    cmd = [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())", "sim"]
+    cmd = [
+        sys.executable,
+        "-c",
+        "from northfinder.host.cli import main; raise SystemExit(main())",
+        "sim",
+    ]
     cmd += [*link_args, "--warmup", "0", "--seed", str(seed), "--speed", str(speed)]
     cmd += ["--azimuth", "30", "--control", "127.0.0.1:0"]
     proc = subprocess.Popen(

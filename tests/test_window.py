@@ -131,7 +131,9 @@ def test_tick_losses_are_counted_once_and_clipped_to_the_window():
 def test_a_loss_across_the_wrap():
     col = WindowCollector(6, on_gap="report")
     feed(col, [U32 - 2, U32 - 1])
-    col.add_loss(TickLoss(0, 2, False))  # the device's counters 0 and 1 = window counters 2**32 + 0, 1
+    col.add_loss(
+        TickLoss(0, 2, False)
+    )  # the device's counters 0 and 1 = window counters 2**32 + 0, 1
     feed(col, [U32 + 2, U32 + 3])
     assert col.done
     assert col.window(200.0, CountScales()).gaps == ((U32, 2),)
