@@ -80,7 +80,14 @@ from northfinder.driver.protocol.messages import (
     StreamStop,
 )
 from northfinder.driver.protocol.motion import TableLimits
-from northfinder.driver.transport import CanTransport, Received, SerialTransport, Transport
+from northfinder.driver.transport import (
+    READ_POLL_S,
+    CanTransport,
+    Received,
+    SerialTransport,
+    Transport,
+    open_serial_port,
+)
 from northfinder.driver.window import CountScales, OnGap, Window, WindowCollector
 
 __all__ = [
@@ -117,7 +124,6 @@ REPLY_TIMEOUT_S = 0.25
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
-READ_POLL_S = 0.05
 _CONFIG_NAMES = ", ".join(k.name.lower() for k in ConfigKey)
 _DIRECTIONS = {"shortest": Direction.SHORTEST, "positive": Direction.POSITIVE}
 _DIRECTIONS["negative"] = Direction.NEGATIVE
@@ -329,8 +335,8 @@ class Device:
         LinkError
             python-can could not open the bus (the message names interface and channel).
         """
-        kw = {"interface": interface, "channel": channel, "bitrate": bitrate}
-        kw = {k: v for k, v in kw.items() if v is not None}
+        given = {"interface": interface, "channel": channel, "bitrate": bitrate}
+        kw: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
         try:
             bus = can.Bus(**kw, **bus_options)
         except (can.CanError, OSError, ValueError, ImportError, serial.SerialException) as exc:
@@ -365,17 +371,7 @@ class Device:
         LinkError
             pyserial could not open the port.
         """
-        try:
-            port = serial.serial_for_url(
-                port_or_url,
-                baudrate=baudrate,
-                timeout=READ_POLL_S,
-                write_timeout=1.0,
-                **port_options,
-            )
-            port.reset_input_buffer()  # bytes from before this host opened the port
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise LinkError(f"cannot open the serial port {port_or_url!r}: {exc}") from exc
+        port = open_serial_port(port_or_url, baudrate, **port_options)
         return cls(
             SerialTransport(port),
             reply_timeout=reply_timeout,
@@ -652,9 +648,13 @@ class Device:
             with self._lock:
                 n0 = self._identify_count
             self._request(RequestIdentify)
+
+            def arrived(n0: int = n0) -> Identify | None:
+                return self._identify if self._identify_count > n0 else None
+
             try:
                 return self._wait_for(
-                    lambda n0=n0: self._identify if self._identify_count > n0 else None,
+                    arrived,
                     time.monotonic() + self.reply_timeout,
                     lambda: DriverTimeout("", 0.0),
                     supervise=False,

@@ -24,8 +24,11 @@ import numpy as np
 
 from northfinder.driver.protocol.budget import max_sample_rate, rate_fits
 from northfinder.driver.protocol.constants import (
+    ACCEL_G_PER_COUNT,
+    ANGLE_DEG_PER_COUNT,
     ANGLE_FULL_TURN,
     CONFIG_LIMITS,
+    GYRO_DPH_PER_COUNT,
     INT24_MAX,
     INT24_MIN,
     INT32_MAX,
@@ -53,6 +56,7 @@ from northfinder.driver.protocol.messages import (
     SetConfig,
     Status,
 )
+from northfinder.driver.protocol.units import DPH, G0
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.imu import Instrument, SampleBlock, Truth, quantise_carry
 from northfinder.firmware_sim.sensors import SensorSpec
@@ -62,9 +66,9 @@ log = logging.getLogger("northfinder.sim")
 #: Rate at which the physics runs; every output rate divides it and a tick is the sum of
 #: ``BASE_RATE_HZ / rate`` physics increments, as a pulse-counting output would add them.
 BASE_RATE_HZ = 400.0
-_DPH = math.pi / 180.0 / 3600.0
-_GYRO_COUNT = 1e-4 * _DPH  # rad/s per count
-_ACCEL_COUNT = 1e-6 * 9.80665  # m/s^2 per count
+_GYRO_COUNT = GYRO_DPH_PER_COUNT * DPH  # rad/s per count
+_ACCEL_COUNT = ACCEL_G_PER_COUNT * G0  # m/s^2 per count
+_COUNTS_PER_DEG = 1.0 / ANGLE_DEG_PER_COUNT  # exactly 1e6 for the protocol's 1e-6 deg
 #: A move that ends further than this from its command is a drive fault, deg.
 DRIVE_FAULT_LIMIT_DEG = 0.5
 #: How far ahead of the present the firmware computes its output, s (see Firmware.process).
@@ -365,7 +369,7 @@ class Firmware:
                 return Result.UNKNOWN_KEY, b"", None
             return (
                 Result.OK,
-                Reply.config(cmd.seq, op, cmd.key, self.read_config(cmd.key)).data,
+                Reply.config(cmd.seq, op, cmd.key, self.read_config(ConfigKey(cmd.key))).data,
                 None,
             )
         if op == Opcode.RESET:
@@ -374,7 +378,7 @@ class Firmware:
             assert isinstance(cmd, SetConfig)
             result = self._set_config(cmd)
             data = (
-                Reply.config(cmd.seq, op, cmd.key, self.read_config(cmd.key)).data
+                Reply.config(cmd.seq, op, cmd.key, self.read_config(ConfigKey(cmd.key))).data
                 if result == Result.OK
                 else b""
             )
@@ -431,9 +435,9 @@ class Firmware:
         table, t = self.instrument.table, self.now
         current = float(table.encoder(table.state(t)[0]))
         if isinstance(cmd, RotateBy):
-            delta = cmd.delta * 1e-6
+            delta = cmd.delta * ANGLE_DEG_PER_COUNT
         else:
-            target = cmd.angle * 1e-6 if isinstance(cmd, RotateTo) else 0.0
+            target = cmd.angle * ANGLE_DEG_PER_COUNT if isinstance(cmd, RotateTo) else 0.0
             direction = cmd.direction if isinstance(cmd, RotateTo) else Direction.SHORTEST
             delta = (target - current) % 360.0
             if direction == Direction.SHORTEST and delta > 180.0:
@@ -497,13 +501,18 @@ class Firmware:
         if self.faults.silent:
             return []
         # Counters are the link's, not the computation's: a status carries their values when sent.
-        counts = {
-            "rx_malformed": self.rx_malformed & 0xFFFF,
-            "tx_dropped": self.tx_dropped & 0xFF,
-            "cmd_rejected": self.cmd_rejected & 0xFF,
-        }
+        rx, tx, rejected = (
+            self.rx_malformed & 0xFFFF,
+            self.tx_dropped & 0xFF,
+            self.cmd_rejected & 0xFF,
+        )
         return [
-            Outgoing(o.time_s, replace(o.message, **counts)) if isinstance(o.message, Status) else o
+            Outgoing(
+                o.time_s,
+                replace(o.message, rx_malformed=rx, tx_dropped=tx, cmd_rejected=rejected),
+            )
+            if isinstance(o.message, Status)
+            else o
             for o in out
         ]
 
@@ -556,7 +565,7 @@ class Firmware:
         t1 = self.instrument.clock_s
         self._check_move(t1)
         out, tick_times, tick_counters = (
-            self._ticks(block) if len(block) else ([], np.empty(0), None)
+            self._ticks(block) if len(block) else ([], np.empty(0), np.empty(0, dtype=np.int64))
         )
 
         def counter_at(t: float) -> int:
@@ -725,7 +734,7 @@ def _state_refusal(cmd: Command, state: DeviceState) -> Result | None:
 
 
 def _angle_counts(angle_deg: float) -> int:
-    return round(angle_deg * 1e6) % ANGLE_FULL_TURN
+    return round(angle_deg * _COUNTS_PER_DEG) % ANGLE_FULL_TURN
 
 
 def _temperature_counts(temp_c: float) -> int:

@@ -12,7 +12,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,12 +48,19 @@ class QualityError(HostError):
 
 
 class WindowLike(Protocol):
-    gyro_dph: NDArray[np.float64]
-    accel_mps2: NDArray[np.float64]
-    table_deg: NDArray[np.float64]
-    validity: NDArray[np.uint8]
-    counter: NDArray[np.int64]
-    missing: int
+    # Read-only, as the driver's frozen Window has them.
+    @property
+    def gyro_dph(self) -> NDArray[np.float64]: ...
+    @property
+    def accel_mps2(self) -> NDArray[np.float64]: ...
+    @property
+    def table_deg(self) -> NDArray[np.float64]: ...
+    @property
+    def validity(self) -> NDArray[np.uint8]: ...
+    @property
+    def counter(self) -> NDArray[np.int64]: ...
+    @property
+    def missing(self) -> int: ...
 
 
 class DeviceLike(Protocol):
@@ -62,7 +69,9 @@ class DeviceLike(Protocol):
     def rotate_to(
         self, angle_deg: float, *, wait: bool = True, timeout: float | None = None
     ) -> Any: ...
-    def acquire(self, seconds: float, *, on_gap: str = "raise") -> WindowLike: ...
+    def acquire(
+        self, seconds: float, *, on_gap: Literal["raise", "report"] = "raise"
+    ) -> WindowLike: ...
     def stop_streaming(self) -> None: ...
 
 

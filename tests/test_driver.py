@@ -349,8 +349,8 @@ def test_bad_arguments_name_the_choices():
 def test_errors_share_one_root():
     for exc in (DeviceRefused, ReplyTimeout, LinkLost, StreamGap, DeviceReset, DeviceFault):
         assert issubclass(exc, DriverError)
-    for exc in (ArgumentError, EmptyWindow, ProtocolError, EncodeError, ConformanceError):
-        assert issubclass(exc, DriverError)
+    for other in (ArgumentError, EmptyWindow, ProtocolError, EncodeError, ConformanceError):
+        assert issubclass(other, DriverError)
     # The codec's errors are defined beside the self-contained codec and re-exported.
     assert ProtocolError is northfinder.driver.protocol.errors.ProtocolError
     err = DeviceRefused(Opcode.ROTATE_TO, Result.BUSY, Result.BUSY.meaning)

@@ -145,7 +145,9 @@ def test_counter_arithmetic_across_the_wrap():
     u32 = 0xFFFF_FFFF
     assert counter_diff(0, u32) == 1 and counter_diff(u32, 0) == -1
     assert counter_diff(5, 3) == 2 and counter_diff(3, 5) == -2 and counter_diff(9, 9) == 0
-    assert counter_diff(1 << 31, 0) == -(1 << 31) and counter_diff((1 << 31) - 1, 0) == (1 << 31) - 1
+    assert (
+        counter_diff(1 << 31, 0) == -(1 << 31) and counter_diff((1 << 31) - 1, 0) == (1 << 31) - 1
+    )
     assert nearest_counter(0x10, 0x1_0000) == 0x1_0010
     assert nearest_counter(0xF0, 0x1_0000) == 0xFFF0
     assert nearest_counter(0xFF, 0) == u32 and nearest_counter(0x00, u32) == 0

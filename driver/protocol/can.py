@@ -157,6 +157,7 @@ def encode_can(message: Message | CanMessage, node_id: int = 1) -> list[CanFrame
         parts = (message,)
     frames = []
     for part in parts:
+        function: CanFunction | None
         if isinstance(part, Command):
             function = CanFunction.COMMAND
         else:

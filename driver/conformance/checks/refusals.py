@@ -13,6 +13,7 @@ RESET.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -401,7 +402,7 @@ AT_REST = (
 )
 
 for _spec in AT_REST:
-    check(_spec.name, _spec.summary)(lambda c, spec=_spec: run_at_rest(spec, c))
+    check(_spec.name, _spec.summary)(functools.partial(run_at_rest, _spec))
 
 
 # -- refusals in a state the check sets up -----------------------------------------------------------
