@@ -17,7 +17,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Validity
+from northfinder.driver.protocol.constants import VALIDITY_UNFIT, ConfigKey, DeviceState, Validity
 from northfinder.host.denoise import METHODS, denoise
 from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.heading import (
@@ -32,14 +32,7 @@ MAX_ENCODER_SPAN_DEG = 0.01
 #: Batches used to estimate the standard error of a window mean (robust to correlated noise).
 N_BATCHES = 20
 #: Validity bits that make a sample unusable for north finding (protocol.md 4.5).
-BAD_BITS = (
-    Validity.TABLE_MOVING
-    | Validity.TABLE_SETTLING
-    | Validity.GYRO_SATURATED
-    | Validity.ACCEL_SATURATED
-    | Validity.WARMING_UP
-    | Validity.FAULT
-)
+BAD_BITS = VALIDITY_UNFIT
 METHOD_CHOICES = ("auto", "two-position", "least-squares")
 
 

@@ -124,23 +124,9 @@ def test_the_source_is_found_and_read():
     assert ("northfinder.host.cli.measure", "northfinder.host.embed") in edges
 
 
-def test_driver_imports_neither_the_simulator_nor_the_host():
-    bad = breaking(DRIVER)
-    assert not bad, show(bad)
-
-
-def test_the_wire_format_is_self_contained():
-    bad = breaking(WIRE)
-    assert not bad, show(bad)
-
-
-def test_the_simulator_imports_only_the_wire_format():
-    bad = breaking(SIM)
-    assert not bad, show(bad)
-
-
-def test_the_host_library_does_not_import_the_simulator():
-    bad = breaking(HOST)
+@pytest.mark.parametrize("rule", [DRIVER, WIRE, SIM, HOST])
+def test_the_import_direction(rule):
+    bad = breaking(rule)
     assert not bad, show(bad)
 
 

@@ -29,6 +29,8 @@ class Move:
     end_deg: float | None = None
     travel_deg: float | None = None
     states: list[DeviceState] = field(default_factory=list)
+    turn_deg: float | None = None
+    """The turn commanded, signed (relative moves)."""
 
     @property
     def ok(self) -> bool:
@@ -63,11 +65,16 @@ def begin_move(c: Ctx, cmd: Command, what: str, target_deg: float | None = None)
 
 
 def finish_move(c: Ctx, m: Move, distance_deg: float | None = None) -> Move:
-    """Wait for READY after a move, read where the table ended and how it got there."""
+    """Wait for READY after a move, read where the table ended and how it got there.
+
+    ``distance_deg`` (default: the commanded turn, else a whole turn) sets how long to wait.
+    """
     s = c.s
     if m.first_change is None:
         return m
-    dist = abs(distance_deg if distance_deg is not None else 360.0)
+    if distance_deg is None:
+        distance_deg = 360.0 if m.turn_deg is None else m.turn_deg
+    dist = abs(distance_deg)
     _, allowed = allowed_move_s(c, dist)
     end = s.wait_state(
         {DeviceState.READY, DeviceState.FAULT}, allowed * 2 + 2.0, start=m.first_index + 1
@@ -126,19 +133,18 @@ def judge_end(c: Ctx, m: Move, target_deg: float) -> float | None:
     return err
 
 
-def long_move(c: Ctx) -> tuple[RotateBy, float]:
-    """A ROTATE_BY lasting about two seconds of the unit's time, alternating in sign."""
+def begin_long_move(c: Ctx) -> Move | None:
+    """Start a ROTATE_BY lasting about two seconds of the unit's time (alternating in sign, so the
+    table stays near where it was) and wait until it turns; None if it did not (recorded)."""
     limits = table(c)
     v, a = limits.max_rate_dps, limits.max_accel_dps2
     d = max(5.0, min(170.0, v * (2.0 - v / a)))
     sign = c.shared.get("sign", 1.0)
     c.shared["sign"] = -sign
-    return RotateBy(0, round(sign * d / angle_scale(c))), d
-
-
-def long_move_name(c: Ctx, cmd: RotateBy) -> str:
-    """``ROTATE_BY +123.4`` for a move from :func:`long_move`."""
-    return f"ROTATE_BY {deg(c, cmd.delta):+.1f}"
+    cmd = RotateBy(0, round(sign * d / angle_scale(c)))
+    m = begin_move(c, cmd, f"ROTATE_BY {deg(c, cmd.delta):+.1f}")
+    m.turn_deg = sign * d
+    return m if m.first_change is not None else None
 
 
 def still_rotating(c: Ctx, a: Answer) -> bool:

@@ -27,12 +27,7 @@ from northfinder.driver.conformance.checks.common import (
     reset_to_boot,
     undisturbed,
 )
-from northfinder.driver.conformance.checks.moves import (
-    begin_move,
-    finish_move,
-    long_move,
-    long_move_name,
-)
+from northfinder.driver.conformance.checks.moves import begin_long_move, finish_move
 from northfinder.driver.conformance.core import Ctx, check
 from northfinder.driver.protocol.budget import rate_fits
 from northfinder.driver.protocol.constants import (
@@ -503,15 +498,15 @@ IN_WARMUP = (
 )
 def refusal_busy(c: Ctx) -> None:
     s = c.s
-    cmd, d = long_move(c)
     c.config()
-    m = begin_move(c, cmd, long_move_name(c, cmd))
-    if m.first_change is None:
+    m = begin_long_move(c)
+    if m is None:
         return
     wait = s.wall(SELF_TEST_MAX_S) + s.reply_wait_s
     judged = send_cases(c, BUSY_WHILE_ROTATING, state=DeviceState.ROTATING, wait=wait).judged
     # SETTLING: wait for it, then try again.
-    if s.wait_state({DeviceState.SETTLING}, allowed_move_s(c, d)[1], start=m.first_index):
+    allowed = allowed_move_s(c, abs(m.turn_deg or 0.0))[1]
+    if s.wait_state({DeviceState.SETTLING}, allowed, start=m.first_index):
         judged += send_cases(
             c,
             BUSY_WHILE_SETTLING,
@@ -519,7 +514,7 @@ def refusal_busy(c: Ctx) -> None:
             wait=wait,
             ended="settling had ended",
         ).judged
-    finish_move(c, m, d)
+    finish_move(c, m)
     c.fig("refusals judged", judged)
 
 
@@ -528,12 +523,11 @@ def refusal_busy(c: Ctx) -> None:
     "while ROTATING the checks run in the order of table 4.3: opcode, length, state, range (4.3)",
 )
 def refusal_check_order(c: Ctx) -> None:
-    cmd, d = long_move(c)
-    m = begin_move(c, cmd, long_move_name(c, cmd))
-    if m.first_change is None:
+    m = begin_long_move(c)
+    if m is None:
         return
     send_cases(c, CHECK_ORDER, state=DeviceState.ROTATING)
-    finish_move(c, m, d)
+    finish_move(c, m)
 
 
 @check(

@@ -3,8 +3,6 @@ while the table turns, and the accuracy, settle time and validity bits of moves 
 
 from __future__ import annotations
 
-import math
-
 from northfinder.driver.conformance.checks.common import (
     allowed_move_s,
     angle_scale,
@@ -15,11 +13,9 @@ from northfinder.driver.conformance.checks.common import (
 )
 from northfinder.driver.conformance.checks.moves import (
     Move,
-    begin_move,
+    begin_long_move,
     finish_move,
     judge_end,
-    long_move,
-    long_move_name,
     move,
     still_rotating,
 )
@@ -129,19 +125,19 @@ def command_rotate_to_present(c: Ctx) -> None:
 )
 def command_stop_while_rotating(c: Ctx) -> None:
     s = c.s
-    cmd, d = long_move(c)
     limits = table(c)
     v, acc = limits.max_rate_dps, limits.max_accel_dps2
-    m = begin_move(c, cmd, long_move_name(c, cmd))
-    if m.first_change is None:
+    m = begin_long_move(c)
+    if m is None or m.turn_deg is None:
         return
+    d = abs(m.turn_deg)
     s.idle(0.4 * limits.move_time_s(d))
     a = s.request(Stop(0))
     if not c.expect(a, Result.OK, "STOP while rotating"):
         return
     if not still_rotating(c, a):
         c.note("the move ended before STOP arrived")
-    finish_move(c, m, d)
+    finish_move(c, m)
     if m.t_settling is not None and a.received is not None:
         decel = s.unit(m.t_settling - a.received)
         c.fig("STOP to SETTLING", f"{decel:.2f} s")
@@ -150,7 +146,7 @@ def command_stop_while_rotating(c: Ctx) -> None:
                 f"SETTLING came {decel:.2f} s after STOP; braking from {v:g} deg/s at {acc:g} deg/s2 takes {v / acc:.2f} s"
             )
     if m.travel_deg is not None:
-        c.fig("travel", f"{m.travel_deg:+.2f} of {math.copysign(d, cmd.delta):+.1f} deg")
+        c.fig("travel", f"{m.travel_deg:+.2f} of {m.turn_deg:+.1f} deg")
         if abs(m.travel_deg) > d - 1.0:
             c.fail(f"the table travelled {m.travel_deg:+.2f} deg of {d:.1f}: STOP did not stop it")
 
@@ -161,10 +157,9 @@ def command_stop_while_rotating(c: Ctx) -> None:
 )
 def command_while_rotating(c: Ctx) -> None:
     s = c.s
-    cmd, d = long_move(c)
     cfg = c.config()
-    m = begin_move(c, cmd, long_move_name(c, cmd))
-    if m.first_change is None:
+    m = begin_long_move(c)
+    if m is None:
         return
     n_id = len(s.identifies)
     for what, command in (
@@ -184,7 +179,7 @@ def command_while_rotating(c: Ctx) -> None:
     s.wait_until(lambda: len(s.identifies) > n_id, s.reply_wait_s)
     if len(s.identifies) == n_id:
         c.fail("no identify message followed IDENTIFY while rotating")
-    finish_move(c, m, d)
+    finish_move(c, m)
 
 
 def rotations(c: Ctx) -> list[tuple[float, Move, float]]:
