@@ -747,15 +747,7 @@ class Device:
 
         Units are the key's (protocol.md 4.4): Hz, ms, 1e-3 deg/s, 1e-3 deg/s^2, bit/s.
         """
-        k = self._key(key)
-        got_key, value = self._request(GetConfig, k).config_value()
-        if got_key != k:
-            raise ProtocolError(f"GET_CONFIG {k.name} answered for key {got_key!r}")
-        with self._lock:
-            self._config[k] = value
-            if k == ConfigKey.STREAMING:
-                self._streaming = bool(value)
-        return value
+        return self._config_request(GetConfig, self._key(key))
 
     def set_config(self, key: ConfigKey | int | str, value: int) -> int:
         """Write one configuration value (SET_CONFIG); return the value now in effect.
@@ -769,9 +761,15 @@ class Device:
         k = self._key(key)
         if k == ConfigKey.STREAMING and value and not self._streaming:
             self._prepare_stream_start()
-        got_key, in_effect = self._request(SetConfig, k, int(value)).config_value()
+        return self._config_request(SetConfig, k, int(value))
+
+    def _config_request(
+        self, command: type[GetConfig | SetConfig], k: ConfigKey, *value: int
+    ) -> int:
+        """GET_CONFIG or SET_CONFIG; keep and return the value in effect that the reply echoes."""
+        got_key, in_effect = self._request(command, k, *value).config_value()
         if got_key != k:
-            raise ProtocolError(f"SET_CONFIG {k.name} answered for key {got_key!r}")
+            raise ProtocolError(f"{command.OPCODE.name} {k.name} answered for key {got_key!r}")
         with self._lock:
             self._config[k] = in_effect
             if k == ConfigKey.STREAMING:

@@ -15,12 +15,7 @@ from __future__ import annotations
 import argparse
 
 from northfinder.host.cli import report
-from northfinder.host.cli.measure import (
-    add_device_arguments,
-    add_plan_arguments,
-    run_plan,
-    save_recording,
-)
+from northfinder.host.cli.measure import add_arguments, run_plan, save_recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -30,8 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_device_arguments(p)
-    add_plan_arguments(p)
+    add_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument(
         "--plot", metavar="FILE", help="plot the windows and per-pair azimuths (needs matplotlib)"

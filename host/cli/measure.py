@@ -94,6 +94,12 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The device and the plan options, as ``find`` and ``record`` take them."""
+    add_device_arguments(p)
+    add_plan_arguments(p)
+
+
 def plan_from_args(args: argparse.Namespace) -> Plan:
     return Plan(tuple(args.positions), args.window, args.settle, args.denoise, args.method)
 

@@ -8,12 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from northfinder.host.cli.measure import (
-    add_device_arguments,
-    add_plan_arguments,
-    run_plan,
-    save_recording,
-)
+from northfinder.host.cli.measure import add_arguments, run_plan, save_recording
 from northfinder.host.errors import HostConfigError
 
 
@@ -23,8 +18,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     p.add_argument("file", help="output file, .csv or .npz")
-    add_device_arguments(p)
-    add_plan_arguments(p)
+    add_arguments(p)
     return p
 
 
