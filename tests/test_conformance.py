@@ -34,6 +34,18 @@ from northfinder.driver.conformance import (
     format_report,
     run_suite,
 )
+from northfinder.driver.conformance.checks import refusals
+from northfinder.driver.conformance.checks.refusals import Case, Raw, send_cases
+from northfinder.driver.conformance.core import Ctx
+from northfinder.driver.conformance.session import Answer
+from northfinder.driver.protocol.constants import (
+    CONFIG_LIMITS,
+    ConfigKey,
+    DeviceState,
+    Opcode,
+    Result,
+)
+from northfinder.driver.protocol.messages import Home, Reply, RotateBy, SetConfig
 from northfinder.firmware_sim.control import ControlClient
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import Runner
@@ -285,3 +297,74 @@ def test_cli_lists_checks_and_refuses_bad_arguments(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["conformance", "--serial", "/dev/null", "--time-scale", "-1"])
     assert exc.value.code == 2
+
+
+class ScriptedSession:
+    """A session whose unit answers from a script: (result, state when answered) per request."""
+
+    def __init__(self, script: list[tuple[Result, DeviceState]]) -> None:
+        self.script = list(script)
+        self.states: dict[int, DeviceState] = {}
+        self.unsolicited: list = []
+        self.reply_wait_s = 1.0
+        self.seq = 0
+
+    def raw(self, opcode: int, args: bytes = b"") -> bytes:
+        self.seq += 1
+        return bytes((self.seq & 0xFF, opcode)) + args
+
+    def request(self, command, wait=None) -> Answer:
+        payload = command if isinstance(command, bytes) else command.encode()
+        result, state = self.script.pop(0)
+        a = Answer(payload, 0.0, Reply(payload[0], payload[1], result), 0.001, 1)
+        self.states[id(a)] = state
+        return a
+
+    def state_when_answered(self, a: Answer) -> DeviceState:
+        return self.states[id(a)]
+
+
+def test_refusal_rows_are_judged_only_in_the_state_they_need():
+    cases = [
+        Case("BUSY while rotating", RotateBy(0, 1), Result.BUSY, in_state=True),
+        Case("BUSY after the move", Home(0), Result.BUSY, in_state=True),
+        Case("wrong while rotating", RotateBy(0, 2), Result.BUSY, in_state=True),
+        Case("state-free row after the move", Raw(0x7F), Result.UNKNOWN_COMMAND),
+    ]
+    session = ScriptedSession(
+        [
+            (Result.BUSY, DeviceState.ROTATING),  # right
+            (Result.OK, DeviceState.READY),  # the move had ended: noted, not judged
+            (Result.OUT_OF_RANGE, DeviceState.ROTATING),  # wrong in the state: a problem
+            (Result.BAD_ARGUMENT, DeviceState.READY),  # wrong whatever the state: a problem
+        ]
+    )
+    ctx = Ctx(session, SuiteOptions(), {})  # type: ignore[arg-type]
+    tally = send_cases(ctx, cases, state=DeviceState.ROTATING)
+    assert (tally.judged, tally.refused, tally.answered_in_state) == (3, 3, 2)
+    assert ctx.notes == ["BUSY after the move: the move had ended"]
+    assert len(ctx.problems) == 2
+    assert "wrong while rotating: answered OUT_OF_RANGE (3), expected BUSY (1)" in ctx.problems
+    assert ctx.problems[1].startswith("state-free row after the move: answered BAD_ARGUMENT")
+
+
+def test_refusal_tables_cover_the_protocol():
+    with_args = {
+        Opcode.ROTATE_TO: 5,
+        Opcode.ROTATE_BY: 4,
+        Opcode.GET_CONFIG: 1,
+        Opcode.SET_CONFIG: 5,
+    }
+    # one byte too few (where there are arguments) and one too many, for every opcode
+    assert len(refusals.WRONG_LENGTH) == 2 * len(with_args) + (len(Opcode) - len(with_args))
+    for case in refusals.WRONG_LENGTH:
+        assert isinstance(case.send, Raw) and case.expected == Result.BAD_ARGUMENT
+        n = with_args.get(Opcode(case.send.opcode), 0)
+        assert len(case.send.args) in (n - 1, n + 1)
+    # every writable key below and above its range (0 has no value below), and 3 sample rates
+    out_of_range = [c for c in refusals.OUT_OF_RANGE if isinstance(c.send, SetConfig)]
+    assert len(out_of_range) == 3 + sum(
+        1 + (lo > 0) for k, (lo, _) in CONFIG_LIMITS.items() if k != ConfigKey.SAMPLE_RATE_HZ
+    )
+    assert {c.name for c in CHECKS} >= {spec.name for spec in refusals.AT_REST}
+    assert len(refusals.READ_ONLY) == 2 * sum(k.read_only for k in ConfigKey)
