@@ -35,6 +35,7 @@ from northfinder.driver.protocol.constants import (
     INT32_MIN,
     ROTATE_BY_LIMIT,
     SAMPLE_RATES_HZ,
+    TEMPERATURE_DEGC_PER_COUNT,
     TEMPERATURE_NOT_AVAILABLE,
     ConfigKey,
     DeviceState,
@@ -57,8 +58,9 @@ from northfinder.driver.protocol.messages import (
     Status,
 )
 from northfinder.driver.protocol.units import DPH, G0
+from northfinder.firmware_sim.error_terms import quantise_carry
 from northfinder.firmware_sim.errors import SimConfigError
-from northfinder.firmware_sim.imu import Instrument, SampleBlock, Truth, quantise_carry
+from northfinder.firmware_sim.imu import Instrument, SampleBlock, Truth
 from northfinder.firmware_sim.sensors import SensorSpec
 
 log = logging.getLogger("northfinder.sim")
@@ -68,7 +70,9 @@ log = logging.getLogger("northfinder.sim")
 BASE_RATE_HZ = 400.0
 _GYRO_COUNT = GYRO_DPH_PER_COUNT * DPH  # rad/s per count
 _ACCEL_COUNT = ACCEL_G_PER_COUNT * G0  # m/s^2 per count
-_COUNTS_PER_DEG = 1.0 / ANGLE_DEG_PER_COUNT  # exactly 1e6 for the protocol's 1e-6 deg
+# Counts per unit (exactly 1e6 and 100): a product rounds like the literal factors did.
+_COUNTS_PER_DEG = 1.0 / ANGLE_DEG_PER_COUNT
+_COUNTS_PER_DEGC = 1.0 / TEMPERATURE_DEGC_PER_COUNT
 #: A move that ends further than this from its command is a drive fault, deg.
 DRIVE_FAULT_LIMIT_DEG = 0.5
 #: How far ahead of the present the firmware computes its output, s (see Firmware.process).
@@ -369,7 +373,7 @@ class Firmware:
                 return Result.UNKNOWN_KEY, b"", None
             return (
                 Result.OK,
-                Reply.config(cmd.seq, op, cmd.key, self.read_config(ConfigKey(cmd.key))).data,
+                Reply.config(cmd.seq, op, cmd.key, self.read_config(cmd.key)).data,
                 None,
             )
         if op == Opcode.RESET:
@@ -659,12 +663,8 @@ class Firmware:
             counters = (self._counter + np.arange(n_ticks)) & 0xFFFFFFFF
             self._counter = (self._counter + n_ticks) & 0xFFFFFFFF
             return [], t_end, counters
-        gc = np.column_stack(
-            [quantise_carry(g[:, j] / _GYRO_COUNT, self._remainder, j) for j in range(3)]
-        )
-        ac = np.column_stack(
-            [quantise_carry(a[:, j] / _ACCEL_COUNT, self._remainder, 3 + j) for j in range(3)]
-        )
+        gc, self._remainder[:3] = quantise_carry(g / _GYRO_COUNT, self._remainder[:3], axis=0)
+        ac, self._remainder[3:] = quantise_carry(a / _ACCEL_COUNT, self._remainder[3:], axis=0)
         sat_g |= np.any((gc > INT32_MAX) | (gc < INT32_MIN), axis=1)
         sat_a |= np.any((ac > INT24_MAX) | (ac < INT24_MIN), axis=1)
         gc = np.clip(gc, INT32_MIN, INT32_MAX).astype(np.int64)
@@ -740,7 +740,7 @@ def _angle_counts(angle_deg: float) -> int:
 def _temperature_counts(temp_c: float) -> int:
     if not math.isfinite(temp_c):
         return TEMPERATURE_NOT_AVAILABLE
-    return max(-32767, min(32767, round(temp_c * 100.0)))
+    return max(-32767, min(32767, round(temp_c * _COUNTS_PER_DEGC)))
 
 
 def _opcode(code: int) -> Opcode | int:
