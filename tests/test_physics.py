@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
+from numpy.typing import ArrayLike
 
 from northfinder.driver.protocol.motion import move_time_s
 from northfinder.driver.protocol.units import normal_gravity
@@ -543,7 +544,7 @@ def test_one_batch_run_draws_the_same_power_on_as_the_instrument():
     assert np.abs(first.gyro_rps[0, 0] - ideal).max() > 0.1 * DPH
 
 
-def stop_errors_deg(reached: np.ndarray, commanded: np.ndarray) -> np.ndarray:
+def stop_errors_deg(reached: ArrayLike, commanded: ArrayLike) -> np.ndarray:
     return (np.asarray(reached) - np.asarray(commanded) + 180.0) % 360.0 - 180.0
 
 

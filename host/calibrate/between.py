@@ -116,8 +116,8 @@ class RunWindows:
         """A run of a regular plan: windows of ``window_s`` every ``step_s`` seconds at the
         table angles ``positions_deg``, each move starting as the window before it ends."""
         pos = np.asarray(positions_deg, dtype=float)
-        start = np.arange(pos.size) * float(step_s)
-        end = start + float(window_s)
+        start = np.arange(pos.size, dtype=np.float64) * float(step_s)
+        end: NDArray[np.float64] = start + float(window_s)
         move = np.concatenate([[0.0], (np.diff(pos) + 180.0) % 360.0 - 180.0])
         move_start = np.concatenate([[math.nan], end[:-1]])
         return cls(np.asarray(gyro_dph, dtype=float), pos, pos, start, end, move, move_start)
@@ -193,7 +193,7 @@ class BetweenFit:
     def transient_in_window_dph(self, delay_s: float, length_s: float, move_deg: float) -> float:
         """1 sigma of the move transient in the mean of a window that starts ``delay_s`` after
         the start of a move of ``move_deg`` and lasts ``length_s``, deg/h."""
-        w = _decay_mean(delay_s, delay_s + length_s, self.tau_s)
+        w = float(_decay_mean(delay_s, delay_s + length_s, self.tau_s))
         return self.sigma["move_transient"] * math.sqrt(abs(move_deg)) * w
 
 
@@ -391,7 +391,7 @@ class _Reml:
         except np.linalg.LinAlgError:
             return bad
         proj = np.linalg.solve(cx, xvy)
-        value = 0.5 * (logdet + 2.0 * float(np.sum(np.log(np.diag(cx)))) + yvy - proj @ proj)
+        value = 0.5 * (logdet + 2.0 * float(np.sum(np.log(np.diag(cx)))) + yvy - float(proj @ proj))
         if not math.isfinite(value):
             return bad
         out = np.zeros(sig.size)

@@ -396,7 +396,7 @@ class Calibration:
         """What the records are too short to show: for an unresolved rate random walk or rate
         ramp of the gyros, the smallest value the longest cluster time would show, and the
         record length a given value needs."""
-        out = []
+        out: list[str] = []
         fits = [self.fits[a] for a in AXES[:3]]
         tau = float(self.curves[AXES[0]].taus_s[-1])
         b = float(np.mean([f.coefficients["bias_instability"] for f in fits]))
