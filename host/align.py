@@ -211,7 +211,7 @@ class AlignmentResult:
 
 
 #: Cluster time at which the record's own noise density is read, s.
-NOISE_TAU_S = 2.0
+NOISE_TAU_S = 5.0
 #: Record noise over the settings' beyond which a result is flagged as not the model's.
 NOISE_RATIO_LIMIT = 3.0
 #: Adapted measurement noise over its floor (1-sigma) beyond which the same holds.
