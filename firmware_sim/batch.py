@@ -22,9 +22,10 @@ Error terms
 -----------
 Per run: constant and turn-on bias, scale-factor and misalignment draws, table indexing error per
 move (a repeated position keeps the last stop's error), vibration phase, and per move the bias
-step and transient it starts. Rate ramp with the other deterministic terms. Per sample: white noise (ARW, VRW), bias instability (Gauss-Markov
-components from 1 s to 10^4 s on a 0.1 s grid) and random walks, warm-up transient, temperature sensitivity, Poisson impulses (half-sine, random
-direction), vibration line, optional bias step, range clipping and quantisation. The quantiser
+step and transient it starts (from the end of the window before it). Per sample: white noise
+(ARW, VRW), bias instability (Gauss-Markov components from 1 s to 10^4 s on a 0.1 s grid) and
+random walks, warm-up transient, temperature sensitivity, rate ramp, Poisson impulses (half-sine,
+random direction), vibration line, optional bias step, range clipping and quantisation. The quantiser
 carries its remainder within a window; the remainder at a window start is drawn uniformly (what
 the samples before it left over). The post-stop ring-down comes from the turntable model and enters
 linearised (its amplitude at a window start is far below any other term).
