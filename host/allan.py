@@ -14,7 +14,8 @@ rate ramp R (rate / s). :func:`fit_ieee952` fits the non-negative coefficients b
 squares on the variance, each point weighted by its variance 2 sigma^4 / edf at the model (the
 edf for the noise type that dominates the model there), iterated to convergence. The Allan
 variances at neighbouring tau are correlated, which this weighting ignores, so the coefficient
-uncertainties from the fit alone are too small: they are scaled by the root of the residual
+uncertainties from the fit alone are too small: the variances are scaled by the number of
+cluster times per octave (values within an octave share most of their data) and by the residual
 chi-squared per degree of freedom when that exceeds one. A term counts as *resolved* when it is
 at least three times its uncertainty and supplies most of the model variance at some cluster
 time where the curve has ten or more degrees of freedom; otherwise :attr:`NoiseFit.upper` gives the largest value the
@@ -337,7 +338,9 @@ def fit_ieee952(
     resid = (y - model) * w
     dof = max(taus.size - int(active.sum()), 1)
     chi2_dof = float(resid @ resid / dof)
-    cov *= max(chi2_dof, 1.0)
+    # Values within an octave of cluster time share most of their data: count them as one.
+    per_octave = max(taus.size / max(math.log2(taus[-1] / taus[0]), 1.0), 1.0)
+    cov *= max(chi2_dof, 1.0) * per_octave
     _, upper95 = curve.interval(0.95, alpha)
     share = (a * coef) / model[:, None]
     out_c: dict[str, float] = dict.fromkeys(TERMS, 0.0)
