@@ -522,8 +522,14 @@ class ControlServer:
         self._thread.start()
         return self
 
+    def __enter__(self) -> ControlServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
-        if self._thread.is_alive():
+        if self._thread.is_alive():  # shutdown() waits for a serve loop that never started
             self._server.shutdown()
         self._server.server_close()
         if self.kind == "unix":
