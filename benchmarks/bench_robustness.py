@@ -47,6 +47,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import serial
@@ -58,7 +59,7 @@ from northfinder.firmware_sim.control import ControlClient, ControlError
 SIM = [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())"]
 NAN, INF = float("nan"), float("inf")
 
-REFUSED: list[dict[str, Any]] = [
+REFUSED: list[Any] = [
     {"op": "bias_step", "gyro_dph": [NAN, 0, 0]},
     {"op": "bias_step", "accel_ug": [0, INF, 0]},
     {"op": "bias_step", "gyro_dph": [1e300, 0, 0]},
@@ -229,6 +230,18 @@ def send_raw(address: str, request: Any) -> dict[str, Any]:
         return json.loads(sock.makefile("rb").readline())
 
 
+def refused(address: str, request: Any) -> bool:
+    return send_raw(address, request)["ok"] is False
+
+
+def accepted(address: str, request: Any) -> bool:
+    return send_raw(address, request)["ok"] is True
+
+
+def answered(address: str, line: bytes) -> bool:
+    return all(send_line(address, line))
+
+
 def send_line(address: str, line: bytes) -> tuple[bool, bool]:
     """(one JSON reply line came back, the same connection answers ``status`` after it)."""
     host, _, port = address.rpartition(":")
@@ -290,23 +303,15 @@ def control_abuse(args: argparse.Namespace) -> dict[str, Any]:
 
             start = time.monotonic()
             for request in REFUSED:
-                case(
-                    "refused",
-                    json.dumps(request)[:50],
-                    lambda r=request: not send_raw(address, r)["ok"],
-                )
+                case("refused", json.dumps(request)[:50], partial(refused, address, request))
             phases["refused"] = (start, time.monotonic())
             start = time.monotonic()
             for label, line in _socket_cases():
-                case("socket", label, lambda line=line: all(send_line(address, line)))
+                case("socket", label, partial(answered, address, line))
             phases["socket"] = (start, time.monotonic())
             start = time.monotonic()
             for request in ACCEPTED:
-                case(
-                    "accepted",
-                    json.dumps(request)[:50],
-                    lambda r=request: send_raw(address, r)["ok"],
-                )
+                case("accepted", json.dumps(request)[:50], partial(accepted, address, request))
             time.sleep(2.0)  # the largest burst and vibration run through the stream
             phases["accepted"] = (start, time.monotonic())
             in_phase = {name: stream.gaps(*span) for name, span in phases.items()}

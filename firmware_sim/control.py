@@ -513,10 +513,11 @@ class ControlServer:
 
     @property
     def address(self) -> str:
+        where: Any = self._server.server_address
         if self.kind == "tcp":
-            host, port = self._server.server_address[:2]
+            host, port = where[0], where[1]
             return f"[{host}]:{port}" if ":" in str(host) else f"{host}:{port}"
-        return f"unix:{self._server.server_address}"
+        return f"unix:{where}"
 
     def start(self) -> ControlServer:
         self._thread.start()

@@ -238,7 +238,7 @@ class Firmware:
         self._now_ns = 0  # time up to which the device has sent its output
         self._horizon_ns = 0  # time up to which output has been computed ahead
         self._ahead: list[Outgoing] = []
-        self._snapshots: list[tuple[float, dict[str, object], int]] = []
+        self._snapshots: list[tuple[int, dict[str, object], int]] = []  # (start ns, ...)
         self.boot_count = 0
         self._reboot(0, REPLY_LATENCY_S, first_status_ns=0)
         self._last_state = self.state_at(0.0)

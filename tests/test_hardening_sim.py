@@ -12,6 +12,7 @@ import socket
 import threading
 import tracemalloc
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
@@ -168,10 +169,11 @@ def test_bad_requests_are_refused_before_they_act_and_the_stream_goes_on(request
 
 
 #: Values for required keys, and a skip of 0 ticks (a skip is a gap on purpose).
-GIVEN = {
+GIVEN: dict[str, dict[str, Any]] = {
     "set_sensor": {"values": {"gyro.arw_dpsh": 0.001}},
     "delay_replies": {"seconds": 0},
     "skip_counter": {"count": 0},
+    "speed": {"value": 1.0},
 }
 
 
@@ -180,15 +182,14 @@ def test_every_operation_accepts_its_keys_at_their_defaults_and_bounds():
     for name, op in OPS.items():
         if name in ("silent", "pause", "reset"):
             continue  # they stop the stream on purpose
-        if name == "speed":
-            args = {"value": 1.0}
-        else:
-            args = {k: key.default for k, key in op.keys.items() if key.default is not None}
-            args.update(GIVEN.get(name, {}))
+        args: dict[str, Any] = {
+            k: key.default for k, key in op.keys.items() if key.default is not None
+        }
+        args.update(GIVEN.get(name, {}))
         reply = unit.control.handle({"op": name, **args})
         assert reply["ok"] is True, (name, reply)
         for key_name, key in op.keys.items():
-            if key.lo is None:
+            if key.lo is None or key.hi is None:
                 continue
 
             def value(x: float, key=key) -> float | list[float]:
@@ -444,7 +445,7 @@ def test_a_command_next_to_a_tick_boundary_loses_no_tick(at_s):
     fw.handle(GetStatus(2))
     for _ in range(500):
         out += fw.process(0.001)
-    counters = [o.message.counter for o in out if isinstance(o.message, Sample)]
+    counters = [m.counter for m in (o.message for o in out) if isinstance(m, Sample)]
     assert np.all(np.diff(counters) == 1), counters[:10]
 
 
@@ -459,7 +460,7 @@ def test_decimal_millisecond_steps_with_commands_keep_every_tick_on_its_grid():
             fw.handle(GetStatus(i & 0xFF))
     assert fw.now == 4.0
     samples = [o for o in out if isinstance(o.message, Sample)]
-    counters = np.array([o.message.counter for o in samples])
+    counters = np.array([o.message.counter for o in samples])  # type: ignore[union-attr]
     times = np.array([o.time_s for o in samples])
     assert np.all(np.diff(counters) == 1)
     assert np.allclose(times, (counters + 1) / 200.0, rtol=0, atol=1e-12)
