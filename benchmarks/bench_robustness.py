@@ -21,9 +21,11 @@ channel, one after the other:
   replies, reset), each cleared again. These break the stream by design: only deaths count.
 
 After each case it checks the simulator is alive (its process runs and a new control connection
-answers ``status``). Stream gaps (a sample counter step other than +1, or a serial frame lost) are
-counted over the ``refused``, ``socket`` and ``accepted`` phases; the stream must also come back
-after the ``fault`` phase. The simulator's resident memory is read from /proc before and after.
+answers ``status`` within 5 s); a dead or hung simulator counts as a death and is started again,
+so that every case meets a live one. Stream gaps (a sample counter step other than +1) and the
+samples received against those due at 200 Hz are counted over the ``refused``, ``socket`` and
+``accepted`` phases; the stream must also come back after the ``fault`` phase. The simulator's
+resident memory is read from /proc before and after.
 
 ``listen`` (part of ``control``): ``--control unix:PATH`` on an existing regular file and on a live
 socket must be refused with one line and leave the path alone; ``--control [::1]:0`` must start or
@@ -58,6 +60,7 @@ from northfinder.firmware_sim.control import ControlClient, ControlError
 
 SIM = [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())"]
 NAN, INF = float("nan"), float("inf")
+RATE_HZ = 200  # the simulator's default sample rate
 
 REFUSED: list[Any] = [
     {"op": "bias_step", "gyro_dph": [NAN, 0, 0]},
@@ -205,10 +208,14 @@ def simulator(*extra: str) -> Iterator[tuple[subprocess.Popen, dict[str, str]]]:
 
 
 def rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
+    """Resident memory of a process, MB (NaN once it has ended)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
     return math.nan
 
 
@@ -242,6 +249,13 @@ def answered(address: str, line: bytes) -> bool:
     return all(send_line(address, line))
 
 
+def fault(address: str, request: dict[str, Any], clear: dict[str, Any] | None) -> bool:
+    """Inject a fault, let it act, clear it again."""
+    ok = send_raw(address, request)["ok"]
+    time.sleep(0.3)
+    return ok and (clear is None or send_raw(address, clear)["ok"])
+
+
 def send_line(address: str, line: bytes) -> tuple[bool, bool]:
     """(one JSON reply line came back, the same connection answers ``status`` after it)."""
     host, _, port = address.rpartition(":")
@@ -272,86 +286,122 @@ class Tally:
     notes: list[str] = field(default_factory=list)
 
 
+class Running:
+    """``northfinder sim`` with a control channel and its stream read; started again if it dies,
+    so that every case is tried on a live simulator."""
+
+    def __init__(self) -> None:
+        self.streams: list[Stream] = []
+        self.rss_start_mb = math.nan
+        self._start()
+
+    def _start(self) -> None:
+        self._ctx = simulator("--control", "127.0.0.1:0")
+        self.proc, facts = self._ctx.__enter__()
+        self.address = facts["control"]
+        self.stream = Stream(facts["pty"])
+        self.streams.append(self.stream)
+        self.stream.start()
+        time.sleep(0.5)
+        if math.isnan(self.rss_start_mb):
+            self.rss_start_mb = rss_mb(self.proc.pid)
+
+    def alive(self) -> bool:
+        return alive(self.proc, self.address)
+
+    def restart(self) -> None:
+        self.close()
+        self._start()
+
+    def close(self) -> None:
+        self.stream.close()
+        self._ctx.__exit__(None, None, None)
+
+    def gaps(self, t0: float, t1: float) -> tuple[int, int, float]:
+        """Counter gaps, samples and longest arrival interval over all streams in [t0, t1]."""
+        parts = [stream.gaps(t0, t1) for stream in self.streams]
+        longest = max((p[2] for p in parts if p[1] > 1), default=math.inf)
+        return sum(p[0] for p in parts), sum(p[1] for p in parts), longest
+
+
 def control_abuse(args: argparse.Namespace) -> dict[str, Any]:
     tallies = {name: Tally() for name in ("refused", "socket", "accepted", "fault")}
     phases: dict[str, tuple[float, float]] = {}
-    with simulator("--control", "127.0.0.1:0") as (proc, facts):
-        address = facts["control"]
-        stream = Stream(facts["pty"])
+    sim = Running()
+    try:
+
+        def case(phase: str, label: str, fire: Callable[[str], bool]) -> None:
+            tally = tallies[phase]
+            t0 = time.monotonic()
+            error = "not as expected"
+            try:
+                ok = fire(sim.address)
+            except (OSError, ValueError, ControlError) as exc:
+                ok, error = False, str(exc)
+            tally.worst_s = max(tally.worst_s, time.monotonic() - t0)
+            tally.cases += 1
+            tally.as_expected += bool(ok)
+            if not ok:
+                tally.notes.append(f"{label}: {error}")
+            time.sleep(args.seconds_per_case)  # a request that kills does so at the next sample
+            if not sim.alive():
+                tally.deaths += 1
+                tally.notes.append(f"{label}: simulator dead or hung (started again)")
+                sim.restart()
+
+        start = time.monotonic()
+        for request in REFUSED:
+            case("refused", json.dumps(request)[:50], partial(refused, request=request))
+        phases["refused"] = (start, time.monotonic())
+        start = time.monotonic()
+        for label, line in _socket_cases():
+            case("socket", label, partial(answered, line=line))
+        phases["socket"] = (start, time.monotonic())
+        start = time.monotonic()
+        for request in ACCEPTED:
+            case("accepted", json.dumps(request)[:50], partial(accepted, request=request))
+        time.sleep(2.0)  # the largest burst and vibration run through the stream
+        phases["accepted"] = (start, time.monotonic())
+        in_phase = {name: sim.gaps(*span) for name, span in phases.items()}
+        rss_end = rss_mb(sim.proc.pid)
+        for request, clear in FAULTS:
+            case("fault", json.dumps(request)[:50], partial(fault, request=request, clear=clear))
+        sim.stream.samples.clear()  # a reset switches the stream off: start it again
         try:
-            stream.start()
-            time.sleep(0.5)
-            rss0 = rss_mb(proc.pid)
-
-            def case(phase: str, label: str, fire: Callable[[], bool]) -> None:
-                tally = tallies[phase]
-                t0 = time.monotonic()
-                error = "not as expected"
-                try:
-                    ok = fire()
-                except (OSError, ValueError, ControlError) as exc:
-                    ok, error = False, str(exc)
-                tally.worst_s = max(tally.worst_s, time.monotonic() - t0)
-                tally.cases += 1
-                tally.as_expected += bool(ok)
-                if not ok:
-                    tally.notes.append(f"{label}: {error}")
-                if not alive(proc, address):
-                    tally.deaths += 1
-                    tally.notes.append(f"{label}: simulator dead")
-                time.sleep(args.seconds_per_case)
-
-            start = time.monotonic()
-            for request in REFUSED:
-                case("refused", json.dumps(request)[:50], partial(refused, address, request))
-            phases["refused"] = (start, time.monotonic())
-            start = time.monotonic()
-            for label, line in _socket_cases():
-                case("socket", label, partial(answered, address, line))
-            phases["socket"] = (start, time.monotonic())
-            start = time.monotonic()
-            for request in ACCEPTED:
-                case("accepted", json.dumps(request)[:50], partial(accepted, address, request))
-            time.sleep(2.0)  # the largest burst and vibration run through the stream
-            phases["accepted"] = (start, time.monotonic())
-            in_phase = {name: stream.gaps(*span) for name, span in phases.items()}
-            rss1 = rss_mb(proc.pid)
-            for request, clear in FAULTS:
-
-                def fire(r=request, c=clear) -> bool:
-                    ok = send_raw(address, r)["ok"]
-                    time.sleep(0.3)
-                    return ok and (c is None or send_raw(address, c)["ok"])
-
-                case("fault", json.dumps(request)[:50], fire)
-            stream.samples.clear()  # a reset switches the stream off: start it again
-            stream.start()
+            sim.stream.start()
             time.sleep(1.5)
-            resumed = stream.gaps(time.monotonic() - 1.0, time.monotonic())
-        finally:
-            stream.close()
+            resumed = sim.stream.gaps(time.monotonic() - 1.0, time.monotonic())
+        except (RuntimeError, serial.SerialException):  # the simulator has died
+            resumed = (0, 0, math.inf)
+        lost = sum(stream.deframer.lost_frames for stream in sim.streams)
+    finally:
+        sim.close()
     listen = listen_checks()
     print("control channel abuse (northfinder sim --pty --control 127.0.0.1:0, real time)")
     print(f"{'phase':<10} {'cases':>6} {'as expected':>12} {'deaths':>7} {'slowest case s':>15} "
-          f"{'stream gaps':>12} {'samples':>8} {'longest interval ms':>20}")  # fmt: skip
+          f"{'stream gaps':>12} {'samples/due':>12} {'longest interval ms':>20}")  # fmt: skip
     summary: dict[str, Any] = {}
     for name, tally in tallies.items():
         gaps, n, longest = in_phase.get(name, (None, None, None))
+        due = round(RATE_HZ * (phases[name][1] - phases[name][0])) if name in phases else None
         shown = "-" if gaps is None else str(gaps)
+        count = "-" if n is None else f"{n}/{due}"
         print(f"{name:<10} {tally.cases:>6} {tally.as_expected:>12} {tally.deaths:>7} "
-              f"{tally.worst_s:>15.2f} {shown:>12} {n if n is not None else '-':>8} "
+              f"{tally.worst_s:>15.2f} {shown:>12} {count:>12} "
               f"{'-' if longest is None else f'{longest * 1e3:.1f}':>20}")  # fmt: skip
-        summary[name] = {**tally.__dict__, "stream_gaps": gaps, "samples": n}
-    lost = stream.deframer.lost_frames
+        summary[name] = {**tally.__dict__, "stream_gaps": gaps, "samples": n, "due": due}
     print(f"stream after the faults: {resumed[1]} samples in the last 1 s, {resumed[0]} gaps")
     print(f"serial frames lost over the whole run (faults on purpose included): {lost}")
-    print(f"simulator resident memory: {rss0:.0f} MB at start, {rss1:.0f} MB after the abuse")
+    print(
+        f"simulator resident memory: {sim.rss_start_mb:.0f} MB at start, {rss_end:.0f} MB after "
+        f"the abuse (the last simulator started)"
+    )
     for name, (ok, text) in listen.items():
         print(f"listen {name}: {'as expected' if ok else 'NOT as expected'}: {text}")
     for tally in tallies.values():
         for note in tally.notes:
             print(f"  note: {note}")
-    summary.update(resumed=resumed[:2], rss_mb=(rss0, rss1), listen=listen)
+    summary.update(resumed=resumed[:2], rss_mb=(sim.rss_start_mb, rss_end), listen=listen)
     return summary
 
 
@@ -367,7 +417,7 @@ def listen_checks() -> dict[str, tuple[bool, str]]:
             capture_output=True, text=True, timeout=60,
         )  # fmt: skip
         err = res.stderr.strip().splitlines()
-        kept = open(precious).read() == "keep"
+        kept = os.path.exists(precious) and open(precious).read() == "keep"
         out["unix:existing file"] = (
             res.returncode != 0 and kept and "Traceback" not in res.stderr,
             f"exit {res.returncode}, file kept {kept}: {err[-1] if err else ''}",
