@@ -513,11 +513,12 @@ class ControlServer:
 
     @property
     def address(self) -> str:
-        where: Any = self._server.server_address
-        if self.kind == "tcp":
-            host, port = where[0], where[1]
-            return f"[{host}]:{port}" if ":" in str(host) else f"{host}:{port}"
-        return f"unix:{where}"
+        address = self._server.server_address
+        if isinstance(address, tuple):
+            host = address[0]
+            host = host.decode() if isinstance(host, bytes | bytearray) else host
+            return f"[{host}]:{address[1]}" if ":" in host else f"{host}:{address[1]}"
+        return f"unix:{os.fsdecode(address) if isinstance(address, str | bytes) else address!r}"
 
     def start(self) -> ControlServer:
         self._thread.start()
@@ -533,11 +534,11 @@ class ControlServer:
         if self._thread.is_alive():  # shutdown() waits for a serve loop that never started
             self._server.shutdown()
         self._server.server_close()
-        if self.kind == "unix":
-            path = str(self._server.server_address)
+        address = self._server.server_address
+        if self.kind == "unix" and isinstance(address, str | bytes):
             try:
-                if os.stat(path).st_ino == self._inode:  # ours, not a successor's
-                    os.unlink(path)
+                if os.stat(address).st_ino == self._inode:  # ours, not a successor's
+                    os.unlink(address)
             except OSError:
                 pass
 

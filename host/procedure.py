@@ -22,7 +22,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Validity
+from northfinder.driver.protocol.constants import VALIDITY_UNFIT, ConfigKey, DeviceState, Validity
 from northfinder.driver.protocol.motion import shortest_delta_deg
 from northfinder.host.denoise import denoise
 from northfinder.host.errors import HostConfigError, HostError, QualityError
@@ -59,14 +59,7 @@ MAX_ENCODER_SPAN_DEG = 0.01
 #: Batches used to estimate the standard error of a window mean (robust to correlated noise).
 N_BATCHES = 20
 #: Validity bits that make a sample unusable for north finding (protocol.md 4.5).
-BAD_BITS = (
-    Validity.TABLE_MOVING
-    | Validity.TABLE_SETTLING
-    | Validity.GYRO_SATURATED
-    | Validity.ACCEL_SATURATED
-    | Validity.WARMING_UP
-    | Validity.FAULT
-)
+BAD_BITS = VALIDITY_UNFIT
 #: Solvers the procedure offers (a plan's ``pairwise`` is for studies: it gives no one heading).
 METHOD_CHOICES = ("auto", "two-position", "least-squares")
 #: Window and settle-time limits of a run on a device, s.
