@@ -557,7 +557,9 @@ class Firmware:
         Output is computed in chunks of :data:`LOOKAHEAD_S` ahead of time, because one large
         step of the physics costs little more than one small one; anything that changes the
         device rewinds to the present first (see :meth:`apply`), so the result is the same as
-        computing every tick as it comes.
+        computing every tick as it comes. The device's clock counts whole nanoseconds
+        (:data:`NS_PER_S`): ``dt`` is rounded to one, so steps of 1 ms add up exactly and a tick
+        is due at the same step whether or not a command came just before it.
         """
         if not (math.isfinite(dt) and dt >= 0):
             raise SimConfigError(f"dt: must be a finite number of seconds >= 0, got {dt!r}")
