@@ -20,11 +20,6 @@ export HIL_OUT=$OUT HIL_D HIL_REPO HIL_PYTHON HIL_CAN_IF HIL_MODE
 export PYTHONDONTWRITEBYTECODE=1   # read-only root under QEMU; elsewhere: leave the checkout as it is
 
 now() { date +%s.%N; }
-if [[ $HIL_MODE == uml && -n ${HIL_UML_GLIBC_TUNABLES:-} ]]; then
-    # Under user-mode Linux every page fault and mmap/munmap is a round trip through the tracing
-    # kernel: let malloc keep the memory it has instead of handing it back and faulting it in again.
-    export GLIBC_TUNABLES=$HIL_UML_GLIBC_TUNABLES
-fi
 printf 'host_mode=%s\nuptime=%s\nkernel=%s\ncpus=%s\n' "$HIL_MODE" "$(cut -d' ' -f1 /proc/uptime)" \
     "$(uname -r)" "$(nproc)" >"$OUT/guest-started"
 exec >>"$OUT/guest.log" 2>&1
