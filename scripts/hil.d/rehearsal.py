@@ -283,11 +283,13 @@ def main() -> int:
     if args.mode == "uml":
         # One guest CPU: candump gives way to the instrument and the host. It loses nothing by
         # waiting, as its timestamps are the kernel's; a 32 MiB receive buffer holds about 40 s
-        # of the bus's traffic meanwhile. It writes to the guest's own memory (the tmpfs on
-        # /dev/shm): a write to the host's filesystem holds the whole guest kernel until the
-        # host is done, and the log is copied out when the bus is quiet.
+        # of the bus's traffic meanwhile. It writes to the guest's own memory (HIL_GUEST_TMP, a
+        # tmpfs): a write to the host's filesystem holds the whole guest kernel until the host
+        # is done. The log is moved out when the bus is quiet.
         dump_cmd = ["nice", "-n", "19", candump, "-L", "-r", str(32 << 20), ch]
-        dump_log = Path(tempfile.mkdtemp(prefix="hil-candump-", dir="/dev/shm")) / "candump.log"
+        if os.environ.get("HIL_GUEST_TMP"):
+            tmp = tempfile.mkdtemp(prefix="candump-", dir=os.environ["HIL_GUEST_TMP"])
+            dump_log = Path(tmp) / "candump.log"
     dump = start(dump_cmd, dump_log) if candump else None
     sim_cmd = [nf, "sim", "-i", "socketcan", "-c", ch, "--warmup", "0", "--sensor", "nav-fog", "--seed", "7",
                "--azimuth", str(TRUTH["azimuth"]), "--latitude", str(TRUTH["latitude"]),

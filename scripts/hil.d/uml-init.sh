@@ -12,9 +12,11 @@ export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
 export HOME=/root
 mount -t proc proc /proc
 mount -t sysfs sysfs /sys
-# The host's /dev/shm is a tmpfs mount that hostfs shows as a plain directory: give the guest its
-# own (POSIX shared memory, semaphores).
-mount -t tmpfs -o mode=1777 tmpfs /dev/shm 2>/dev/null
+# Memory of the guest's own for files written while timing matters (a write to the host's
+# filesystem holds the whole guest kernel until the host is done): a tmpfs, seen only inside.
+export HIL_GUEST_TMP=$OUT/uml/mem
+mkdir -p "$HIL_GUEST_TMP" && mount -t tmpfs -o size=512m,mode=700 tmpfs "$HIL_GUEST_TMP" \
+    || unset HIL_GUEST_TMP
 "$(dirname -- "$0")/guest.sh" "$OUT"
 echo "uml-init: guest.sh exited $?, powering off"
 sync
