@@ -19,15 +19,10 @@ import argparse
 import time
 
 from northfinder.firmware_sim.sensors import load_spec, preset_names
-from northfinder.host.cli.study import (
-    StudySettings,
-    error_model,
-    monte_carlo,
-    study_rows,
-    verify_plan,
-)
-from northfinder.host.heading import PAPER_SWEEP
-from northfinder.host.study import Plan, plan_time_s, search_plans, shortest_plan
+from northfinder.host.cli.simulated import SimulatedWindows, error_model
+from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows, verify_plan
+from northfinder.host.plan import PAPER_SWEEP, Plan, plan_time_s
+from northfinder.host.planner import search_plans, shortest_plan
 
 LATITUDE = 34.0
 WARMUP = 120.0
@@ -35,6 +30,7 @@ WARMUP = 120.0
 
 def ratio_table(runs: int, seed: int) -> None:
     spec = load_spec("ideal").with_values({"gyro.arw_dpsh": 0.0015})
+    generator, model = SimulatedWindows(spec), error_model(spec)
     settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
     print(
         f"\n### RMSE/bound, white noise, 2 x 10 s, {runs} runs per row\n\n"
@@ -44,7 +40,8 @@ def ratio_table(runs: int, seed: int) -> None:
     worst = 0.0
     for mu in (30.0, 60.0, 90.0, 120.0, 150.0, 180.0):
         plan = Plan((0.0, mu), 10.0)
-        row = study_rows(spec, plan, settings, monte_carlo(spec, plan, settings, runs, seed))[0]
+        errors = monte_carlo(generator, plan, settings, runs, seed)
+        row = study_rows(model, plan, settings, errors)[0]
         worst = max(worst, row["ratio"])
         print(
             f"| {mu:g} | {row['bias_deg']:+.4f} | {row['rmse_deg']:.4f} | "
@@ -56,12 +53,13 @@ def ratio_table(runs: int, seed: int) -> None:
 
 def paper_table(runs: int, seed: int) -> None:
     spec = load_spec("paper-rlg")
-    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP, solver="pairwise")
-    plan = Plan(PAPER_SWEEP.angles_deg, PAPER_SWEEP.dwell_s)
-    t0 = time.perf_counter()
-    rows = study_rows(spec, plan, settings, monte_carlo(spec, plan, settings, runs, seed))
-    wall = time.perf_counter() - t0
     model = error_model(spec)
+    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
+    plan = PAPER_SWEEP  # pairwise against the first position
+    t0 = time.perf_counter()
+    errors = monte_carlo(SimulatedWindows(spec), plan, settings, runs, seed)
+    rows = study_rows(model, plan, settings, errors)
+    wall = time.perf_counter() - t0
     print(
         f"\n### The paper's plan with the paper-rlg preset, {runs} runs "
         f"(plan time {plan_time_s(plan, model.table):.1f} s, Monte Carlo {wall:.1f} s)\n\n"
@@ -89,6 +87,7 @@ def time_table(verify_runs: int, seed: int) -> None:
             continue  # no noise: any plan is exact
         spec = load_spec(name)
         model = error_model(spec)
+        generator = SimulatedWindows(spec)
         for target in (0.05, 0.02):
             cand = shortest_plan(model, LATITUDE, target, warmup_s=WARMUP)
             if cand is None:
@@ -99,7 +98,9 @@ def time_table(verify_runs: int, seed: int) -> None:
                     f"{floor.plan.window_s:.0f} s windows) | | | | | | | no |"
                 )
                 continue
-            plan, row = verify_plan(spec, cand.plan, settings, verify_runs, seed, target)
+            plan, row = verify_plan(
+                generator, model, cand.plan, settings, verify_runs, seed, target
+            )
             t = plan_time_s(plan, model.table)
             print(
                 f"| {name} | {target:g} | {plan.label()} | {plan.window_s:.1f} | {t:.1f} | "

@@ -29,8 +29,9 @@ import numpy as np
 from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.accuracy import bound_deg
 from northfinder.host.denoise import METHODS
-from northfinder.host.study import bound_deg, chunk_errors
+from northfinder.host.study import chunk_errors
 
 LATITUDE = 34.0
 ARW = 0.0015
@@ -101,7 +102,9 @@ def main() -> None:
     methods = list(METHODS)
     rows = []
     t0 = time.perf_counter()
-    cases = [(name, ov, step, (0.0, 180.0)) for name, (ov, step) in SCENARIOS.items()]
+    cases: list[tuple[str, dict, float, tuple[float, ...]]] = [
+        (name, ov, step, (0.0, 180.0)) for name, (ov, step) in SCENARIOS.items()
+    ]
     ov, step = SCENARIOS["temperature drift"]
     cases.append(("temperature drift, order 0,180,180,0", ov, step, (0.0, 180.0, 180.0, 0.0)))
     for name, ov, step, positions in cases:

@@ -215,7 +215,7 @@ def run_timer(duration_s: float) -> RunResult:
 
 
 def run_serial(duration_s: float, window_s: float, seed: int) -> RunResult:
-    from northfinder.driver.transport import SerialTransport
+    from northfinder.driver.transport import SerialTransport, open_serial_port
 
     result = RunResult("serial pty, two processes")
     log = open(os.devnull, "wb")  # the simulator logs its state changes on stderr
@@ -241,12 +241,7 @@ def run_serial(duration_s: float, window_s: float, seed: int) -> RunResult:
         # Keep reading the simulator's stdout so it never blocks on a full pipe.
         threading.Thread(target=sim.stdout.read, daemon=True).start()
         # Device.open_serial, with the transport wrapped by the tap.
-        probe = Device.open_serial(path, 115_200, **DEVICE_OPTIONS)
-        port = probe._transport.port  # type: ignore[attr-defined]
-        probe._transport.own_port = False  # type: ignore[attr-defined]
-        probe.close()
-        port.reset_input_buffer()
-        tap = Tap(SerialTransport(port))
+        tap = Tap(SerialTransport(open_serial_port(path, 115_200)))
         with Device(tap, **DEVICE_OPTIONS) as device:
             device.wait_ready(timeout=10.0)
             collect(device, tap, duration_s, window_s, result)

@@ -20,8 +20,10 @@ import numpy as np
 from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import load_spec
-from northfinder.host.cli.study import StudySettings, monte_carlo, study_rows
-from northfinder.host.study import Plan, chunk_errors
+from northfinder.host.cli.simulated import SimulatedWindows, error_model
+from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
+from northfinder.host.plan import Plan
+from northfinder.host.study import chunk_errors
 
 TARGET_S = 60.0
 
@@ -36,14 +38,15 @@ def main() -> None:
     ap.add_argument("--sensor", default="paper-rlg")
     args = ap.parse_args()
     spec = load_spec(args.sensor)
-    plan = Plan((0.0, 180.0), 10.0)
-    settings = StudySettings(denoise=args.denoise)
+    plan = Plan((0.0, 180.0), 10.0, denoise=args.denoise)
+    settings = StudySettings()
+    generator, model = SimulatedWindows(spec), error_model(spec)
     walls = []
     for seed in range(args.repeats):
         t0 = time.perf_counter()
-        errors = monte_carlo(spec, plan, settings, args.runs, seed)
+        errors = monte_carlo(generator, plan, settings, args.runs, seed)
         walls.append(time.perf_counter() - t0)
-        row = study_rows(spec, plan, settings, errors)[0]
+        row = study_rows(model, plan, settings, errors)[0]
         print(
             f"repeat {seed}: {walls[-1]:.1f} s, RMSE {row['rmse_deg']:.4f} deg, "
             f"bound {row['bound_deg']:.4f} deg, ratio {row['ratio']:.3f}"

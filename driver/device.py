@@ -29,13 +29,13 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal, TypeVar
+from typing import Any, TypeVar
 
 import can
-import numpy as np
 import serial
 
 from northfinder.driver.errors import (
+    ArgumentError,
     DeviceFault,
     DeviceRefused,
     DeviceReset,
@@ -46,14 +46,12 @@ from northfinder.driver.errors import (
     MoveTimeout,
     ProtocolError,
     ReplyTimeout,
-    StreamGap,
     StreamTimeout,
 )
 from northfinder.driver.protocol.can import TickLoss
 from northfinder.driver.protocol.constants import (
-    G0_MPS2,
+    HEARTBEAT_PERIOD_DEFAULT_MS,
     PROTOCOL_VERSION_MAJOR,
-    TEMPERATURE_NOT_AVAILABLE,
     ConfigKey,
     DeviceState,
     Direction,
@@ -81,13 +79,23 @@ from northfinder.driver.protocol.messages import (
     StreamStart,
     StreamStop,
 )
-from northfinder.driver.transport import CanTransport, Received, SerialTransport, Transport
+from northfinder.driver.protocol.motion import TableLimits
+from northfinder.driver.transport import (
+    READ_POLL_S,
+    CanTransport,
+    Received,
+    SerialTransport,
+    Transport,
+    open_serial_port,
+)
+from northfinder.driver.window import CountScales, OnGap, Window, WindowCollector
 
 __all__ = [
     "RETRYABLE",
     "Device",
     "DeviceStatus",
     "LinkStats",
+    "OnGap",
     "Window",
 ]
 
@@ -116,15 +124,9 @@ REPLY_TIMEOUT_S = 0.25
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
-READ_POLL_S = 0.05
-_U32 = 0xFFFFFFFF
-_DPH_TO_RPS = math.pi / 180.0 / 3600.0
 _CONFIG_NAMES = ", ".join(k.name.lower() for k in ConfigKey)
 _DIRECTIONS = {"shortest": Direction.SHORTEST, "positive": Direction.POSITIVE}
 _DIRECTIONS["negative"] = Direction.NEGATIVE
-_VALID = 0x03  # GYRO_VALID | ACCEL_VALID
-_BAD = 0xFC  # moving, settling, saturated, warming up, fault
-OnGap = Literal["raise", "report"]
 T = TypeVar("T")
 
 
@@ -203,120 +205,12 @@ class LinkStats:
     resets_detected: int
 
 
-@dataclass(frozen=True)
-class Window:
-    """One acquisition window: consecutive sample ticks, in physical units.
-
-    The window spans ``requested`` ticks of device time from its first sample; the arrays hold
-    the samples received (``n = requested - missing`` rows) and ``counter`` shows where any are
-    missing. Arrays are read-only.
-
-    Attributes
-    ----------
-    counter : ndarray, shape (n,), int64
-        Sample counter, continued past 2**32 instead of wrapping within a window.
-    time_s : ndarray, shape (n,)
-        Device time, ``counter / sample_rate_hz`` s (seconds since boot if the rate was never
-        changed); differences are exact.
-    arrival_s : ndarray, shape (n,)
-        Wall-clock time (``time.time()``) at which each sample was received.
-    gyro_dph : ndarray, shape (n, 3)
-        Mean angular rate over each sample interval, body x, y, z, deg/h.
-    accel_mps2 : ndarray, shape (n, 3)
-        Mean specific force over each sample interval, body x, y, z, m/s^2.
-    table_deg : ndarray, shape (n,)
-        Table angle from the encoder, deg in [0, 360).
-    temperature_c : ndarray, shape (n,)
-        Sensor temperature, degC (NaN: no reading).
-    validity : ndarray, shape (n,), uint8
-        Validity bits (:class:`~northfinder.driver.protocol.constants.Validity`).
-    sample_rate_hz : float
-    requested : int
-        Ticks the window spans: ``round(seconds * sample_rate_hz)``.
-    missing : int
-        Ticks in the span that did not arrive whole (lost or incomplete).
-    gaps : tuple of (int, int)
-        ``(first_counter, count)`` of each run of missing ticks.
-    """
-
-    counter: np.ndarray
-    time_s: np.ndarray
-    arrival_s: np.ndarray
-    gyro_dph: np.ndarray
-    accel_mps2: np.ndarray
-    table_deg: np.ndarray
-    temperature_c: np.ndarray
-    validity: np.ndarray
-    sample_rate_hz: float
-    requested: int
-    missing: int = 0
-    gaps: tuple[tuple[int, int], ...] = field(default_factory=tuple)
-
-    def __len__(self) -> int:
-        return len(self.counter)
-
-    @property
-    def complete(self) -> bool:
-        """True when no tick of the span is missing."""
-        return self.missing == 0
-
-    @property
-    def duration_s(self) -> float:
-        """Device time the window spans, s."""
-        return self.requested / self.sample_rate_hz
-
-    @property
-    def gyro_rps(self) -> np.ndarray:
-        """Angular rate in rad/s, shape (n, 3)."""
-        return self.gyro_dph * _DPH_TO_RPS
-
-    @property
-    def valid_mask(self) -> np.ndarray:
-        """Samples fit for north finding: gyro and accelerometer valid, no other bit set."""
-        v = self.validity
-        return ((v & _VALID) == _VALID) & ((v & _BAD) == 0)
-
-    def mean(self, *, valid_only: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Mean gyro rate (deg/h) and specific force (m/s^2) over the window, each shape (3,).
-
-        Raises
-        ------
-        ValueError
-            No sample to average (none received, or none valid with ``valid_only``).
-        """
-        keep = self.valid_mask if valid_only else np.ones(len(self), dtype=bool)
-        if not np.any(keep):
-            raise ValueError(
-                "no valid sample in the window (table moving, warming up or in fault?)"
-                if valid_only
-                else "the window holds no sample"
-            )
-        return self.gyro_dph[keep].mean(axis=0), self.accel_mps2[keep].mean(axis=0)
-
-
 @dataclass
 class _Waiter:
     opcode: Opcode
     event: threading.Event = field(default_factory=threading.Event)
     reply: Reply | None = None
     error: DriverError | None = None
-
-
-@dataclass(frozen=True)
-class _Scales:
-    gyro_dph: float = 1e-4
-    accel_mps2: float = 1e-6 * G0_MPS2
-    angle_deg: float = 1e-6
-    temperature_c: float = 1e-2
-
-    @classmethod
-    def of(cls, ident: Identify) -> _Scales:
-        return cls(
-            ident.gyro_scale.value,
-            ident.accel_scale.value * G0_MPS2,
-            ident.angle_scale.value,
-            ident.temperature_scale.value,
-        )
 
 
 class Device:
@@ -358,9 +252,9 @@ class Device:
         min_supervision_s: float = 0.0,
     ) -> None:
         if not reply_timeout >= 0.1:
-            raise ValueError(f"reply_timeout={reply_timeout!r}: must be at least 0.1 s")
+            raise ArgumentError(f"reply_timeout={reply_timeout!r}: must be at least 0.1 s")
         if retries < 0:
-            raise ValueError(f"retries={retries!r}: must be >= 0")
+            raise ArgumentError(f"retries={retries!r}: must be >= 0")
         self._transport = transport
         self.reply_timeout = float(reply_timeout)
         self.retries = int(retries)
@@ -377,11 +271,12 @@ class Device:
         self._identify: Identify | None = None
         self._identify_count = 0
         self._identify_expected_until = 0.0
-        self._scales = _Scales()
+        self._scales = CountScales()
         self._boot_epoch = 0
         self._reset_reason = ""
-        self._collector: queue.SimpleQueue[tuple[str, Any, float]] | None = None
-        self._collector_since = 0.0  # monotonic time the collector was registered
+        # What the reader thread hands to an acquire() in progress: samples, losses, resets.
+        self._inbox: queue.SimpleQueue[tuple[str, Any, float]] | None = None
+        self._inbox_since = 0.0  # monotonic time the inbox was registered
         self._config: dict[ConfigKey, int] = {}
         self._config_stale = True
         self._streaming = False
@@ -440,8 +335,8 @@ class Device:
         LinkError
             python-can could not open the bus (the message names interface and channel).
         """
-        kw = {"interface": interface, "channel": channel, "bitrate": bitrate}
-        kw = {k: v for k, v in kw.items() if v is not None}
+        given = {"interface": interface, "channel": channel, "bitrate": bitrate}
+        kw: dict[str, Any] = {k: v for k, v in given.items() if v is not None}
         try:
             bus = can.Bus(**kw, **bus_options)
         except (can.CanError, OSError, ValueError, ImportError, serial.SerialException) as exc:
@@ -476,17 +371,7 @@ class Device:
         LinkError
             pyserial could not open the port.
         """
-        try:
-            port = serial.serial_for_url(
-                port_or_url,
-                baudrate=baudrate,
-                timeout=READ_POLL_S,
-                write_timeout=1.0,
-                **port_options,
-            )
-            port.reset_input_buffer()  # bytes from before this host opened the port
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise LinkError(f"cannot open the serial port {port_or_url!r}: {exc}") from exc
+        port = open_serial_port(port_or_url, baudrate, **port_options)
         return cls(
             SerialTransport(port),
             reply_timeout=reply_timeout,
@@ -567,8 +452,8 @@ class Device:
             for waiter in self._waiters.values():
                 waiter.error = error
                 waiter.event.set()
-            if self._collector is not None:
-                self._collector.put(("lost", error, time.time()))
+            if self._inbox is not None:
+                self._inbox.put(("lost", error, time.time()))
             self._cond.notify_all()
 
     def _dispatch(self, items: list[Received], mono: float, wall: float) -> None:
@@ -578,9 +463,9 @@ class Device:
                     if isinstance(item, Sample):
                         self._counts["samples"] += 1
                     # Only what was received after acquire() was called belongs to its window.
-                    if self._collector is not None and mono >= self._collector_since:
+                    if self._inbox is not None and mono >= self._inbox_since:
                         kind = "sample" if isinstance(item, Sample) else "loss"
-                        self._collector.put((kind, item, wall))
+                        self._inbox.put((kind, item, wall))
                 elif isinstance(item, Reply):
                     self._on_reply(item)
                 elif isinstance(item, Status):
@@ -604,11 +489,7 @@ class Device:
         self._status = DeviceStatus(
             state=status.state,
             angle_deg=status.angle * sc.angle_deg,
-            temperature_c=(
-                math.nan
-                if status.temperature == TEMPERATURE_NOT_AVAILABLE
-                else status.temperature * sc.temperature_c
-            ),
+            temperature_c=sc.temperature(status.temperature),
             faults=status.faults,
             sample_counter=status.sample_counter,
             rx_malformed=status.rx_malformed,
@@ -626,7 +507,7 @@ class Device:
     def _on_identify(self, ident: Identify, mono: float) -> None:
         self._identify = ident
         self._identify_count += 1
-        self._scales = _Scales.of(ident)
+        self._scales = CountScales.of(ident)
         booting = self._status is not None and self._status.state == DeviceState.BOOT
         if mono > self._identify_expected_until and self._status is not None and not booting:
             # protocol.md 5: a device announces itself in BOOT; nobody asked, so it restarted.
@@ -641,8 +522,8 @@ class Device:
         self._config_stale = True
         self._transport.restart_stream()
         log.warning("device restart detected: %s", reason)
-        if self._collector is not None:
-            self._collector.put(("reset", reason, time.time()))
+        if self._inbox is not None:
+            self._inbox.put(("reset", reason, time.time()))
 
     # -- requests -----------------------------------------------------------------------------
     def _check_open(self) -> None:
@@ -652,7 +533,7 @@ class Device:
             raise LinkLost(f"the link is lost: {self._dead}") from self._dead
 
     def _heartbeat_period_s(self) -> float:
-        return self._config.get(ConfigKey.HEARTBEAT_PERIOD_MS, 100) / 1000.0
+        return self._config.get(ConfigKey.HEARTBEAT_PERIOD_MS, HEARTBEAT_PERIOD_DEFAULT_MS) / 1000.0
 
     def _status_age_s(self) -> float:
         """Seconds since the latest status (or since opening, if none came yet)."""
@@ -767,9 +648,13 @@ class Device:
             with self._lock:
                 n0 = self._identify_count
             self._request(RequestIdentify)
+
+            def arrived(n0: int = n0) -> Identify | None:
+                return self._identify if self._identify_count > n0 else None
+
             try:
                 return self._wait_for(
-                    lambda n0=n0: self._identify if self._identify_count > n0 else None,
+                    arrived,
                     time.monotonic() + self.reply_timeout,
                     lambda: DriverTimeout("", 0.0),
                     supervise=False,
@@ -853,7 +738,7 @@ class Device:
                 return ConfigKey[key.upper()]
             return ConfigKey(key)
         except (KeyError, ValueError):
-            raise ValueError(
+            raise ArgumentError(
                 f"unknown configuration key {key!r}; keys are {_CONFIG_NAMES}"
             ) from None
 
@@ -862,15 +747,7 @@ class Device:
 
         Units are the key's (protocol.md 4.4): Hz, ms, 1e-3 deg/s, 1e-3 deg/s^2, bit/s.
         """
-        k = self._key(key)
-        got_key, value = self._request(GetConfig, k).config_value()
-        if got_key != k:
-            raise ProtocolError(f"GET_CONFIG {k.name} answered for key {got_key!r}")
-        with self._lock:
-            self._config[k] = value
-            if k == ConfigKey.STREAMING:
-                self._streaming = bool(value)
-        return value
+        return self._config_request(GetConfig, self._key(key))
 
     def set_config(self, key: ConfigKey | int | str, value: int) -> int:
         """Write one configuration value (SET_CONFIG); return the value now in effect.
@@ -884,9 +761,15 @@ class Device:
         k = self._key(key)
         if k == ConfigKey.STREAMING and value and not self._streaming:
             self._prepare_stream_start()
-        got_key, in_effect = self._request(SetConfig, k, int(value)).config_value()
+        return self._config_request(SetConfig, k, int(value))
+
+    def _config_request(
+        self, command: type[GetConfig | SetConfig], k: ConfigKey, *value: int
+    ) -> int:
+        """GET_CONFIG or SET_CONFIG; keep and return the value in effect that the reply echoes."""
+        got_key, in_effect = self._request(command, k, *value).config_value()
         if got_key != k:
-            raise ProtocolError(f"SET_CONFIG {k.name} answered for key {got_key!r}")
+            raise ProtocolError(f"{command.OPCODE.name} {k.name} answered for key {got_key!r}")
         with self._lock:
             self._config[k] = in_effect
             if k == ConfigKey.STREAMING:
@@ -948,11 +831,7 @@ class Device:
         """Expected device seconds for a move of ``distance_deg`` and its settling, from the
         table's configured rate and acceleration limits and settle time (trapezoid profile)."""
         self._refresh_config_if_stale()
-        v = self._config[ConfigKey.TABLE_MAX_RATE_MDPS] / 1000.0
-        a = self._config[ConfigKey.TABLE_MAX_ACCEL_MDPS2] / 1000.0
-        d = abs(distance_deg)
-        motion = d / v + v / a if d >= v * v / a else 2.0 * math.sqrt(d / a)
-        return motion + self._config[ConfigKey.SETTLE_TIME_MS] / 1000.0
+        return TableLimits.from_config(self._config).ready_after_s(distance_deg)
 
     def _current_angle(self) -> float:
         return self._status.angle_deg if self._status is not None else 0.0
@@ -1064,7 +943,7 @@ class Device:
         try:
             return _DIRECTIONS[str(direction).lower()]
         except KeyError:
-            raise ValueError(
+            raise ArgumentError(
                 f"direction={direction!r}: choose one of {', '.join(_DIRECTIONS)}"
             ) from None
 
@@ -1189,9 +1068,9 @@ class Device:
             No status either for 3 heartbeat periods, or the bus or port failed.
         """
         if on_gap not in ("raise", "report"):
-            raise ValueError(f"on_gap={on_gap!r}: choose one of 'raise', 'report'")
+            raise ArgumentError(f"on_gap={on_gap!r}: choose one of 'raise', 'report'")
         if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
-            raise ValueError(f"seconds={seconds!r}: must be a positive number")
+            raise ArgumentError(f"seconds={seconds!r}: must be a positive number")
         with self._acquire_lock:
             self._check_open()
             if not self._link_alive():
@@ -1200,12 +1079,12 @@ class Device:
             rate = self._config[ConfigKey.SAMPLE_RATE_HZ]
             n = round(seconds * rate)
             if n < 1:
-                raise ValueError(f"seconds={seconds!r} is less than one sample at {rate} Hz")
-            collector: queue.SimpleQueue[tuple[str, Any, float]] = queue.SimpleQueue()
+                raise ArgumentError(f"seconds={seconds!r} is less than one sample at {rate} Hz")
+            inbox: queue.SimpleQueue[tuple[str, Any, float]] = queue.SimpleQueue()
             with self._lock:
                 epoch = self._boot_epoch
-                self._collector = collector
-                self._collector_since = time.monotonic()
+                self._inbox = inbox
+                self._inbox_since = time.monotonic()
             try:
                 if not self._streaming:
                     self.start_streaming()
@@ -1213,53 +1092,30 @@ class Device:
                     raise DeviceReset(
                         f"the device restarted as the window began: {self._reset_reason}"
                     )
-                return self._collect(collector, n, rate, on_gap, timeout)
+                return self._collect(inbox, n, rate, on_gap, timeout)
             finally:
                 with self._lock:
-                    self._collector = None
+                    self._inbox = None
 
     def _collect(
         self,
-        collector: queue.SimpleQueue[tuple[str, Any, float]],
+        inbox: queue.SimpleQueue[tuple[str, Any, float]],
         n: int,
         rate: float,
         on_gap: OnGap,
         timeout: float | None,
     ) -> Window:
+        """Feed the window collector from the reader's queue, watching the link and deadlines."""
         stall_limit = max(0.5, self._supervision_s(), 5.0 / rate)
         t_start = time.monotonic()
         limit = n / rate + 2.0 + stall_limit if timeout is None else timeout
         deadline = t_start + limit
-        samples: list[Sample] = []
-        counters: list[int] = []
-        arrivals: list[float] = []
-        gaps: list[tuple[int, int]] = []
-        missing = 0
-        first: int | None = None
-        prev_raw = prev = expected = end = 0
+        collector = WindowCollector(n, on_gap=on_gap)
         last_sample_at = t_start
-
-        def gap(a: int, b: int) -> None:
-            nonlocal missing
-            if b <= a:
-                return
-            gaps.append((a, b - a))
-            missing += b - a
-            if on_gap == "raise":
-                raise StreamGap(
-                    f"{b - a} sample tick(s) missing from counter {a} in the window of {n} "
-                    f"from counter {first} ({len(samples)} received so far): lost on the link "
-                    "or dropped by the device; pass on_gap='report' to receive the window "
-                    "with its gaps stated",
-                    tuple(gaps),
-                    missing,
-                    len(samples),
-                )
-
-        while True:
+        while not collector.done:
             now = time.monotonic()
             try:
-                kind, item, wall = collector.get(timeout=max(0.0, min(READ_POLL_S, deadline - now)))
+                kind, item, wall = inbox.get(timeout=max(0.0, min(READ_POLL_S, deadline - now)))
             except queue.Empty:
                 now = time.monotonic()
                 self._check_open()
@@ -1268,14 +1124,14 @@ class Device:
                 if now - last_sample_at > stall_limit:
                     raise StreamTimeout(
                         f"no sample for {now - last_sample_at:.2f} s while the device's status "
-                        f"still arrives ({len(samples)} of {n} received): the stream was "
+                        f"still arrives ({collector.received} of {n} received): the stream was "
                         "stopped (STREAM_STOP or a configuration change by another host?)",
                         stall_limit,
                     ) from None
                 if now >= deadline:
                     raise StreamTimeout(
                         f"the window of {n} samples was not complete after {limit:.1f} s "
-                        f"({len(samples)} received)",
+                        f"({collector.received} received)",
                         limit,
                     ) from None
                 continue
@@ -1283,83 +1139,12 @@ class Device:
                 raise LinkLost(f"the link was lost during the window: {item}") from item
             if kind == "reset":
                 raise DeviceReset(
-                    f"the device restarted during the window after {len(samples)} of {n} "
+                    f"the device restarted during the window after {collector.received} of {n} "
                     f"samples ({item}); its configuration and stream are back to defaults"
                 )
             if kind == "loss":
-                assert isinstance(item, TickLoss)
-                if first is None:
-                    continue  # before the window
-                a = prev + ((item.first_counter - prev_raw) & _U32)
-                b = a + item.count
-                if b > expected:
-                    gap(expected, min(b, end))
-                    expected = b
+                collector.add_loss(item)
             else:
-                assert isinstance(item, Sample)
                 last_sample_at = time.monotonic()
-                c = item.counter
-                if first is None:
-                    first = prev = expected = c
-                    end = c + n
-                else:
-                    step = (c - prev_raw) & _U32
-                    if step == 0:
-                        continue  # a repeated sample
-                    if step >= 1 << 31:
-                        raise DeviceReset(
-                            f"the sample counter went back from {prev_raw} to {c} after "
-                            f"{len(samples)} of {n} samples: the device restarted"
-                        )
-                    c = prev + step
-                    prev = c
-                prev_raw = item.counter
-                if c >= end:
-                    gap(expected, end)
-                    expected = end
-                elif c >= expected:
-                    gap(expected, c)
-                    samples.append(item)
-                    counters.append(c)
-                    arrivals.append(wall)
-                    expected = c + 1
-            if first is not None and expected >= end:
-                break
-        return self._window(samples, counters, arrivals, rate, n, missing, gaps)
-
-    def _window(
-        self,
-        samples: list[Sample],
-        counters: list[int],
-        arrivals: list[float],
-        rate: float,
-        n: int,
-        missing: int,
-        gaps: list[tuple[int, int]],
-    ) -> Window:
-        sc = self._scales
-        m = len(samples)
-        gyro = np.array([s.gyro for s in samples], dtype=np.float64).reshape(m, 3) * sc.gyro_dph
-        accel = np.array([s.accel for s in samples], dtype=np.float64).reshape(m, 3)
-        temp_raw = np.array([s.temperature for s in samples], dtype=np.float64)
-        temp = np.where(temp_raw == TEMPERATURE_NOT_AVAILABLE, np.nan, temp_raw * sc.temperature_c)
-        counter = np.array(counters, dtype=np.int64)
-        arrays = {
-            "counter": counter,
-            "time_s": counter / float(rate),
-            "arrival_s": np.array(arrivals, dtype=np.float64),
-            "gyro_dph": gyro,
-            "accel_mps2": accel * sc.accel_mps2,
-            "table_deg": np.array([s.angle for s in samples], dtype=np.float64) * sc.angle_deg,
-            "temperature_c": temp,
-            "validity": np.array([int(s.validity) for s in samples], dtype=np.uint8),
-        }
-        for a in arrays.values():
-            a.setflags(write=False)
-        return Window(
-            **arrays,
-            sample_rate_hz=float(rate),
-            requested=n,
-            missing=missing,
-            gaps=tuple(gaps),
-        )
+                collector.add_sample(item, wall)
+        return collector.window(rate, self._scales)

@@ -21,16 +21,18 @@ from typing import Any, Protocol
 import can
 import serial
 
-from northfinder.driver.errors import LinkLost, ProtocolError
+from northfinder.driver.errors import LinkError, LinkLost, ProtocolError
 from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
 from northfinder.driver.protocol.messages import Command, Identify, Reply, Sample, Status
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
 
-__all__ = ["CanTransport", "Received", "SerialTransport", "Transport"]
+__all__ = ["CanTransport", "Received", "SerialTransport", "Transport", "open_serial_port"]
 
 Received = Reply | Status | Identify | Sample | TickLoss
 """What a transport delivers."""
 
+#: Longest a read blocks before the reader looks at its stop flag, s.
+READ_POLL_S = 0.05
 #: Most CAN frames one :meth:`CanTransport.recv` call drains, so the caller keeps control.
 MAX_FRAMES_PER_RECV = 512
 _U32 = 0xFFFFFFFF
@@ -176,6 +178,35 @@ class CanTransport:
         return str(getattr(self.bus, "channel_info", type(self.bus).__name__))
 
 
+def open_serial_port(
+    port_or_url: str, baudrate: int = 115_200, **options: Any
+) -> serial.SerialBase:
+    """Open a serial port as :class:`SerialTransport` wants it, input drained.
+
+    Parameters
+    ----------
+    port_or_url : str
+        A path such as ``/dev/ttyUSB0`` or ``/dev/pts/3``, or a pyserial URL.
+    baudrate : int
+        Baud rate (8N1).
+    **options
+        More pyserial options.
+
+    Raises
+    ------
+    LinkError
+        pyserial could not open the port.
+    """
+    try:
+        port = serial.serial_for_url(
+            port_or_url, baudrate=baudrate, timeout=READ_POLL_S, write_timeout=1.0, **options
+        )
+        port.reset_input_buffer()  # bytes from before this host opened the port
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise LinkError(f"cannot open the serial port {port_or_url!r}: {exc}") from exc
+    return port
+
+
 class SerialTransport:
     """The protocol's binary frames on a serial port (pyserial ``Serial`` or URL handler).
 
@@ -256,7 +287,7 @@ class SerialTransport:
                 out += self._check_counter(message.counter)
                 self.samples += 1
             if not isinstance(message, Command):
-                out.append(message)  # type: ignore[arg-type]
+                out.append(message)
         return out
 
     def _check_counter(self, counter: int) -> list[TickLoss]:

@@ -19,7 +19,13 @@ Sensors
     accelerometers read specific force ``f = C_m^m1 C_n^b (0, 0, +g)`` plus errors (level: z reads +g).
 Units
     SI inside (rad, rad/s, m/s^2, s); datasheet units only at the edges, named in the identifier
-    (``bias_dph`` deg/h, ``arw_dpsh`` deg/sqrt(h), ``vrw_ug_rthz`` micro-g/sqrt(Hz)).
+    (``bias_dph`` deg/h, ``arw_dpsh`` deg/sqrt(h), ``vrw_ug_rthz`` micro-g/sqrt(Hz)), converted
+    with the factors of :mod:`northfinder.driver.protocol.units`.
+Error terms
+    Defined once in :mod:`~northfinder.firmware_sim.error_terms` (SI conversion of a sensor spec,
+    flicker noise, temperature, warm-up, impulses, vibration, quantisation) and used by both the
+    step-by-step instrument (:mod:`~northfinder.firmware_sim.imu`) and the batch generator
+    (:mod:`~northfinder.firmware_sim.batch`).
 Randomness
     Every random term draws from a :class:`numpy.random.Generator` passed in; nothing reads the
     wall clock.

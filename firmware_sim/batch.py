@@ -2,10 +2,12 @@
 
 :func:`simulate_windows` produces, for ``n_runs`` independent power-ons of the instrument, the
 samples of every recording window of a plan (table positions, window length, settle time) as
-arrays of shape ``(runs, positions, samples, 3)``. It follows the conventions and error terms of
-:class:`northfinder.firmware_sim.imu.Instrument` (same closed-form means, same noise statistics) but draws
-whole arrays of runs with numpy instead of stepping one instrument, and it only generates the
-samples inside the windows: the slow noise processes jump across the moves exactly.
+arrays of shape ``(runs, positions, samples, 3)``. It follows the conventions of
+:class:`northfinder.firmware_sim.imu.Instrument` and takes its error terms from the same
+definitions (:mod:`northfinder.firmware_sim.error_terms`), but draws whole arrays of runs with
+numpy instead of stepping one instrument, and it only generates the samples inside the windows:
+the slow noise processes jump across the moves exactly. A run draws its turn-on errors from the
+generator's streams as an instrument with the same seed does.
 
 Timeline of one run (the same for every run)
 --------------------------------------------
@@ -19,9 +21,8 @@ starts at the first sample boundary at or after the end of move plus settle.
 Error terms
 -----------
 Per run: constant and turn-on bias, scale-factor and misalignment draws, table indexing error per
-move, vibration phase. Per sample: white noise (ARW, VRW), bias instability (the same flicker
-model as the instrument: Gauss-Markov components from 1 s to 10^4 s on a 0.1 s grid) and random
-walks, warm-up transient, temperature sensitivity, Poisson impulses (half-sine, random
+move, vibration phase. Per sample: white noise (ARW, VRW), bias instability (Gauss-Markov
+components from 1 s to 10^4 s on a 0.1 s grid) and random walks, warm-up transient, temperature sensitivity, Poisson impulses (half-sine, random
 direction), vibration line, optional bias step, range clipping and quantisation. The quantiser
 carries its remainder within a window; the remainder at a window start is drawn uniformly (what
 the samples before it left over). The post-stop ring-down comes from the turntable model and enters
@@ -37,18 +38,34 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
-from northfinder.firmware_sim.earth import G0, alpha_from_azimuth, earth_rate_n, gravity, mat_nb
+from northfinder.driver.protocol.motion import move_time_s, shortest_delta_deg
+from northfinder.driver.protocol.units import DPH, normal_gravity
+from northfinder.firmware_sim.earth import alpha_from_azimuth, earth_rate_n, mat_nb
+from northfinder.firmware_sim.error_terms import (
+    FLICKER_GRID_S,
+    FLICKER_STD,
+    FLICKER_TAUS_S,
+    ErrorTerms,
+    check_sample_rate,
+    draw_turn_on,
+    half_sine,
+    quantise_carry,
+    random_directions,
+    slow_noise_jump,
+    slow_noise_steps,
+    temperature_c,
+    vibration,
+)
 from northfinder.firmware_sim.errors import SimConfigError
-from northfinder.firmware_sim.imu import MAX_SAMPLE_RATE_HZ, MIN_SAMPLE_RATE_HZ, Truth, _SlowNoise
+from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec, TableSpec
-from northfinder.firmware_sim.turntable import Turntable, trapezoid_duration
+from northfinder.firmware_sim.turntable import Turntable
 
 __all__ = ["BatchWindows", "plan_timeline", "simulate_windows"]
 
-_DPH = math.pi / 180.0 / 3600.0  # deg/h -> rad/s
-_UG = 1e-6 * G0  # micro-g -> m/s^2
+#: Gyro and accelerometer error matrices of every run, each (runs, 3, 3).
+_Matrices = tuple[NDArray[np.float64], NDArray[np.float64]]
 
 
 @dataclass(frozen=True)
@@ -121,12 +138,7 @@ def plan_timeline(
     delta_deg : (positions,) float64
         The commanded move before each window, deg (0 for the first window).
     """
-    fs = float(sample_rate_hz)
-    if not (math.isfinite(fs) and MIN_SAMPLE_RATE_HZ <= fs <= MAX_SAMPLE_RATE_HZ):
-        raise SimConfigError(
-            f"sample_rate_hz: {sample_rate_hz!r} Hz cannot be honoured; the model runs from "
-            f"{MIN_SAMPLE_RATE_HZ:g} to {MAX_SAMPLE_RATE_HZ:g} Hz"
-        )
+    fs = check_sample_rate(sample_rate_hz)
     pos = np.asarray(positions_deg, dtype=float)
     if pos.ndim != 1 or pos.size < 1 or not np.all(np.isfinite(pos)):
         raise SimConfigError(f"positions_deg: expected finite table angles, got {positions_deg!r}")
@@ -144,9 +156,9 @@ def plan_timeline(
     for i in range(pos.size):
         if i:
             k += n
-            d = (pos[i] - pos[i - 1] + 180.0) % 360.0 - 180.0
+            d = shortest_delta_deg(pos[i - 1], pos[i])
             if d != 0.0:
-                travel = trapezoid_duration(d, spec.table.max_rate_dps, spec.table.max_accel_dps2)
+                travel = move_time_s(d, spec.table.max_rate_dps, spec.table.max_accel_dps2)
                 move_end[i] = k / fs + travel
                 k += math.ceil(round((travel + settle) * fs, 6))
             delta[i] = d
@@ -166,14 +178,6 @@ def _truth_arrays(truth: Truth | Sequence[Truth], n_runs: int) -> tuple[NDArray[
     )
 
 
-def _triad_matrices(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(runs, 3, 3) error matrices, diag 1 + sf, off-diagonals ``mis`` in row-major order."""
-    m = np.zeros((sf.shape[0], 3, 3))
-    m[:, ~np.eye(3, dtype=bool)] = mis
-    m[:, np.arange(3), np.arange(3)] = 1.0 + sf
-    return m
-
-
 def _slow_noise(
     rng: np.random.Generator,
     pos: NDArray[np.float64],
@@ -183,53 +187,32 @@ def _slow_noise(
     out: NDArray[np.float64],
 ) -> None:
     """Add flicker plus random walk at fractional grid positions ``pos`` (P, n) to ``out``."""
-    dt, taus = _SlowNoise.DT, _SlowNoise.TAUS
-    unit = math.sqrt(math.log(10.0**0.5) / math.pi)
     chans = np.flatnonzero(flicker_b + walk_k)
     p_count, n = pos.shape
     if chans.size == 0:
         return
     nc = chans.size
-    phi = np.exp(-dt / taus)
-    gain = np.sqrt(1.0 - phi**2)
-    state = None  # (taus, runs, nc): flicker components at grid point ``last``
-    walk = None  # (runs, nc)
-    last = 0
-    prev = None  # coarse values of the previous window, (m, runs, nc)
+    # Flicker components and walk at grid point ``last``; the walk has run since t = 0.
+    last = math.floor(pos[0, 0])
+    state = rng.standard_normal((FLICKER_TAUS_S.size, n_runs, nc))
+    walk = math.sqrt(FLICKER_GRID_S * last) * rng.standard_normal((n_runs, nc))
+    prev = np.empty((0, n_runs, nc))  # coarse values of the previous window, (m, runs, nc)
     for p in range(p_count):
         g0 = math.floor(pos[p, 0])
         g1 = math.floor(pos[p, -1]) + 1
-        if state is None:
-            state = rng.standard_normal((taus.size, n_runs, nc))
-            walk = math.sqrt(dt * g0) * rng.standard_normal((n_runs, nc))
-            first = g0
-        else:
-            # Jump exactly from the last grid point of the previous window to this window's.
-            first = max(g0, last)
-            gap = first - last
-            if gap:
-                a = phi[:, None, None] ** gap
-                state = a * state + np.sqrt(1.0 - a * a) * rng.standard_normal(state.shape)
-                walk = walk + math.sqrt(dt * gap) * rng.standard_normal(walk.shape)
-        m = g1 - first + 1
-        flick = np.empty((m, n_runs, nc))
-        walks = np.empty((m, n_runs, nc))
-        flick[0], walks[0] = state.sum(axis=0), walk
-        if m > 1:
-            w = rng.standard_normal((m - 1, taus.size + 1, n_runs, nc))
-            acc = np.zeros((m - 1, n_runs, nc))
-            new_state = np.empty_like(state)
-            for i in range(taus.size):
-                comp, _ = lfilter(
-                    [gain[i]], [1.0, -phi[i]], w[:, i], axis=0, zi=(phi[i] * state[i])[None]
-                )
-                acc += comp
-                new_state[i] = comp[-1]
-            flick[1:] = acc
-            walks[1:] = walk + np.cumsum(math.sqrt(dt) * w[:, -1], axis=0)
-            state, walk = new_state, walks[-1]
+        # Jump exactly from the last grid point of the previous window to this window's.
+        first = max(g0, last)
+        if first > last:
+            state, walk = slow_noise_jump(rng, state, walk, first - last)
+        flick = state.sum(axis=0)[None]
+        walks = walk[None]
+        if g1 > first:
+            w = rng.standard_normal((g1 - first, FLICKER_TAUS_S.size + 1, n_runs, nc))
+            more, more_walks, state, walk = slow_noise_steps(w, state, walk)
+            flick = np.concatenate([flick, more])
+            walks = np.concatenate([walks, more_walks])
         last = g1
-        coarse = flick * (flicker_b[chans] * unit) + walks * walk_k[chans]  # (m, runs, nc)
+        coarse = flick * (flicker_b[chans] * FLICKER_STD) + walks * walk_k[chans]  # (m, runs, nc)
         if first > g0:  # this window begins one grid step before the previous one ended
             coarse = np.concatenate([prev[-2:-1], coarse])
         prev = coarse
@@ -312,7 +295,8 @@ def simulate_windows(
     bias_step_dph = _check_positive("bias_step_dph", bias_step_dph, allow_zero=True)
     pc = starts.size
     commanded = np.mod(np.asarray(positions_deg, dtype=float), 360.0)
-    g, a, tab, d = spec.gyro, spec.accel, spec.table, spec.disturbance
+    tab, d = spec.table, spec.disturbance
+    terms = ErrorTerms.from_spec(spec)
     az, lat, pitch, roll = _truth_arrays(truth, n_runs)
     turn_on, white, slow, impulses, table_rng = rng.spawn(5)
 
@@ -324,7 +308,7 @@ def simulate_windows(
     c_nb = mat_nb(alpha_from_azimuth(az), np.radians(pitch), np.radians(roll))  # (R, 3, 3)
     lat_r = np.radians(lat)
     omega_b = np.einsum("rij,rj->ri", c_nb, earth_rate_n(lat_r))
-    grav = np.asarray(gravity(lat_r), dtype=float).reshape(-1)
+    grav = np.asarray(normal_gravity(lat_r), dtype=float).reshape(-1)
     f_b = c_nb[:, :, 2] * grav[:, None]
     idx_err = np.zeros((n_runs, pc))
     moved = delta != 0.0
@@ -342,41 +326,21 @@ def simulate_windows(
         return np.stack([x, y, np.broadcast_to(v[:, 2, None], x.shape)], axis=-1)  # (R, P, 3)
 
     true = np.concatenate([_rotate(omega_b), _rotate(f_b)], axis=-1)  # (R, P, 6)
-    z_bias = turn_on.standard_normal((n_runs, 6))
-    z_sf = turn_on.standard_normal((n_runs, 6))
-    z_mis = turn_on.standard_normal((n_runs, 2, 6))
-    vib_phase = turn_on.uniform(0.0, 2 * math.pi, (n_runs, 6))
-    if g.scale_factor_ppm or g.misalignment_urad or a.scale_factor_ppm or a.misalignment_urad:
-        mg = _triad_matrices(
-            g.scale_factor_ppm * 1e-6 * z_sf[:, :3], g.misalignment_urad * 1e-6 * z_mis[:, 0]
-        )
-        ma = _triad_matrices(
-            a.scale_factor_ppm * 1e-6 * z_sf[:, 3:], a.misalignment_urad * 1e-6 * z_mis[:, 1]
-        )
+    draws = draw_turn_on(turn_on, (n_runs,))
+    mats = terms.matrices(draws) if terms.has_matrix else None
+    if mats is not None:
         # Instrument: out = true @ M.T, i.e. out_i = sum_j M_ij true_j.
         true = np.concatenate(
             [
-                np.einsum("rij,rpj->rpi", mg, true[..., :3]),
-                np.einsum("rij,rpj->rpi", ma, true[..., 3:]),
+                np.einsum("rij,rpj->rpi", mats[0], true[..., :3]),
+                np.einsum("rij,rpj->rpi", mats[1], true[..., 3:]),
             ],
             axis=-1,
         )
-    else:
-        mg = ma = None
-    bias = np.concatenate(
-        [
-            np.asarray(g.bias_dph) * _DPH + g.turn_on_bias_dph * _DPH * z_bias[:, :3],
-            np.asarray(a.bias_ug) * _UG + a.turn_on_bias_ug * _UG * z_bias[:, 3:],
-        ],
-        axis=-1,
-    )
-    base = true + bias[:, None, :]  # (R, P, 6)
+    base = true + terms.turn_on(draws.z_bias)[:, None, :]  # (R, P, 6)
 
     out = np.empty((n_runs, pc, 6, n))
-    white_sigma = np.repeat(
-        [g.arw_dpsh * math.pi / 180.0 / 60.0 * math.sqrt(fs), a.vrw_ug_rthz * _UG * math.sqrt(fs)],
-        3,
-    )
+    white_sigma = terms.white_sigma(fs)
     if white_sigma.any():
         # One draw for every channel keeps the array contiguous; silent channels get zero gain.
         white.standard_normal(out.shape, out=out)
@@ -386,45 +350,30 @@ def simulate_windows(
         out[:] = base[..., None]
 
     # -- deterministic terms of time: warm-up transient, temperature, ring-down ---------------
-    th = spec.thermal
-    temperature = (
-        th.ambient_c
-        + th.warmup_rise_c * (1.0 - np.exp(-t / th.warmup_tau_s))
-        + th.ramp_c_per_h * t / 3600.0
-    )
     det = np.zeros((pc, 6, n))
-    warm = np.concatenate(
-        [np.asarray(g.warmup_bias_dph) * _DPH, np.asarray(a.warmup_bias_ug) * _UG]
-    )
-    if warm.any():
-        det[:, :3] += np.exp(-t / g.warmup_tau_s)[:, None, :] * warm[:3, None]
-        det[:, 3:] += np.exp(-t / a.warmup_tau_s)[:, None, :] * warm[3:, None]
-    temp_coeff = np.concatenate(
-        [np.asarray(g.temp_coeff_dph_per_c) * _DPH, np.asarray(a.temp_coeff_ug_per_c) * _UG]
-    )
-    if temp_coeff.any():
-        det += (temperature - th.ambient_c)[:, None, :] * temp_coeff[None, :, None]
+    if terms.warmup_bias.any():
+        det += np.moveaxis(terms.warmup(t), -1, 1)
+    if terms.temp_coeff.any():
+        det += np.moveaxis(terms.thermal(temperature_c(spec.thermal, t), spec.thermal), -1, 1)
     if det.any():
         out += det[None]
     ring = np.zeros(pc)
     if tab.overshoot_deg:
-        ring = _ring_down(out, tab, move_end, delta, starts, n, fs, true, mg, ma)
+        ring = _ring_down(out, tab, move_end, delta, starts, n, fs, true, mats)
 
     # -- slow noise, impulses, vibration, bias step -------------------------------------------
-    flicker_b = np.repeat([g.bias_instability_dph * _DPH, a.bias_instability_ug * _UG], 3)
-    walk_k = np.repeat(
-        [g.rrw_dphpsh * math.pi / 180.0 / 3600.0 / 60.0, a.random_walk_ug_rts * _UG], 3
-    )
-    if flicker_b.any() or walk_k.any():
-        _slow_noise(slow, (t - 0.5 / fs) / _SlowNoise.DT, n_runs, flicker_b, walk_k, out)
-    imp_amp = np.repeat([g.impulse_dph * _DPH, a.impulse_ug * _UG], 3)
-    if d.impulse_rate_hz > 0 and imp_amp.any():
-        _add_impulses(out, impulses, t, fs, d.impulse_rate_hz, d.impulse_duration_s, imp_amp)
-    vib_amp = np.repeat([g.vibration_dph * _DPH, a.vibration_ug * _UG], 3)
-    if d.vibration_hz > 0 and vib_amp.any():
-        for j in np.flatnonzero(vib_amp):
-            out[:, :, j, :] += vib_amp[j] * np.sin(
-                2 * math.pi * d.vibration_hz * t[None] + vib_phase[:, j, None, None]
+    if terms.flicker_b.any() or terms.walk_k.any():
+        _slow_noise(
+            slow, (t - 0.5 / fs) / FLICKER_GRID_S, n_runs, terms.flicker_b, terms.walk_k, out
+        )
+    if d.impulse_rate_hz > 0 and terms.impulse_amp.any():
+        _add_impulses(
+            out, impulses, t, fs, d.impulse_rate_hz, d.impulse_duration_s, terms.impulse_amp
+        )
+    if d.vibration_hz > 0 and terms.vibration_amp.any():
+        for ch in np.flatnonzero(terms.vibration_amp):
+            out[:, :, ch, :] += vibration(
+                t[None], d.vibration_hz, terms.vibration_amp[ch], draws.vib_phase[:, ch, None, None]
             )
     if bias_step_dph:
         t_step = impulses.uniform(t[0, 0] - 1.0 / fs, t[-1, -1], n_runs)
@@ -432,21 +381,19 @@ def simulate_windows(
         v /= np.linalg.norm(v, axis=1, keepdims=True)
         # The step applies from the first sample whose interval starts after it.
         on = (t[None] - 1.0 / fs) >= t_step[:, None, None]  # (R, P, n)
-        out[:, :, :3, :] += (bias_step_dph * _DPH * v)[:, None, :, None] * on[:, :, None, :]
+        out[:, :, :3, :] += (bias_step_dph * DPH * v)[:, None, :, None] * on[:, :, None, :]
 
     # -- range and quantisation ---------------------------------------------------------------
-    rng_limit = np.array([g.range_dps * math.pi / 180.0] * 3 + [a.range_g * G0] * 3)
-    for j in range(6):
-        ch = out[:, :, j, :]
-        if ch.max() > rng_limit[j] or ch.min() < -rng_limit[j]:
-            np.clip(ch, -rng_limit[j], rng_limit[j], out=ch)
-    lsb = np.array([g.lsb_dph * _DPH] * 3 + [a.lsb_ug * _UG] * 3)
+    for chan, limit in zip(np.moveaxis(out, 2, 0), terms.range, strict=True):  # views of out
+        if chan.max() > limit or chan.min() < -limit:
+            np.clip(chan, -limit, limit, out=chan)
+    lsb = terms.lsb
     if lsb.any():
+        # What the samples before each window left over.
         remainder = turn_on.uniform(-0.5, 0.5, (n_runs, pc, 6))
-        for j in np.flatnonzero(lsb):
-            cum = remainder[:, :, j, None] + np.cumsum(out[:, :, j, :] / lsb[j], axis=-1)
-            q = np.round(cum)
-            out[:, :, j, :] = np.diff(q, axis=-1, prepend=0.0) * lsb[j]
+        for ch in np.flatnonzero(lsb):
+            counts, _ = quantise_carry(out[:, :, ch, :] / lsb[ch], remainder[:, :, ch])
+            out[:, :, ch, :] = counts * lsb[ch]
 
     res = tab.encoder_resolution_deg
     enc = true_angle + ring[None, :]
@@ -475,8 +422,7 @@ def _ring_down(
     n: int,
     fs: float,
     true: NDArray[np.float64],
-    mg: NDArray[np.float64] | None,
-    ma: NDArray[np.float64] | None,
+    mats: _Matrices | None,
 ) -> NDArray[np.float64]:
     """Add the damped oscillation after each stop (linearised in the angle; exact on gyro z).
 
@@ -503,6 +449,7 @@ def _ring_down(
         rate = np.radians(np.diff(osc) * fs)  # mean table rate per sample, rad/s
         dmu = np.radians(0.5 * (osc[:-1] + osc[1:]))  # mean angle offset per sample, rad
         # d/dmu of (c vx + s vy, -s vx + c vy) is (y, -x) of the rotated vector.
+        mg, ma = (None, None) if mats is None else mats
         for sl, m in ((slice(0, 3), mg), (slice(3, 6), ma)):
             rot = true[:, p, sl]
             if m is not None:
@@ -539,9 +486,7 @@ def _add_impulses(
             continue
         run = np.repeat(np.arange(n_runs), counts)
         start = t0 - duration_s + rng.uniform(0.0, span, total)
-        v = rng.standard_normal((total, 6))
-        v[:, :3] /= np.linalg.norm(v[:, :3], axis=1, keepdims=True)
-        v[:, 3:] /= np.linalg.norm(v[:, 3:], axis=1, keepdims=True)
+        v = random_directions(rng, total)
         # Samples whose end time lies inside (start, start + duration).
         first = np.floor((start - t[p, 0]) * fs).astype(np.int64) + 1
         m = math.ceil(duration_s * fs) + 1
@@ -549,7 +494,7 @@ def _add_impulses(
         valid = (idx >= 0) & (idx < n)
         idx_c = np.clip(idx, 0, n - 1)
         x = (t[p, idx_c] - start[:, None]) / duration_s
-        shape = np.where(valid & (x > 0) & (x < 1), np.sin(math.pi * x), 0.0)  # (E, m)
+        shape = np.where(valid, half_sine(x), 0.0)  # (E, m)
         contrib = shape[:, :, None] * (amp * v)[:, None, :]  # (E, m, 6)
         for j in np.flatnonzero(amp):
             np.add.at(out[:, p, j, :], (run[:, None], idx_c), contrib[:, :, j])

@@ -75,7 +75,8 @@ def _vec3(args: dict[str, Any], key: str) -> tuple[float, float, float]:
         or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
     ):
         raise ControlError(f"{key}: expected a list of three numbers, got {value!r}")
-    return tuple(float(v) for v in value)  # type: ignore[return-value]
+    x, y, z = (float(v) for v in value)
+    return x, y, z
 
 
 class Controller:
@@ -259,10 +260,12 @@ class ControlServer:
 
     @property
     def address(self) -> str:
-        if self.kind == "tcp":
-            host, port = self._server.server_address[:2]
-            return f"{host}:{port}"
-        return f"unix:{self._server.server_address}"
+        address = self._server.server_address
+        if isinstance(address, tuple):
+            host = address[0]
+            host = host.decode() if isinstance(host, bytes | bytearray) else host
+            return f"{host}:{address[1]}"
+        return f"unix:{os.fsdecode(address) if isinstance(address, str | bytes) else address!r}"
 
     def start(self) -> ControlServer:
         self._thread.start()
@@ -271,9 +274,10 @@ class ControlServer:
     def close(self) -> None:
         self._server.shutdown()
         self._server.server_close()
-        if self.kind == "unix":
+        address = self._server.server_address
+        if self.kind == "unix" and isinstance(address, str | bytes):
             try:
-                os.unlink(self._server.server_address)  # type: ignore[arg-type]
+                os.unlink(address)
             except OSError:
                 pass
 

@@ -10,12 +10,25 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from northfinder.driver.protocol.units import OMEGA_IE, normal_gravity
 from northfinder.firmware_sim.errors import SimConfigError
 
-#: Earth rotation rate (WGS84), rad/s.
-OMEGA_IE = 7.292115e-5
-#: Reference gravity used to convert micro-g to m/s^2.
-G0 = 9.80665
+__all__ = [
+    "MAX_LATITUDE_DEG",
+    "OMEGA_IE",
+    "alpha_from_azimuth",
+    "azimuth_from_alpha",
+    "body_rates",
+    "check_latitude",
+    "earth_rate_n",
+    "gravity",
+    "mat_nb",
+    "mat_table",
+]
+
+#: Normal gravity (Somigliana, WGS84) of latitude in rad, m/s^2; the units module defines it.
+gravity = normal_gravity
+
 #: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
 MAX_LATITUDE_DEG = 89.0
 
@@ -46,13 +59,6 @@ def earth_rate_n(latitude: ArrayLike) -> NDArray[np.float64]:
     """Earth rate in the North-West-Up frame, rad/s, shape ``(..., 3)``."""
     lat = np.asarray(latitude, dtype=float)
     return OMEGA_IE * np.stack([np.cos(lat), np.zeros_like(lat), np.sin(lat)], axis=-1)
-
-
-def gravity(latitude: ArrayLike) -> NDArray[np.float64] | float:
-    """Normal gravity on the ellipsoid (Somigliana, WGS84), m/s^2."""
-    s2 = np.sin(np.asarray(latitude, dtype=float)) ** 2
-    g = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / np.sqrt(1.0 - 6.69437999013e-3 * s2)
-    return float(g) if np.ndim(g) == 0 else g
 
 
 def mat_nb(alpha: ArrayLike, theta: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:
@@ -96,5 +102,5 @@ def body_rates(
     lat = math.radians(latitude_deg)
     c_nb = mat_nb(alpha_from_azimuth(azimuth_deg), math.radians(pitch_deg), math.radians(roll_deg))
     omega_ib_b = c_nb @ earth_rate_n(lat)
-    f_b = c_nb @ np.array([0.0, 0.0, gravity(lat)])
+    f_b = c_nb @ np.array([0.0, 0.0, normal_gravity(lat)])
     return omega_ib_b, f_b

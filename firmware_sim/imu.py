@@ -6,7 +6,8 @@ output for the same seed because every random process draws from its own stream 
 
 Each sample is the increment over its interval expressed as a mean rate (rad/s) or mean specific
 force (m/s^2), as pulse-counting outputs deliver; quantisation carries its remainder to the next
-sample, so window sums are exact to one least significant bit.
+sample, so window sums are exact to one least significant bit. The error terms are those of
+:mod:`northfinder.firmware_sim.error_terms`, shared with the batch generator.
 """
 
 from __future__ import annotations
@@ -16,21 +17,31 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
-from northfinder.firmware_sim.earth import G0, body_rates, check_latitude
+from northfinder.firmware_sim.earth import body_rates, check_latitude
+from northfinder.firmware_sim.error_terms import (
+    FLICKER_GRID_S,
+    FLICKER_STD,
+    FLICKER_TAUS_S,
+    ErrorTerms,
+    channels_si,
+    check_sample_rate,
+    draw_turn_on,
+    half_sine,
+    quantise_carry,
+    random_directions,
+    slow_noise_steps,
+    temperature_c,
+    vibration,
+)
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.firmware_sim.turntable import Turntable
 
-#: Sample rates the model honours, Hz. Below 10 Hz the slow-noise grid (0.1 s) would alias.
-MIN_SAMPLE_RATE_HZ = 10.0
-MAX_SAMPLE_RATE_HZ = 2000.0
+__all__ = ["MAX_TILT_DEG", "Instrument", "SampleBlock", "Truth", "body_rates"]
+
 #: Largest pitch or roll the simulated base can stand at, deg.
 MAX_TILT_DEG = 45.0
-
-_DPH = math.pi / 180.0 / 3600.0  # deg/h -> rad/s
-_UG = 1e-6 * G0  # micro-g -> m/s^2
 
 
 @dataclass(frozen=True)
@@ -102,27 +113,12 @@ class SampleBlock:
 
 
 class _SlowNoise:
-    """Bias instability (flicker) and random walks on a coarse 0.1 s grid, interpolated to samples.
-
-    Flicker noise with one-sided PSD B^2 / (pi f) (IEEE Std 952's (B^2 / 2 pi) / f, two-sided),
-    whose Allan deviation is B sqrt(2 ln 2 / pi) = 0.664 B, is built from first-order Gauss-Markov
-    processes with correlation times spaced by sqrt(10) from 1 s to 10^4 s; their summed PSD is
-    flat per log frequency, so the Allan deviation has its floor 0.664 B between a few seconds and
-    a few thousand seconds. States are kept at unit variance and scaled on output, so noise levels
-    can change while running without a jump in the random sequence.
-    """
-
-    DT = 0.1
-    TAUS = 10.0 ** np.arange(0.0, 4.01, 0.5)
+    """Flicker noise and random walks on the coarse grid of
+    :mod:`~northfinder.firmware_sim.error_terms`, interpolated to the sample times."""
 
     def __init__(self, rng: np.random.Generator, nch: int) -> None:
         self._rng = rng
-        self._phi = np.exp(-self.DT / self.TAUS)
-        self._gain = np.sqrt(1.0 - self._phi**2)
-        # n components of variance c, spaced by a ratio r, sum to the one-sided PSD c / (f ln r);
-        # c = B^2 ln r / pi gives B^2 / (pi f).
-        self.flicker_unit = math.sqrt(math.log(10.0**0.5) / math.pi)
-        self._state = rng.standard_normal((len(self.TAUS), nch))
+        self._state = rng.standard_normal((len(FLICKER_TAUS_S), nch))
         self._walk = np.zeros(nch)
         self._k0 = 0
         self._flicker = self._state.sum(axis=0)[None, :]
@@ -132,29 +128,22 @@ class _SlowNoise:
         m = k_last - (self._k0 + len(self._flicker) - 1)
         if m <= 0:
             return
-        w = self._rng.standard_normal((m, len(self.TAUS) + 1, self._walk.size))
-        comps = np.empty((m, len(self.TAUS), self._walk.size))
-        for i, phi in enumerate(self._phi):
-            comps[:, i, :], _ = lfilter(
-                [self._gain[i]], [1.0, -phi], w[:, i, :], axis=0, zi=(phi * self._state[i])[None, :]
-            )
-        self._state = comps[-1]
-        walks = self._walk + np.cumsum(math.sqrt(self.DT) * w[:, -1, :], axis=0)
-        self._walk = walks[-1]
-        self._flicker = np.concatenate([self._flicker, comps.sum(axis=1)])
+        w = self._rng.standard_normal((m, len(FLICKER_TAUS_S) + 1, self._walk.size))
+        flicker, walks, self._state, self._walk = slow_noise_steps(w, self._state, self._walk)
+        self._flicker = np.concatenate([self._flicker, flicker])
         self._walks = np.concatenate([self._walks, walks])
 
     def values(
         self, t: NDArray[np.float64], flicker_b: NDArray[np.float64], walk_k: NDArray[np.float64]
     ) -> NDArray[np.float64]:
         """Slow noise at increasing times ``t`` (s), shape ``(len(t), nch)``, SI units."""
-        pos = t / self.DT
+        pos = t / FLICKER_GRID_S
         self._extend(math.floor(pos[-1]) + 1)
         drop = math.floor(pos[0]) - self._k0
         if drop > 0:
             self._flicker, self._walks = self._flicker[drop:], self._walks[drop:]
             self._k0 += drop
-        coarse = self._flicker * (flicker_b * self.flicker_unit) + self._walks * walk_k
+        coarse = self._flicker * (flicker_b * FLICKER_STD) + self._walks * walk_k
         grid = np.arange(len(coarse)) + self._k0
         out = np.empty((len(t), coarse.shape[1]))
         for j in np.flatnonzero(flicker_b + walk_k):
@@ -162,12 +151,6 @@ class _SlowNoise:
         for j in np.flatnonzero(flicker_b + walk_k == 0):
             out[:, j] = 0.0
         return out
-
-
-def _triad_matrix(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray[np.float64]:
-    m = np.diag(1.0 + sf)
-    m[~np.eye(3, dtype=bool)] = mis
-    return m
 
 
 class Instrument:
@@ -196,18 +179,9 @@ class Instrument:
         sample_rate_hz: float = 200.0,
         table_angle_deg: float = 0.0,
     ) -> None:
-        fs = float(sample_rate_hz)
-        if not (math.isfinite(fs) and MIN_SAMPLE_RATE_HZ <= fs <= MAX_SAMPLE_RATE_HZ):
-            raise SimConfigError(
-                f"sample_rate_hz: {sample_rate_hz!r} Hz cannot be honoured; the model runs from "
-                f"{MIN_SAMPLE_RATE_HZ:g} to {MAX_SAMPLE_RATE_HZ:g} Hz"
-            )
-        self.sample_rate_hz = fs
+        self.sample_rate_hz = check_sample_rate(sample_rate_hz)
         turn_on, white, slow, impulses, table = rng.spawn(5)
-        self._z_bias = turn_on.standard_normal(6)
-        self._z_sf = turn_on.standard_normal(6)
-        self._z_mis = turn_on.standard_normal((2, 6))
-        self._vib_phase = turn_on.uniform(0.0, 2 * math.pi, 6)
+        self._draws = draw_turn_on(turn_on)
         self._white = white
         self._slow = _SlowNoise(slow, 6)
         self._imp_rng = impulses
@@ -227,51 +201,19 @@ class Instrument:
     def set_spec(self, spec: SensorSpec) -> None:
         """Change the specification while running; drawn turn-on errors keep their z-scores."""
         self.spec = spec
-        g, a, fs = spec.gyro, spec.accel, self.sample_rate_hz
-        self._bias = np.concatenate(
-            [
-                np.asarray(g.bias_dph) * _DPH + g.turn_on_bias_dph * _DPH * self._z_bias[:3],
-                np.asarray(a.bias_ug) * _UG + a.turn_on_bias_ug * _UG * self._z_bias[3:],
-            ]
-        )
-        self._white_sigma = np.repeat(
-            [
-                g.arw_dpsh * math.pi / 180.0 / 60.0 * math.sqrt(fs),
-                a.vrw_ug_rthz * _UG * math.sqrt(fs),
-            ],
-            3,
-        )
-        self._flicker_b = np.repeat([g.bias_instability_dph * _DPH, a.bias_instability_ug * _UG], 3)
-        self._walk_k = np.repeat(
-            [g.rrw_dphpsh * math.pi / 180.0 / 3600.0 / 60.0, a.random_walk_ug_rts * _UG], 3
-        )
-        mg = _triad_matrix(
-            g.scale_factor_ppm * 1e-6 * self._z_sf[:3], g.misalignment_urad * 1e-6 * self._z_mis[0]
-        )
-        ma = _triad_matrix(
-            a.scale_factor_ppm * 1e-6 * self._z_sf[3:], a.misalignment_urad * 1e-6 * self._z_mis[1]
-        )
+        terms = self._terms = ErrorTerms.from_spec(spec)
+        self._bias = terms.turn_on(self._draws.z_bias)
+        self._white_sigma = terms.white_sigma(self.sample_rate_hz)
+        mg, ma = terms.matrices(self._draws)
         self._m_t = np.zeros((6, 6))
         self._m_t[:3, :3], self._m_t[3:, 3:] = mg.T, ma.T
-        self._identity = not (
-            g.scale_factor_ppm or g.misalignment_urad or a.scale_factor_ppm or a.misalignment_urad
-        )
-        self._lsb = np.array([g.lsb_dph * _DPH] * 3 + [a.lsb_ug * _UG] * 3)
-        self._range = np.array([g.range_dps * math.pi / 180.0] * 3 + [a.range_g * G0] * 3)
-        self._warm = np.concatenate(
-            [np.asarray(g.warmup_bias_dph) * _DPH, np.asarray(a.warmup_bias_ug) * _UG]
-        )
-        self._warm_tau = np.repeat([g.warmup_tau_s, a.warmup_tau_s], 3)
-        self._temp_coeff = np.concatenate(
-            [np.asarray(g.temp_coeff_dph_per_c) * _DPH, np.asarray(a.temp_coeff_ug_per_c) * _UG]
-        )
-        self._imp_amp = np.repeat([g.impulse_dph * _DPH, a.impulse_ug * _UG], 3)
+        self._identity = not terms.has_matrix
         d = spec.disturbance
         if d.impulse_rate_hz > 0 and not math.isfinite(self._imp_next):
             self._imp_next = self.time_s + self._imp_rng.exponential(1.0 / d.impulse_rate_hz)
         elif d.impulse_rate_hz == 0:
             self._imp_next = math.inf
-        vib_amp = np.repeat([g.vibration_dph * _DPH, a.vibration_ug * _UG], 3)
+        vib_amp = terms.vibration_amp
         self._vibration = (
             (d.vibration_hz, vib_amp) if d.vibration_hz > 0 and vib_amp.any() else None
         )
@@ -288,9 +230,7 @@ class Instrument:
         accel_ug: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:
         """Add a permanent bias step from the next sample on."""
-        self._extra_bias += np.concatenate(
-            [np.asarray(gyro_dph) * _DPH, np.asarray(accel_ug) * _UG]
-        )
+        self._extra_bias += channels_si(gyro_dph, accel_ug)
 
     def inject_impulses(
         self,
@@ -303,7 +243,7 @@ class Instrument:
     ) -> None:
         """Queue a burst of ``count`` half-sine impulses, one every ``interval_s``, from now."""
         dur = self.spec.disturbance.impulse_duration_s if duration_s is None else duration_s
-        amp = np.repeat([gyro_dph * _DPH, accel_ug * _UG], 3)
+        amp = channels_si(gyro_dph, accel_ug)
         for i in range(int(count)):
             self._events.append((self.time_s + i * interval_s, dur, amp * self._direction()))
 
@@ -313,13 +253,10 @@ class Instrument:
         """Switch vibration on or off; with no vibration in the spec, ``on`` uses the given line."""
         self.vibration_on = bool(on)
         if on and self._vibration is None:
-            self._vibration = (hz, np.repeat([gyro_dph * _DPH, accel_ug * _UG], 3))
+            self._vibration = (hz, channels_si(gyro_dph, accel_ug))
 
     def _direction(self) -> NDArray[np.float64]:
-        v = self._imp_rng.standard_normal(6)
-        v[:3] /= np.linalg.norm(v[:3]) or 1.0
-        v[3:] /= np.linalg.norm(v[3:]) or 1.0
-        return v
+        return random_directions(self._imp_rng, 1)[0]
 
     # -- sampling ------------------------------------------------------------------------------
     @property
@@ -338,13 +275,7 @@ class Instrument:
 
     def temperature(self, t: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Sensor temperature at times ``t``, degC."""
-        th = self.spec.thermal
-        tt = np.asarray(t, dtype=float)
-        return (
-            th.ambient_c
-            + th.warmup_rise_c * (1.0 - np.exp(-tt / th.warmup_tau_s))
-            + th.ramp_c_per_h * tt / 3600.0
-        )
+        return temperature_c(self.spec.thermal, t)
 
     def advance(self, dt: float) -> SampleBlock:
         """Advance the clock by ``dt`` seconds and return the samples that fell due."""
@@ -372,15 +303,15 @@ class Instrument:
         if n and np.ptp(angle) == 0.0:
             # The table is still: every sample sees the same true vector, so apply the error
             # matrix to that one vector instead of to every sample.
-            mu = math.radians(angle[0])
-            c, s = math.cos(mu), math.sin(mu)
+            mu0 = math.radians(angle[0])
+            c0, s0 = math.cos(mu0), math.sin(mu0)
             true = np.array(
                 [
-                    c * omega_b[0] + s * omega_b[1],
-                    -s * omega_b[0] + c * omega_b[1],
+                    c0 * omega_b[0] + s0 * omega_b[1],
+                    -s0 * omega_b[0] + c0 * omega_b[1],
                     omega_b[2],
-                    c * f_b[0] + s * f_b[1],
-                    -s * f_b[0] + c * f_b[1],
+                    c0 * f_b[0] + s0 * f_b[1],
+                    -s0 * f_b[0] + c0 * f_b[1],
                     f_b[2],
                 ]
             )
@@ -399,29 +330,28 @@ class Instrument:
             if not self._identity:
                 out = out @ self._m_t
             out += self._bias + self._extra_bias
-        if self._warm.any():
-            for sl, tau in ((slice(0, 3), self._warm_tau[0]), (slice(3, 6), self._warm_tau[3])):
-                if self._warm[sl].any():
-                    out[:, sl] += np.exp(-t / tau)[:, None] * self._warm[sl]
+        terms = self._terms
+        if terms.warmup_bias.any():
+            out += terms.warmup(t)
         temperature = self.temperature(t)
-        if self._temp_coeff.any():
-            out += (temperature - self.spec.thermal.ambient_c)[:, None] * self._temp_coeff
+        if terms.temp_coeff.any():
+            out += terms.thermal(temperature, self.spec.thermal)
         if n and self._white_sigma.any():
             noise = self._white.standard_normal((n, 6))
             noise *= self._white_sigma
             out += noise
-        if n and (self._flicker_b.any() or self._walk_k.any()):
-            out += self._slow.values(t - 0.5 / fs, self._flicker_b, self._walk_k)
+        if n and (terms.flicker_b.any() or terms.walk_k.any()):
+            out += self._slow.values(t - 0.5 / fs, terms.flicker_b, terms.walk_k)
         if n:
             self._add_impulses(out, t)
         if n and self._vibration is not None and self.vibration_on:
             hz, amp = self._vibration
-            out += amp * np.sin(2 * math.pi * hz * t[:, None] + self._vib_phase)
-        if n and (np.any(out.max(axis=0) > self._range) or np.any(out.min(axis=0) < -self._range)):
-            sat = np.abs(out) > self._range
-            np.clip(out, -self._range, self._range, out=out)
-        else:
-            sat = np.zeros((n, 6), dtype=bool)
+            out += vibration(t[:, None], hz, amp, self._draws.vib_phase)
+        limit = terms.range
+        sat = np.zeros((n, 6), dtype=bool)
+        if n and (np.any(out.max(axis=0) > limit) or np.any(out.min(axis=0) < -limit)):
+            np.greater(np.abs(out), limit, out=sat)
+            np.clip(out, -limit, limit, out=out)
         self._quantise(out)
         self._k += n
         self._clock = max(self._clock, self.time_s)
@@ -433,14 +363,14 @@ class Instrument:
             table_deg=self.table.encoder(angle[1:]),
             table_rate_dps=table_rate,
             temperature_c=temperature,
-            gyro_saturated=sat[:, :3].any(axis=1),
-            accel_saturated=sat[:, 3:].any(axis=1),
+            gyro_saturated=np.any(sat[:, :3], axis=1),
+            accel_saturated=np.any(sat[:, 3:], axis=1),
         )
 
     def _add_impulses(self, out: NDArray[np.float64], t: NDArray[np.float64]) -> None:
         rate = self.spec.disturbance.impulse_rate_hz
         while self._imp_next <= t[-1]:
-            amp = self._imp_amp * self._direction()
+            amp = self._terms.impulse_amp * self._direction()
             self._events.append((self._imp_next, self.spec.disturbance.impulse_duration_s, amp))
             self._imp_next += self._imp_rng.exponential(1.0 / rate) if rate > 0 else math.inf
         t0, t1 = t[0] - 1.0 / self.sample_rate_hz, t[-1]
@@ -453,25 +383,14 @@ class Instrument:
                 continue
             x = (t - start) / dur
             on = (x > 0) & (x < 1)
-            out[on] += np.sin(math.pi * x[on])[:, None] * amp
+            out[on] += half_sine(x[on])[:, None] * amp
         self._events = keep
 
     def _quantise(self, out: NDArray[np.float64]) -> None:
-        for j in np.flatnonzero(self._lsb):
-            counts = quantise_carry(out[:, j] / self._lsb[j], self._remainder, j)
-            out[:, j] = counts * self._lsb[j]
-
-
-def quantise_carry(
-    values: NDArray[np.float64], remainder: NDArray[np.float64], j: int
-) -> NDArray[np.float64]:
-    """Round a run of values (in counts) to whole counts, carrying the rounding remainder.
-
-    ``remainder[j]`` holds what earlier runs left over (|r| <= 1/2) and is updated in place, so the
-    sum of the whole counts over any run differs from the exact sum by at most one count.
-    """
-    cum = remainder[j] + np.cumsum(values)
-    q = np.round(cum)
-    if len(q):
-        remainder[j] = cum[-1] - q[-1]
-    return np.diff(q, prepend=0.0)
+        lsb = self._terms.lsb
+        ch = np.flatnonzero(lsb)
+        if ch.size:
+            counts, self._remainder[ch] = quantise_carry(
+                out[:, ch] / lsb[ch], self._remainder[ch], axis=0
+            )
+            out[:, ch] = counts * lsb[ch]

@@ -17,9 +17,9 @@ from typing import Protocol
 import can
 import serial
 
-from northfinder.driver.errors import BadCommandError, ProtocolError
 from northfinder.driver.protocol.can import encode_can, split_can_id
 from northfinder.driver.protocol.constants import CanFunction
+from northfinder.driver.protocol.errors import BadCommandError, ProtocolError
 from northfinder.driver.protocol.messages import Command
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
 from northfinder.firmware_sim.firmware import Firmware, Outgoing
@@ -132,19 +132,26 @@ class _FrameFaults:
         return data
 
 
+class FrameBus(Protocol):
+    """What :class:`CanLink` needs of a bus: a python-can bus, or an :class:`SlcanAdapter`."""
+
+    def send(self, msg: can.Message) -> None: ...
+    def recv(self, timeout: float | None = None) -> can.Message | None: ...
+
+
 class CanLink:
     """The device on a python-can bus (``virtual``, ``socketcan``, an SLCAN pty bus, ...).
 
     Parameters
     ----------
-    bus : can.BusABC
+    bus : can.BusABC or FrameBus
         Opened by the caller and closed by the caller.
     firmware : Firmware
     node_id : int
         The device answers COMMAND frames of this node only.
     """
 
-    def __init__(self, bus: can.BusABC, firmware: Firmware, node_id: int = 1) -> None:
+    def __init__(self, bus: FrameBus, firmware: Firmware, node_id: int = 1) -> None:
         self.bus = bus
         self.firmware = firmware
         self.node_id = node_id

@@ -19,8 +19,38 @@ from northfinder.firmware_sim.firmware import Firmware, Outgoing
 
 
 class Link(Protocol):
+    """A wire adapter of the simulated device (:mod:`northfinder.firmware_sim.links`)."""
+
     def poll(self, timeout: float) -> int: ...
     def send(self, outgoing: list[Outgoing]) -> None: ...
+
+
+class Clock(Protocol):
+    """What a :class:`Runner` needs from a clock: simulated time, and how long to wait for it.
+
+    :class:`RealTimeClock` and :class:`LockstepClock` are clocks; so is any object with these
+    members (a virtual clock shared with a test, for instance).
+    """
+
+    @property
+    def speed(self) -> float:
+        """Simulated seconds per wall second."""
+        ...
+
+    @property
+    def paused(self) -> bool: ...
+
+    def now(self) -> float:
+        """Simulated time, s."""
+        ...
+
+    def set_speed(self, speed: float) -> None: ...
+    def pause(self) -> None: ...
+    def resume(self) -> None: ...
+
+    def wall_until(self, sim_t: float) -> float:
+        """Wall seconds until simulated time ``sim_t`` (0 if past)."""
+        ...
 
 
 class RealTimeClock:
@@ -118,9 +148,7 @@ class Runner:
     ``step()`` does one round (poll, advance, send); ``run(stop)`` loops until ``stop`` is set.
     """
 
-    def __init__(
-        self, firmware: Firmware, link: Link, clock: RealTimeClock | LockstepClock
-    ) -> None:
+    def __init__(self, firmware: Firmware, link: Link, clock: Clock) -> None:
         self.firmware = firmware
         self.link = link
         self.clock = clock
@@ -178,6 +206,12 @@ class BackgroundRunner:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5.0)
+
+    @property
+    def alive(self) -> bool:
+        """Whether the runner's thread runs (False before :meth:`start`, after :meth:`stop` or a
+        failure, whose exception is :attr:`error`)."""
+        return self._thread.is_alive()
 
     def __enter__(self) -> BackgroundRunner:
         return self.start()

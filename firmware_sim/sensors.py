@@ -156,7 +156,12 @@ def _check_value(where: str, check: str, value: Any) -> float | tuple[float, flo
     if check == _VEC3:
         if not isinstance(value, list | tuple) or len(value) != 3:
             raise SimConfigError(f"{where}: expected a list of three numbers, got {value!r}")
-        return tuple(_check_value(f"{where}[{i}]", _ANY, v) for i, v in enumerate(value))  # type: ignore[return-value]
+        x, y, z = (_check_number(f"{where}[{i}]", _ANY, v) for i, v in enumerate(value))
+        return x, y, z
+    return _check_number(where, check, value)
+
+
+def _check_number(where: str, check: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise SimConfigError(f"{where}: expected a number, got {value!r}")
     x = float(value)
@@ -231,7 +236,11 @@ def load_spec(name_or_path: str | Path) -> SensorSpec:
                 f"unknown sensor preset {text!r}; presets are {', '.join(preset_names())} "
                 "(or give a path to a .toml file)"
             )
-        raw = resources.files("northfinder.firmware_sim").joinpath("presets", f"{text}.toml").read_bytes()
+        raw = (
+            resources.files("northfinder.firmware_sim")
+            .joinpath("presets", f"{text}.toml")
+            .read_bytes()
+        )
         source = text
     try:
         data = tomllib.loads(raw.decode("utf-8"))

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from northfinder.driver.protocol.motion import shortest_delta_deg
 from northfinder.firmware_sim.errors import SimError
 from northfinder.firmware_sim.sensors import TableSpec
 
@@ -32,14 +33,6 @@ class _Segment:
 
     def at(self, dt: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return self.a0 + self.v0 * dt + 0.5 * self.acc * dt * dt, self.v0 + self.acc * dt
-
-
-def trapezoid_duration(distance_deg: float, max_rate_dps: float, max_accel_dps2: float) -> float:
-    """Time (s) of a rest-to-rest move over ``|distance_deg|`` with rate and acceleration limits."""
-    d, v, a = abs(distance_deg), max_rate_dps, max_accel_dps2
-    if d <= v * v / a:
-        return 2.0 * math.sqrt(d / a)
-    return v / a + d / v
 
 
 class Turntable:
@@ -119,8 +112,7 @@ class Turntable:
     def move_to(self, t: float, target_deg: float, max_rate_dps: float | None = None) -> float:
         """Move to an absolute angle (modulo 360) by the shorter way; return the profile end time."""
         current = self._target if not self.is_moving(t) else float(self.state(t)[0])
-        delta = (target_deg - current + 180.0) % 360.0 - 180.0
-        return self.move_by(t, delta, max_rate_dps)
+        return self.move_by(t, shortest_delta_deg(current, target_deg), max_rate_dps)
 
     def stop(self, t: float) -> float:
         """Decelerate at the acceleration limit from time ``t``; return when the table is at rest."""

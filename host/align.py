@@ -56,8 +56,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.host.errors import AlignmentError, InputError, LatitudeError
-from northfinder.host.heading import G0, MAX_LATITUDE_DEG, OMEGA_IE, normal_gravity
+from northfinder.driver.protocol.units import DEG, DPH, G0, OMEGA_IE, normal_gravity
+from northfinder.host.errors import AlignmentError, InputError
+from northfinder.host.kernels import latitude_rad
 
 __all__ = [
     "ALIGNMENT_STATES",
@@ -82,8 +83,6 @@ ALIGNMENT_STATES: tuple[str, ...] = (
     "eps_z",
 )
 
-_DEG = math.pi / 180.0
-_DEG_PER_H = _DEG / 3600.0
 _EARTH_RADIUS = 6378137.0
 #: ENU -> NWU: N = y_enu, W = -x_enu, U = z_enu.
 _NWU_FROM_ENU = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -114,17 +113,17 @@ class KalmanSettings:
     p0_sigma: tuple[float, ...] = (
         0.1,
         0.1,
-        1.0 * _DEG,
-        1.0 * _DEG,
-        1.0 * _DEG,
+        1.0 * DEG,
+        1.0 * DEG,
+        1.0 * DEG,
         0.1e-3 * G0,
         0.1e-3 * G0,
-        0.1 * _DEG_PER_H,
-        0.1 * _DEG_PER_H,
-        0.1 * _DEG_PER_H,
+        0.1 * DPH,
+        0.1 * DPH,
+        0.1 * DPH,
     )
     accel_noise_density: float = 50e-6 * G0
-    gyro_noise_density: float = 0.05 * _DEG_PER_H
+    gyro_noise_density: float = 0.05 * DPH
     r0_sigma: float = 0.01
     forgetting: float = 0.95
     adaptive: bool = True
@@ -289,12 +288,7 @@ def sage_husa_alignment(
         )
     if not (np.all(np.isfinite(g_b)) and np.all(np.isfinite(f_b))):
         raise InputError("gyro and accel: contain non-finite samples")
-    lat_deg = float(latitude_deg)
-    if not math.isfinite(lat_deg) or abs(lat_deg) > MAX_LATITUDE_DEG:
-        raise LatitudeError(
-            f"latitude_deg: {latitude_deg!r} must be finite and within +-{MAX_LATITUDE_DEG} deg "
-            "(north is undefined at the poles)"
-        )
+    lat = latitude_rad(latitude_deg, "the alignment")
     if not (math.isfinite(fs_hz) and fs_hz > 0.0):
         raise InputError(f"fs_hz: must be a positive number, got {fs_hz!r}")
     block_f = fs_hz / filter_rate_hz
@@ -314,10 +308,9 @@ def sage_husa_alignment(
             f"need the {coarse_s} s coarse alignment plus at least 10 steps"
         )
 
-    lat = math.radians(lat_deg)
     omega_n, omega_u = OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)
     omega_ie = np.array([0.0, omega_n, omega_u])
-    g = normal_gravity(lat_deg)
+    g = float(normal_gravity(lat))
     gravity_n = np.array([0.0, 0.0, -g])
     rot_earth = _rotation(-omega_ie * dt)
 
@@ -337,7 +330,7 @@ def sage_husa_alignment(
     v = np.zeros(2)
 
     start = n_coarse
-    times = (np.arange(start, n_steps) + 1) * dt
+    times = np.arange(start + 1, n_steps + 1, dtype=np.float64) * dt
     az_hist = np.empty(n_steps - start)
     sig_hist = np.empty(n_steps - start)
     for k, i in enumerate(range(start, n_steps)):

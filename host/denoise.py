@@ -41,7 +41,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import median_filter
 
-from northfinder.host.errors import DenoiseError, HostConfigError, InputError
+from northfinder.host.errors import DenoiseError, HostConfigError, InputError, check_choice
 
 __all__ = [
     "EXTENSIONS",
@@ -83,13 +83,6 @@ _MAD_TO_SIGMA = 1.0 / 0.6745
 # ----------------------------------------------------------------------------------------------
 # Helpers
 # ----------------------------------------------------------------------------------------------
-
-
-def _choice(value: str, table: Mapping[str, Any] | tuple[str, ...], name: str) -> str:
-    if value not in table:
-        choices = ", ".join(repr(k) for k in table)
-        raise HostConfigError(f"{name}: unknown value {value!r}; choose one of {choices}")
-    return value
 
 
 def _signal(x: ArrayLike, axis: int, name: str = "x") -> tuple[NDArray[np.float64], int]:
@@ -184,7 +177,7 @@ def threshold(
     ndarray
         Thresholded coefficients, shape of ``coeffs``.
     """
-    _choice(mode, THRESHOLD_MODES, "mode")
+    check_choice(mode, THRESHOLD_MODES, "mode")
     w = np.asarray(coeffs, dtype=float)
     lam = np.asarray(value, dtype=float)
     if np.any(~np.isfinite(lam)) or np.any(lam < 0.0):
@@ -274,8 +267,8 @@ def wavelet_denoise(
     ndarray
         Denoised signal, shape of ``x``.
     """
-    _choice(mode, THRESHOLD_MODES, "mode")
-    _choice(extension, EXTENSIONS, "extension")
+    check_choice(mode, THRESHOLD_MODES, "mode")
+    check_choice(extension, EXTENSIONS, "extension")
     arr, ax = _signal(x, axis)
     n = arr.shape[ax]
     wav = _wavelet(wavelet)
@@ -326,7 +319,7 @@ def forced_denoise(
     ndarray
         Shape of ``x``.
     """
-    _choice(extension, EXTENSIONS, "extension")
+    check_choice(extension, EXTENSIONS, "extension")
     arr, ax = _signal(x, axis)
     n = arr.shape[ax]
     wav = _wavelet(wavelet)
@@ -465,7 +458,7 @@ def moving_average(
     -------
     ndarray
     """
-    _choice(edges, MOVING_AVERAGE_EDGES, "edges")
+    check_choice(edges, MOVING_AVERAGE_EDGES, "edges")
     arr, ax = _signal(x, axis)
     v = np.moveaxis(arr, ax, -1)
     n = v.shape[-1]
@@ -679,7 +672,7 @@ def denoise(x: ArrayLike, method: str, *, axis: int = -1, **options: Any) -> NDA
     -------
     ndarray
     """
-    entry = METHODS[_choice(method, METHODS, "method")]
+    entry = METHODS[check_choice(method, METHODS, "method")]
     try:
         return entry.func(x, axis=axis, **options)
     except TypeError as exc:

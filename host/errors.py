@@ -1,8 +1,13 @@
-"""Exceptions of the host package."""
+"""Exceptions of the host package, and the one helper that phrases a bad choice."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 
 class HostError(Exception):
-    """Root of every error raised by :mod:`host`."""
+    """Root of every error raised by :mod:`northfinder.host`."""
 
 
 class HostConfigError(HostError, ValueError):
@@ -31,3 +36,27 @@ class DenoiseError(HostError, ValueError):
 
 class AlignmentError(HostError):
     """The static alignment filter cannot start or has diverged."""
+
+
+class QualityError(HostError):
+    """A window is unusable: the table moved, samples are flagged bad, or data are missing."""
+
+
+class RecordingError(HostError):
+    """A recording cannot be read or written; the message names the file and what is wrong."""
+
+
+def check_choice(
+    value: str, choices: Mapping[str, Any] | Sequence[str], name: str, what: str = "value"
+) -> str:
+    """Return ``value`` if it is one of ``choices``; else raise one error that lists them.
+
+    Raises
+    ------
+    HostConfigError
+        ``"{name}: unknown {what} {value!r}; choose one of ..."``.
+    """
+    if value not in choices:
+        listed = ", ".join(repr(k) for k in choices)
+        raise HostConfigError(f"{name}: unknown {what} {value!r}; choose one of {listed}")
+    return value

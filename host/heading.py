@@ -1,4 +1,4 @@
-"""Heading solvers of the gyro north finder: two-position, multi-position least squares, plans.
+"""Heading solvers of the gyro north finder: two-position and multi-position least squares.
 
 Conventions (the same as the instrument's)
 ------------------------------------------
@@ -18,6 +18,11 @@ Sensors
     Accelerometers read specific force ``C_m^m1 C_n^b (0, 0, +g)`` + bias (level: z reads +g).
     The paper's eqs. 3, 4, 8, 9 use the opposite sign (a = -f); the levelling below is written for
     specific force.
+Kernels
+    The arithmetic lives once, in :mod:`northfinder.host.kernels` (arrays of many runs); the
+    functions here solve one run with it and add input checks, clear errors and a propagated
+    sigma. Excessive tilt raises :class:`~northfinder.host.errors.TiltError` here; the
+    vectorised solvers give NaN for that run instead.
 Units
     Gyro window means may be in any one unit, named by ``rate_unit`` (a key of
     :data:`RATE_UNITS` or the size of one unit in rad/s); the Earth rate is converted into that
@@ -44,67 +49,57 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.host.errors import (
-    GeometryError,
-    HostConfigError,
-    InputError,
-    LatitudeError,
-    TiltError,
+from northfinder.driver.protocol.units import DPH, DPS, DPSH, G0, OMEGA_IE, UG, normal_gravity
+from northfinder.host.errors import GeometryError, HostConfigError, InputError, TiltError
+from northfinder.host.kernels import (
+    MAX_LATITUDE_DEG,
+    MAX_TILT_DEG,
+    MIN_MU_SEPARATION_DEG,
+    earth_rate_body,
+    eq14,
+    f0_from_two_positions,
+    fit_heading,
+    fit_tilt,
+    latitude_rad,
+    table_rotation,
+    tilt_from_f0,
+    tilt_within_limit,
 )
+from northfinder.host.plan import PAPER_SWEEP, Plan
 
 __all__ = [
     "ACCEL_UNITS",
-    "G0",
     "MAX_LATITUDE_DEG",
     "MAX_TILT_DEG",
     "MIN_MU_SEPARATION_DEG",
-    "OMEGA_IE",
-    "PAPER_SWEEP",
-    "PLANS",
     "RATE_UNITS",
     "HeadingSolution",
     "MultiPositionSolution",
-    "PositionPlan",
-    "normal_gravity",
     "pairwise_azimuths",
     "solve_multi_position",
     "solve_two_position",
     "two_position_bound_deg",
 ]
 
-#: Earth rotation rate (WGS84), rad/s.
-OMEGA_IE = 7.292115e-5
-#: Standard gravity, m/s^2 (defines the unit "g" of accelerometer means).
-G0 = 9.80665
-#: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
-MAX_LATITUDE_DEG = 89.0
-#: The table angle must differ from 0 (mod 360) by at least this much. The Earth-rate difference
-#: between the positions is 2 Omega_H sin(mu/2): at 5 deg it is 23 times smaller than at 180 deg.
-MIN_MU_SEPARATION_DEG = 5.0
-#: Largest pitch or roll accepted. The equations are exact at any tilt, but beyond this a north
-#: finder is outside its levelling range and the accelerometer model (no cross-coupling, no
-#: misalignment) stops being credible.
-MAX_TILT_DEG = 15.0
-
 #: Gyro units accepted by name: size of one unit in rad/s.
 RATE_UNITS: Mapping[str, float] = {
     "rad/s": 1.0,
     "mrad/s": 1e-3,
     "urad/s": 1e-6,
-    "deg/s": math.pi / 180.0,
-    "deg/h": math.pi / 180.0 / 3600.0,
+    "deg/s": DPS,
+    "deg/h": DPH,
 }
 #: Accelerometer units accepted by name: size of one unit in m/s^2.
 ACCEL_UNITS: Mapping[str, float] = {
     "m/s^2": 1.0,
     "g": G0,
     "mg": G0 * 1e-3,
-    "ug": G0 * 1e-6,
+    "ug": UG,
 }
 
 
 # ----------------------------------------------------------------------------------------------
-# Results and plans
+# Results
 # ----------------------------------------------------------------------------------------------
 
 
@@ -181,50 +176,6 @@ class MultiPositionSolution:
     accel_residuals: NDArray[np.float64] | None = field(repr=False)
 
 
-@dataclass(frozen=True)
-class PositionPlan:
-    """A named sequence of table positions for a north-finding run.
-
-    Attributes
-    ----------
-    name : str
-        Identifier used by the CLI and studies.
-    angles_deg : tuple of float
-        Table angle of each position, deg (right-handed about up), first one the reference.
-    dwell_s : float
-        Recording time per position, s.
-    description : str
-        One line saying where the plan comes from.
-    """
-
-    name: str
-    angles_deg: tuple[float, ...]
-    dwell_s: float
-    description: str
-
-    def pairs(self) -> tuple[tuple[int, int], ...]:
-        """Index pairs (reference, k) solved by :func:`pairwise_azimuths`."""
-        return tuple((0, k) for k in range(1, len(self.angles_deg)))
-
-    def pair_mu_deg(self) -> tuple[float, ...]:
-        """Table angle of each pair, deg."""
-        a0 = self.angles_deg[0]
-        return tuple(a - a0 for a in self.angles_deg[1:])
-
-
-#: The source paper's prototype procedure: eight positions 30 deg apart, 10 s at each; each
-#: position after the first is paired with the first, giving seven azimuths (mu = 30 ... 210 deg).
-PAPER_SWEEP = PositionPlan(
-    name="paper-30deg-sweep",
-    angles_deg=tuple(float(a) for a in range(0, 240, 30)),
-    dwell_s=10.0,
-    description="8 positions, 30 deg steps, 10 s each; 7 pairwise azimuths against position 1",
-)
-
-#: Plans by name.
-PLANS: Mapping[str, PositionPlan] = {PAPER_SWEEP.name: PAPER_SWEEP}
-
-
 # ----------------------------------------------------------------------------------------------
 # Checks and helpers
 # ----------------------------------------------------------------------------------------------
@@ -244,25 +195,6 @@ def _unit_scale(unit: str | float, table: Mapping[str, float], field_name: str) 
     if not math.isfinite(value) or value <= 0.0:
         raise HostConfigError(f"{field_name}: must be a positive finite number, got {unit!r}")
     return value
-
-
-def _latitude_rad(latitude_deg: float | None, purpose: str) -> float:
-    if latitude_deg is None:
-        raise LatitudeError(f"latitude_deg is required for {purpose}")
-    try:
-        lat = float(latitude_deg)
-    except (TypeError, ValueError) as exc:
-        raise LatitudeError(f"latitude_deg: must be a number, got {latitude_deg!r}") from exc
-    if not math.isfinite(lat):
-        raise LatitudeError(f"latitude_deg: must be finite, got {lat}")
-    if abs(lat) > 90.0:
-        raise LatitudeError(f"latitude_deg: must lie in [-90, 90] deg, got {lat}")
-    if abs(lat) > MAX_LATITUDE_DEG:
-        raise LatitudeError(
-            f"latitude_deg: {lat} deg is too close to a pole (limit +-{MAX_LATITUDE_DEG} deg): "
-            "the horizontal Earth rate Omega*cos(lat) vanishes there, so north is undefined"
-        )
-    return math.radians(lat)
 
 
 def _vector(name: str, value: ArrayLike, *, lead: tuple[int, ...] = ()) -> NDArray[np.float64]:
@@ -320,45 +252,28 @@ def _check_mu(mu_deg: float, name: str = "mu_deg") -> float:
 
 
 def _check_tilt(pitch: float, roll: float, source: str) -> None:
-    for label, value in (("pitch", pitch), ("roll", roll)):
-        if abs(math.degrees(value)) > MAX_TILT_DEG:
+    for label, ok in (
+        ("pitch", tilt_within_limit(pitch, 0.0)),
+        ("roll", tilt_within_limit(0.0, roll)),
+    ):
+        if not ok:
+            value = math.degrees(pitch if label == "pitch" else roll)
             raise TiltError(
-                f"{label} {math.degrees(value):.3f} deg ({source}) exceeds the limit of "
+                f"{label} {value:.3f} deg ({source}) exceeds the limit of "
                 f"+-{MAX_TILT_DEG} deg: level the instrument first"
             )
 
 
-def normal_gravity(latitude_deg: float) -> float:
-    """Normal gravity on the WGS84 ellipsoid (Somigliana), m/s^2."""
-    s2 = math.sin(math.radians(latitude_deg)) ** 2
-    return 9.7803253359 * (1.0 + 0.00193185265241 * s2) / math.sqrt(1.0 - 6.69437999013e-3 * s2)
-
-
-def _table2(mu: float | NDArray[np.float64]) -> NDArray[np.float64]:
-    """Horizontal block of C_m^m1, shape ``(..., 2, 2)``."""
-    c, s = np.cos(mu), np.sin(mu)
-    return np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], -2)
-
-
-def _tilt_from_f0(fx0: float, fy0: float, g: float, source: str) -> tuple[float, float]:
-    """Pitch and roll (rad) from the horizontal specific force at table angle 0.
-
-    Level body frame sees f = g (-sin theta, cos theta sin gamma, cos theta cos gamma).
-    """
-    s_theta = -fx0 / g
-    if abs(s_theta) >= 1.0:
-        raise TiltError(
-            f"{source}: horizontal specific force {fx0:.6g} exceeds gravity {g:.6g} "
-            "(check accel_unit and the accelerometer means)"
-        )
-    theta = math.asin(s_theta)
-    s_gamma = fy0 / (g * math.cos(theta))
-    if abs(s_gamma) >= 1.0:
-        raise TiltError(
-            f"{source}: horizontal specific force {fy0:.6g} exceeds gravity {g:.6g} "
-            "(check accel_unit and the accelerometer means)"
-        )
-    return theta, math.asin(s_gamma)
+def _tilt(fx0: float, fy0: float, g: float, source: str) -> tuple[float, float]:
+    """Pitch and roll (rad) from the horizontal specific force at table angle 0, or TiltError."""
+    theta, gamma = tilt_from_f0(fx0, fy0, g)
+    for value, f in ((theta, fx0), (gamma, fy0)):
+        if math.isnan(value):
+            raise TiltError(
+                f"{source}: horizontal specific force {f:.6g} exceeds gravity {g:.6g} "
+                "(check accel_unit and the accelerometer means)"
+            )
+    return float(theta), float(gamma)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -369,32 +284,9 @@ def _tilt_from_f0(fx0: float, fy0: float, g: float, source: str) -> tuple[float,
 def _level_two_position(
     a0: NDArray[np.float64], a1: NDArray[np.float64], mu: float, g: float
 ) -> tuple[float, float]:
-    """Paper eqs. 12 and 13 for specific force: bias-free tilt from two positions.
-
-    With S = g sin(theta), C = g cos(theta) sin(gamma) and d = f(0) - f(mu):
-    -dfx = (1 - cos mu) S + sin mu C and dfy = -sin mu S + (1 - cos mu) C.
-    """
-    dfx, dfy = a0[0] - a1[0], a0[1] - a1[1]
-    c, s = math.cos(mu), math.sin(mu)
-    det = 2.0 * (1.0 - c)
-    s_pitch = ((1.0 - c) * -dfx - s * dfy) / det
-    c_roll = (s * -dfx + (1.0 - c) * dfy) / det
-    return _tilt_from_f0(-s_pitch, c_roll, g, "accelerometer levelling")
-
-
-def _eq14_terms(
-    theta: float, gamma: float, mu: float, omega_u: float
-) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    """Coefficients of eq. 14: num = n1 dwx + n2 dwy + n0, den = d1 dwx + d2 dwy + d0."""
-    st, ct, sg, cg = math.sin(theta), math.cos(theta), math.sin(gamma), math.cos(gamma)
-    c, s = math.cos(mu), math.sin(mu)
-    n1 = st * sg + s * ct - c * st * sg
-    n2 = -(ct - c * ct - s * st * sg)
-    n0 = 2.0 * omega_u * sg * (1.0 - c)
-    d1 = -(c - 1.0) * cg
-    d2 = s * cg
-    d0 = -2.0 * omega_u * st * (c - 1.0) * cg
-    return (n1, n2, n0), (d1, d2, d0)
+    """Bias-free pitch and roll (rad) from two positions (paper eqs. 12, 13), or TiltError."""
+    fx0, fy0 = f0_from_two_positions(a0, a1, mu)
+    return _tilt(float(fx0), float(fy0), g, "accelerometer levelling")
 
 
 def _alpha_two_position(
@@ -406,13 +298,12 @@ def _alpha_two_position(
     omega_u: float,
 ) -> tuple[float, NDArray[np.float64]]:
     """Model angle alpha (rad) by eq. 14 (eq. 15 when level) and d alpha / d(g0x, g0y, g1x, g1y)."""
-    dwx, dwy = g0[0] - g1[0], g0[1] - g1[1]
-    (n1, n2, n0), (d1, d2, d0) = _eq14_terms(theta, gamma, mu, omega_u)
-    num = n1 * dwx + n2 * dwy + n0
-    den = d1 * dwx + d2 * dwy + d0
+    e = eq14(g0, g1, mu, theta, gamma, omega_u)
+    num, den = float(e.num), float(e.den)
     r2 = num * num + den * den
     if r2 == 0.0:
         raise GeometryError("the gyro differences are zero: no Earth rate was measured")
+    (n1, n2, _), (d1, d2, _) = e.n.tolist(), e.d.tolist()
     dx = (den * n1 - num * d1) / r2
     dy = (den * n2 - num * d2) / r2
     return math.atan2(num, den), np.array([dx, dy, -dx, -dy])
@@ -499,16 +390,16 @@ def solve_two_position(
         raise InputError("accel0 and accel1: give both accelerometer means or neither")
     levelled = accel0 is not None
     if levelled:
-        lat = _latitude_rad(latitude_deg, "levelling with accelerometers (eq. 14)")
+        lat = latitude_rad(latitude_deg, "levelling with accelerometers (eq. 14)")
     elif latitude_deg is not None:
-        lat = _latitude_rad(latitude_deg, "the solution")
+        lat = latitude_rad(latitude_deg, "the solution")
     gyro_sigma = _noise("gyro_noise", gyro_noise, (2, 2))
 
-    if levelled:
+    if accel0 is not None and accel1 is not None:
         a0 = _vector("accel0", accel0)
         a1 = _vector("accel1", accel1)
         accel_scale = _unit_scale(accel_unit, ACCEL_UNITS, "accel_unit")
-        g = normal_gravity(math.degrees(lat)) / accel_scale
+        g = float(normal_gravity(lat)) / accel_scale
         omega_u = OMEGA_IE * math.sin(lat) / rate_scale
         theta, gamma = _level_two_position(a0, a1, mu, g)
         _check_tilt(theta, gamma, "from the accelerometers")
@@ -552,16 +443,15 @@ def _accel_variance(
     """
     base = np.concatenate([a0[:2], a1[:2]])
     step = 1e-6 * g
-    grad = np.empty(4)
-    for j in range(4):
-        values = []
-        for sign in (1.0, -1.0):
-            a = base.copy()
-            a[j] += sign * step
-            theta, gamma = _level_two_position(a[:2], a[2:], mu, g)
-            values.append(_alpha_two_position(g0, g1, mu, theta, gamma, omega_u)[0])
-        diff = math.remainder(values[0] - values[1], math.tau)
-        grad[j] = diff / (2.0 * step)
+    # Rows 2j and 2j + 1 move mean j up and down by one step; all eight are solved at once.
+    rows = np.arange(8)
+    moved = np.repeat(base[None, :], 8, axis=0)
+    moved[rows, rows // 2] += np.where(rows % 2 == 0, step, -step)
+    theta, gamma = tilt_from_f0(*f0_from_two_positions(moved[:, :2], moved[:, 2:], mu), g)
+    alpha = eq14(g0, g1, mu, theta, gamma, omega_u).alpha
+    grad = np.array(
+        [math.remainder(alpha[2 * j] - alpha[2 * j + 1], math.tau) for j in range(4)]
+    ) / (2.0 * step)
     return float(np.sum((grad * accel_sigma.ravel()) ** 2))
 
 
@@ -585,9 +475,9 @@ def two_position_bound_deg(
     latitude_deg : float
         Latitude, deg.
     """
-    lat = _latitude_rad(latitude_deg, "the bound")
+    lat = latitude_rad(latitude_deg, "the bound")
     mu = math.radians(_check_mu(mu_deg))
-    arw = arw_dpsh * math.pi / 180.0 / 60.0
+    arw = arw_dpsh * DPSH
     omega_h = OMEGA_IE * math.cos(lat)
     return math.degrees(arw / (omega_h * abs(math.sin(mu / 2.0)) * math.sqrt(total_time_s)))
 
@@ -599,7 +489,7 @@ def two_position_bound_deg(
 
 def pairwise_azimuths(
     gyro_means: ArrayLike,
-    plan: PositionPlan | Sequence[float] = PAPER_SWEEP,
+    plan: Plan | Sequence[float] = PAPER_SWEEP,
     *,
     accel_means: ArrayLike | None = None,
     latitude_deg: float | None = None,
@@ -614,7 +504,7 @@ def pairwise_azimuths(
     ----------
     gyro_means : array_like, shape (N, 2) or (N, 3)
         Gyro window means at each position of the plan, ``rate_unit``.
-    plan : PositionPlan or sequence of float
+    plan : Plan or sequence of float
         The plan, or the N table angles in deg.
     accel_means : array_like, shape (N, 2) or (N, 3), optional
         Accelerometer window means (then ``latitude_deg`` is required).
@@ -628,7 +518,7 @@ def pairwise_azimuths(
     tuple of HeadingSolution
         N - 1 solutions, pair (0, k) for k = 1 .. N-1, ``mu_deg = angle_k - angle_0``.
     """
-    angles = plan.angles_deg if isinstance(plan, PositionPlan) else tuple(plan)
+    angles = plan.positions_deg if isinstance(plan, Plan) else tuple(plan)
     n = len(angles)
     if n < 2:
         raise GeometryError(f"a plan needs at least 2 positions, got {n}")
@@ -656,45 +546,6 @@ def pairwise_azimuths(
 # ----------------------------------------------------------------------------------------------
 # Multi-position least squares
 # ----------------------------------------------------------------------------------------------
-
-
-def _h_and_jac(
-    alpha: float, theta: float, gamma: float, omega_n: float, omega_u: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Horizontal Earth rate in the body frame at table angle 0 and its derivatives.
-
-    Returns h (2,) and dh/d(alpha, theta, gamma) (2, 3).
-    """
-    sa, ca = math.sin(alpha), math.cos(alpha)
-    st, ct, sg, cg = math.sin(theta), math.cos(theta), math.sin(gamma), math.cos(gamma)
-    h = np.array(
-        [
-            omega_n * ca * ct - omega_u * st,
-            omega_n * (ca * st * sg - sa * cg) + omega_u * ct * sg,
-        ]
-    )
-    jac = np.array(
-        [
-            [-omega_n * sa * ct, -omega_n * ca * st - omega_u * ct, 0.0],
-            [
-                -omega_n * (sa * st * sg + ca * cg),
-                omega_n * ca * ct * sg - omega_u * st * sg,
-                omega_n * (ca * st * cg + sa * sg) + omega_u * ct * cg,
-            ],
-        ]
-    )
-    return h, jac
-
-
-def _weighted_lstsq(
-    a: NDArray[np.float64], b: NDArray[np.float64], sigma: NDArray[np.float64] | None
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Solve a x ~ b weighted by 1/sigma; return x, the unit-weight normal inverse, residuals."""
-    w = np.ones_like(b) if sigma is None else 1.0 / sigma
-    aw = a * w[:, None]
-    x, *_ = np.linalg.lstsq(aw, b * w, rcond=None)
-    normal_inv = np.linalg.inv(aw.T @ aw)
-    return x, normal_inv, b - a @ x
 
 
 def _posterior_scale(
@@ -728,10 +579,12 @@ def solve_multi_position(
     Model, both horizontal gyros at every position i:
     ``w_i = R(mu_i) h(alpha, pitch, roll) + b``, where R is the horizontal block of C_m^m1,
     h the horizontal Earth rate in the body frame at table angle 0 (its size fixed by the known
-    latitude) and b the constant gyro bias. Unknowns: alpha and b (Gauss-Newton; only alpha
-    enters non-linearly). With accelerometer means the tilt and accelerometer biases are
-    estimated first from ``f_i = R(mu_i) f_0 + b_a`` (linear), and their covariance is carried
-    into the heading's; without them the tilt is the known ``pitch_deg``, ``roll_deg``.
+    latitude) and b the constant gyro bias. Unknowns: alpha and b; only alpha enters
+    non-linearly (the biases are projected out and alpha found by Newton's method, see
+    :func:`northfinder.host.kernels.fit_heading`). With accelerometer means the tilt and
+    accelerometer biases are estimated first from ``f_i = R(mu_i) f_0 + b_a`` (linear), and
+    their covariance is carried into the heading's; without them the tilt is the known
+    ``pitch_deg``, ``roll_deg``.
 
     Parameters
     ----------
@@ -755,7 +608,7 @@ def solve_multi_position(
     accel_noise : float or array_like, optional
         Likewise for the accelerometer means (redundancy needs N >= 3).
     max_iterations : int
-        Gauss-Newton iteration limit.
+        Iteration limit of the heading fit.
 
     Returns
     -------
@@ -775,7 +628,7 @@ def solve_multi_position(
     n = mus_in.size
     gyro = _vector("gyro_means", gyro_means, lead=(n,))[:, :2]
     accel = None if accel_means is None else _vector("accel_means", accel_means, lead=(n,))[:, :2]
-    lat = _latitude_rad(latitude_deg, "the multi-position fit")
+    lat = latitude_rad(latitude_deg, "the multi-position fit")
     rate_scale = _unit_scale(rate_unit, RATE_UNITS, "rate_unit")
     gyro_sigma = _noise("gyro_noise", gyro_noise, (n, 2))
     accel_sigma = _noise("accel_noise", accel_noise, (n, 2)) if accel is not None else None
@@ -791,10 +644,7 @@ def solve_multi_position(
             f"{MIN_MU_SEPARATION_DEG} deg apart (mod 360) for the biases to separate from the "
             "Earth rate"
         )
-    mus = np.radians(mus_in)
-    rot = _table2(mus)  # (N, 2, 2)
-    eye = np.broadcast_to(np.eye(2), (n, 2, 2))
-    design_lin = np.concatenate([rot, eye], axis=2).reshape(2 * n, 4)
+    rot = table_rotation(np.radians(mus_in))  # (N, 2, 2)
     omega_n = OMEGA_IE * math.cos(lat) / rate_scale
     omega_u = OMEGA_IE * math.sin(lat) / rate_scale
 
@@ -803,14 +653,16 @@ def solve_multi_position(
     accel_bias = accel_res = None
     if accel is not None:
         accel_scale = _unit_scale(accel_unit, ACCEL_UNITS, "accel_unit")
-        g = normal_gravity(math.degrees(lat)) / accel_scale
+        g = float(normal_gravity(lat)) / accel_scale
         sig_a = None if accel_sigma is None else accel_sigma.ravel()
-        xa, ninv_a, res_a = _weighted_lstsq(design_lin, accel.ravel(), sig_a)
-        theta, gamma = _tilt_from_f0(xa[0], xa[1], g, "accelerometer fit")
+        _, _, xa, res_a, ninv_a = fit_tilt(
+            accel[None], rot[None], g, None if sig_a is None else 1.0 / sig_a[None]
+        )
+        theta, gamma = _tilt(float(xa[0, 0]), float(xa[0, 1]), g, "accelerometer fit")
         _check_tilt(theta, gamma, "from the accelerometers")
-        accel_bias = xa[2:].copy()
-        accel_res = res_a.reshape(n, 2)
-        scale_a = _posterior_scale(res_a / (1.0 if sig_a is None else sig_a), 4, sig_a)
+        accel_bias = xa[0, 2:].copy()
+        accel_res = res_a[0].reshape(n, 2)
+        scale_a = _posterior_scale(res_a[0] / (1.0 if sig_a is None else sig_a), 4, sig_a)
         # (theta, gamma) from (f0x, f0y): f0x = -g sin(theta), f0y = g cos(theta) sin(gamma).
         st, ct, sg, cg = math.sin(theta), math.cos(theta), math.sin(gamma), math.cos(gamma)
         d_f_d_tilt = np.array([[-g * ct, 0.0], [-g * st * sg, g * ct * cg]])
@@ -818,45 +670,26 @@ def solve_multi_position(
         jac_a = np.zeros((4, 4))
         jac_a[:2, :2] = d_tilt_d_f
         jac_a[2:, 2:] = np.eye(2)
-        tilt_cov = None if scale_a is None else scale_a * (jac_a @ ninv_a @ jac_a.T)
+        tilt_cov = None if scale_a is None else scale_a * (jac_a @ ninv_a[0] @ jac_a.T)
     else:
         theta, gamma = math.radians(float(pitch_deg)), math.radians(float(roll_deg))
         if not (math.isfinite(theta) and math.isfinite(gamma)):
             raise InputError(f"pitch_deg, roll_deg: must be finite, got {pitch_deg}, {roll_deg}")
         _check_tilt(theta, gamma, "as given")
 
-    # Start from the unconstrained linear fit w_i = R_i u + b, then alpha from u given the tilt.
     sig_g = None if gyro_sigma is None else gyro_sigma.ravel()
-    x_lin, _, _ = _weighted_lstsq(design_lin, gyro.ravel(), sig_g)
-    st, ct, sg, cg = math.sin(theta), math.cos(theta), math.sin(gamma), math.cos(gamma)
-    # h = M (cos a, sin a) + c: solve for (cos a, sin a) and take its angle.
-    m = np.array([[omega_n * ct, 0.0], [omega_n * st * sg, -omega_n * cg]])
-    c = np.array([-omega_u * st, omega_u * ct * sg])
-    cs = np.linalg.solve(m, x_lin[:2] - c)
-    alpha = math.atan2(cs[1], cs[0])
-    bias = x_lin[2:].copy()
-
     w = np.ones(2 * n) if sig_g is None else 1.0 / sig_g
-    converged = False
-    for _ in range(max_iterations):
-        h, dh = _h_and_jac(alpha, theta, gamma, omega_n, omega_u)
-        model = np.einsum("nij,j->ni", rot, h) + bias
-        res = (gyro - model).ravel()
-        jac = np.empty((2 * n, 3))
-        jac[:, 0] = np.einsum("nij,j->ni", rot, dh[:, 0]).ravel()
-        jac[:, 1:] = np.tile(np.eye(2), (n, 1))
-        step, *_ = np.linalg.lstsq(jac * w[:, None], res * w, rcond=None)
-        alpha += step[0]
-        bias += step[1:]
-        if abs(step[0]) < 1e-15 and np.all(np.abs(step[1:]) <= 1e-15 * (1.0 + abs(omega_n))):
-            converged = True
-            break
-    if not converged:
+    fit = fit_heading(
+        gyro[None], rot[None], np.array([theta]), np.array([gamma]), omega_n, omega_u,
+        None if sig_g is None else w[None], max_iterations=max_iterations,
+    )  # fmt: skip
+    if not fit.converged[0]:
         raise GeometryError(
             f"multi-position fit did not converge in {max_iterations} iterations "
             f"(mu_deg = {mus_in.tolist()})"
         )
-    h, dh = _h_and_jac(alpha, theta, gamma, omega_n, omega_u)
+    alpha, bias = float(fit.alpha[0]), fit.bias[0]
+    h, dh = earth_rate_body(alpha, theta, gamma, omega_n, omega_u)
     res_g = (gyro - np.einsum("nij,j->ni", rot, h) - bias).ravel()
     jac = np.empty((2 * n, 3))
     jac[:, 0] = np.einsum("nij,j->ni", rot, dh[:, 0]).ravel()
@@ -874,7 +707,7 @@ def solve_multi_position(
     names = ["alpha", "gyro_bias_x", "gyro_bias_y"]
     cov: NDArray[np.float64] | None = None
     if scale_g is not None:
-        cov = scale_g * ninv_g
+        cov = np.asarray(scale_g * ninv_g, dtype=np.float64)
         if accel is not None:
             names += ["pitch", "roll", "accel_bias_x", "accel_bias_y"]
             if tilt_cov is None:

@@ -4,56 +4,84 @@ The procedure talks to anything with the driver's :class:`~northfinder.driver.de
 (``status``, ``get_config``, ``rotate_to``, ``acquire``, ``stop_streaming``), so it runs the same on
 the simulator and on a real unit. It uses the encoder angles the device reports, never the
 commanded ones.
+
+What it measures is a :class:`~northfinder.host.plan.Plan` (the one plan type of studies and the
+planner too). After each move the device settles on its own and reports READY; the procedure then
+waits whatever remains of the plan's ``settle_s`` (see :mod:`northfinder.host.plan`). Time is
+injected: ``sleep`` and ``clock`` default to the wall clock.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Validity
-from northfinder.host.denoise import METHODS, denoise
-from northfinder.host.errors import HostConfigError, HostError
+from northfinder.driver.protocol.constants import VALIDITY_UNFIT, ConfigKey, DeviceState, Validity
+from northfinder.driver.protocol.motion import shortest_delta_deg
+from northfinder.host.denoise import denoise
+from northfinder.host.errors import HostConfigError, HostError, QualityError
 from northfinder.host.heading import (
     MIN_MU_SEPARATION_DEG,
     MultiPositionSolution,
     solve_multi_position,
     solve_two_position,
 )
+from northfinder.host.plan import Plan
+
+__all__ = [
+    "BAD_BITS",
+    "MAX_ENCODER_SPAN_DEG",
+    "MAX_SETTLE_S",
+    "METHOD_CHOICES",
+    "WINDOW_RANGE_S",
+    "FindResult",
+    "Plan",
+    "PositionWindow",
+    "Progress",
+    "QualityError",
+    "base_attitude",
+    "batch_sem",
+    "check_plan_for_device",
+    "extra_settle_s",
+    "find_north",
+    "solve_windows",
+    "summarise_window",
+]
 
 #: Largest span of the encoder during a window before the window counts as moved, deg.
 MAX_ENCODER_SPAN_DEG = 0.01
 #: Batches used to estimate the standard error of a window mean (robust to correlated noise).
 N_BATCHES = 20
 #: Validity bits that make a sample unusable for north finding (protocol.md 4.5).
-BAD_BITS = (
-    Validity.TABLE_MOVING
-    | Validity.TABLE_SETTLING
-    | Validity.GYRO_SATURATED
-    | Validity.ACCEL_SATURATED
-    | Validity.WARMING_UP
-    | Validity.FAULT
-)
+BAD_BITS = VALIDITY_UNFIT
+#: Solvers the procedure offers (a plan's ``pairwise`` is for studies: it gives no one heading).
 METHOD_CHOICES = ("auto", "two-position", "least-squares")
-
-
-class QualityError(HostError):
-    """A window is unusable: the table moved, samples are flagged bad, or data are missing."""
+#: Window and settle-time limits of a run on a device, s.
+WINDOW_RANGE_S = (0.5, 3600.0)
+MAX_SETTLE_S = 600.0
 
 
 class WindowLike(Protocol):
-    gyro_dph: NDArray[np.float64]
-    accel_mps2: NDArray[np.float64]
-    table_deg: NDArray[np.float64]
-    validity: NDArray[np.uint8]
-    counter: NDArray[np.int64]
-    missing: int
+    """What the procedure reads from a window (a live one or a recorded one)."""
+
+    @property
+    def gyro_dph(self) -> NDArray[np.float64]: ...
+    @property
+    def accel_mps2(self) -> NDArray[np.float64]: ...
+    @property
+    def table_deg(self) -> NDArray[np.float64]: ...
+    @property
+    def validity(self) -> NDArray[np.uint8]: ...
+    @property
+    def counter(self) -> NDArray[np.int64]: ...
+    @property
+    def missing(self) -> int: ...
 
 
 class DeviceLike(Protocol):
@@ -62,62 +90,40 @@ class DeviceLike(Protocol):
     def rotate_to(
         self, angle_deg: float, *, wait: bool = True, timeout: float | None = None
     ) -> Any: ...
-    def acquire(self, seconds: float, *, on_gap: str = "raise") -> WindowLike: ...
+    def acquire(
+        self, seconds: float, *, on_gap: Literal["raise", "report"] = "raise"
+    ) -> WindowLike: ...
     def stop_streaming(self) -> None: ...
 
 
-@dataclass(frozen=True)
-class Plan:
-    """What to measure: table angles (any, deg), window length and extra settle time (s).
+def check_plan_for_device(plan: Plan) -> None:
+    """Refuse what a run on a device cannot do (the plan itself is already valid).
 
-    ``settle_s`` is waited after the device reports READY (the device has its own settle time);
-    ``denoise`` names a method of :data:`northfinder.host.denoise.METHODS`; ``method`` picks the solver:
-    ``two-position`` (seed 000, exactly two positions), ``least-squares`` (any number), or ``auto``.
+    Raises
+    ------
+    HostConfigError
+        Window outside :data:`WINDOW_RANGE_S`, settle beyond :data:`MAX_SETTLE_S`, or a method
+        other than :data:`METHOD_CHOICES` (``pairwise`` gives no single heading).
     """
+    lo, hi = WINDOW_RANGE_S
+    if not lo <= plan.window_s <= hi:
+        raise HostConfigError(f"window: must be {lo:g} to {hi:g} s, got {plan.window_s}")
+    if plan.settle_s is not None and plan.settle_s > MAX_SETTLE_S:
+        raise HostConfigError(f"settle: must be 0 to {MAX_SETTLE_S:g} s, got {plan.settle_s}")
+    _check_method(plan)
 
-    positions_deg: tuple[float, ...] = (0.0, 180.0)
-    window_s: float = 10.0
-    settle_s: float = 0.0
-    denoise: str = "none"
-    method: str = "auto"
 
-    def __post_init__(self) -> None:
-        if len(self.positions_deg) < 2:
-            raise HostConfigError(
-                f"positions: need at least two table angles, got {list(self.positions_deg)}"
-            )
-        for p in self.positions_deg:
-            if not math.isfinite(p):
-                raise HostConfigError(f"positions: {p!r} is not a finite angle")
-        wrapped = [p % 360.0 for p in self.positions_deg]
-        spread = max(
-            min(abs(a - b) % 360.0, 360.0 - abs(a - b) % 360.0) for a in wrapped for b in wrapped
+def _check_method(plan: Plan) -> None:
+    if plan.method not in METHOD_CHOICES:
+        raise HostConfigError(
+            f"method: {plan.method!r} gives no single heading; choose one of "
+            f"{', '.join(METHOD_CHOICES)}"
         )
-        if spread < MIN_MU_SEPARATION_DEG:
-            raise HostConfigError(
-                f"positions: {list(self.positions_deg)} lie within {MIN_MU_SEPARATION_DEG} deg of each "
-                "other; the Earth rate differences vanish and no heading can be found"
-            )
-        if not (math.isfinite(self.window_s) and 0.5 <= self.window_s <= 3600):
-            raise HostConfigError(f"window: must be 0.5 to 3600 s, got {self.window_s}")
-        if not (math.isfinite(self.settle_s) and 0 <= self.settle_s <= 600):
-            raise HostConfigError(f"settle: must be 0 to 600 s, got {self.settle_s}")
-        if self.denoise not in METHODS:
-            raise HostConfigError(
-                f"denoise: unknown method {self.denoise!r}; choose from {', '.join(METHODS)}"
-            )
-        if self.method not in METHOD_CHOICES:
-            raise HostConfigError(
-                f"method: unknown {self.method!r}; choose from {', '.join(METHOD_CHOICES)}"
-            )
-        if self.method == "two-position" and len(self.positions_deg) != 2:
-            raise HostConfigError("method two-position needs exactly two positions")
 
-    @property
-    def solver(self) -> str:
-        if self.method == "auto":
-            return "two-position" if len(self.positions_deg) == 2 else "least-squares"
-        return self.method
+
+def extra_settle_s(plan: Plan, device_settle_s: float) -> float:
+    """What the procedure waits after READY: the rest of the plan's settle time, s."""
+    return 0.0 if plan.settle_s is None else max(0.0, plan.settle_s - device_settle_s)
 
 
 @dataclass(frozen=True)
@@ -204,10 +210,21 @@ def batch_sem(x: NDArray[np.float64], n_batches: int = N_BATCHES) -> NDArray[np.
     return np.std(means, axis=0, ddof=1) / math.sqrt(n_batches)
 
 
+def _triad(v: NDArray[np.float64]) -> tuple[float, float, float]:
+    x, y, z = (float(c) for c in v)
+    return x, y, z
+
+
 def summarise_window(
-    window: WindowLike, commanded_deg: float, denoise_method: str
+    window: WindowLike,
+    commanded_deg: float,
+    denoise_method: str,
+    denoise_options: Mapping[str, Any] | None = None,
 ) -> PositionWindow:
     """Check one window and reduce it to means and standard errors.
+
+    ``denoise_method`` (with ``denoise_options``) is applied to the gyro and accelerometer
+    samples before their means; the raw gyro mean is kept beside.
 
     Raises
     ------
@@ -236,8 +253,9 @@ def summarise_window(
     encoder = float(np.mean(unwrapped)) % 360.0
     gyro = np.asarray(window.gyro_dph, dtype=float)
     accel = np.asarray(window.accel_mps2, dtype=float)
-    clean_g = denoise(gyro, denoise_method, axis=0) if denoise_method != "none" else gyro
-    clean_a = denoise(accel, denoise_method, axis=0) if denoise_method != "none" else accel
+    opts = dict(denoise_options or {})
+    clean_g = denoise(gyro, denoise_method, axis=0, **opts) if denoise_method != "none" else gyro
+    clean_a = denoise(accel, denoise_method, axis=0, **opts) if denoise_method != "none" else accel
     med = np.median(gyro, axis=0)
     mad = 1.4826 * np.median(np.abs(gyro - med), axis=0)
     outliers = int(np.sum(np.any(np.abs(gyro - med) > 8.0 * np.maximum(mad, 1e-12), axis=1)))
@@ -250,11 +268,11 @@ def summarise_window(
         commanded_deg=float(commanded_deg),
         encoder_deg=encoder,
         samples=n,
-        gyro_dph=tuple(float(v) for v in clean_g.mean(axis=0)),  # type: ignore[arg-type]
-        gyro_raw_dph=tuple(float(v) for v in gyro.mean(axis=0)),  # type: ignore[arg-type]
-        gyro_sem_dph=tuple(float(v) for v in batch_sem(clean_g)),  # type: ignore[arg-type]
-        accel_mps2=tuple(float(v) for v in clean_a.mean(axis=0)),  # type: ignore[arg-type]
-        accel_sem_mps2=tuple(float(v) for v in batch_sem(clean_a)),  # type: ignore[arg-type]
+        gyro_dph=_triad(clean_g.mean(axis=0)),
+        gyro_raw_dph=_triad(gyro.mean(axis=0)),
+        gyro_sem_dph=_triad(batch_sem(clean_g)),
+        accel_mps2=_triad(clean_a.mean(axis=0)),
+        accel_sem_mps2=_triad(batch_sem(clean_a)),
         outliers=outliers,
         notes=tuple(notes),
     )
@@ -297,7 +315,11 @@ def base_attitude(
 def solve_windows(
     windows: Sequence[PositionWindow], latitude_deg: float, plan: Plan
 ) -> tuple[float, float | None, float, float, tuple[float, ...]]:
-    """Heading, sigma, pitch, roll and pairwise azimuths from summarised windows."""
+    """Heading, sigma, pitch, roll and pairwise azimuths from summarised windows.
+
+    ``plan.solver`` picks the solver (``pairwise`` is refused: it gives no single heading).
+    """
+    _check_method(plan)
     mu = np.array([w.encoder_deg for w in windows])
     gyro = np.array([w.gyro_dph for w in windows])
     accel = np.array([w.accel_mps2 for w in windows])
@@ -341,32 +363,52 @@ def find_north(
     warmup_timeout_s: float = 600.0,
     progress: Callable[[Progress], None] | None = None,
     sleep: Callable[[float], None] = time.sleep,
+    clock: Callable[[], float] = time.monotonic,
 ) -> tuple[FindResult, list[Any]]:
     """Run the plan on ``device`` and solve; return the result and the raw windows.
+
+    Parameters
+    ----------
+    device : DeviceLike
+        The instrument (a driver :class:`~northfinder.driver.device.Device` or alike).
+    plan : Plan
+        Positions, window, settle time, denoising and solver (``auto``, ``two-position`` or
+        ``least-squares``).
+    latitude_deg : float
+        Latitude of the site, deg.
+    warmup_timeout_s : float
+        Longest wait for READY, s (by ``clock``).
+    progress : callable, optional
+        Called with a :class:`Progress` at every phase.
+    sleep, clock : callable
+        How to wait and what time it is, s (default: the wall clock).
 
     Raises
     ------
     HostError
-        Warm-up did not end in time, the device is in FAULT, or a window failed its checks.
+        Warm-up did not end in time, the device is in FAULT, a window failed its checks, or the
+        plan asks what a device cannot do (:func:`check_plan_for_device`).
     DriverError
         From the driver: refusals, timeouts, lost link, stream gaps.
     """
+    check_plan_for_device(plan)
     report = progress or (lambda p: None)
     n = len(plan.positions_deg)
     rate_dps = device.get_config(ConfigKey.TABLE_MAX_RATE_MDPS) / 1000.0
     settle_dev = device.get_config(ConfigKey.SETTLE_TIME_MS) / 1000.0
+    extra = extra_settle_s(plan, settle_dev)
 
     def seconds_left(i: int, here: float | None) -> float:
         left, angle = 0.0, here
         for p in plan.positions_deg[i:]:
             if angle is not None:
-                d = abs((p - angle + 180.0) % 360.0 - 180.0)
+                d = abs(shortest_delta_deg(angle, p))
                 left += d / max(rate_dps, 1e-6) + settle_dev
             angle = p
-            left += plan.settle_s + plan.window_s
+            left += extra + plan.window_s
         return left
 
-    deadline = time.monotonic() + warmup_timeout_s
+    deadline = clock() + warmup_timeout_s
     while True:
         status = device.status()
         state = _state_name(status)
@@ -376,7 +418,7 @@ def find_north(
             raise HostError(
                 f"the device is in FAULT (faults {getattr(status, 'faults', '?')!r}); reset it"
             )
-        if time.monotonic() > deadline:
+        if clock() > deadline:
             raise HostError(
                 f"the device did not become READY within {warmup_timeout_s:g} s (state {state})"
             )
@@ -386,19 +428,20 @@ def find_north(
     raw: list[Any] = []
     notes: list[str] = []
     here = _angle(device.status())
+    options = dict(plan.denoise_options)
     for i, target in enumerate(plan.positions_deg):
         report(Progress("rotate", i + 1, n, here, seconds_left(i, here)))
         device.rotate_to(target % 360.0, wait=True)
-        if plan.settle_s:
+        if extra:
             report(
                 Progress("settle", i + 1, n, target % 360.0, seconds_left(i, None) - plan.window_s)
             )
-            sleep(plan.settle_s)
-        report(Progress("acquire", i + 1, n, target % 360.0, seconds_left(i, None) - plan.settle_s))
+            sleep(extra)
+        report(Progress("acquire", i + 1, n, target % 360.0, seconds_left(i, None) - extra))
         window = device.acquire(plan.window_s, on_gap="raise")
         device.stop_streaming()
         raw.append(window)
-        summary = summarise_window(window, target, plan.denoise)
+        summary = summarise_window(window, target, plan.denoise, options)
         windows.append(summary)
         notes += [f"position {i + 1}: {note}" for note in summary.notes]
         here = summary.encoder_deg

@@ -38,7 +38,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.host.errors import HostError
+from northfinder.host.errors import RecordingError
+
+__all__ = [
+    "COLUMNS",
+    "FORMAT",
+    "SAMPLE_ARRAYS",
+    "VERSION",
+    "RecordedWindow",
+    "Recording",
+    "RecordingError",
+]
 
 FORMAT = "northfinder-recording"
 VERSION = 1
@@ -69,10 +79,6 @@ SAMPLE_ARRAYS = (
     "temperature_c",
     "validity",
 )
-
-
-class RecordingError(HostError):
-    """A recording cannot be read or written; the message names the file and what is wrong."""
 
 
 @dataclass(frozen=True)
@@ -117,8 +123,11 @@ class Recording:
         meta = {"format": FORMAT, "version": VERSION, **self.meta}
         try:
             if p.suffix == ".npz":
-                arrays = _concat(self.windows)
-                np.savez_compressed(p, meta_json=np.array(json.dumps(meta)), **arrays)
+                payload: dict[str, Any] = {
+                    "meta_json": np.array(json.dumps(meta)),
+                    **_concat(self.windows),
+                }
+                np.savez_compressed(p, **payload)
             elif p.suffix == ".csv":
                 with p.open("w", newline="") as fh:
                     for k, v in meta.items():

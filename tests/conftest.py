@@ -17,20 +17,15 @@ device afterwards).
 
 from __future__ import annotations
 
-import itertools
+import contextlib
 import os
-import queue
-import signal
-import subprocess
 import sys
-import threading
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import pytest
+from simprocess import sim_process
 
 SPEED = 5.0
 """Simulated seconds per wall second for the simulators of the driver tests."""
@@ -42,7 +37,6 @@ statuses and replies queue behind samples until the driver declares the link los
 keeps the margin."""
 LINKS = ("virtual", "serial-pty", "slcan-pty", "socketcan")
 VCAN = "vcan0"
-_channels = itertools.count()
 
 
 @dataclass
@@ -64,65 +58,20 @@ class SimHandle:
 
 
 def _start_in_process(speed: float) -> SimHandle:
-    import can
-
-    from northfinder.driver.device import Device
-    from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
-    from northfinder.firmware_sim.firmware import Firmware
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.firmware_sim.links import CanLink
-    from northfinder.firmware_sim.runner import RealTimeClock, Runner
-    from northfinder.firmware_sim.sensors import load_spec
+    from northfinder.host.embed import SimulatedInstrument
 
-    channel = f"northfinder-test-{os.getpid()}-{next(_channels)}"
-    dev_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-    firmware = Firmware(
-        load_spec("paper-rlg"),
+    sim = SimulatedInstrument(
+        "paper-rlg",
         Truth(azimuth_deg=30.0, latitude_deg=34.0),
-        np.random.default_rng(3),
+        seed=3,
+        speed=speed,
         warmup_s=0.0,
-    )
-    runner = Runner(firmware, CanLink(dev_bus, firmware, 1), RealTimeClock(speed))
-    stop = threading.Event()
-    thread = threading.Thread(target=runner.run, args=(stop,), name="simulator", daemon=True)
-    thread.start()
-    server = ControlServer(Controller(runner), "127.0.0.1:0").start()
-    control = ControlClient(server.address)
-
-    def stop_runner() -> None:
-        stop.set()
-        thread.join(5.0)
-
-    handle = SimHandle(
-        "virtual",
-        lambda: Device.open_can("virtual", channel, receive_own_messages=False),
-        control,
-        speed,
-    )
-    handle.closers += [dev_bus.shutdown, stop_runner, server.close, control.close]
+        control="127.0.0.1:0",
+    ).start()
+    handle = SimHandle("virtual", sim.open_device, sim.control, speed)
+    handle.closers.append(sim.close)
     return handle
-
-
-def _read_facts(proc: subprocess.Popen[str], wanted: set[str], timeout: float) -> dict[str, str]:
-    """The simulator's ``key value`` lines on stdout, until ``wanted`` are all seen."""
-    lines: queue.SimpleQueue[str] = queue.SimpleQueue()
-    assert proc.stdout is not None
-    stdout = proc.stdout
-    # A thread, not select(): the text wrapper may hold several lines already read from the pipe.
-    threading.Thread(target=lambda: [lines.put(x) for x in stdout], daemon=True).start()
-    facts: dict[str, str] = {}
-    deadline = time.monotonic() + timeout
-    while not wanted <= set(facts):
-        try:
-            line = lines.get(timeout=max(0.0, deadline - time.monotonic()))
-        except queue.Empty:
-            raise RuntimeError(
-                f"the simulator did not print {sorted(wanted)} in {timeout} s "
-                f"(exit status {proc.poll()})"
-            ) from None
-        key, _, value = line.strip().partition(" ")
-        facts[key] = value
-    return facts
 
 
 def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
@@ -134,30 +83,15 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
         "slcan-pty": ["--slcan-pty"],
         "socketcan": ["-i", "socketcan", "-c", VCAN],
     }[kind]
-    cmd = [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())", "sim"]
-    cmd += [*link_args, "--warmup", "0", "--seed", str(seed), "--speed", str(speed)]
-    cmd += ["--azimuth", "30", "--control", "127.0.0.1:0"]
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, bufsize=1
-    )
-
-    def stop_process() -> None:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-        if proc.stdout is not None:
-            proc.stdout.close()
-
+    args = [*link_args, "--warmup", "0", "--seed", str(seed), "--speed", str(speed)]
+    args += ["--azimuth", "30", "--control", "127.0.0.1:0"]
+    wanted = {"control"} if kind == "socketcan" else {"pty", "control"}
+    process = contextlib.ExitStack()
     try:
-        wanted = {"control"} if kind == "socketcan" else {"pty", "control"}
-        facts = _read_facts(proc, wanted, 20.0)
+        facts = process.enter_context(sim_process(*args, wanted=wanted, check_exit=False))
         control = ControlClient(facts["control"])
     except BaseException:
-        stop_process()
+        process.close()
         raise
     if kind == "serial-pty":
         path = facts["pty"]
@@ -168,7 +102,7 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
     else:
         opener = lambda: Device.open_can("socketcan", VCAN)  # noqa: E731
     handle = SimHandle(kind, opener, control, speed)
-    handle.closers += [stop_process, control.close]
+    handle.closers += [process.close, control.close]
     return handle
 
 

@@ -72,7 +72,7 @@ def test_coarse_alignment_matches_the_project_conventions() -> None:
         assert abs(angle_error_deg(az_c, az)) < 1e-9
         assert_allclose([pitch_c, roll_c], [pitch, roll], atol=1e-9)
         # C_b^n maps the body's specific force to (0, 0, g) in East-North-Up.
-        assert_allclose(c_bn @ f_b, [0.0, 0.0, np.linalg.norm(f_b)], atol=1e-12)
+        assert_allclose(c_bn @ f_b, [0.0, 0.0, float(np.linalg.norm(f_b))], atol=1e-12)
         assert_allclose(c_bn @ c_bn.T, np.eye(3), atol=1e-12)
 
 

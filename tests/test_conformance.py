@@ -14,36 +14,50 @@ show what was measured.
 
 from __future__ import annotations
 
-import signal
-import subprocess
-import sys
 import threading
 import time
-import uuid
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import can
-import numpy as np
 import pytest
+from simprocess import sim_process
 
+from northfinder.driver.conformance import (
+    CHECKS,
+    CanRawLink,
+    SuiteOptions,
+    format_report,
+    run_suite,
+)
+from northfinder.driver.conformance.checks import refusals
+from northfinder.driver.conformance.checks.refusals import Case, Raw, send_cases
+from northfinder.driver.conformance.core import Ctx
+from northfinder.driver.conformance.session import Answer
+from northfinder.driver.protocol.constants import (
+    CONFIG_LIMITS,
+    ConfigKey,
+    DeviceState,
+    Opcode,
+    Result,
+)
+from northfinder.driver.protocol.messages import Home, Reply, RotateBy, SetConfig
 from northfinder.firmware_sim.control import ControlClient
-from northfinder.firmware_sim.firmware import Firmware
 from northfinder.firmware_sim.imu import Truth
-from northfinder.firmware_sim.links import CanLink
-from northfinder.firmware_sim.runner import RealTimeClock, Runner
-from northfinder.firmware_sim.sensors import load_spec
+from northfinder.firmware_sim.runner import Runner
+from northfinder.firmware_sim.sensors import SensorSpec, load_spec
 from northfinder.host.cli import main
-from northfinder.host.conformance import CHECKS, CanRawLink, SuiteOptions, format_report, run_suite
+from northfinder.host.embed import SimulatedInstrument
 
 SPEED = 2.0
 #: Host-side margins for a simulator that shares a loaded machine with other work: its process can
 #: be descheduled for tens of milliseconds, which the suite (rightly) sees as the unit being late.
 #: The CLI defaults (5 ms jitter margin, 100 ms reply limit, 0.5 s settle margin) are for instruments.
-MARGINS = {
+MARGINS: dict[str, Any] = {
     "jitter_margin_ms": 60.0,
     "reply_limit_ms": 400.0,
     "settle_margin_s": 1.0,
@@ -72,7 +86,7 @@ SKIPS = {
 }
 
 
-def fast_spec():
+def fast_spec() -> SensorSpec:
     spec = load_spec("nav-fog")
     return replace(spec, table=replace(spec.table, **FAST_TABLE))
 
@@ -91,48 +105,21 @@ def sensor_file(tmp_path_factory) -> Path:
 @contextmanager
 def virtual_unit(speed: float = SPEED) -> Iterator[tuple[can.BusABC, Runner]]:
     """The simulated unit on a private virtual CAN channel, run in a thread; yields the host's bus."""
-    channel = f"conformance-{uuid.uuid4().hex}"
-    device_bus = can.Bus(interface="virtual", channel=channel)
-    host_bus = can.Bus(interface="virtual", channel=channel)
-    fw = Firmware(fast_spec(), Truth(30.0, 34.0, 0.0, 0.0), np.random.default_rng(1), warmup_s=0.0)
-    runner = Runner(fw, CanLink(device_bus, fw), RealTimeClock(speed))
-    stop = threading.Event()
-    thread = threading.Thread(target=runner.run, args=(stop,), daemon=True)
-    thread.start()
-    try:
-        yield host_bus, runner
-        assert thread.is_alive(), "the simulator's thread stopped (see its traceback above)"
-    finally:
-        stop.set()
-        thread.join(5)
-        device_bus.shutdown()
-        host_bus.shutdown()
+    truth = Truth(30.0, 34.0, 0.0, 0.0)
+    with (
+        SimulatedInstrument(fast_spec(), truth, seed=1, speed=speed, warmup_s=0.0) as sim,
+        sim.open_bus() as host_bus,
+    ):
+        yield host_bus, sim.runner
+        sim.check()  # the simulator's thread must still run (its traceback shows above if not)
 
 
 @contextmanager
 def simulator(link: str, sensor: Path, seed: int = 3) -> Iterator[tuple[str, str]]:
     """``northfinder sim`` on a new pty at ``SPEED``; yields (pty path, control address)."""
-    cmd = [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())", "sim"]
-    cmd += [link, "--warmup", "0", "--seed", str(seed), "--speed", str(SPEED)]
-    cmd += ["--sensor", str(sensor), "--control", "127.0.0.1:0"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        facts = {}
-        while len(facts) < 2:
-            line = proc.stdout.readline()
-            if not line:
-                raise RuntimeError(f"simulator exited: {proc.stderr.read()}")
-            key, _, value = line.strip().partition(" ")
-            if key in ("pty", "control"):
-                facts[key] = value
+    args = [link, "--warmup", "0", "--seed", str(seed), "--speed", str(SPEED)]
+    with sim_process(*args, "--sensor", str(sensor), "--control", "127.0.0.1:0") as facts:
         yield facts["pty"], facts["control"]
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            assert proc.wait(10) == 0, proc.stderr.read()
-        finally:
-            if proc.poll() is None:
-                proc.kill()
 
 
 #: Checks judged on the host's clock. When the machine is loaded by other work the simulator's
@@ -181,7 +168,9 @@ def test_suite_passes_on_virtual_can():
         text = format_report(report)
         again = timing_retry({r.name for r in report.results if r.outcome == "fail"})
         if again:
-            retry = run_suite(CanRawLink(bus, node_id=1), replace(options, only=(again,)))
+            retry = run_suite(
+                CanRawLink(bus, node_id=1), replace(options, only=tuple(again.split(",")))
+            )
             assert retry.passed, f"{text}\n\nonce more:\n{format_report(retry)}"
         else:
             assert report.passed, text
@@ -205,12 +194,12 @@ def test_suite_passes_on_serial_pty_and_writes_junit(sensor_file, tmp_path, caps
     assert "serial link" in out
     suite = ET.parse(junit).getroot()
     assert suite.tag == "testsuite"
-    assert int(suite.get("failures")) == len(failed_names(out))
+    assert int(suite.get("failures", "-1")) == len(failed_names(out))
     cases = suite.findall("testcase")
     assert [c.get("name") for c in cases] == [c.name for c in CHECKS]
     skipped = {c.get("name") for c in cases if c.find("skipped") is not None}
     assert skipped == SKIPS["serial"]
-    assert int(suite.get("skipped")) == len(skipped)
+    assert int(suite.get("skipped", "-1")) == len(skipped)
     failures = {c.get("name") for c in cases if c.find("failure") is not None}
     assert failures == failed_names(out)
 
@@ -270,9 +259,9 @@ def test_skipped_counter_fails_stream_counters(sensor_file, tmp_path, capsys):
     assert "FAIL" in row
     assert "5 tick(s) missing" in out
     failures = {
-        c.get("name"): c.find("failure").get("message")
+        c.get("name"): failure.get("message", "")
         for c in ET.parse(junit).getroot().findall("testcase")
-        if c.find("failure") is not None
+        if (failure := c.find("failure")) is not None
     }
     assert "5 tick(s) missing" in failures["stream.counters"]
     assert set(failures) <= {"stream.counters"} | TIMING
@@ -308,3 +297,74 @@ def test_cli_lists_checks_and_refuses_bad_arguments(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["conformance", "--serial", "/dev/null", "--time-scale", "-1"])
     assert exc.value.code == 2
+
+
+class ScriptedSession:
+    """A session whose unit answers from a script: (result, state when answered) per request."""
+
+    def __init__(self, script: list[tuple[Result, DeviceState]]) -> None:
+        self.script = list(script)
+        self.states: dict[int, DeviceState] = {}
+        self.unsolicited: list = []
+        self.reply_wait_s = 1.0
+        self.seq = 0
+
+    def raw(self, opcode: int, args: bytes = b"") -> bytes:
+        self.seq += 1
+        return bytes((self.seq & 0xFF, opcode)) + args
+
+    def request(self, command, wait=None) -> Answer:
+        payload = command if isinstance(command, bytes) else command.encode()
+        result, state = self.script.pop(0)
+        a = Answer(payload, 0.0, Reply(payload[0], payload[1], result), 0.001, 1)
+        self.states[id(a)] = state
+        return a
+
+    def state_when_answered(self, a: Answer) -> DeviceState:
+        return self.states[id(a)]
+
+
+def test_refusal_rows_are_judged_only_in_the_state_they_need():
+    cases = [
+        Case("BUSY while rotating", RotateBy(0, 1), Result.BUSY, in_state=True),
+        Case("BUSY after the move", Home(0), Result.BUSY, in_state=True),
+        Case("wrong while rotating", RotateBy(0, 2), Result.BUSY, in_state=True),
+        Case("state-free row after the move", Raw(0x7F), Result.UNKNOWN_COMMAND),
+    ]
+    session = ScriptedSession(
+        [
+            (Result.BUSY, DeviceState.ROTATING),  # right
+            (Result.OK, DeviceState.READY),  # the move had ended: noted, not judged
+            (Result.OUT_OF_RANGE, DeviceState.ROTATING),  # wrong in the state: a problem
+            (Result.BAD_ARGUMENT, DeviceState.READY),  # wrong whatever the state: a problem
+        ]
+    )
+    ctx = Ctx(session, SuiteOptions(), {})  # type: ignore[arg-type]
+    tally = send_cases(ctx, cases, state=DeviceState.ROTATING)
+    assert (tally.judged, tally.refused, tally.answered_in_state) == (3, 3, 2)
+    assert ctx.notes == ["BUSY after the move: the move had ended"]
+    assert len(ctx.problems) == 2
+    assert "wrong while rotating: answered OUT_OF_RANGE (3), expected BUSY (1)" in ctx.problems
+    assert ctx.problems[1].startswith("state-free row after the move: answered BAD_ARGUMENT")
+
+
+def test_refusal_tables_cover_the_protocol():
+    with_args = {
+        Opcode.ROTATE_TO: 5,
+        Opcode.ROTATE_BY: 4,
+        Opcode.GET_CONFIG: 1,
+        Opcode.SET_CONFIG: 5,
+    }
+    # one byte too few (where there are arguments) and one too many, for every opcode
+    assert len(refusals.WRONG_LENGTH) == 2 * len(with_args) + (len(Opcode) - len(with_args))
+    for case in refusals.WRONG_LENGTH:
+        assert isinstance(case.send, Raw) and case.expected == Result.BAD_ARGUMENT
+        n = with_args.get(Opcode(case.send.opcode), 0)
+        assert len(case.send.args) in (n - 1, n + 1)
+    # every writable key below and above its range (0 has no value below), and 3 sample rates
+    out_of_range = [c for c in refusals.OUT_OF_RANGE if isinstance(c.send, SetConfig)]
+    assert len(out_of_range) == 3 + sum(
+        1 + (lo > 0) for k, (lo, _) in CONFIG_LIMITS.items() if k != ConfigKey.SAMPLE_RATE_HZ
+    )
+    assert {c.name for c in CHECKS} >= {spec.name for spec in refusals.AT_REST}
+    assert len(refusals.READ_ONLY) == 2 * sum(k.read_only for k in ConfigKey)

@@ -13,14 +13,20 @@ import can
 import numpy as np
 import pytest
 
+import northfinder.driver.protocol.errors
+from northfinder.driver.conformance.errors import ConformanceError
 from northfinder.driver.device import Device, Window
 from northfinder.driver.errors import (
+    ArgumentError,
     DeviceFault,
     DeviceRefused,
     DeviceReset,
     DriverError,
+    EmptyWindow,
+    EncodeError,
     LinkError,
     LinkLost,
+    ProtocolError,
     ReplyTimeout,
     StreamGap,
 )
@@ -334,6 +340,8 @@ def test_bad_arguments_name_the_choices():
         Device._key("colour")
     with pytest.raises(ValueError, match="shortest"):
         Device._direction("sideways")
+    with pytest.raises(ArgumentError, match="shortest"):  # the driver's own error, a ValueError
+        Device._direction("sideways")
     with pytest.raises(LinkError, match="serial port"):
         Device.open_serial("/dev/nonexistent-northfinder")
 
@@ -341,6 +349,10 @@ def test_bad_arguments_name_the_choices():
 def test_errors_share_one_root():
     for exc in (DeviceRefused, ReplyTimeout, LinkLost, StreamGap, DeviceReset, DeviceFault):
         assert issubclass(exc, DriverError)
+    for other in (ArgumentError, EmptyWindow, ProtocolError, EncodeError, ConformanceError):
+        assert issubclass(other, DriverError)
+    # The codec's errors are defined beside the self-contained codec and re-exported.
+    assert ProtocolError is northfinder.driver.protocol.errors.ProtocolError
     err = DeviceRefused(Opcode.ROTATE_TO, Result.BUSY, Result.BUSY.meaning)
     assert err.result == Result.BUSY and err.meaning == Result.BUSY.meaning
 

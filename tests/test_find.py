@@ -11,7 +11,7 @@ import pytest
 
 from northfinder.driver.protocol.constants import Validity
 from northfinder.host.cli import main
-from northfinder.host.cli.find import ProgressLine
+from northfinder.host.cli.measure import ProgressLine
 from northfinder.host.errors import HostConfigError
 from northfinder.host.procedure import Plan, Progress, QualityError, summarise_window
 from northfinder.host.recording import Recording

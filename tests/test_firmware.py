@@ -192,8 +192,8 @@ def test_boot_accepts_only_queries_and_reset_and_checks_run_in_protocol_order():
     assert any(isinstance(m, Identify) for m in first)  # the device announces itself in BOOT
     for cmd in (StreamStart(1), SetConfig(2, ConfigKey.SAMPLE_RATE_HZ, 100), SelfTest(3), Stop(4)):
         assert ask(fw, cmd, 0.01)[0].result == Result.NOT_READY, cmd
-    for cmd in (RequestIdentify(5), GetStatus(6), GetConfig(7, ConfigKey.NODE_ID)):
-        assert ask(fw, cmd, 0.01)[0].ok, cmd
+    for query in (RequestIdentify(5), GetStatus(6), GetConfig(7, ConfigKey.NODE_ID)):
+        assert ask(fw, query, 0.01)[0].ok, query
     run(fw, 1.0)
     # state is checked before the argument range (protocol.md table 4.3)
     assert ask(fw, RotateTo(8, 400_000_000))[0].result == Result.NOT_READY

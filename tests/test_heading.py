@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
+from numpy.typing import ArrayLike
 
+from northfinder.driver.protocol.units import OMEGA_IE
 from northfinder.firmware_sim.earth import (
     alpha_from_azimuth,
     earth_rate_n,
@@ -25,13 +28,13 @@ from northfinder.host.errors import (
 )
 from northfinder.host.heading import (
     MAX_TILT_DEG,
-    PAPER_SWEEP,
-    PLANS,
     pairwise_azimuths,
     solve_multi_position,
     solve_two_position,
     two_position_bound_deg,
 )
+from northfinder.host.kernels import solve_least_squares_batch
+from northfinder.host.plan import PAPER_SWEEP, PLANS
 
 # The source paper's Table 1: mean outputs (mV) of the x and y gyros of the prototype at table
 # angles 0, 30, ..., 210 deg, seven repeated runs (rows), rounded to 1e-5 mV.
@@ -71,7 +74,7 @@ TABLE2_AZIMUTH = np.array(
 )
 
 
-def angle_error_deg(a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
+def angle_error_deg(a: ArrayLike, b: ArrayLike) -> np.ndarray:
     return (np.asarray(a) - np.asarray(b) + 180.0) % 360.0 - 180.0
 
 
@@ -181,6 +184,7 @@ def test_multi_position_closed_form_with_accelerometers() -> None:
             assert abs(angle_error_deg(sol.azimuth_deg, az)) < 1e-9
             assert_allclose([sol.pitch_deg, sol.roll_deg], [pitch, roll], atol=1e-9)
             assert_allclose(sol.gyro_bias, gyro_bias[:2], rtol=0.0, atol=1e-15)
+            assert sol.accel_bias is not None
             assert_allclose(sol.accel_bias, accel_bias[:2], rtol=0.0, atol=1e-9)
             assert_allclose(sol.gyro_residuals, 0.0, atol=1e-15)
 
@@ -218,7 +222,7 @@ def test_paper_table1_reproduces_table2() -> None:
     per axis; with the measured Earth-rate amplitude A that moves the angle by at most
     sqrt(2) 1e-5 / (2 A |sin(mu/2)|) rad (about 0.012 deg at mu = 30, 0.003 deg at 180).
     """
-    angles = [-a for a in PAPER_SWEEP.angles_deg]
+    angles = [-a for a in PAPER_SWEEP.positions_deg]
     computed = np.array(
         [
             [
@@ -243,10 +247,10 @@ def test_paper_table1_reproduces_table2() -> None:
 
 def test_paper_sweep_plan() -> None:
     assert PLANS["paper-30deg-sweep"] is PAPER_SWEEP
-    assert PAPER_SWEEP.angles_deg == (0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 180.0, 210.0)
+    assert PAPER_SWEEP.positions_deg == (0.0, 30.0, 60.0, 90.0, 120.0, 150.0, 180.0, 210.0)
     assert PAPER_SWEEP.pairs() == tuple((0, k) for k in range(1, 8))
     assert PAPER_SWEEP.pair_mu_deg() == (30.0, 60.0, 90.0, 120.0, 150.0, 180.0, 210.0)
-    gyro, accel = closed_form_means(33.0, 1.0, -2.0, 34.0, np.array(PAPER_SWEEP.angles_deg))
+    gyro, accel = closed_form_means(33.0, 1.0, -2.0, 34.0, np.array(PAPER_SWEEP.positions_deg))
     sols = pairwise_azimuths(gyro, PAPER_SWEEP, accel_means=accel, latitude_deg=34.0)
     assert len(sols) == 7
     assert_allclose([s.mu_deg for s in sols], PAPER_SWEEP.pair_mu_deg())
@@ -266,19 +270,27 @@ def test_two_position_sigma_equals_white_noise_bound(mu: float) -> None:
     window_sigma = arw / math.sqrt(total_s / 2.0)
     sol = solve_two_position(gyro[0], gyro[1], mu, gyro_noise=window_sigma)
     bound = two_position_bound_deg(arw_dpsh, total_s, mu, lat)
+    assert sol.sigma_deg is not None
     assert_allclose(sol.sigma_deg, bound, rtol=1e-9)
     # The example of the design notes: 2 x 10 s at 34 deg N, mu = 180 -> 0.093 deg.
     assert_allclose(two_position_bound_deg(0.0015, 20.0, 180.0, 34.0), 0.093, atol=1e-3)
     # Two positions through the least-squares fit give the same sigma.
     multi = solve_multi_position(gyro, [0.0, mu], latitude_deg=lat, gyro_noise=window_sigma)
+    assert multi.sigma_deg is not None
     assert_allclose(multi.sigma_deg, bound, rtol=1e-6)
 
 
 def test_accelerometer_noise_adds_to_sigma() -> None:
     gyro, accel = closed_form_means(10.0, 2.0, 3.0, 60.0, np.array([0.0, 90.0]))
-    kwargs = {"accel0": accel[0], "accel1": accel[1], "latitude_deg": 60.0, "gyro_noise": 1e-8}
+    kwargs: dict[str, Any] = {
+        "accel0": accel[0],
+        "accel1": accel[1],
+        "latitude_deg": 60.0,
+        "gyro_noise": 1e-8,
+    }
     quiet = solve_two_position(gyro[0], gyro[1], 90.0, **kwargs)
     noisy = solve_two_position(gyro[0], gyro[1], 90.0, accel_noise=1e-3, **kwargs)
+    assert noisy.sigma_deg is not None and quiet.sigma_deg is not None
     assert noisy.sigma_deg > quiet.sigma_deg > 0.0
 
 
@@ -397,7 +409,7 @@ def test_monte_carlo_predicted_sigmas_with_tilt_and_many_positions() -> None:
     gyro, accel = closed_form_means(az, pitch, roll, lat, np.array([0.0, 120.0]))
     g_noise = rng.normal(0.0, gyro_sigma, (runs, 2, 3))
     a_noise = rng.normal(0.0, accel_sigma, (runs, 2, 3))
-    kw = {"latitude_deg": lat, "gyro_noise": gyro_sigma, "accel_noise": accel_sigma}
+    kw: dict[str, Any] = {"latitude_deg": lat, "gyro_noise": gyro_sigma, "accel_noise": accel_sigma}
     sols = [
         solve_two_position(g[0], g[1], 120.0, accel0=a[0], accel1=a[1], **kw)
         for g, a in zip(gyro + g_noise, accel + a_noise, strict=True)
@@ -410,10 +422,36 @@ def test_monte_carlo_predicted_sigmas_with_tilt_and_many_positions() -> None:
     gyro, accel = closed_form_means(az, pitch, roll, lat, mus)
     g_noise = rng.normal(0.0, gyro_sigma, (runs, 4, 3))
     a_noise = rng.normal(0.0, accel_sigma, (runs, 4, 3))
-    sols = [
+    multi = [
         solve_multi_position(g, mus, accel_means=a, **kw)
         for g, a in zip(gyro + g_noise, accel + a_noise, strict=True)
     ]
-    errors = angle_error_deg([s.azimuth_deg for s in sols], az)
-    predicted = float(np.mean([s.sigma_deg for s in sols]))
+    errors = angle_error_deg([s.azimuth_deg for s in multi], az)
+    predicted = float(np.mean([s.sigma_deg for s in multi]))
     assert abs(errors.std() / predicted - 1.0) < 0.10
+
+
+def test_least_squares_finds_the_minimum_when_noise_exceeds_the_earth_rate() -> None:
+    """Gyro noise twice the horizontal Earth rate (a MEMS gyro): every fit converges, to the
+    least-squares minimum over all headings, and the scalar and vectorised solvers agree. (Plain
+    Gauss-Newton oscillates about the minimum for some of these runs.)"""
+    rng = np.random.default_rng(42)
+    lat, runs = 34.0, 300
+    mus = np.array([0.0, 120.0, 240.0])
+    omega_h = OMEGA_IE * math.cos(math.radians(lat))
+    gyro, _ = closed_form_means(10.0, 0.0, 0.0, lat, mus)
+    means = gyro[None, :, :2] + rng.normal(0.0, 2.0 * omega_h, (runs, 3, 2))
+    batch = solve_least_squares_batch(means, mus, latitude_deg=lat)
+    assert not np.isnan(batch).any()
+    # The profiled cost (biases fitted for each heading) on a fine grid of headings.
+    alphas = np.radians(np.arange(0.0, 360.0, 0.01))
+    h = omega_h * np.stack([np.cos(alphas), -np.sin(alphas)], -1)  # level: h(alpha)
+    model = np.einsum("nij,aj->ani", mat_table(np.radians(mus))[:, :2, :2], h)  # (A, N, 2)
+    for r in range(runs):
+        res = means[r][None] - model
+        res -= res.mean(axis=1, keepdims=True)  # the best biases for each heading
+        cost = np.sum(res**2, axis=(1, 2))
+        best = np.degrees(-alphas[np.argmin(cost)]) % 360.0
+        assert abs(angle_error_deg(batch[r], best)) < 0.02
+        scalar = solve_multi_position(means[r], mus, latitude_deg=lat)
+        assert abs(angle_error_deg(scalar.azimuth_deg, batch[r])) < 1e-9

@@ -8,7 +8,18 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from northfinder.driver.protocol.motion import move_time_s
+from northfinder.driver.protocol.units import normal_gravity
+from northfinder.firmware_sim.batch import plan_timeline, simulate_windows
 from northfinder.firmware_sim.earth import OMEGA_IE, check_latitude, gravity
+from northfinder.firmware_sim.error_terms import (
+    FLICKER_STD,
+    FLICKER_TAUS_S,
+    FLICKER_VARIANCE,
+    ErrorTerms,
+    quantise_carry,
+    temperature_c,
+)
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.imu import Instrument, SampleBlock, Truth
 from northfinder.firmware_sim.sensors import (
@@ -22,7 +33,7 @@ from northfinder.firmware_sim.sensors import (
     preset_names,
     spec_from_dict,
 )
-from northfinder.firmware_sim.turntable import TableBusyError, trapezoid_duration
+from northfinder.firmware_sim.turntable import TableBusyError
 from northfinder.host.allan import allan_deviation
 
 DPH = math.pi / 180 / 3600
@@ -74,6 +85,7 @@ def test_somigliana_and_earth_rate():
     assert gravity(0.0) == pytest.approx(9.7803253359, abs=1e-10)
     assert gravity(math.pi / 2) == pytest.approx(9.8321849378, abs=1e-9)
     assert OMEGA_IE == 7.292115e-5
+    assert gravity is normal_gravity  # one definition of normal gravity
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -141,7 +153,7 @@ def test_table_rate_appears_in_the_gyro_and_the_profile_respects_the_limits():
     ins.advance(1.0)
     start = ins.time_s
     end = ins.table.move_by(start, 100.0)
-    assert end - start == pytest.approx(trapezoid_duration(100.0, 8.0, 16.0))
+    assert end - start == pytest.approx(move_time_s(100.0, 8.0, 16.0))
     assert end - start == pytest.approx(8.0 / 16.0 + 100.0 / 8.0)
     block = ins.advance(end - start + 1.0)
     earth_z = paper_gyro(0.0, 0.0, 0.0, 34.0, 0.0)[2]
@@ -273,22 +285,21 @@ def test_identical_seeds_identical_output_and_blocks_equal_steps():
 
 def test_allan_deviation_reads_the_configured_arw_at_one_second():
     arw = 0.0015
-    ins = Instrument(SensorSpec(gyro=GyroSpec(arw_dpsh=arw)), Truth(), np.random.default_rng(7))
-    rate_dph = ins.generate(200 * 3600).gyro_rps / DPH
+    rate_dph = gyro_hours_dph(GyroSpec(arw_dpsh=arw), seed=7, hours=1.0, fs=200.0)
     _, adev = allan_deviation(rate_dph, 200.0, [1.0])
     # sigma_A(1 s) = N / sqrt(1 s); N in deg/h/sqrt(Hz) = ARW deg/sqrt(h) * 60
     assert_allclose(adev[0], arw * 60.0, rtol=0.05)
 
 
+def gyro_hours_dph(gyro: GyroSpec, seed: int, hours: float = 4.0, fs: float = 20.0):
+    """``hours`` of gyro output of a still, level instrument at ``fs``, deg/h."""
+    ins = Instrument(SensorSpec(gyro=gyro), Truth(), np.random.default_rng(seed), sample_rate_hz=fs)
+    return ins.generate(round(fs * 3600 * hours)).gyro_rps / DPH
+
+
 def test_allan_floor_matches_the_bias_instability():
     b = 0.05
-    ins = Instrument(
-        SensorSpec(gyro=GyroSpec(bias_instability_dph=b)),
-        Truth(),
-        np.random.default_rng(11),
-        sample_rate_hz=20.0,
-    )
-    rate = ins.generate(20 * 3600 * 4).gyro_rps / DPH
+    rate = gyro_hours_dph(GyroSpec(bias_instability_dph=b), seed=11)
     _, adev = allan_deviation(rate, 20.0, [10.0, 20.0, 50.0, 100.0, 200.0])
     floor = adev.mean(axis=0)
     assert_allclose(floor, 0.664 * b, rtol=0.15)
@@ -296,13 +307,7 @@ def test_allan_floor_matches_the_bias_instability():
 
 def test_rate_random_walk_has_a_half_slope():
     k = 0.1
-    ins = Instrument(
-        SensorSpec(gyro=GyroSpec(rrw_dphpsh=k)),
-        Truth(),
-        np.random.default_rng(2),
-        sample_rate_hz=20.0,
-    )
-    rate = ins.generate(20 * 3600 * 4).gyro_rps / DPH
+    rate = gyro_hours_dph(GyroSpec(rrw_dphpsh=k), seed=2)
     taus, adev = allan_deviation(rate, 20.0, [10.0, 20.0, 50.0, 100.0, 200.0, 300.0])
     slopes = np.polyfit(np.log(taus), np.log(adev), 1)[0]
     assert_allclose(slopes, 0.5, atol=0.1)
@@ -396,3 +401,144 @@ def test_saturation_is_flagged():
 def test_unused_spec_sections_have_defaults():
     spec = SensorSpec()
     assert spec.thermal == ThermalSpec() and spec.disturbance == DisturbanceSpec()
+
+
+# ----------------------------------------------------------------------------------------------
+# The error terms shared by the instrument and the batch generator
+# ----------------------------------------------------------------------------------------------
+
+
+def test_error_terms_convert_datasheet_units_to_si():
+    spec = IDEAL.with_values(
+        {
+            "gyro.bias_dph": [1.0, -2.0, 0.5],
+            "gyro.arw_dpsh": 0.06,
+            "gyro.rrw_dphpsh": 0.6,
+            "gyro.bias_instability_dph": 0.01,
+            "gyro.range_dps": 90.0,
+            "gyro.scale_factor_ppm": 20.0,
+            "accel.misalignment_urad": 30.0,
+            "accel.vrw_ug_rthz": 10.0,
+            "accel.random_walk_ug_rts": 2.0,
+            "accel.lsb_ug": 5.0,
+            "accel.range_g": 2.0,
+        }
+    )
+    terms = ErrorTerms.from_spec(spec)
+    ug = 9.80665e-6
+    assert_allclose(terms.bias, [DPH, -2 * DPH, 0.5 * DPH, 0, 0, 0], rtol=1e-15)
+    # 0.06 deg/sqrt(h) = 0.001 deg/sqrt(s); per sample at 400 Hz: times sqrt(400).
+    assert_allclose(terms.white_sigma(400.0)[:3], math.radians(0.001) * 20.0, rtol=1e-15)
+    assert_allclose(terms.white_sigma(400.0)[3:], 10.0 * ug * 20.0, rtol=1e-15)
+    # 0.6 deg/h/sqrt(h) = 0.01 deg/h/sqrt(s).
+    assert_allclose(terms.walk_k, [0.01 * DPH] * 3 + [2.0 * ug] * 3, rtol=1e-15)
+    assert_allclose(terms.flicker_b[:3], 0.01 * DPH, rtol=1e-15)
+    assert_allclose(terms.range, [math.pi / 2] * 3 + [2.0 * 9.80665] * 3, rtol=1e-15)
+    assert_allclose(terms.lsb, [0.0] * 3 + [5.0 * ug] * 3, rtol=1e-15)
+    assert_allclose(terms.scale_factor, [20e-6, 0.0])
+    assert_allclose(terms.misalignment, [0.0, 30e-6])
+    assert terms.has_matrix and not ErrorTerms.from_spec(IDEAL).has_matrix
+
+
+def test_flicker_components_sum_to_a_one_over_f_spectrum():
+    """Gauss-Markov components of variance c spaced by sqrt(10) sum to the PSD B^2 / (pi f)."""
+    assert FLICKER_STD**2 == pytest.approx(FLICKER_VARIANCE)
+    assert_allclose(np.diff(np.log10(FLICKER_TAUS_S)), 0.5)
+    # Inside the band the components cover (corners 1 / (2 pi tau): 1.6e-5 to 0.16 Hz).
+    f = np.logspace(-3.5, -2.0, 31)
+    tau = FLICKER_TAUS_S[:, None]
+    # One-sided PSD of a first-order Gauss-Markov process of unit B: 4 c tau / (1 + (2 pi f tau)^2).
+    psd = (4.0 * FLICKER_VARIANCE * tau / (1.0 + (2 * math.pi * f * tau) ** 2)).sum(axis=0)
+    assert_allclose(psd, 1.0 / (math.pi * f), rtol=0.03)
+
+
+def test_drift_is_the_warm_up_transient_plus_the_temperature_term():
+    spec = SensorSpec(
+        gyro=GyroSpec(warmup_bias_dph=(2.0, 0.0, 0.0), warmup_tau_s=30.0),
+        accel=AccelSpec(temp_coeff_ug_per_c=(0.0, 0.0, 4.0)),
+        thermal=ThermalSpec(
+            ambient_c=15.0, warmup_rise_c=6.0, warmup_tau_s=300.0, ramp_c_per_h=1.8
+        ),
+    )
+    t = np.array([0.0, 30.0, 600.0, 3600.0])
+    rise = 6.0 * (1.0 - np.exp(-t / 300.0)) + 1.8 * t / 3600.0
+    assert_allclose(temperature_c(spec.thermal, t), 15.0 + rise, rtol=1e-15)
+    drift = ErrorTerms.from_spec(spec).drift(t, spec.thermal)
+    assert drift.shape == (4, 6)
+    assert_allclose(drift[:, 0], 2.0 * DPH * np.exp(-t / 30.0), rtol=1e-14)
+    assert_allclose(drift[:, 5], 4.0 * 9.80665e-6 * rise, rtol=1e-12, atol=1e-20)
+    assert not np.any(drift[:, 1:5])
+
+
+def test_quantise_carry_keeps_every_run_sum_within_one_count():
+    rng = np.random.default_rng(0)
+    values = rng.normal(0.0, 3.0, (4, 1000))  # four channels, runs along the last axis
+    whole, rem = quantise_carry(values, np.zeros(4))
+    assert_allclose(whole, np.round(whole), atol=0)
+    # Cumulative sums never stray by more than half a count; the remainder is what is left.
+    assert np.abs(np.cumsum(whole - values, axis=-1)).max() <= 0.5 + 1e-9
+    assert_allclose(rem, values.sum(-1) - whole.sum(-1), atol=1e-9)
+    # Carrying the remainder over a split gives the same counts as one run.
+    first, mid = quantise_carry(values[:, :333], np.zeros(4))
+    second, end = quantise_carry(values[:, 333:], mid)
+    assert_allclose(np.hstack([first, second]), whole, atol=0)
+    assert_allclose(end, rem, atol=0)
+    # The same along axis 0, and an empty run leaves the remainder alone.
+    by_rows, rem0 = quantise_carry(values.T, np.zeros(4), axis=0)
+    assert_allclose(by_rows, whole.T, atol=0)
+    assert_allclose(rem0, rem, atol=0)
+    empty, kept = quantise_carry(np.empty((4, 0)), rem)
+    assert empty.shape == (4, 0) and np.array_equal(kept, rem)
+
+
+def test_one_batch_run_draws_the_same_power_on_as_the_instrument():
+    """Same seed, same error terms: turn-on bias, scale factor, misalignment, indexing error of
+    one move, warm-up and temperature come out alike sample by sample from both generators."""
+    spec = IDEAL.with_values(
+        {
+            "gyro.bias_dph": [0.3, -0.2, 0.1],
+            "gyro.turn_on_bias_dph": 0.5,
+            "gyro.scale_factor_ppm": 300.0,
+            "gyro.misalignment_urad": 200.0,
+            "gyro.warmup_bias_dph": [1.0, -1.0, 0.5],
+            "gyro.temp_coeff_dph_per_c": [0.02, 0.01, 0.0],
+            "accel.turn_on_bias_ug": 50.0,
+            "accel.scale_factor_ppm": 100.0,
+            "accel.misalignment_urad": 100.0,
+            "accel.temp_coeff_ug_per_c": [2.0, -1.0, 0.5],
+            "thermal.warmup_rise_c": 4.0,
+            "table.indexing_error_deg": 0.01,
+        }
+    )
+    truth = Truth(azimuth_deg=75.0, latitude_deg=40.0, pitch_deg=1.5, roll_deg=-0.5)
+    # One move: over several moves the instrument's table carries each stop error into the next
+    # move, while the batch draws every stop error afresh around the commanded angle.
+    positions = [0.0, 120.0]
+    starts, n, _, _ = plan_timeline(spec, positions, 5.0, warmup_s=30.0)
+    batch = simulate_windows(
+        spec, truth, positions, 5.0, n_runs=1, rng=np.random.default_rng(9), warmup_s=30.0
+    )
+    ins = Instrument(spec, truth, np.random.default_rng(9))
+    for i, p in enumerate(positions):
+        if i:
+            ins.table.move_to(ins.time_s, p)
+        ins.generate(int(starts[i] - ins.samples_emitted))
+        block = ins.generate(n)
+        assert_allclose(batch.gyro_rps[0, i], block.gyro_rps, rtol=0, atol=1e-12 * OMEGA_IE)
+        assert_allclose(batch.accel_mps2[0, i], block.accel_mps2, rtol=0, atol=1e-12 * 9.8)
+        assert_allclose(batch.table_deg[0, i], block.table_deg, atol=0)
+    # The error terms are really there: far from the ideal instrument.
+    ideal = Instrument(IDEAL, truth, np.random.default_rng(9)).generate(10).gyro_rps
+    first = simulate_windows(spec, truth, [0.0], 0.05, n_runs=1, rng=np.random.default_rng(9))
+    assert np.abs(first.gyro_rps[0, 0] - ideal).max() > 0.1 * DPH
+
+
+def test_the_instrument_and_the_batch_refuse_the_same_sample_rates():
+    for make in (
+        lambda fs: Instrument(IDEAL, Truth(), np.random.default_rng(0), sample_rate_hz=fs),
+        lambda fs: plan_timeline(IDEAL, [0.0, 180.0], 10.0, sample_rate_hz=fs),
+    ):
+        with pytest.raises(SimConfigError, match=r"sample_rate_hz: 5 Hz .* from 10 to 2000 Hz"):
+            make(5)
+        make(10.0)
+        make(2000.0)

@@ -41,6 +41,8 @@ from northfinder.driver.protocol.can import (
     split_can_id,
 )
 from northfinder.driver.protocol.constants import CanFunction
+from northfinder.driver.protocol.counters import TickCounter, counter_diff, nearest_counter
+from northfinder.driver.protocol.errors import ArgumentError
 from northfinder.driver.protocol.serial import crc16_ccitt, encode_serial, parse_frame
 
 
@@ -139,6 +141,51 @@ def test_tick_assembler_wraps_and_reports():
     assert (asm.lost, asm.incomplete) == (252, 2)
 
 
+def test_counter_arithmetic_across_the_wrap():
+    u32 = 0xFFFF_FFFF
+    assert counter_diff(0, u32) == 1 and counter_diff(u32, 0) == -1
+    assert counter_diff(5, 3) == 2 and counter_diff(3, 5) == -2 and counter_diff(9, 9) == 0
+    assert (
+        counter_diff(1 << 31, 0) == -(1 << 31) and counter_diff((1 << 31) - 1, 0) == (1 << 31) - 1
+    )
+    assert nearest_counter(0x10, 0x1_0000) == 0x1_0010
+    assert nearest_counter(0xF0, 0x1_0000) == 0xFFF0
+    assert nearest_counter(0xFF, 0) == u32 and nearest_counter(0x00, u32) == 0
+    assert nearest_counter(0x180, 0x1_0000) == 0xFF80  # low8 taken modulo 256; a tie goes back
+
+
+def test_tick_counter_places_ticks_before_the_first_anchor_where_they_belong():
+    tc = TickCounter()
+    assert tc.place(7) == (7, None) and not tc.anchored
+    assert tc.place(8) == (8, 1)
+    real = 999_944  # a counter whose low byte is 8
+    assert tc.sync(real) and tc.last == real and tc.anchored
+    assert not tc.sync(real)  # already anchored: nothing moves
+    assert tc.place(9) == (real + 1, 1)
+    assert tc.place(9) == (real + 1, 0)  # the same tick again changes nothing
+    assert tc.place(12) == (real + 4, 3)
+    tc.restart()
+    assert tc.last is None and tc.place(20) == (real + 12, None) and tc.anchored
+
+
+def test_tick_assembler_joining_a_running_stream_reports_no_false_loss():
+    asm = TickAssembler()
+    assert [s.counter for s in _ticks(asm, 7, 8)] == [7, 8]  # before any status: counter = tick
+    asm.sync(999_944)  # the status gives the real counter of tick 8
+    out = _ticks(asm, 999_945)
+    assert [s.counter for s in out if isinstance(s, Sample)] == [999_945]
+    assert not any(isinstance(s, TickLoss) for s in out) and asm.lost == 0
+
+
+def _ticks(asm, *counters):
+    out = []
+    for c in counters:
+        t = c & 0xFF
+        for part in (SampleX(t, 1, 2), *_yz(t), SampleAux(t, 0, 0, Validity(3))):
+            out += asm.add(part)
+    return out
+
+
 def _yz(tick):
     return SampleY(tick, 3, 4), SampleZ(tick, 5, 6)
 
@@ -162,4 +209,6 @@ def test_link_budget():
     ]
     assert not rate_fits("serial", 115_200, 200, heartbeat_period_ms=10)
     with pytest.raises(ValueError, match="'can' or 'serial'"):
+        rate_fits("usb", 1, 1)
+    with pytest.raises(ArgumentError):
         rate_fits("usb", 1, 1)

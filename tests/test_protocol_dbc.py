@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import cantools
@@ -14,12 +15,16 @@ from northfinder.driver.protocol import (
     CanFunction,
     Command,
     Fault,
+    GetConfig,
     Identify,
     IdentifyPage,
     Opcode,
     Reply,
+    RotateBy,
+    RotateTo,
     SampleAux,
     SampleAxis,
+    SetConfig,
     StatusCounters,
     StatusMain,
     Validity,
@@ -52,10 +57,12 @@ _FAULT_SIGNALS = {
 
 @pytest.fixture(scope="module")
 def db() -> cantools.database.can.Database:
-    return cantools.database.load_file(str(DBC))
+    loaded = cantools.database.load_file(str(DBC))
+    assert isinstance(loaded, cantools.database.can.Database)
+    return loaded
 
 
-def _bits(value: int, table: dict[str, int]) -> dict[str, int]:
+def _bits(value: int, table: Mapping[str, int]) -> dict[str, int]:
     return {name: int(bool(value & mask)) for name, mask in table.items()}
 
 
@@ -63,13 +70,13 @@ def expected_signals(part) -> dict[str, int]:
     """Raw signal values the DBC must give for one decoded CAN frame."""
     if isinstance(part, Command):
         sig = {"Seq": part.seq, "Opcode": part.OPCODE}
-        if part.OPCODE == Opcode.ROTATE_TO:
+        if isinstance(part, RotateTo):
             sig |= {"RotateToAngle": part.angle, "RotateToDirection": part.direction}
-        elif part.OPCODE == Opcode.ROTATE_BY:
+        elif isinstance(part, RotateBy):
             sig["RotateByAngle"] = part.delta
-        elif part.OPCODE == Opcode.GET_CONFIG:
+        elif isinstance(part, GetConfig):
             sig["GetConfigKey"] = part.key
-        elif part.OPCODE == Opcode.SET_CONFIG:
+        elif isinstance(part, SetConfig):
             sig |= {"SetConfigKey": part.key, "SetConfigValue": part.value}
         return sig
     if isinstance(part, Reply):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -34,7 +35,7 @@ from northfinder.driver.protocol.serial import (
 )
 
 FUZZ = settings(max_examples=200, deadline=None)
-PAYLOAD_TYPES = [
+PAYLOAD_TYPES: list[Any] = [
     Command,
     Reply,
     Sample,
@@ -130,10 +131,10 @@ def test_corrupted_frames_are_counted_and_the_rest_recovered():
     corrupted = set(rng.sample(range(len(frames)), 10))
     stream = bytearray()
     for k, frame in enumerate(frames):
-        frame = bytearray(frame)
+        mutable = bytearray(frame)
         if k in corrupted:
-            frame[rng.randrange(5, len(frame))] ^= 1 << rng.randrange(8)
-        stream += bytes(rng.randrange(256) for _ in range(rng.randrange(0, 8))) + frame
+            mutable[rng.randrange(5, len(mutable))] ^= 1 << rng.randrange(8)
+        stream += bytes(rng.randrange(256) for _ in range(rng.randrange(0, 8))) + mutable
     deframer = Deframer()
     got = []
     for i in range(0, len(stream), 13):

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from northfinder.driver.protocol import (
+    Command,
     ConfigKey,
     DeviceState,
     Direction,
@@ -27,6 +28,7 @@ from northfinder.driver.protocol import (
     GetStatus,
     Home,
     Identify,
+    Message,
     Opcode,
     Reply,
     RequestIdentify,
@@ -51,7 +53,7 @@ from northfinder.driver.protocol.serial import Deframer, decode_frame, encode_se
 PROTOCOL_MD = Path(__file__).resolve().parents[1] / "protocol.md"
 SERIAL_SEQ = 0x2A
 
-GOLDEN = {
+GOLDEN: dict[str, Message] = {
     "cmd_identify": RequestIdentify(1),
     "cmd_get_status": GetStatus(2),
     "cmd_rotate_to": RotateTo(3, 90_000_000, Direction.SHORTEST),
@@ -163,7 +165,7 @@ def test_every_vector_is_documented_and_complete(vectors):
 
 def test_every_message_kind_has_a_vector():
     kinds = {type(m) for m in GOLDEN.values()}
-    opcodes = {m.OPCODE for m in GOLDEN.values() if hasattr(m, "OPCODE")}
+    opcodes = {m.OPCODE for m in GOLDEN.values() if isinstance(m, Command)}
     assert opcodes == set(Opcode)
     assert {Reply, Sample, Status, Identify} <= kinds
 
@@ -176,8 +178,9 @@ def test_can_encode_matches_golden(vectors, name):
 @pytest.mark.parametrize("name", sorted(GOLDEN))
 def test_can_decode_matches_golden(vectors, name):
     receiver = CanReceiver(node_id=1)
-    if isinstance(GOLDEN[name], Sample):
-        receiver.ticks.sync(GOLDEN[name].counter)
+    message = GOLDEN[name]
+    if isinstance(message, Sample):
+        receiver.ticks.sync(message.counter)
     out = []
     for frame in vectors[name][0]:
         assert decode_can(*frame).node_id == 1

@@ -70,6 +70,7 @@ def test_multi_position_recording_solves_by_least_squares(tmp_path):
     result = solve_recording(rec, None, "none", "auto")
     assert result.method == "least-squares" and len(result.pairwise_deg) == 3
     err = (result.azimuth_deg - TRUTH.azimuth_deg + 180) % 360 - 180
+    assert result.sigma_deg is not None
     assert abs(err) < 5 * result.sigma_deg
 
 

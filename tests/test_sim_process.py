@@ -4,7 +4,6 @@ python-can's own ``slcan`` interface; and its behaviour under random input."""
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -15,6 +14,7 @@ import can
 import numpy as np
 import pytest
 import serial
+from simprocess import sim_process
 
 from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
 from northfinder.driver.protocol.constants import Opcode, Result, SerialType
@@ -36,31 +36,8 @@ pytestmark = pytest.mark.subprocess
 @contextmanager
 def simulator(*link: str, seed: int = 1) -> Iterator[tuple[str, str]]:
     """Start ``northfinder sim`` on a new pty; yield (pty path, control address); always stop it."""
-    cmd = [
-        sys.executable,
-        "-c",
-        "from northfinder.host.cli import main; raise SystemExit(main())",
-        "sim",
-        *link,
-    ]
-    cmd += ["--warmup", "0", "--seed", str(seed), "--control", "127.0.0.1:0"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        facts = {}
-        while len(facts) < 2:
-            line = proc.stdout.readline()
-            if not line:
-                raise RuntimeError(f"simulator exited: {proc.stderr.read()}")
-            key, _, value = line.strip().partition(" ")
-            facts[key] = value
-        yield facts["pty"], facts["control"]
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            assert proc.wait(10) == 0, proc.stderr.read()
-        finally:
-            if proc.poll() is None:
-                proc.kill()
+    with sim_process(*link, "--warmup", "0", "--seed", str(seed), "--control", "127.0.0.1:0") as f:
+        yield f["pty"], f["control"]
 
 
 def read_serial(port: serial.Serial, deframer: Deframer, seconds: float) -> list:

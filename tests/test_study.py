@@ -1,43 +1,36 @@
-"""Accuracy studies: batch generator against the instrument, vectorised solvers, bound, planner, CLI."""
+"""Accuracy studies: batch generator against the instrument, vectorised solvers, bound, planner,
+the Monte Carlo engine and the CLI."""
 
 from __future__ import annotations
 
 import json
 import math
+import pickle
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
+from numpy.testing import assert_allclose, assert_array_equal
 
+from northfinder.driver.protocol.motion import move_time_s
+from northfinder.driver.protocol.units import DPSH as ARW
+from northfinder.driver.protocol.units import OMEGA_IE, UG
 from northfinder.firmware_sim.batch import plan_timeline, simulate_windows
 from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.accuracy import ErrorModel, _window_mean_cov, bound_deg, predict
 from northfinder.host.cli import main
-from northfinder.host.cli.study import StudySettings, error_model, monte_carlo
-from northfinder.host.errors import GeometryError, HostConfigError
+from northfinder.host.cli.simulated import SimulatedWindows, error_model
+from northfinder.host.errors import GeometryError, HostConfigError, InputError, TiltError
 from northfinder.host.heading import (
     solve_multi_position,
     solve_two_position,
     two_position_bound_deg,
 )
-from northfinder.host.study import (
-    ErrorModel,
-    Plan,
-    TableModel,
-    _window_mean_cov,
-    bound_deg,
-    plan_time_s,
-    predict,
-    search_plans,
-    shortest_plan,
-    solve_least_squares_batch,
-    solve_two_position_batch,
-    summarize,
-    window_starts_s,
-)
-
-DPH = math.pi / 180.0 / 3600.0
-ARW = math.pi / 180.0 / 60.0
+from northfinder.host.kernels import solve_least_squares_batch, solve_two_position_batch
+from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
+from northfinder.host.plan import PAPER_SWEEP, Plan, TableModel, plan_time_s, window_starts_s
+from northfinder.host.planner import search_plans, shortest_plan
+from northfinder.host.study import summarize
 
 #: Every random term off, deterministic terms on: closed-form means must agree exactly.
 DETERMINISTIC = {
@@ -120,7 +113,7 @@ def test_batch_white_noise_level():
     g = batch.gyro_rps - batch.gyro_rps.mean(axis=2, keepdims=True)
     assert_allclose(g.std(axis=(0, 1, 2)), 0.0015 * ARW * math.sqrt(200.0), rtol=0.01)
     a = batch.accel_mps2 - batch.accel_mps2.mean(axis=2, keepdims=True)
-    assert_allclose(a.std(axis=(0, 1, 2)), 10.0 * 9.80665e-6 * math.sqrt(200.0), rtol=0.01)
+    assert_allclose(a.std(axis=(0, 1, 2)), 10.0 * UG * math.sqrt(200.0), rtol=0.01)
 
 
 def test_batch_slow_noise_matches_the_predicted_covariance():
@@ -231,9 +224,10 @@ def test_bound_is_the_notes_formula(mu):
 def test_bound_of_many_positions_is_the_least_squares_covariance():
     pos = [0.0, 45.0, 90.0, 200.0]
     s = 0.0015 * ARW / math.sqrt(10.0)
-    on = 7.292115e-5 * math.cos(math.radians(34.0))
+    on = OMEGA_IE * math.cos(math.radians(34.0))
     g = np.array([[on * math.cos(math.radians(m)), -on * math.sin(math.radians(m))] for m in pos])
     ref = solve_multi_position(g, pos, latitude_deg=34.0, gyro_noise=s).sigma_deg
+    assert ref is not None
     assert_allclose(bound_deg(pos, 10.0, 0.0015, 34.0), ref, rtol=1e-9)
     # Notes, section 4: at 34 deg N, ARW 0.0015, 2 x 10 s at 180 deg -> 0.093 deg.
     assert bound_deg([0, 180], 10.0, 0.0015, 34.0) == pytest.approx(0.093, abs=0.001)
@@ -243,7 +237,9 @@ def test_bound_of_many_positions_is_the_least_squares_covariance():
 def test_white_noise_rmse_meets_the_bound(positions, tilt):
     spec = load_spec("ideal").with_values({"gyro.arw_dpsh": 0.0015})
     plan = Plan(positions, 10.0)
-    errors = monte_carlo(spec, plan, StudySettings(tilt=tilt, warmup_s=0.0), 600, seed=7)
+    errors = monte_carlo(
+        SimulatedWindows(spec), plan, StudySettings(tilt=tilt, warmup_s=0.0), 600, seed=7
+    )
     s = summarize(errors)
     ratio = s.rmse_deg / bound_deg(positions, 10.0, 0.0015, 34.0)
     assert 0.9 < ratio < 1.1
@@ -253,15 +249,15 @@ def test_white_noise_rmse_meets_the_bound(positions, tilt):
 def test_least_squares_study_meets_the_bound():
     spec = load_spec("ideal").with_values({"gyro.arw_dpsh": 0.0015})
     plan = Plan((0.0, 90.0, 180.0, 270.0), 5.0)
-    errors = monte_carlo(spec, plan, StudySettings(warmup_s=0.0), 400, seed=8)
+    errors = monte_carlo(SimulatedWindows(spec), plan, StudySettings(warmup_s=0.0), 400, seed=8)
     ratio = summarize(errors).rmse_deg / bound_deg(plan.positions_deg, 5.0, 0.0015, 34.0)
     assert 0.88 < ratio < 1.12
 
 
 def test_pairwise_study_gives_one_error_per_pair():
     spec = load_spec("ideal").with_values({"gyro.arw_dpsh": 0.0015})
-    plan = Plan((0.0, 90.0, 180.0), 5.0)
-    errors = monte_carlo(spec, plan, StudySettings(solver="pairwise"), 50, seed=9)
+    plan = Plan((0.0, 90.0, 180.0), 5.0, method="pairwise")
+    errors = monte_carlo(SimulatedWindows(spec), plan, StudySettings(), 50, seed=9)
     assert errors.shape == (50, 2)
 
 
@@ -277,9 +273,170 @@ def test_paper_rlg_study_follows_the_prediction():
     spec = load_spec("paper-rlg")
     plan = Plan((0.0, 180.0), 10.0)
     settings = StudySettings(angles="commanded")
-    errors = monte_carlo(spec, plan, settings, 2000, seed=10)
+    errors = monte_carlo(SimulatedWindows(spec), plan, settings, 2000, seed=10)
     pred = predict(error_model(spec), plan, 34.0, warmup_s=120.0, angles="commanded")
     assert summarize(errors).rmse_deg == pytest.approx(pred.sigma_deg, rel=0.06)
+
+
+# ----------------------------------------------------------------------------------------------
+# The engine: results for a seed, excessive tilt, picklable pieces
+# ----------------------------------------------------------------------------------------------
+
+#: Azimuth errors (deg) of seeded studies computed before the engine moved out of the command-line
+#: module into northfinder.host.montecarlo (sensor, plan, settings, runs, seed, samples per chunk,
+#: errors of the first run for pairwise or of every run otherwise). The engine must still give them.
+PRE_MOVE = {
+    "two-position": (
+        "paper-rlg", Plan((0.0, 180.0), 10.0), StudySettings(), 8, 3, None,
+        [-0.14778607381526854, 0.08012759697544425, 0.053633202061178054, -0.033003928699287144,
+         0.054097905476965025, -0.018413926410261183, -0.025123486960268337, -0.15117833851903129],
+    ),
+    "least-squares, tilted": (
+        "paper-rlg", Plan((0.0, 90.0, 180.0, 270.0), 5.0),
+        StudySettings(azimuth_deg=37.0, pitch_deg=2.0, roll_deg=-3.0), 6, 4, None,
+        [0.0007576785446588019, 0.08111874104105254, 0.05584094987531785, -0.13535248812968348,
+         0.09955777214088357, -0.008678719598833595],
+    ),
+    "pairwise": (
+        "paper-rlg", Plan(PAPER_SWEEP.positions_deg, 5.0, method="pairwise"), StudySettings(), 4,
+        5, None,
+        [-0.5269207217853022, 0.022202593390375114, -0.0046171482528052366, -0.07316857902020502,
+         0.023646767320997242, 0.12855164347945447, 0.1495502956217365],
+    ),
+    "denoised, level, commanded angles, bias step": (
+        "fog-0.08", Plan((0.0, 180.0, 180.0, 0.0), 5.0, 3.0, denoise="wavelet-soft"),
+        StudySettings(tilt="level", angles="commanded", bias_step_dph=0.1), 6, 6, None,
+        [0.1588394179378838, 0.10651920122262482, 0.20148764039839762, 0.022275749191919658,
+         0.8189734729730844, -0.16081805715575115],
+    ),
+    "chunks of 3 runs": (
+        "paper-rlg", Plan((0.0, 180.0), 10.0), StudySettings(), 10, 7, 2 * 2000 * 6 * 3,
+        [0.23760578781568142, -0.11171378767153328, -0.16479981165201707],
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(PRE_MOVE))
+def test_engine_gives_the_results_it_gave_before_the_move(case):
+    sensor, plan, settings, runs, seed, chunk, expected = PRE_MOVE[case]
+    extra = {} if chunk is None else {"chunk_values": chunk}
+    errors = monte_carlo(SimulatedWindows(load_spec(sensor)), plan, settings, runs, seed, **extra)
+    got = errors[0] if errors.ndim == 2 else errors[: len(expected)]
+    assert_allclose(got, expected, rtol=0.0, atol=1e-12)
+
+
+def _tilted_runs(pitches):
+    """Window means of noise-free runs, one per pitch, at table angles 0, 90, 180, 270 deg."""
+    rng = np.random.default_rng(12)
+    truths = [
+        Truth(float(a), 34.0, p, 1.0) for a, p in zip(rng.uniform(0, 360, 5), pitches, strict=True)
+    ]
+    batch = simulate_windows(
+        load_spec("ideal"), truths, [0, 90, 180, 270], 1.0, n_runs=len(truths), rng=rng
+    )
+    return batch, batch.gyro_rps.mean(axis=2), batch.accel_mps2.mean(axis=2)
+
+
+def test_excessive_tilt_is_nan_in_the_batch_and_an_error_in_the_scalar_solvers():
+    pitches = [2.0, 16.0, -3.0, 0.0, -20.0]
+    beyond = np.array([False, True, False, False, True])
+    batch, g, a = _tilted_runs(pitches)
+    mu = batch.table_deg[:, 2] - batch.table_deg[:, 0]
+    two = solve_two_position_batch(
+        g[:, 0], g[:, 2], mu, latitude_deg=34.0, accel0=a[:, 0], accel1=a[:, 2]
+    )
+    many = solve_least_squares_batch(g, batch.table_deg, latitude_deg=34.0, accel_means=a)
+    assert_array_equal(np.isnan(two), beyond)
+    assert_array_equal(np.isnan(many), beyond)
+    truth = batch.azimuth_deg[~beyond]
+    assert np.abs(azimuth_error(many[~beyond], truth)).max() < 1e-6
+    assert np.abs(azimuth_error(two[~beyond], truth - batch.table_deg[~beyond, 0])).max() < 1e-6
+    for r in np.flatnonzero(beyond):
+        with pytest.raises(TiltError, match=r"pitch .* exceeds the limit"):
+            solve_two_position(
+                g[r, 0], g[r, 2], mu[r], accel0=a[r, 0], accel1=a[r, 2], latitude_deg=34.0
+            )
+        with pytest.raises(TiltError, match=r"pitch .* exceeds the limit"):
+            solve_multi_position(g[r], batch.table_deg[r], latitude_deg=34.0, accel_means=a[r])
+    # Accelerometer means that contradict gravity: no tilt at all.
+    wrong = a.copy()
+    wrong[0, :, 0] = 30.0 * np.cos(np.radians(batch.table_deg[0]))
+    wrong[0, :, 1] = -30.0 * np.sin(np.radians(batch.table_deg[0]))
+    assert np.isnan(
+        solve_least_squares_batch(g, batch.table_deg, latitude_deg=34.0, accel_means=wrong)[0]
+    )
+    with pytest.raises(TiltError, match="exceeds gravity"):
+        solve_multi_position(g[0], batch.table_deg[0], latitude_deg=34.0, accel_means=wrong[0])
+    # Assumed level (no accelerometers), nothing is refused.
+    assert not np.isnan(solve_two_position_batch(g[:, 0], g[:, 2], mu, latitude_deg=34.0)).any()
+
+
+def azimuth_error(a, b):
+    return (np.asarray(a) - np.asarray(b) + 180.0) % 360.0 - 180.0
+
+
+def test_study_counts_the_runs_beyond_the_tilt_limit_and_summarises_the_others():
+    # At a true pitch of exactly the limit, accelerometer noise puts about half the estimates
+    # beyond it.
+    spec = load_spec("ideal").with_values({"gyro.arw_dpsh": 0.0015, "accel.vrw_ug_rthz": 50.0})
+    plan = Plan((0.0, 180.0), 10.0)
+    settings = StudySettings(pitch_deg=15.0, warmup_s=0.0)
+    errors = monte_carlo(SimulatedWindows(spec), plan, settings, 200, seed=13)
+    row = study_rows(error_model(spec), plan, settings, errors)[0]
+    rejected = int(np.isnan(errors).sum())
+    assert 40 < rejected < 160
+    assert row["rejected"] == rejected and row["runs"] == 200 - rejected
+    assert np.all(np.abs(errors[~np.isnan(errors)]) < 1.0)
+    assert math.isfinite(row["rmse_deg"]) and row["rmse_deg"] > 0.0
+    # Beyond the limit for certain: no statistics, one clear error.
+    far = StudySettings(pitch_deg=20.0, warmup_s=0.0)
+    with pytest.raises(InputError, match=r"no solution .*tilt beyond"):
+        summarize(monte_carlo(SimulatedWindows(spec), plan, far, 20, seed=13))
+
+
+def test_generator_and_error_model_pickle_and_give_the_same_study():
+    spec = load_spec("fog-0.08")
+    generator = pickle.loads(pickle.dumps(SimulatedWindows(spec)))
+    model = pickle.loads(pickle.dumps(error_model(spec)))
+    assert model.drift_rps is not None
+    plan = Plan((0.0, 90.0, 180.0), 5.0)
+    settings = pickle.loads(pickle.dumps(StudySettings(denoise_accel=True)))
+    assert_array_equal(
+        monte_carlo(generator, plan, settings, 4, 11),
+        monte_carlo(SimulatedWindows(spec), plan, settings, 4, 11),
+    )
+    assert predict(model, plan, 34.0, warmup_s=120.0) == predict(
+        error_model(spec), plan, 34.0, warmup_s=120.0
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Plans
+# ----------------------------------------------------------------------------------------------
+
+
+def test_settle_is_the_time_from_the_end_of_a_move_to_the_next_window():
+    table = TableModel(max_rate_dps=10.0, max_accel_dps2=20.0, settle_s=2.0)
+    move = move_time_s(90.0, 10.0, 20.0)
+    tables_own = Plan((0.0, 90.0, 90.0), 10.0)
+    longer = Plan((0.0, 90.0, 90.0), 10.0, settle_s=5.0)
+    assert_allclose(window_starts_s(tables_own, table), [0.0, 10.0 + move + 2.0, 20.0 + move + 2.0])
+    assert_allclose(window_starts_s(longer, table), [0.0, 10.0 + move + 5.0, 20.0 + move + 5.0])
+    assert plan_time_s(longer, table) == pytest.approx(30.0 + move + 5.0)
+
+
+def test_plan_validation():
+    with pytest.raises(HostConfigError, match="unknown method 'magic'"):
+        Plan(denoise="magic")
+    with pytest.raises(HostConfigError, match="unknown value 'best'"):
+        Plan(method="best")
+    with pytest.raises(HostConfigError, match="needs exactly two positions"):
+        Plan((0.0, 90.0, 180.0), method="two-position")
+    with pytest.raises(HostConfigError, match="pairs"):
+        Plan(denoise="moving-average", denoise_options=("window",))  # type: ignore[arg-type]
+    assert Plan(denoise_options=[["window", 5]]).denoise_options == (("window", 5),)  # type: ignore[arg-type]
+    assert Plan((0.0, 120.0, 240.0)).solver == "least-squares"
+    assert Plan().solver == "two-position"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -292,7 +449,7 @@ def test_planner_prefers_180_at_equal_dwell():
     sigmas = {
         mu: predict(model, Plan((0.0, mu), 10.0), 34.0).sigma_deg for mu in (30, 60, 90, 120, 180)
     }
-    assert min(sigmas, key=sigmas.get) == 180
+    assert min(sigmas, key=lambda mu: sigmas[mu]) == 180
     two = [(0.0, float(mu)) for mu in (30, 60, 90, 120, 150, 180)]
     best = search_plans(model, 34.0, 120.0, geometries=two)[0]
     assert best.plan.positions_deg == (0.0, 180.0)

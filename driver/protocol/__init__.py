@@ -9,6 +9,11 @@ Pure code: no I/O, no clock, no threads. Byte order is little-endian everywhere.
 - :mod:`~northfinder.driver.protocol.can`: CAN 2.0A identifiers, frame mapping and reassembly.
 - :mod:`~northfinder.driver.protocol.serial`: serial framing, CRC-16/CCITT-FALSE and the de-framer.
 - :mod:`~northfinder.driver.protocol.budget`: link load and which sample rates fit a link.
+- :mod:`~northfinder.driver.protocol.counters`: the sample counter across its wrap, the CAN tick extension.
+- :mod:`~northfinder.driver.protocol.motion`: the table's move time (trapezoidal profile).
+- :mod:`~northfinder.driver.protocol.units`: units and physical constants.
+- :mod:`~northfinder.driver.protocol.errors`: :class:`ProtocolError` and its family; the codec raises
+  nothing else for any input, and imports nothing outside this package.
 """
 
 from northfinder.driver.protocol.constants import (

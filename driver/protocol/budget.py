@@ -8,6 +8,7 @@ traffic does not fit: on CAN the worst-case (maximally bit-stuffed) load must st
 from __future__ import annotations
 
 from northfinder.driver.protocol.constants import HEARTBEAT_PERIOD_DEFAULT_MS, SAMPLE_RATES_HZ
+from northfinder.driver.protocol.errors import ArgumentError
 from northfinder.driver.protocol.messages import Sample, Status
 from northfinder.driver.protocol.serial import CRC_SIZE, HEADER_SIZE
 
@@ -123,14 +124,14 @@ def rate_fits(
 
     Raises
     ------
-    ValueError
+    ArgumentError
         Unknown ``link`` (the message lists the choices).
     """
     if link == "can":
         return can_bus_load(bitrate, sample_rate_hz, heartbeat_period_ms) <= CAN_LOAD_LIMIT
     if link == "serial":
         return serial_load(bitrate, sample_rate_hz, heartbeat_period_ms) <= SERIAL_LOAD_LIMIT
-    raise ValueError(f"link={link!r}: choose 'can' or 'serial'")
+    raise ArgumentError(f"link={link!r}: choose 'can' or 'serial'")
 
 
 def max_sample_rate(

@@ -8,11 +8,18 @@ the identify pages, and :class:`CanReceiver` does both plus status merging and c
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from northfinder.driver.errors import EncodeError, PayloadError, ProtocolError, UnknownMessageError
-from northfinder.driver.protocol.constants import NODE_ID_MAX, NODE_ID_MIN, CanFunction
+from northfinder.driver.protocol.constants import NODE_ID_MAX, NODE_ID_MIN, UINT32_MAX, CanFunction
+from northfinder.driver.protocol.counters import TickCounter
+from northfinder.driver.protocol.errors import (
+    EncodeError,
+    PayloadError,
+    ProtocolError,
+    UnknownMessageError,
+)
 from northfinder.driver.protocol.messages import (
     Command,
     Identify,
@@ -60,7 +67,7 @@ CanMessage = (
 )
 """What one CAN frame decodes to."""
 
-_DECODER = {
+_DECODER: dict[int, Callable[[bytes], CanMessage]] = {
     CanFunction.COMMAND: Command.decode,
     CanFunction.REPLY: Reply.decode,
     CanFunction.SAMPLE_X: SampleX.decode,
@@ -123,8 +130,8 @@ def split_can_id(arbitration_id: int) -> tuple[CanFunction, int]:
     try:
         function = CanFunction(arbitration_id & ~0x0F)
     except ValueError:
-        function = None
-    if function is None or node == 0:
+        node = 0
+    if node == 0:
         raise UnknownMessageError(f"CAN id 0x{arbitration_id:03X} is not a protocol message")
     return function, node
 
@@ -150,6 +157,7 @@ def encode_can(message: Message | CanMessage, node_id: int = 1) -> list[CanFrame
         parts = (message,)
     frames = []
     for part in parts:
+        function: CanFunction | None
         if isinstance(part, Command):
             function = CanFunction.COMMAND
         else:
@@ -171,7 +179,7 @@ def decode_can(
         Extended (29-bit) id, or an id outside the protocol's table.
     PayloadError
         More than 8 data bytes, wrong length for the message, undefined field value
-        (:class:`~northfinder.driver.errors.BadCommandError` for a command the device must refuse).
+        (:class:`~northfinder.driver.protocol.errors.BadCommandError` for a command the device must refuse).
     """
     if is_extended_id:
         raise UnknownMessageError(f"extended CAN id 0x{arbitration_id:08X} is not used")
@@ -204,28 +212,25 @@ class TickLoss:
     incomplete: bool
 
 
-def _nearest(low8: int, reference: int) -> int:
-    """The 32-bit counter with low byte ``low8`` nearest to ``reference``."""
-    return (reference + ((low8 - reference + 128) & 0xFF) - 128) & 0xFFFFFFFF
-
-
-_SLOT = {SampleX: 0, SampleY: 1, SampleZ: 2, SampleAux: 3}
+_AXIS_SLOT = {SampleX: 0, SampleY: 1, SampleZ: 2}
 
 
 class TickAssembler:
     """Joins the four CAN frames of each sample tick into a :class:`Sample`.
 
     Frames of one tick may come in any order, but ticks do not interleave (one sender, and
-    CAN keeps its order). The full 32-bit counter is extended from the 8-bit tick: forward from
-    the previous tick, and anchored by :meth:`sync` with the counter from STATUS_COUNTERS
-    (needed at start and after a gap of 256 ticks or more). The first tick that starts after a
-    sync takes the counter with its low byte nearest the anchor when that lies further ahead than
-    the forward extension: a gap of any length is then measured and reported, not folded modulo
-    256. Before any sync the first tick seen gets counter = tick. :meth:`restart` forgets the
-    previous tick, for a stream that was switched off and on again (ticks not sent are not lost).
+    CAN keeps its order). The full 32-bit counter is extended from the 8-bit tick by
+    :attr:`counter` (a :class:`~northfinder.driver.protocol.counters.TickCounter`): forward from
+    the previous tick, and anchored by :meth:`sync` with the counter from STATUS_COUNTERS (needed at
+    start and after a gap of 256 ticks or more), so a gap of any length is measured and reported,
+    not folded modulo 256. Before any sync the first tick seen gets counter = tick.
+    :meth:`restart` forgets the previous tick, for a stream that was switched off and on again
+    (ticks not sent are not lost).
 
     Attributes
     ----------
+    counter : TickCounter
+        The counter extension.
     complete : int
         Ticks delivered whole.
     incomplete : int
@@ -237,12 +242,10 @@ class TickAssembler:
     """
 
     def __init__(self) -> None:
-        self._ref: int | None = None
-        self._fresh = False  # an anchor from sync() not yet used by a new tick
-        self._last: int | None = None
-        self._tick: int | None = None
-        self._counter = 0
-        self._parts: list[SampleAxis | SampleAux | None] = [None] * 4
+        self.counter = TickCounter()
+        self._tick: int | None = None  # the tick in progress
+        self._axes: list[SampleAxis | None] = [None] * 3
+        self._aux: SampleAux | None = None
         self.complete = 0
         self.incomplete = 0
         self.lost = 0
@@ -250,11 +253,7 @@ class TickAssembler:
 
     def sync(self, sample_counter: int) -> None:
         """Anchor the counter extension on a full 32-bit sample counter from the status."""
-        sample_counter &= 0xFFFFFFFF
-        if self._tick is not None:
-            self._counter = _nearest(self._tick, sample_counter)
-        self._ref = sample_counter
-        self._fresh = True
+        self.counter.sync(sample_counter)
 
     def restart(self) -> list[TickLoss]:
         """Forget the previous tick: the stream was off, and ticks it did not send are not lost.
@@ -263,7 +262,7 @@ class TickAssembler:
         is reported as incomplete (returned).
         """
         out = self.flush()
-        self._last = None
+        self.counter.restart()
         return out
 
     def add(self, part: SampleAxis | SampleAux) -> list[Sample | TickLoss]:
@@ -273,52 +272,52 @@ class TickAssembler:
         if self._tick is not None and t != self._tick:
             out.append(self._finish_incomplete())
         if self._tick is None:
-            if self._last is None:
-                counter = t if self._ref is None else _nearest(t, self._ref)
-            else:
-                gap = (t - self._last) & 0xFF
-                if self._fresh and self._ref is not None:
-                    # 256 or more lost ticks fold to a short gap; the anchor tells them apart.
-                    ahead = (_nearest(t, self._ref) - self._last) & 0xFFFFFFFF
-                    if ahead != gap and 0 < ahead < 1 << 31:
-                        gap = ahead
-                if gap == 0:
-                    self.duplicates += 1
-                    return out
-                counter = (self._last + gap) & 0xFFFFFFFF
-                if gap > 1:
-                    self.lost += gap - 1
-                    out.append(TickLoss((self._last + 1) & 0xFFFFFFFF, gap - 1, False))
-            self._fresh = False
+            counter, step = self.counter.place(t)
+            if step == 0:
+                self.duplicates += 1
+                return out
+            if step is not None and step > 1:
+                self.lost += step - 1
+                out.append(TickLoss((counter - step + 1) & UINT32_MAX, step - 1, False))
             self._tick = t
-            self._counter = counter
-        slot = _SLOT[type(part)]
-        parts = self._parts
-        if parts[slot] is not None:
-            self.duplicates += 1
-            return out
-        parts[slot] = part
-        if None not in parts:
-            x, y, z, aux = parts
-            out.append(Sample.from_parts(self._counter, x, y, z, aux))  # type: ignore[arg-type]
+        if isinstance(part, SampleAux):
+            if self._aux is not None:
+                self.duplicates += 1
+                return out
+            self._aux = part
+        else:
+            slot = _AXIS_SLOT[type(part)]
+            if self._axes[slot] is not None:
+                self.duplicates += 1
+                return out
+            self._axes[slot] = part
+        x, y, z = self._axes
+        aux = self._aux
+        if x is not None and y is not None and z is not None and aux is not None:
+            out.append(Sample.from_parts(self._placed(), x, y, z, aux))
             self.complete += 1
             self._end_tick()
         return out
 
-    def flush(self) -> list[Sample | TickLoss]:
+    def flush(self) -> list[TickLoss]:
         """Report a tick still waiting for frames as incomplete (e.g. at the end of a record)."""
         return [self._finish_incomplete()] if self._tick is not None else []
 
+    def _placed(self) -> int:
+        last = self.counter.last
+        assert last is not None  # a tick is in progress, so it was placed
+        return last
+
     def _finish_incomplete(self) -> TickLoss:
         self.incomplete += 1
-        loss = TickLoss(self._counter, 1, True)
+        loss = TickLoss(self._placed(), 1, True)
         self._end_tick()
         return loss
 
     def _end_tick(self) -> None:
-        self._last = self._counter
         self._tick = None
-        self._parts = [None] * 4
+        self._axes = [None] * 3
+        self._aux = None
 
 
 class IdentifyAssembler:
@@ -422,7 +421,7 @@ class CanReceiver:
             self.other_node += 1
             return []
         if isinstance(msg, SampleAxis | SampleAux):
-            return self.ticks.add(msg)  # type: ignore[return-value]
+            return [*self.ticks.add(msg)]
         if isinstance(msg, StatusMain):
             self._status = msg
             return []

@@ -16,9 +16,8 @@ PROTOCOL_VERSION_MINOR = 0
 GYRO_DPH_PER_COUNT = 1e-4
 """Gyro channel: degrees per hour per count (mean rate over the sample interval)."""
 ACCEL_G_PER_COUNT = 1e-6
-"""Accelerometer channel: standard gravity per count (mean over the sample interval)."""
-G0_MPS2 = 9.80665
-"""Standard gravity in m/s^2 used to convert accelerometer counts to SI."""
+"""Accelerometer channel: standard gravity per count (mean over the sample interval); the value of
+one g in m/s^2 is :data:`northfinder.driver.protocol.units.G0`."""
 ANGLE_DEG_PER_COUNT = 1e-6
 """Table angle: degrees per count (u32 in [0, 360) for absolute, i32 for signed deltas)."""
 TEMPERATURE_DEGC_PER_COUNT = 1e-2
@@ -206,6 +205,19 @@ class Validity(IntFlag):
     ACCEL_SATURATED = 0x20
     WARMING_UP = 0x40
     FAULT = 0x80
+
+
+VALIDITY_GOOD = Validity.GYRO_VALID | Validity.ACCEL_VALID
+"""Bits a sample fit for north finding has set: both channels valid."""
+VALIDITY_UNFIT = (
+    Validity.TABLE_MOVING
+    | Validity.TABLE_SETTLING
+    | Validity.GYRO_SATURATED
+    | Validity.ACCEL_SATURATED
+    | Validity.WARMING_UP
+    | Validity.FAULT
+)
+"""Bits 2..7: any of them set makes a sample unfit for north finding (protocol.md 4.5)."""
 
 
 class Fault(IntFlag):

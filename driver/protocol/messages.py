@@ -5,10 +5,10 @@ classmethod. Link framing (CAN identifiers, serial frames) lives in :mod:`northf
 and :mod:`northfinder.driver.protocol.serial`.
 
 ``encode`` checks only that every field fits its wire type and raises
-:class:`~northfinder.driver.errors.EncodeError` otherwise; whether a value is acceptable (an angle below
+:class:`~northfinder.driver.protocol.errors.EncodeError` otherwise; whether a value is acceptable (an angle below
 360 deg, a known config key) is the device's decision, answered with a result code. ``decode``
-raises :class:`~northfinder.driver.errors.PayloadError` (or its subclass
-:class:`~northfinder.driver.errors.BadCommandError` for commands) for a wrong length or an undefined code,
+raises :class:`~northfinder.driver.protocol.errors.PayloadError` (or its subclass
+:class:`~northfinder.driver.protocol.errors.BadCommandError` for commands) for a wrong length or an undefined code,
 and nothing else for any input.
 """
 
@@ -18,7 +18,6 @@ import struct
 from dataclasses import dataclass
 from typing import ClassVar, Self
 
-from northfinder.driver.errors import BadCommandError, EncodeError, PayloadError
 from northfinder.driver.protocol.constants import (
     INT24_MAX,
     INT24_MIN,
@@ -37,6 +36,7 @@ from northfinder.driver.protocol.constants import (
     SelfTestFailure,
     Validity,
 )
+from northfinder.driver.protocol.errors import BadCommandError, EncodeError, PayloadError
 
 __all__ = [
     "Command",

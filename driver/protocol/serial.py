@@ -14,16 +14,17 @@ Frame (little-endian)::
 from __future__ import annotations
 
 import binascii
+from collections.abc import Callable
 from dataclasses import dataclass
 
-from northfinder.driver.errors import (
+from northfinder.driver.protocol.constants import SerialType
+from northfinder.driver.protocol.errors import (
     CrcError,
     EncodeError,
     FrameError,
     ProtocolError,
     UnknownMessageError,
 )
-from northfinder.driver.protocol.constants import SerialType
 from northfinder.driver.protocol.messages import Command, Identify, Message, Reply, Sample, Status
 
 __all__ = [
@@ -82,7 +83,7 @@ _TYPE_OF: dict[type, SerialType] = {
     Sample: SerialType.SAMPLE,
 }
 
-_DECODER = {
+_DECODER: dict[int, Callable[[bytes], Message]] = {
     SerialType.COMMAND: Command.decode,
     SerialType.REPLY: Reply.decode,
     SerialType.STATUS: Status.decode,
@@ -150,7 +151,7 @@ def decode_payload(msg_type: int, payload: bytes) -> Message:
     UnknownMessageError
         Undefined message type.
     PayloadError
-        Wrong length or undefined field value (:class:`~northfinder.driver.errors.BadCommandError` for a
+        Wrong length or undefined field value (:class:`~northfinder.driver.protocol.errors.BadCommandError` for a
         command the device must refuse).
     """
     decoder = _DECODER.get(msg_type)

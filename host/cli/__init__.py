@@ -12,6 +12,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from northfinder.driver.errors import DriverError
 from northfinder.firmware_sim.errors import SimError
 from northfinder.host.errors import HostError
 
@@ -29,15 +30,8 @@ COMMANDS: dict[str, str] = {
 }
 
 
-def _root_errors() -> tuple[type[BaseException], ...]:
-    roots: list[type[BaseException]] = [HostError, SimError]
-    try:
-        from northfinder.driver.errors import DriverError
-
-        roots.append(DriverError)
-    except ImportError:  # the driver package is built up issue by issue
-        pass
-    return tuple(roots)
+#: The packages' root exceptions: one line on stderr and exit status 1 (``--debug``: traceback).
+ROOT_ERRORS: tuple[type[Exception], ...] = (HostError, SimError, DriverError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -58,7 +52,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args._run(args) or 0)
-    except _root_errors() as exc:
+    except ROOT_ERRORS as exc:
         if args.debug:
             raise
         print(f"northfinder {args.command}: error: {exc}", file=sys.stderr)

@@ -5,6 +5,13 @@ from __future__ import annotations
 import argparse
 import math
 
+from northfinder.driver.protocol.constants import (
+    NODE_ID_DEFAULT,
+    NODE_ID_MAX,
+    NODE_ID_MIN,
+    SERIAL_BAUD_DEFAULT,
+)
+
 
 def finite_float(text: str) -> float:
     """argparse type: a finite float, with an error that quotes the bad text."""
@@ -30,8 +37,8 @@ def node_id(text: str) -> int:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if not 1 <= value <= 15:
-        raise argparse.ArgumentTypeError(f"must be 1..15, got {value}")
+    if not NODE_ID_MIN <= value <= NODE_ID_MAX:
+        raise argparse.ArgumentTypeError(f"must be {NODE_ID_MIN}..{NODE_ID_MAX}, got {value}")
     return value
 
 
@@ -44,8 +51,18 @@ def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse.
     can.cli.add_bus_arguments(parser)
     group = parser.add_argument_group(title)
     group.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
-    group.add_argument("--baud", type=int, default=115200, help="serial baud rate (default 115200)")
-    group.add_argument("--node-id", type=node_id, default=1, help="CAN node id 1..15 (default 1)")
+    group.add_argument(
+        "--baud",
+        type=int,
+        default=SERIAL_BAUD_DEFAULT,
+        help=f"serial baud rate (default {SERIAL_BAUD_DEFAULT})",
+    )
+    group.add_argument(
+        "--node-id",
+        type=node_id,
+        default=NODE_ID_DEFAULT,
+        help=f"CAN node id {NODE_ID_MIN}..{NODE_ID_MAX} (default {NODE_ID_DEFAULT})",
+    )
     return group
 
 

@@ -18,19 +18,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
+from typing import Any
 
 import can
 import can.cli
 import serial
 
-from northfinder.host.cli.common import (
-    add_link_arguments,
-    angle_list,
-    bus_given,
-    finite_float,
-    positive_float,
-)
-from northfinder.host.conformance import (
+from northfinder.driver.conformance import (
     CHECKS,
     CanRawLink,
     SerialRawLink,
@@ -42,9 +37,40 @@ from northfinder.host.conformance import (
     select_checks,
     write_junit,
 )
+from northfinder.driver.conformance.errors import SuiteConfigError
+from northfinder.host.cli.common import (
+    add_link_arguments,
+    angle_list,
+    bus_given,
+    finite_float,
+    positive_float,
+)
 from northfinder.host.errors import HostConfigError
 
 _DEFAULTS = SuiteOptions()
+
+#: The suite's options as flags: (flag, :class:`SuiteOptions` field, type, metavar, help).
+_FLAGS: tuple[tuple[str, str, Callable[[str], Any], str | None, str], ...] = (
+    ("--time-scale", "time_scale", positive_float, "S",
+     "the unit's seconds per wall second (a simulator's --speed; default 1)"),
+    ("--stream-seconds", "stream_seconds", positive_float, None,
+     "length of the stream and heartbeat observation, unit seconds (default 30)"),
+    ("--angles", "angles_deg", angle_list, "DEG,DEG,...",
+     "rotation targets of rotation.accuracy (default 37.5,181.25,300)"),
+    ("--accuracy", "accuracy_deg", positive_float, "DEG",
+     "largest |encoder - target| after a move (default 0.05 deg)"),
+    ("--reply-limit-ms", "reply_limit_ms", positive_float, None,
+     "largest reply latency measured on the host, unit ms (default 100, the host timeout of "
+     "protocol.md 6; replies over the unit's 20 ms deadline are counted in the report)"),
+    ("--jitter-margin-ms", "jitter_margin_ms", finite_float, None,
+     "host timestamp margin added to the 10 %% heartbeat jitter bound, wall ms (default 5)"),
+    ("--rate-tolerance", "rate_tolerance", positive_float, None,
+     "relative tolerance of the sample rate and mean heartbeat period (default 0.01)"),
+    ("--settle-margin", "settle_margin_s", finite_float, "SECONDS",
+     "added (with 10 %%) to profile + settle time before a move is late (default 0.5)"),
+    ("--ready-timeout", "ready_timeout_s", positive_float, "SECONDS",
+     "longest wait for READY after boot or reset, unit seconds (default 180)"),
+)  # fmt: skip
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -56,66 +82,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     add_link_arguments(p, "serial link")
     g = p.add_argument_group("what to check and how strictly")
-    g.add_argument(
-        "--time-scale",
-        type=positive_float,
-        default=_DEFAULTS.time_scale,
-        metavar="S",
-        help="the unit's seconds per wall second (a simulator's --speed; default 1)",
-    )
-    g.add_argument(
-        "--stream-seconds",
-        type=positive_float,
-        default=_DEFAULTS.stream_seconds,
-        help="length of the stream and heartbeat observation, unit seconds (default 30)",
-    )
-    g.add_argument(
-        "--angles",
-        type=angle_list,
-        default=list(_DEFAULTS.angles_deg),
-        metavar="DEG,DEG,...",
-        help="rotation targets of rotation.accuracy (default 37.5,181.25,300)",
-    )
-    g.add_argument(
-        "--accuracy",
-        type=positive_float,
-        default=_DEFAULTS.accuracy_deg,
-        metavar="DEG",
-        help="largest |encoder - target| after a move (default 0.05 deg)",
-    )
-    g.add_argument(
-        "--reply-limit-ms",
-        type=positive_float,
-        default=_DEFAULTS.reply_limit_ms,
-        help="largest reply latency measured on the host, unit ms (default 100, the host timeout "
-        "of protocol.md 6; replies over the unit's 20 ms deadline are counted in the report)",
-    )
-    g.add_argument(
-        "--jitter-margin-ms",
-        type=finite_float,
-        default=_DEFAULTS.jitter_margin_ms,
-        help="host timestamp margin added to the 10 %% heartbeat jitter bound, wall ms (default 5)",
-    )
-    g.add_argument(
-        "--rate-tolerance",
-        type=positive_float,
-        default=_DEFAULTS.rate_tolerance,
-        help="relative tolerance of the sample rate and mean heartbeat period (default 0.01)",
-    )
-    g.add_argument(
-        "--settle-margin",
-        type=finite_float,
-        default=_DEFAULTS.settle_margin_s,
-        metavar="SECONDS",
-        help="added (with 10 %%) to profile + settle time before a move is late (default 0.5)",
-    )
-    g.add_argument(
-        "--ready-timeout",
-        type=positive_float,
-        default=_DEFAULTS.ready_timeout_s,
-        metavar="SECONDS",
-        help="longest wait for READY after boot or reset, unit seconds (default 180)",
-    )
+    for flag, field, kind, metavar, text in _FLAGS:
+        default = getattr(_DEFAULTS, field)
+        g.add_argument(flag, dest=field, type=kind, default=default, metavar=metavar, help=text)
     g.add_argument(
         "--only",
         metavar="PATTERNS",
@@ -128,19 +97,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _options(args: argparse.Namespace) -> SuiteOptions:
-    return SuiteOptions(
-        node_id=args.node_id,
-        time_scale=args.time_scale,
-        stream_seconds=args.stream_seconds,
-        angles_deg=tuple(args.angles),
-        accuracy_deg=args.accuracy,
-        reply_limit_ms=args.reply_limit_ms,
-        jitter_margin_ms=args.jitter_margin_ms,
-        rate_tolerance=args.rate_tolerance,
-        settle_margin_s=args.settle_margin,
-        ready_timeout_s=args.ready_timeout,
-        only=tuple(p.strip() for p in args.only.split(",") if p.strip()),
-    )
+    values = {field: getattr(args, field) for _, field, _, _, _ in _FLAGS}
+    values["angles_deg"] = tuple(values["angles_deg"])
+    only = tuple(p.strip() for p in args.only.split(",") if p.strip())
+    return SuiteOptions(node_id=args.node_id, only=only, **values)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -155,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         can_given = bus_given(args)
         if can_given == bool(args.serial):
             raise HostConfigError("choose exactly one link: -i/-c (python-can) or --serial PORT")
-    except HostConfigError as exc:
+    except (HostConfigError, SuiteConfigError) as exc:
         print(f"northfinder conformance: error: {exc}", file=sys.stderr)
         return 2
     closers = []

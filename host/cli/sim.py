@@ -24,6 +24,7 @@ import can.cli
 import numpy as np
 import serial
 
+from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT
 from northfinder.firmware_sim.control import Controller, ControlServer
 from northfinder.firmware_sim.firmware import Firmware, LinkInfo
 from northfinder.firmware_sim.imu import Truth
@@ -34,7 +35,7 @@ from northfinder.firmware_sim.links import (
     SerialStream,
     SlcanAdapter,
 )
-from northfinder.firmware_sim.runner import RealTimeClock, Runner
+from northfinder.firmware_sim.runner import Link, RealTimeClock, Runner
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.cli.common import (
     add_link_arguments,
@@ -119,14 +120,18 @@ def run(args: argparse.Namespace) -> int:
     elif args.pty:
         info = LinkInfo("serial", args.baud)
     else:
-        info = LinkInfo("can", getattr(args, "bitrate", None) or 500_000)
+        info = LinkInfo("can", getattr(args, "bitrate", None) or CAN_BITRATE_DEFAULT)
     firmware = Firmware(spec, truth, rng, warmup_s=args.warmup, node_id=args.node_id, link=info)
+    link: Link
     if args.serial:
         link = SerialLink(SerialStream(port), firmware)
-    elif args.pty:
-        link = SerialLink(pty.stream, firmware)
-    elif args.slcan_pty:
-        link = CanLink(SlcanAdapter(pty.stream), firmware, args.node_id)
+    elif pty is not None:
+        stream = pty.stream
+        link = (
+            SerialLink(stream, firmware)
+            if args.pty
+            else CanLink(SlcanAdapter(stream), firmware, args.node_id)
+        )
     else:
         try:
             bus = can.cli.create_bus_from_namespace(args)

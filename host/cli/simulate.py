@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, Truth, body_rates
 from northfinder.firmware_sim.sensors import load_spec
@@ -22,9 +23,6 @@ from northfinder.host.cli.common import (
     positive_float,
     sim_latitude,
 )
-
-DPH = math.pi / 180.0 / 3600.0
-UG = 9.80665e-6
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

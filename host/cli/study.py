@@ -12,50 +12,34 @@ Monte Carlo.
 
 Plan time = windows + moves + settling (the warm-up before the first window is simulated but not
 counted; the total time including it is reported too).
+
+A run whose tilt, as the accelerometers measure it, exceeds the solvers' limit (15 deg) has no
+solution; such runs are counted in ``rejected`` and left out of the statistics, never clipped.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import replace
 from typing import Any
 
-import numpy as np
-
-from northfinder.firmware_sim.batch import simulate_windows
-from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec, load_spec
+from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.cli.common import (
     add_sensor_argument,
     angle_list,
     finite_float,
     positive_float,
 )
+from northfinder.host.cli.simulated import SimulatedWindows, error_model
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
-from northfinder.host.heading import PLANS
-from northfinder.host.study import (
-    ANGLE_SOURCES,
-    SOLVERS,
-    TILT_SOURCES,
-    ErrorModel,
-    Plan,
-    PlanCandidate,
-    TableModel,
-    bound_deg,
-    chunk_errors,
-    predict,
-    search_plans,
-    shortest_plan,
-    summarize,
-)
-
-_DPH = math.pi / 180.0 / 3600.0
-#: Samples (runs x positions x samples x 6 channels) generated at once.
-CHUNK_VALUES = 24_000_000
+from northfinder.host.kernels import MAX_TILT_DEG
+from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows, verify_plan
+from northfinder.host.plan import PLANS, SOLVERS, Plan, plan_time_s, settle_time_s
+from northfinder.host.planner import PlanCandidate, search_plans, shortest_plan
 
 
 def _non_negative_float(text: str) -> float:
@@ -129,7 +113,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     g.add_argument("--window", type=positive_float, default=None, help="s per position (10)")
     g.add_argument(
-        "--settle", type=_non_negative_float, default=None, help="s after a move (preset's)"
+        "--settle",
+        type=_non_negative_float,
+        default=None,
+        help="s from the end of a move to the next window (default: the preset's table settle)",
     )
     g.add_argument(
         "--warmup",
@@ -207,167 +194,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 # ----------------------------------------------------------------------------------------------
-# Sensor spec -> planner model
-# ----------------------------------------------------------------------------------------------
-
-
-def error_model(spec: SensorSpec) -> ErrorModel:
-    """The planner's view of a sensor spec (gyro x/y figures, table, deterministic drift)."""
-    g, th = spec.gyro, spec.thermal
-    warm = np.asarray(g.warmup_bias_dph[:2]) * _DPH
-    coeff = np.asarray(g.temp_coeff_dph_per_c[:2]) * _DPH
-
-    def drift(t: np.ndarray) -> np.ndarray:
-        temp = (
-            th.warmup_rise_c * (1.0 - np.exp(-t / th.warmup_tau_s)) + th.ramp_c_per_h * t / 3600.0
-        )
-        return np.exp(-t / g.warmup_tau_s)[:, None] * warm + temp[:, None] * coeff
-
-    has_drift = bool(warm.any() or coeff.any())
-    return ErrorModel(
-        arw_dpsh=g.arw_dpsh,
-        bias_instability_dph=g.bias_instability_dph,
-        rrw_dphpsh=g.rrw_dphpsh,
-        misalignment_urad=g.misalignment_urad,
-        scale_factor_ppm=g.scale_factor_ppm,
-        vrw_ug_rthz=spec.accel.vrw_ug_rthz,
-        table=TableModel(
-            max_rate_dps=spec.table.max_rate_dps,
-            max_accel_dps2=spec.table.max_accel_dps2,
-            settle_s=spec.table.settle_s,
-            indexing_error_deg=spec.table.indexing_error_deg,
-        ),
-        drift_rps=drift if has_drift else None,
-    )
-
-
-# ----------------------------------------------------------------------------------------------
-# Monte Carlo
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class StudySettings:
-    """Everything a Monte Carlo study needs besides the spec and the plan."""
-
-    latitude_deg: float = 34.0
-    azimuth_deg: float | None = None
-    pitch_deg: float = 0.0
-    roll_deg: float = 0.0
-    warmup_s: float = 120.0
-    sample_rate_hz: float = 200.0
-    denoise: str = "none"
-    denoise_options: tuple[tuple[str, Any], ...] = ()
-    denoise_accel: bool = False
-    solver: str = "auto"
-    tilt: str = "accel"
-    angles: str = "encoder"
-    bias_step_dph: float = 0.0
-
-
-def monte_carlo(
-    spec: SensorSpec,
-    plan: Plan,
-    settings: StudySettings,
-    runs: int,
-    seed: int,
-    *,
-    chunk_values: int = CHUNK_VALUES,
-) -> np.ndarray:
-    """Azimuth errors of ``runs`` seeded runs, deg: shape (runs,), or (runs, P - 1) pairwise.
-
-    Runs are drawn in chunks so that at most about ``chunk_values`` samples exist at once; the
-    result depends on the chunk size only through the order of the random draws.
-    """
-    if runs < 2:
-        raise HostConfigError(f"runs: need at least 2 runs for statistics, got {runs}")
-    rng = np.random.default_rng(seed)
-    p = len(plan.positions_deg)
-    n = round(plan.window_s * settings.sample_rate_hz)
-    chunk = max(1, min(runs, chunk_values // max(1, p * n * 6)))
-    out = []
-    done = 0
-    while done < runs:
-        m = min(chunk, runs - done)
-        if settings.azimuth_deg is None:
-            az = rng.uniform(0.0, 360.0, m)
-        else:
-            az = np.full(m, settings.azimuth_deg)
-        truths = [
-            Truth(float(a), settings.latitude_deg, settings.pitch_deg, settings.roll_deg)
-            for a in az
-        ]
-        batch = simulate_windows(
-            spec,
-            truths,
-            plan.positions_deg,
-            plan.window_s,
-            plan.settle_s,
-            n_runs=m,
-            rng=rng,
-            sample_rate_hz=settings.sample_rate_hz,
-            warmup_s=settings.warmup_s,
-            bias_step_dph=settings.bias_step_dph,
-        )
-        angles = batch.table_deg if settings.angles == "encoder" else batch.commanded_deg
-        out.append(
-            chunk_errors(
-                batch.gyro_rps,
-                None if settings.tilt == "level" else batch.accel_mps2,
-                angles,
-                batch.azimuth_deg,
-                settings.latitude_deg,
-                solver=settings.solver,
-                denoise_method=settings.denoise,
-                denoise_options=dict(settings.denoise_options),
-                denoise_accel=settings.denoise_accel,
-            )
-        )
-        done += m
-        del batch
-    return np.concatenate(out)
-
-
-def study_rows(
-    spec: SensorSpec, plan: Plan, settings: StudySettings, errors: np.ndarray
-) -> list[dict[str, Any]]:
-    """One result row per solution (one, or one per pair with ``pairwise``)."""
-    model = error_model(spec)
-    pos = plan.positions_deg
-    pairwise = errors.ndim == 2
-    subplans = (
-        [Plan((pos[0], pos[k]), plan.window_s, plan.settle_s) for k in range(1, len(pos))]
-        if pairwise
-        else []
-    )
-    rows = []
-    stats = summarize(errors)
-    for i, s in enumerate(stats if pairwise else [stats]):
-        sub = subplans[i] if pairwise else plan
-        b = bound_deg(sub.positions_deg, plan.window_s, spec.gyro.arw_dpsh, settings.latitude_deg)
-        pred = predict(
-            model,
-            sub,
-            settings.latitude_deg,
-            warmup_s=settings.warmup_s,
-            tilt=settings.tilt,
-            angles=settings.angles,
-        )
-        row: dict[str, Any] = {
-            "positions_deg": list(sub.positions_deg),
-            **asdict(s),
-            "bound_deg": b,
-            "ratio": s.rmse_deg / b if b > 0 else math.inf,
-            "predicted_deg": pred.sigma_deg,
-            "predicted_parts_deg": pred.parts_deg,
-        }
-        if pairwise:
-            row["mu_deg"] = sub.positions_deg[1] - sub.positions_deg[0]
-        rows.append(row)
-    return rows
-
-
-# ----------------------------------------------------------------------------------------------
 # Command
 # ----------------------------------------------------------------------------------------------
 
@@ -379,13 +205,25 @@ def _load(args: argparse.Namespace) -> SensorSpec:
     return spec
 
 
-def _plan(args: argparse.Namespace, spec: SensorSpec) -> Plan:
+def _processing(args: argparse.Namespace, plan: Plan) -> Plan:
+    """The plan with the denoising and solver of the arguments."""
+    return replace(
+        plan,
+        denoise=args.denoise,
+        method=args.solver,
+        denoise_options=tuple(args.denoise_options),
+    )
+
+
+def _plan(args: argparse.Namespace) -> Plan:
     if args.named_plan and args.positions:
         raise HostConfigError("give either --plan or --positions, not both")
     if args.named_plan:
         named = PLANS[args.named_plan]
-        return Plan(named.angles_deg, args.window or named.dwell_s, args.settle)
-    return Plan(tuple(args.positions or (0.0, 180.0)), args.window or 10.0, args.settle)
+        plan = replace(named, window_s=args.window or named.window_s, settle_s=args.settle)
+    else:
+        plan = Plan(tuple(args.positions or (0.0, 180.0)), args.window or 10.0, args.settle)
+    return _processing(args, plan)
 
 
 def _settings(args: argparse.Namespace) -> StudySettings:
@@ -396,10 +234,7 @@ def _settings(args: argparse.Namespace) -> StudySettings:
         roll_deg=args.roll,
         warmup_s=args.warmup,
         sample_rate_hz=args.rate,
-        denoise=args.denoise,
-        denoise_options=tuple(args.denoise_options),
         denoise_accel=args.denoise_accel,
-        solver=args.solver,
         tilt=args.tilt,
         angles=args.angles,
         bias_step_dph=args.bias_step,
@@ -407,11 +242,11 @@ def _settings(args: argparse.Namespace) -> StudySettings:
 
 
 def _plan_json(plan: Plan, model: ErrorModel, warmup_s: float) -> dict[str, Any]:
-    t = predict(model, plan, 45.0).plan_time_s  # plan time does not depend on latitude
+    t = plan_time_s(plan, model.table)
     return {
         "positions_deg": list(plan.positions_deg),
         "window_s": plan.window_s,
-        "settle_s": model.table.settle_s if plan.settle_s is None else plan.settle_s,
+        "settle_s": settle_time_s(plan, model.table),
         "plan_time_s": t,
         "warmup_s": warmup_s,
         "total_time_s": t + warmup_s,
@@ -426,32 +261,6 @@ def _candidate_json(c: PlanCandidate, model: ErrorModel, warmup_s: float) -> dic
         "predicted_parts_deg": c.prediction.parts_deg,
         "allan_limited": c.allan_limited,
     }
-
-
-def verify_plan(
-    spec: SensorSpec,
-    plan: Plan,
-    settings: StudySettings,
-    runs: int,
-    seed: int,
-    target_deg: float | None = None,
-    max_rounds: int = 4,
-) -> tuple[Plan, dict[str, Any]]:
-    """Monte Carlo of a plan; with a target, lengthen the window until the simulated RMSE meets it.
-
-    Each round scales the window by ``1.05 (RMSE / target)^2`` (white noise falls as the square
-    root of the dwell), at most ``max_rounds`` rounds.
-    """
-    for _ in range(max_rounds):
-        errors = monte_carlo(spec, plan, settings, runs, seed)
-        row = study_rows(spec, plan, settings, errors)[0]
-        if target_deg is None or row["rmse_deg"] <= target_deg:
-            row["meets_target"] = target_deg is None or row["rmse_deg"] <= target_deg
-            return plan, row
-        grow = 1.05 * (row["rmse_deg"] / target_deg) ** 2
-        plan = Plan(plan.positions_deg, plan.window_s * grow, plan.settle_s)
-    row["meets_target"] = False
-    return plan, row
 
 
 def _print_rows(rows: list[dict[str, Any]]) -> None:
@@ -493,7 +302,15 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         best_plan = None if cand is None else cand.plan
     if best_plan is not None and args.runs > 0:
         t0 = time.perf_counter()
-        plan, row = verify_plan(spec, best_plan, settings, args.runs, args.seed, args.plan_target)
+        plan, row = verify_plan(
+            SimulatedWindows(spec),
+            model,
+            _processing(args, best_plan),
+            settings,
+            args.runs,
+            args.seed,
+            args.plan_target,
+        )
         report["verified"] = {
             **_plan_json(plan, model, args.warmup),
             **row,
@@ -543,10 +360,11 @@ def _sweep(
     seed: int,
 ) -> list[dict[str, Any]]:
     model = error_model(spec)
+    generator = SimulatedWindows(spec)
     out = []
     for w in windows:
-        sub = Plan(plan.positions_deg, w, plan.settle_s)
-        rows = study_rows(spec, sub, settings, monte_carlo(spec, sub, settings, runs, seed))
+        sub = replace(plan, window_s=w)
+        rows = study_rows(model, sub, settings, monte_carlo(generator, sub, settings, runs, seed))
         out.append({"window_s": w, **_plan_json(sub, model, settings.warmup_s), **rows[0]})
     return out
 
@@ -593,12 +411,12 @@ def run(args: argparse.Namespace) -> int:
         raise HostConfigError(f"--runs: need at least 2 runs for statistics, got {args.runs}")
     if args.plan_budget is not None or args.plan_target is not None:
         return _run_planner(args, spec, settings)
-    plan = _plan(args, spec)
+    plan = _plan(args)
     model = error_model(spec)
     t0 = time.perf_counter()
-    errors = monte_carlo(spec, plan, settings, args.runs, args.seed)
+    errors = monte_carlo(SimulatedWindows(spec), plan, settings, args.runs, args.seed)
     wall = time.perf_counter() - t0
-    rows = study_rows(spec, plan, settings, errors)
+    rows = study_rows(model, plan, settings, errors)
     report: dict[str, Any] = {
         "sensor": spec.name,
         "latitude_deg": args.latitude,
@@ -638,6 +456,12 @@ def run(args: argparse.Namespace) -> int:
         f"{p['total_time_s']:.1f} s with {args.warmup:g} s warm-up); Monte Carlo {wall:.2f} s"
     )
     _print_rows(rows)
+    rejected = max(r["rejected"] for r in rows)
+    if rejected:
+        print(
+            f"{rejected} of {args.runs} runs had no solution (tilt beyond +-{MAX_TILT_DEG:g} deg "
+            "or a fit that did not converge); the statistics are over the others"
+        )
     if args.plot:
         print(f"plot of error versus time to north: {args.plot}")
     return 0

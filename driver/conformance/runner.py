@@ -10,21 +10,14 @@ from typing import Any
 import can
 import serial
 
-import northfinder.host.conformance.checks  # noqa: F401  (registers the checks)
+from northfinder.driver.conformance.checks import select_checks
+from northfinder.driver.conformance.core import CheckResult, Ctx, Report, SuiteOptions
+from northfinder.driver.conformance.errors import LinkFault, Skipped
+from northfinder.driver.conformance.links import RawLink
+from northfinder.driver.conformance.session import Session
 from northfinder.driver.errors import DriverError
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState
 from northfinder.driver.protocol.messages import Reset, SetConfig, Stop
-from northfinder.host.conformance.core import (
-    CheckResult,
-    Ctx,
-    Report,
-    Skipped,
-    SuiteOptions,
-    select_checks,
-)
-from northfinder.host.conformance.links import RawLink
-from northfinder.host.conformance.session import LinkFault, Session
-from northfinder.host.errors import HostError
 
 __all__ = ["restore", "run_suite"]
 
@@ -32,7 +25,6 @@ _NO_RECOVERY = "the unit did not recover"
 
 _LINK_ERRORS = (
     LinkFault,
-    HostError,
     DriverError,
     can.CanError,
     serial.SerialException,
@@ -53,8 +45,8 @@ def run_suite(
     Parameters
     ----------
     link : RawLink
-        The suite's end of the link (a :class:`~northfinder.host.conformance.links.CanRawLink` or
-        :class:`~northfinder.host.conformance.links.SerialRawLink`).
+        The suite's end of the link (a :class:`~northfinder.driver.conformance.links.CanRawLink` or
+        :class:`~northfinder.driver.conformance.links.SerialRawLink`).
     options : SuiteOptions
     progress : callable, optional
         Called with each result as soon as it is known.

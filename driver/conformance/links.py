@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 import can
 import serial
 
-from northfinder.driver.errors import ProtocolError, UnknownMessageError
 from northfinder.driver.protocol.can import IdentifyAssembler, can_id, decode_can
 from northfinder.driver.protocol.constants import CanFunction, SerialType
+from northfinder.driver.protocol.errors import ProtocolError, UnknownMessageError
 from northfinder.driver.protocol.messages import (
     IdentifyPage,
     Reply,
@@ -70,6 +70,14 @@ class Arrival:
     t: float
     message: object
     seq: int | None = None
+
+
+_P = TypeVar("_P", SampleX, SampleY, SampleZ, SampleAux)
+
+
+def _part(parts: dict[type, SampleAxis | SampleAux], kind: type[_P]) -> _P | None:
+    part = parts.get(kind)
+    return part if isinstance(part, kind) else None
 
 
 class RawLink(Protocol):
@@ -187,18 +195,14 @@ class CanRawLink:
 
     def _close_tick(self, t: float, out: list[Arrival]) -> None:
         p = self._parts
-        out.append(
-            Arrival(
-                t,
-                TickParts(
-                    self._tick or 0,
-                    p.get(SampleX),
-                    p.get(SampleY),
-                    p.get(SampleZ),
-                    p.get(SampleAux),
-                ),  # type: ignore[arg-type]
-            )
+        tick = TickParts(
+            self._tick or 0,
+            _part(p, SampleX),
+            _part(p, SampleY),
+            _part(p, SampleZ),
+            _part(p, SampleAux),
         )
+        out.append(Arrival(t, tick))
         self._tick = None
         self._parts = {}
 

@@ -6,7 +6,7 @@ import textwrap
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from northfinder.host.conformance.core import CheckResult, Report, SuiteOptions
+from northfinder.driver.conformance.core import CheckResult, Report, SuiteOptions
 
 __all__ = [
     "format_header",

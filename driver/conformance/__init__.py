@@ -7,6 +7,12 @@ configuration, stream and heartbeat timing, every command's reply and every refu
 rotations. Each check passes, fails or is skipped with a message and measured figures; a failure
 does not stop the run, and the unit is restored (STOP, RESET if needed) before the next check.
 
+It validates the protocol, so it lives beside the driver and imports only the driver's codec,
+transport helpers and errors (never the host or the simulator). Modules: :mod:`.links` (raw links),
+:mod:`.session` (requests, replies and the record of what the unit sent), :mod:`.core` (options,
+results, the check context), :mod:`.checks` (the checks, one module per protocol section),
+:mod:`.runner` (running and restoring), :mod:`.report` (text and JUnit XML), :mod:`.errors`.
+
 Time: the suite runs on the host's wall clock. A simulator running accelerated is judged in its own
 time by giving ``time_scale`` (the unit's seconds per wall second). Reply latencies are measured on
 the host and so include link and host latency; they are judged against ``reply_limit_ms`` (default
@@ -19,16 +25,16 @@ Example::
     print(format_report(report))
 """
 
-from northfinder.host.conformance.core import (
-    CHECKS,
-    Check,
-    CheckResult,
-    Report,
-    SuiteOptions,
-    select_checks,
+from northfinder.driver.conformance.checks import CHECKS, select_checks
+from northfinder.driver.conformance.core import Check, CheckResult, Report, SuiteOptions
+from northfinder.driver.conformance.errors import (
+    ConformanceError,
+    LinkFault,
+    Skipped,
+    SuiteConfigError,
 )
-from northfinder.host.conformance.links import CanRawLink, RawLink, SerialRawLink
-from northfinder.host.conformance.report import (
+from northfinder.driver.conformance.links import CanRawLink, RawLink, SerialRawLink
+from northfinder.driver.conformance.report import (
     format_header,
     format_report,
     format_result,
@@ -36,16 +42,20 @@ from northfinder.host.conformance.report import (
     junit_xml,
     write_junit,
 )
-from northfinder.host.conformance.runner import restore, run_suite
+from northfinder.driver.conformance.runner import restore, run_suite
 
 __all__ = [
     "CHECKS",
     "CanRawLink",
     "Check",
     "CheckResult",
+    "ConformanceError",
+    "LinkFault",
     "RawLink",
     "Report",
     "SerialRawLink",
+    "Skipped",
+    "SuiteConfigError",
     "SuiteOptions",
     "format_header",
     "format_report",

@@ -18,7 +18,10 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from northfinder.driver.conformance.errors import LinkFault
+from northfinder.driver.conformance.links import Arrival, RawLink, TickParts
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
+from northfinder.driver.protocol.counters import TickCounter, counter_diff
 from northfinder.driver.protocol.messages import (
     Command,
     GetConfig,
@@ -30,16 +33,8 @@ from northfinder.driver.protocol.messages import (
     StreamStart,
     StreamStop,
 )
-from northfinder.host.conformance.links import Arrival, RawLink, TickParts
-from northfinder.host.errors import HostError
 
 __all__ = ["Answer", "LinkFault", "SampleRecord", "Session"]
-
-U32 = 0xFFFFFFFF
-
-
-class LinkFault(HostError):
-    """The unit stopped answering in a way that makes the current check meaningless."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,11 +94,6 @@ class Answer:
             return f"opcode 0x{self.opcode:02X}"
 
 
-def _nearest(low8: int, reference: int) -> int:
-    """The 32-bit counter with low byte ``low8`` nearest to ``reference``."""
-    return (reference + ((low8 - reference + 128) & 0xFF) - 128) & U32
-
-
 class Session:
     """Requests, replies and the record of one unit on one raw link.
 
@@ -136,9 +126,7 @@ class Session:
         """Whether the suite believes the stream is on (it switched it on, or saw samples)."""
         self._pending: dict[tuple[int, int], Answer] = {}
         self._last_counter: int | None = None
-        self._last_tick: int | None = None
-        self._anchored = False
-        self._anchor: int | None = None
+        self._ticks = TickCounter()  # CAN: the 8-bit tick extended to the full counter
         self.status_offsets: list[tuple[float, int]] = []
         """(time, latest sample counter - status sample counter) while streaming."""
         self._last_seq: int | None = None
@@ -238,26 +226,15 @@ class Session:
                 self.begin_segment()
                 self.streaming = False
             self.state = s.state
-        self._anchor = s.sample_counter
-        if self._last_counter is not None and self.samples:
-            if not self._anchored:
-                # CAN counters before the first status are only known modulo 256.
-                self._last_counter = _nearest(self._last_counter & 0xFF, s.sample_counter)
-                self._anchored = True
-            elif t - self.samples[-1].t < 0.05:
-                diff = (self._last_counter - s.sample_counter + (1 << 31)) % (1 << 32) - (1 << 31)
-                self.status_offsets.append((t, diff))
+        if self._ticks.sync(s.sample_counter):
+            # CAN counters before the first status were known modulo 256 only: now placed.
+            self._last_counter = self._ticks.last
+        elif self._last_counter is not None and self.samples and t - self.samples[-1].t < 0.05:
+            diff = counter_diff(self._last_counter, s.sample_counter)
+            self.status_offsets.append((t, diff))
 
     def _on_tick(self, t: float, p: TickParts) -> None:
-        if self._last_counter is not None and self._last_tick is not None:
-            counter = (self._last_counter + ((p.tick - self._last_tick) & 0xFF)) & U32
-        elif self._anchor is not None:
-            counter = _nearest(p.tick, (self._anchor + 1) & U32)
-            self._anchored = True
-        else:
-            counter = p.tick
-            self._anchored = False
-        self._last_tick = p.tick
+        counter, _ = self._ticks.place(p.tick)
         if not p.complete:
             missing = [n for n, f in zip("XYZ", (p.x, p.y, p.z), strict=True) if f is None]
             missing += ["AUX"] if p.aux is None else []
@@ -277,16 +254,15 @@ class Session:
         self, t: float, counter: int, validity: int, angle: int | None, ok: bool
     ) -> None:
         last = self._last_counter
-        if last is not None and counter != (last + 1) & U32:
-            d = (counter - last) & U32
-            if d == 0:
-                self.gaps.append((t, f"sample counter {counter} repeated"))
-            elif d < 1 << 31:
-                self.gaps.append(
-                    (t, f"sample counter jumped from {last} to {counter}: {d - 1} tick(s) missing")
-                )
-            else:
-                self.gaps.append((t, f"sample counter went back from {last} to {counter}"))
+        d = 1 if last is None else counter_diff(counter, last)
+        if d == 0:
+            self.gaps.append((t, f"sample counter {counter} repeated"))
+        elif d > 1:
+            self.gaps.append(
+                (t, f"sample counter jumped from {last} to {counter}: {d - 1} tick(s) missing")
+            )
+        elif d < 0:
+            self.gaps.append((t, f"sample counter went back from {last} to {counter}"))
         self._last_counter = counter
         self.streaming = True
         self.samples.append(SampleRecord(t, counter, validity, angle, ok))
@@ -294,8 +270,7 @@ class Session:
     def begin_segment(self) -> None:
         """The stream (re)starts: counters need not continue from the previous sample."""
         self._last_counter = None
-        self._last_tick = None
-        self._anchored = False
+        self._ticks.restart()
 
     def expect_restart(self) -> None:
         """The unit is about to reset: its serial sequence counter will restart at 0."""

@@ -1,28 +1,36 @@
-"""Options, results and the check registry of the conformance suite."""
+"""Options, results, the check registry and the context a check works with."""
 
 from __future__ import annotations
 
-import fnmatch
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
-from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Result
-from northfinder.host.conformance.session import Answer, LinkFault, Session, describe_result
-from northfinder.host.errors import HostConfigError
+from northfinder.driver.conformance.errors import (
+    ConformanceError,
+    LinkFault,
+    Skipped,
+    SuiteConfigError,
+)
+from northfinder.driver.conformance.session import Answer, Session, describe_result
+from northfinder.driver.protocol.constants import (
+    NODE_ID_MAX,
+    NODE_ID_MIN,
+    ConfigKey,
+    DeviceState,
+    Result,
+)
 
 __all__ = [
-    "CHECKS",
+    "REGISTRY",
     "Check",
     "CheckResult",
     "Ctx",
     "Outcome",
     "Report",
-    "Skipped",
     "SuiteOptions",
     "check",
-    "select_checks",
 ]
 
 Outcome = str
@@ -86,17 +94,19 @@ class SuiteOptions:
         }
         for name, value in positive.items():
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise HostConfigError(f"{name}: must be a positive number, got {value!r}")
+                raise SuiteConfigError(f"{name}: must be a positive number, got {value!r}")
         for name, value in (
             ("jitter_margin_ms", self.jitter_margin_ms),
             ("settle_margin_s", self.settle_margin_s),
         ):
             if not (math.isfinite(value) and value >= 0):
-                raise HostConfigError(f"{name}: must be >= 0, got {value!r}")
-        if not 1 <= self.node_id <= 15:
-            raise HostConfigError(f"node_id: must be 1..15, got {self.node_id}")
+                raise SuiteConfigError(f"{name}: must be >= 0, got {value!r}")
+        if not NODE_ID_MIN <= self.node_id <= NODE_ID_MAX:
+            raise SuiteConfigError(
+                f"node_id: must be {NODE_ID_MIN}..{NODE_ID_MAX}, got {self.node_id}"
+            )
         if not self.angles_deg or not all(math.isfinite(a) for a in self.angles_deg):
-            raise HostConfigError("angles: give at least one finite angle in degrees")
+            raise SuiteConfigError("angles: give at least one finite angle in degrees")
 
 
 @dataclass
@@ -146,10 +156,6 @@ class Report:
         raise KeyError(name)
 
 
-class Skipped(Exception):
-    """Raised by a check that cannot apply to this unit or link."""
-
-
 @dataclass(frozen=True)
 class Check:
     """A named check: ``fn(ctx)`` records figures and problems on the context."""
@@ -159,37 +165,21 @@ class Check:
     fn: Callable[[Ctx], None]
 
 
-CHECKS: list[Check] = []
-"""Every check in the order the suite runs them."""
+REGISTRY: dict[str, Check] = {}
+"""Every check by name, as the modules of :mod:`northfinder.driver.conformance.checks` define them;
+that package puts them in the order the suite runs them (``CHECKS``)."""
 
 
 def check(name: str, summary: str) -> Callable[[Callable[[Ctx], None]], Callable[[Ctx], None]]:
     """Register a check function under ``name``."""
 
     def register(fn: Callable[[Ctx], None]) -> Callable[[Ctx], None]:
-        if any(c.name == name for c in CHECKS):
-            raise ValueError(f"check {name!r} registered twice")
-        CHECKS.append(Check(name, summary, fn))
+        if name in REGISTRY:
+            raise ConformanceError(f"check {name!r} registered twice")
+        REGISTRY[name] = Check(name, summary, fn)
         return fn
 
     return register
-
-
-def select_checks(patterns: tuple[str, ...]) -> list[Check]:
-    """The checks matching any glob pattern (all when none), in suite order.
-
-    Raises
-    ------
-    HostConfigError
-        A pattern that matches no check (the message lists the checks).
-    """
-    if not patterns:
-        return list(CHECKS)
-    for p in patterns:
-        if not any(fnmatch.fnmatchcase(c.name, p) for c in CHECKS):
-            names = ", ".join(c.name for c in CHECKS)
-            raise HostConfigError(f"no check matches {p!r}; checks are {names}")
-    return [c for c in CHECKS if any(fnmatch.fnmatchcase(c.name, p) for p in patterns)]
 
 
 class Ctx:
@@ -215,7 +205,7 @@ class Ctx:
         self.notes.append(text)
 
     @staticmethod
-    def skip(reason: str) -> None:
+    def skip(reason: str) -> NoReturn:
         raise Skipped(reason)
 
     # -- units ------------------------------------------------------------------------------------

@@ -1,0 +1,209 @@
+"""The sample stream and the heartbeat (protocol.md 4.1, 4.5, 6, 8): switching the stream, then one
+observation window (stream on, no commands) judged for period, jitter, rate, counters and validity."""
+
+from __future__ import annotations
+
+import itertools
+import statistics
+
+from northfinder.driver.conformance.checks.common import judge_validity
+from northfinder.driver.conformance.core import Ctx, check
+from northfinder.driver.protocol.constants import ConfigKey, Result
+from northfinder.driver.protocol.messages import StreamStart, StreamStop
+
+STATUS_OFFSET_LIMIT = 16
+"""Largest allowed difference, in ticks, between the counter of STATUS_COUNTERS and the latest
+sample received: the anchor of the 8-bit tick extension (protocol.md 8) must be well within 128."""
+
+
+@check(
+    "command.stream_stop",
+    "STREAM_STOP answered OK; no sample after the current tick; STREAMING reads 0 (4.1)",
+)
+def command_stream_stop(c: Ctx) -> None:
+    s = c.s
+    rate = c.config()[ConfigKey.SAMPLE_RATE_HZ]
+    a = s.request(StreamStop(0))
+    if not c.expect(a, Result.OK, "STREAM_STOP") or a.received is None:
+        return
+    s.streaming = False
+    s.idle(max(0.3, 5.0 / rate))
+    late = [
+        r for r in s.samples if r.t > a.received + s.wall(1.0 / rate) + c.opt.reply_limit_ms / 1000
+    ]
+    if late:
+        c.fail(
+            f"{len(late)} sample(s) arrived after STREAM_STOP and its tick (last counter {late[-1].counter})"
+        )
+    v = s.get_config(ConfigKey.STREAMING)
+    if v != 0:
+        c.fail(f"STREAMING reads {v} after STREAM_STOP")
+
+
+@check(
+    "command.stream_start",
+    "STREAM_START answered OK; samples start at the next tick; STREAMING reads 1 (4.1)",
+)
+def command_stream_start(c: Ctx) -> None:
+    s = c.s
+    rate = c.config()[ConfigKey.SAMPLE_RATE_HZ]
+    if s.streaming:
+        s.stop_stream()
+        s.idle(0.2)
+    s.begin_segment()
+    a = s.request(StreamStart(0))
+    if not c.expect(a, Result.OK, "STREAM_START") or a.received is None:
+        return
+    s.streaming = True
+    n = len(s.samples)
+    if not s.wait_until(lambda: len(s.samples) > n, s.wall(1.0 / rate) + 0.5):
+        c.fail("no sample arrived after STREAM_START")
+        return
+    first = c.ms(s.samples[n].t - a.received)
+    c.fig("first sample after reply", f"{first:.1f} ms")
+    if first > 1000.0 / rate + c.opt.reply_limit_ms:
+        c.fail(
+            f"the first sample came {first:.0f} ms after the reply (one tick is {1000 / rate:g} ms)"
+        )
+    v = s.get_config(ConfigKey.STREAMING)
+    if v != 1:
+        c.fail(f"STREAMING reads {v} after STREAM_START")
+
+
+def observation(c: Ctx) -> tuple[float, float]:
+    """The observation window (stream on, no commands), taken once and shared."""
+    if "window" not in c.shared:
+        c.ready()
+        c.stream_on()
+        seconds = max(c.opt.stream_seconds, 3.0)
+        t0 = c.s.now()
+        c.s.idle(seconds)
+        c.shared["window"] = (t0, c.s.now())
+    t0, t1 = c.shared["window"]
+    return t0, t1
+
+
+def heartbeat_intervals(c: Ctx) -> list[float]:
+    """Intervals between statuses of the window, unit ms (a state change sends an extra status)."""
+    t0, t1 = observation(c)
+    sts = [(t, st) for t, st in c.s.statuses if t0 <= t <= t1]
+    out = []
+    for (ta, sa), (tb, sb) in itertools.pairwise(sts):
+        if sa.state == sb.state:
+            out.append(c.ms(tb - ta))
+    return out
+
+
+@check(
+    "heartbeat.period",
+    "heartbeat period (fit over the window) equals HEARTBEAT_PERIOD_MS within the rate tolerance (6)",
+)
+def heartbeat_period(c: Ctx) -> None:
+    period = c.config()[ConfigKey.HEARTBEAT_PERIOD_MS]
+    t0, t1 = observation(c)
+    times = [t for t, _ in c.s.statuses if t0 <= t <= t1]
+    if len(times) < 6:
+        c.fail(f"only {len(times)} status message(s) in the window")
+        return
+    # The slope of arrival time against index: a late arrival at an end barely moves it.
+    mean = c.ms(statistics.linear_regression(range(len(times)), times).slope)
+    c.fig("period", f"{mean:.2f} ms (configured {period})")
+    c.fig("median interval", f"{statistics.median(heartbeat_intervals(c)):.2f} ms")
+    c.fig("statuses", len(times))
+    if abs(mean - period) > c.opt.rate_tolerance * period:
+        c.fail(
+            f"heartbeat period {mean:.2f} ms, configured {period} ms "
+            f"(tolerance {c.opt.rate_tolerance:.0%})"
+        )
+
+
+@check(
+    "heartbeat.jitter",
+    "every heartbeat interval within 10 % of the period, plus the host margin (6)",
+)
+def heartbeat_jitter(c: Ctx) -> None:
+    period = c.config()[ConfigKey.HEARTBEAT_PERIOD_MS]
+    iv = heartbeat_intervals(c)
+    if len(iv) < 5:
+        c.fail(f"only {len(iv) + 1} status message(s) in the window")
+        return
+    dev = [abs(x - period) for x in iv]
+    limit = 0.1 * period + c.s.unit(c.opt.jitter_margin_ms)
+    c.fig("max deviation", f"{max(dev):.2f} ms")
+    c.fig("std", f"{statistics.pstdev(iv):.2f} ms")
+    c.fig("limit", f"{limit:.1f} ms")
+    if max(dev) > limit:
+        worst = iv[dev.index(max(dev))]
+        c.fail(
+            f"a heartbeat interval of {worst:.1f} ms against a period of {period} ms (limit +-{limit:.1f} ms)"
+        )
+
+
+@check(
+    "stream.rate", "sample rate over the window equals SAMPLE_RATE_HZ within the rate tolerance (6)"
+)
+def stream_rate(c: Ctx) -> None:
+    t0, t1 = observation(c)
+    rate = c.config()[ConfigKey.SAMPLE_RATE_HZ]
+    recs = c.s.samples_between(t0, t1)
+    c.fig("window", f"{c.s.unit(t1 - t0):.1f} s")
+    c.fig("samples", len(recs))
+    if len(recs) < 10:
+        c.fail(f"only {len(recs)} samples in {c.s.unit(t1 - t0):.1f} s")
+        return
+    ts = [r.t for r in recs]
+    # Samples received against time: a counter jump is stream.counters' business, not the rate's.
+    slope = statistics.linear_regression(ts, range(len(ts))).slope  # samples per wall second
+    measured = slope / c.s.time_scale
+    received = len(recs) / (c.s.unit(ts[-1] - ts[0]) or 1.0)
+    c.fig("rate", f"{measured:.3f} Hz (configured {rate})")
+    c.fig("received", f"{received:.2f} samples/s")
+    if abs(measured - rate) > c.opt.rate_tolerance * rate:
+        c.fail(
+            f"sample rate {measured:.3f} Hz, configured {rate} Hz (tolerance {c.opt.rate_tolerance:.0%})"
+        )
+    if abs(received - rate) > c.opt.rate_tolerance * rate + 2.0 / c.s.unit(ts[-1] - ts[0]):
+        c.fail(f"{received:.2f} samples/s received against {rate} Hz")
+
+
+@check(
+    "stream.counters",
+    "sample counter +1 per tick with no gap, no incomplete tick, no lost frame (4.5, 8)",
+)
+def stream_counters(c: Ctx) -> None:
+    s = c.s
+    t0, t1 = observation(c)
+    recs = s.samples_between(t0, t1)
+    gaps = [text for t, text in s.gaps if t0 <= t <= t1]
+    c.fig("samples", len(recs))
+    if recs:
+        c.fig("counters", f"{recs[0].counter}..{recs[-1].counter}")
+    c.fig("gaps", len(gaps))
+    if not recs:
+        c.fail("no samples in the window")
+    if gaps:
+        c.fail("; ".join(gaps[:3]) + (f" (+{len(gaps) - 3} more)" if len(gaps) > 3 else ""))
+    offs = [d for t, d in s.status_offsets if t0 <= t <= t1]
+    if offs:
+        c.fig("status counter offset", f"{min(offs)}..{max(offs)} ticks")
+        bad = [o for o in offs if abs(o) > STATUS_OFFSET_LIMIT]
+        if bad:
+            c.fail(
+                f"STATUS_COUNTERS sample counter differs from the latest sample by {bad[0]} ticks "
+                f"(limit {STATUS_OFFSET_LIMIT})"
+            )
+
+
+@check(
+    "stream.validity",
+    "validity bits of every sample match the state: READY gives GYRO_VALID|ACCEL_VALID, bits 2..7 clear (4.5)",
+)
+def stream_validity(c: Ctx) -> None:
+    t0, t1 = observation(c)
+    judged, bad, problems = judge_validity(c, c.s.samples_between(t0, t1))
+    c.fig("judged", judged)
+    c.fig("bad", bad)
+    if not judged:
+        c.fail("no samples to judge")
+    if bad:
+        c.fail(f"{bad} of {judged} samples: " + "; ".join(problems))

@@ -1,0 +1,28 @@
+"""Exceptions of the conformance suite.
+
+:class:`ConformanceError` derives from :class:`~northfinder.driver.errors.DriverError`, the root of
+the driver package, so a caller of the suite catches everything the driver raises with one
+``except``. :class:`Skipped` is not an error: a check raises it to say it does not apply.
+"""
+
+from __future__ import annotations
+
+from northfinder.driver.errors import DriverError
+
+__all__ = ["ConformanceError", "LinkFault", "Skipped", "SuiteConfigError"]
+
+
+class ConformanceError(DriverError):
+    """Root of the errors of :mod:`northfinder.driver.conformance`."""
+
+
+class SuiteConfigError(ConformanceError, ValueError):
+    """An option of the suite is invalid, or a check pattern matches nothing (the message names it)."""
+
+
+class LinkFault(ConformanceError):
+    """The unit stopped answering in a way that makes the current check meaningless."""
+
+
+class Skipped(Exception):
+    """Raised by a check that cannot apply to this unit or link; the reason is its message."""

@@ -1,0 +1,388 @@
+"""The sensor error terms, defined once for every generator of sensor data.
+
+The step-by-step instrument (:class:`northfinder.firmware_sim.imu.Instrument`) and the batch
+generator (:func:`northfinder.firmware_sim.batch.simulate_windows`) draw their samples from the
+definitions here, so that both describe the same sensor: the conversion of a :class:`SensorSpec`
+from datasheet units to SI (:class:`ErrorTerms`), the sample rates the model honours, the turn-on
+draws and error matrices, the temperature model, the warm-up transient, the flicker-noise model
+(a sum of Gauss-Markov processes) with its random walks, impulses, the vibration line and
+quantisation with carry. Host code that predicts accuracy from a spec (the study's error model)
+uses the same conversion and flicker constants.
+
+Channel layout
+--------------
+Every per-channel array has six entries on its last axis: gyro x, y, z (rad/s), then
+accelerometer x, y, z (m/s^2); :data:`GYRO` and :data:`ACCEL` slice them.
+
+Flicker noise
+-------------
+Bias instability ``B`` is flicker noise with one-sided PSD ``B^2 / (pi f)`` (IEEE Std 952's
+``(B^2 / 2 pi) / f``, two-sided), whose Allan deviation has its floor ``B sqrt(2 ln 2 / pi) =
+0.664 B``. It is built on a grid of :data:`FLICKER_GRID_S` from first-order Gauss-Markov
+components with correlation times :data:`FLICKER_TAUS_S` (1 s to 10^4 s, spaced by sqrt(10)):
+``n`` components of variance ``c`` spaced by a ratio ``r`` sum to the PSD ``c / (f ln r)``, so
+``c = B^2 ln r / pi`` (:data:`FLICKER_VARIANCE` is ``c / B^2``) gives ``B^2 / (pi f)`` between a
+few seconds and a few thousand seconds. Components are kept at unit variance and scaled on
+output, so noise levels can change while running without a jump in the random sequence. Random
+walks (gyro rate random walk, accelerometer bias random walk) are integrated on the same grid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.signal import lfilter
+
+from northfinder.driver.protocol.units import DPH, DPH_PSH, DPS, DPSH, G0, UG
+from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.sensors import SensorSpec, ThermalSpec
+
+__all__ = [
+    "ACCEL",
+    "FLICKER_GAIN",
+    "FLICKER_GRID_S",
+    "FLICKER_PHI",
+    "FLICKER_STD",
+    "FLICKER_TAUS_S",
+    "FLICKER_VARIANCE",
+    "GYRO",
+    "MAX_SAMPLE_RATE_HZ",
+    "MIN_SAMPLE_RATE_HZ",
+    "Channels",
+    "ErrorTerms",
+    "Triads",
+    "TurnOnDraws",
+    "channels_si",
+    "check_sample_rate",
+    "draw_turn_on",
+    "half_sine",
+    "quantise_carry",
+    "random_directions",
+    "slow_noise_jump",
+    "slow_noise_steps",
+    "temperature_c",
+    "triad_matrices",
+    "vibration",
+]
+
+#: Sample rates the model honours, Hz. Below 10 Hz the slow-noise grid (0.1 s) would alias.
+MIN_SAMPLE_RATE_HZ = 10.0
+MAX_SAMPLE_RATE_HZ = 2000.0
+
+#: The gyro and accelerometer channels of a six-channel array (last axis).
+GYRO = slice(0, 3)
+ACCEL = slice(3, 6)
+#: A value per channel, shape (..., 6): gyro x, y, z then accelerometer x, y, z, SI.
+Channels = NDArray[np.float64]
+#: A value per triad, shape (2,): gyro, then accelerometer.
+Triads = NDArray[np.float64]
+
+#: Step of the grid on which flicker noise and random walks are generated, s.
+FLICKER_GRID_S = 0.1
+#: Correlation times of the Gauss-Markov components of flicker noise, s (1 to 10^4, ratio sqrt 10).
+FLICKER_TAUS_S: NDArray[np.float64] = 10.0 ** np.arange(0.0, 4.01, 0.5)
+#: Variance of each component per B^2 (B = bias instability in SI): ln(sqrt 10) / pi.
+FLICKER_VARIANCE = math.log(10.0**0.5) / math.pi
+#: Standard deviation of each component per B: sqrt(FLICKER_VARIANCE).
+FLICKER_STD = math.sqrt(FLICKER_VARIANCE)
+#: Per-grid-step decay of each component, exp(-FLICKER_GRID_S / tau).
+FLICKER_PHI: NDArray[np.float64] = np.exp(-FLICKER_GRID_S / FLICKER_TAUS_S)
+#: Per-grid-step innovation gain of each unit-variance component, sqrt(1 - phi^2).
+FLICKER_GAIN: NDArray[np.float64] = np.sqrt(1.0 - FLICKER_PHI**2)
+
+
+def check_sample_rate(sample_rate_hz: float) -> float:
+    """Return ``sample_rate_hz`` as float if the model honours it.
+
+    Raises
+    ------
+    SimConfigError
+        Not finite, or outside [:data:`MIN_SAMPLE_RATE_HZ`, :data:`MAX_SAMPLE_RATE_HZ`].
+    """
+    fs = float(sample_rate_hz)
+    if not (math.isfinite(fs) and MIN_SAMPLE_RATE_HZ <= fs <= MAX_SAMPLE_RATE_HZ):
+        raise SimConfigError(
+            f"sample_rate_hz: {sample_rate_hz!r} Hz cannot be honoured; the model runs from "
+            f"{MIN_SAMPLE_RATE_HZ:g} to {MAX_SAMPLE_RATE_HZ:g} Hz"
+        )
+    return fs
+
+
+def channels_si(gyro_dph: ArrayLike, accel_ug: ArrayLike) -> NDArray[np.float64]:
+    """Six SI channel values from a gyro value in deg/h and an accelerometer value in ug.
+
+    Each argument is a scalar (the same on the three axes) or three values (x, y, z).
+    Returns shape ``(6,)``: rad/s, then m/s^2.
+    """
+    g = np.broadcast_to(np.asarray(gyro_dph, dtype=float) * DPH, (3,))
+    a = np.broadcast_to(np.asarray(accel_ug, dtype=float) * UG, (3,))
+    return np.concatenate([g, a])
+
+
+@dataclass(frozen=True)
+class ErrorTerms:
+    """The error terms of a :class:`SensorSpec` in SI, one entry per channel (see module doc).
+
+    Build with :meth:`from_spec`. Gyro entries are in rad/s (noise densities in rad/s/sqrt(Hz),
+    walks in rad/s/sqrt(s)), accelerometer entries in m/s^2 (m/s^2/sqrt(Hz), m/s^2/sqrt(s)).
+
+    Attributes
+    ----------
+    bias : (6,) float
+        Constant bias.
+    turn_on_bias : (6,) float
+        Turn-on to turn-on bias repeatability, 1 sigma.
+    white_density : (6,) float
+        White noise density (ARW, VRW); per sample it is ``white_density * sqrt(fs)``.
+    flicker_b : (6,) float
+        Flicker bias instability ``B`` (Allan floor 0.664 B).
+    walk_k : (6,) float
+        Random-walk coefficient (gyro rate random walk, accelerometer bias random walk).
+    scale_factor, misalignment : (2,) float
+        Scale-factor error (fraction) and misalignment (rad) of the gyro and the accelerometer
+        triad, 1 sigma.
+    lsb : (6,) float
+        Output quantum; 0 = none.
+    range : (6,) float
+        Measurement range (the output clips at +-range).
+    warmup_bias, warmup_tau_s : (6,) float
+        Amplitude of the warm-up transient at power-on and its time constant, s.
+    temp_coeff : (6,) float
+        Bias change per degC of sensor temperature.
+    impulse_amp, vibration_amp : (6,) float
+        Peak of one impulse (shock), amplitude of the vibration line.
+    """
+
+    bias: Channels
+    turn_on_bias: Channels
+    white_density: Channels
+    flicker_b: Channels
+    walk_k: Channels
+    scale_factor: Triads
+    misalignment: Triads
+    lsb: Channels
+    range: Channels
+    warmup_bias: Channels
+    warmup_tau_s: Channels
+    temp_coeff: Channels
+    impulse_amp: Channels
+    vibration_amp: Channels
+
+    @classmethod
+    def from_spec(cls, spec: SensorSpec) -> ErrorTerms:
+        """Convert the datasheet values of ``spec`` to SI."""
+        g, a = spec.gyro, spec.accel
+        return cls(
+            bias=channels_si(g.bias_dph, a.bias_ug),
+            turn_on_bias=channels_si(g.turn_on_bias_dph, a.turn_on_bias_ug),
+            white_density=np.repeat([g.arw_dpsh * DPSH, a.vrw_ug_rthz * UG], 3),
+            flicker_b=channels_si(g.bias_instability_dph, a.bias_instability_ug),
+            walk_k=np.repeat([g.rrw_dphpsh * DPH_PSH, a.random_walk_ug_rts * UG], 3),
+            scale_factor=np.array([g.scale_factor_ppm, a.scale_factor_ppm]) * 1e-6,
+            misalignment=np.array([g.misalignment_urad, a.misalignment_urad]) * 1e-6,
+            lsb=channels_si(g.lsb_dph, a.lsb_ug),
+            range=np.repeat([g.range_dps * DPS, a.range_g * G0], 3),
+            warmup_bias=channels_si(g.warmup_bias_dph, a.warmup_bias_ug),
+            warmup_tau_s=np.repeat([g.warmup_tau_s, a.warmup_tau_s], 3),
+            temp_coeff=channels_si(g.temp_coeff_dph_per_c, a.temp_coeff_ug_per_c),
+            impulse_amp=channels_si(g.impulse_dph, a.impulse_ug),
+            vibration_amp=channels_si(g.vibration_dph, a.vibration_ug),
+        )
+
+    def white_sigma(self, sample_rate_hz: float) -> NDArray[np.float64]:
+        """Standard deviation of the white noise of one sample at ``sample_rate_hz``, (6,)."""
+        return self.white_density * math.sqrt(sample_rate_hz)
+
+    @property
+    def has_matrix(self) -> bool:
+        """True when scale-factor or misalignment errors make the error matrices non-identity."""
+        return bool(self.scale_factor.any() or self.misalignment.any())
+
+    def turn_on(self, z_bias: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Bias of one power-on from its z-scores ``z_bias`` (..., 6)."""
+        return self.bias + self.turn_on_bias * z_bias
+
+    def matrices(self, draws: TurnOnDraws) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Gyro and accelerometer error matrices M of one power-on, each (..., 3, 3).
+
+        A triad reads ``M @ true``: diagonal ``1 + scale factor``, off-diagonals misalignment.
+        """
+        sf, mis = self.scale_factor, self.misalignment
+        return (
+            triad_matrices(sf[0] * draws.z_sf[..., GYRO], mis[0] * draws.z_mis[..., 0, :]),
+            triad_matrices(sf[1] * draws.z_sf[..., ACCEL], mis[1] * draws.z_mis[..., 1, :]),
+        )
+
+    def warmup(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Warm-up transient at times ``t`` (s since power-on), shape ``t.shape + (6,)``."""
+        out = np.zeros((*np.shape(t), 6))
+        for sl in (GYRO, ACCEL):
+            if self.warmup_bias[sl].any():
+                out[..., sl] = (
+                    np.exp(-t / self.warmup_tau_s[sl][0])[..., None] * self.warmup_bias[sl]
+                )
+        return out
+
+    def thermal(
+        self, temperature: NDArray[np.float64], thermal: ThermalSpec
+    ) -> NDArray[np.float64]:
+        """Bias from the sensor temperature (degC) above ambient, shape ``temperature.shape + (6,)``."""
+        return (temperature - thermal.ambient_c)[..., None] * self.temp_coeff
+
+    def drift(self, t: NDArray[np.float64], thermal: ThermalSpec) -> NDArray[np.float64]:
+        """Deterministic bias of time since power-on: warm-up plus temperature, ``t.shape + (6,)``."""
+        return self.warmup(t) + self.thermal(temperature_c(thermal, t), thermal)
+
+
+def temperature_c(thermal: ThermalSpec, t: ArrayLike) -> NDArray[np.float64]:
+    """Sensor temperature at times ``t`` (s since power-on), degC.
+
+    ``T(t) = ambient + rise (1 - exp(-t / tau)) + ramp t``.
+    """
+    tt = np.asarray(t, dtype=float)
+    return (
+        thermal.ambient_c
+        + thermal.warmup_rise_c * (1.0 - np.exp(-tt / thermal.warmup_tau_s))
+        + thermal.ramp_c_per_h * tt / 3600.0
+    )
+
+
+@dataclass(frozen=True)
+class TurnOnDraws:
+    """The z-scores a power-on draws once (leading axes: runs, if any).
+
+    Attributes
+    ----------
+    z_bias, z_sf : (..., 6) float
+        Turn-on bias and scale-factor z-scores.
+    z_mis : (..., 2, 6) float
+        Misalignment z-scores of the gyro (row 0) and the accelerometer triad (row 1), in the
+        row-major order of the off-diagonal entries.
+    vib_phase : (..., 6) float
+        Phase of the vibration line on each channel, rad.
+    """
+
+    z_bias: NDArray[np.float64]
+    z_sf: NDArray[np.float64]
+    z_mis: NDArray[np.float64]
+    vib_phase: NDArray[np.float64]
+
+
+def draw_turn_on(rng: np.random.Generator, shape: tuple[int, ...] = ()) -> TurnOnDraws:
+    """Draw the turn-on z-scores for ``shape`` power-ons (``()`` for one), in a fixed order."""
+    return TurnOnDraws(
+        z_bias=rng.standard_normal((*shape, 6)),
+        z_sf=rng.standard_normal((*shape, 6)),
+        z_mis=rng.standard_normal((*shape, 2, 6)),
+        vib_phase=rng.uniform(0.0, 2 * math.pi, (*shape, 6)),
+    )
+
+
+def triad_matrices(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Error matrices (..., 3, 3): diagonal ``1 + sf`` (..., 3), off-diagonals ``mis`` (..., 6)
+    in row-major order."""
+    m = np.zeros((*sf.shape[:-1], 3, 3))
+    m[..., ~np.eye(3, dtype=bool)] = mis
+    m[..., np.arange(3), np.arange(3)] = 1.0 + sf
+    return m
+
+
+def slow_noise_steps(
+    w: NDArray[np.float64], state: NDArray[np.float64], walk: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Advance the flicker components and the random walk by ``m`` grid steps.
+
+    Parameters
+    ----------
+    w : (m, K + 1, ...) float
+        Unit normal innovations: one per flicker component (K = len(FLICKER_TAUS_S)), then the walk.
+    state : (K, ...) float
+        Unit-variance flicker components at the grid point before the first step.
+    walk : (...) float
+        Unit random walk (in sqrt(s)) at that grid point.
+
+    Returns
+    -------
+    flicker : (m, ...) float
+        Sum of the components at each new grid point (scale by ``B * FLICKER_STD``).
+    walks : (m, ...) float
+        The walk at each new grid point (scale by the walk coefficient).
+    state, walk
+        The components and the walk at the last new grid point.
+    """
+    acc = np.zeros((w.shape[0], *w.shape[2:]))
+    new_state = np.empty_like(state)
+    for i, phi in enumerate(FLICKER_PHI):
+        comp, _ = lfilter(
+            [FLICKER_GAIN[i]], [1.0, -phi], w[:, i], axis=0, zi=(phi * state[i])[None]
+        )
+        acc += comp
+        new_state[i] = comp[-1]
+    walks = walk + np.cumsum(math.sqrt(FLICKER_GRID_S) * w[:, -1], axis=0)
+    return acc, walks, new_state, walks[-1]
+
+
+def slow_noise_jump(
+    rng: np.random.Generator, state: NDArray[np.float64], walk: NDArray[np.float64], steps: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The flicker components and the walk ``steps`` grid steps later, drawn exactly in one go."""
+    a = FLICKER_PHI.reshape((-1,) + (1,) * (state.ndim - 1)) ** steps
+    state = a * state + np.sqrt(1.0 - a * a) * rng.standard_normal(state.shape)
+    walk = walk + math.sqrt(FLICKER_GRID_S * steps) * rng.standard_normal(walk.shape)
+    return state, walk
+
+
+def random_directions(rng: np.random.Generator, n: int) -> NDArray[np.float64]:
+    """``n`` random directions for impulses, (n, 6): a unit vector for each triad."""
+    v = rng.standard_normal((n, 6))
+    for sl in (GYRO, ACCEL):
+        norm = np.linalg.norm(v[:, sl], axis=1, keepdims=True)
+        v[:, sl] /= np.where(norm > 0, norm, 1.0)
+    return v
+
+
+def half_sine(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Shape of one impulse at phase ``x`` = (t - start) / duration: sin(pi x) on (0, 1), else 0."""
+    return np.where((x > 0) & (x < 1), np.sin(math.pi * x), 0.0)
+
+
+def vibration(
+    t: NDArray[np.float64],
+    hz: float,
+    amp: NDArray[np.float64] | float,
+    phase: NDArray[np.float64] | float,
+) -> NDArray[np.float64]:
+    """The vibration line ``amp sin(2 pi hz t + phase)`` (arguments broadcast), SI."""
+    return amp * np.sin(2 * math.pi * hz * t + phase)
+
+
+def quantise_carry(
+    values: NDArray[np.float64], remainder: ArrayLike, axis: int = -1
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Round runs of values (in counts) to whole counts along ``axis``, carrying the remainder.
+
+    Parameters
+    ----------
+    values : array
+        Values in counts; each run lies along ``axis``.
+    remainder : array
+        What earlier runs left over (|r| <= 1/2), ``values`` without ``axis``.
+
+    Returns
+    -------
+    counts : array
+        Whole counts, like ``values``; their sum over any run differs from the exact sum by at
+        most one count.
+    remainder : array
+        What this run leaves over, for the next.
+    """
+    rem = np.asarray(remainder, dtype=float)
+    if values.shape[axis] == 0:
+        return values.copy(), rem
+    cum = np.expand_dims(rem, axis) + np.cumsum(values, axis=axis)
+    q = np.round(cum)
+    last = np.take(cum, -1, axis=axis) - np.take(q, -1, axis=axis)
+    return np.diff(q, axis=axis, prepend=0.0), last

@@ -1,0 +1,95 @@
+"""The simulated instrument wired into the host library's accuracy studies (application layer).
+
+The host library's study engine (:mod:`northfinder.host.montecarlo`) and planner
+(:mod:`northfinder.host.planner`) know nothing of the simulator. This module gives them:
+
+- :class:`SimulatedWindows`, the window generator that draws whole arrays of runs with
+  :func:`northfinder.firmware_sim.batch.simulate_windows`;
+- :func:`error_model`, the planner's :class:`~northfinder.host.accuracy.ErrorModel` of a
+  :class:`~northfinder.firmware_sim.sensors.SensorSpec` (its deterministic drift is
+  :class:`SpecDrift`).
+
+Both are module-level frozen dataclasses holding a frozen spec, so they pickle (a study can run
+in worker processes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from northfinder.firmware_sim.batch import BatchWindows, simulate_windows
+from northfinder.firmware_sim.error_terms import GYRO, ErrorTerms
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.sensors import SensorSpec
+from northfinder.host.accuracy import ErrorModel
+from northfinder.host.montecarlo import RunRequest
+from northfinder.host.plan import TableModel
+
+__all__ = ["SimulatedWindows", "SpecDrift", "error_model"]
+
+
+@dataclass(frozen=True)
+class SimulatedWindows:
+    """Window generator of the study engine: the batch generator of the simulated instrument."""
+
+    spec: SensorSpec
+
+    def __call__(self, request: RunRequest, rng: np.random.Generator) -> BatchWindows:
+        plan = request.plan
+        truths = [
+            Truth(float(a), request.latitude_deg, request.pitch_deg, request.roll_deg)
+            for a in request.azimuth_deg
+        ]
+        return simulate_windows(
+            self.spec,
+            truths,
+            plan.positions_deg,
+            plan.window_s,
+            plan.settle_s,
+            n_runs=request.n_runs,
+            rng=rng,
+            sample_rate_hz=request.sample_rate_hz,
+            warmup_s=request.warmup_s,
+            bias_step_dph=request.bias_step_dph,
+        )
+
+
+@dataclass(frozen=True)
+class SpecDrift:
+    """Deterministic gyro x/y bias of a sensor spec against time since power-on, rad/s.
+
+    The warm-up transient plus the temperature sensitivity times the temperature rise over
+    ambient (self-heating and ramp).
+    """
+
+    spec: SensorSpec
+
+    def __call__(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
+        # The simulator's own definition of its deterministic terms (firmware_sim.error_terms).
+        drift = ErrorTerms.from_spec(self.spec).drift(np.asarray(t, dtype=float), self.spec.thermal)
+        out: NDArray[np.float64] = drift[..., GYRO][..., :2]
+        return out
+
+
+def error_model(spec: SensorSpec) -> ErrorModel:
+    """The planner's view of a sensor spec (gyro x/y figures, table, deterministic drift)."""
+    g = spec.gyro
+    has_drift = any(g.warmup_bias_dph[:2]) or any(g.temp_coeff_dph_per_c[:2])
+    return ErrorModel(
+        arw_dpsh=g.arw_dpsh,
+        bias_instability_dph=g.bias_instability_dph,
+        rrw_dphpsh=g.rrw_dphpsh,
+        misalignment_urad=g.misalignment_urad,
+        scale_factor_ppm=g.scale_factor_ppm,
+        vrw_ug_rthz=spec.accel.vrw_ug_rthz,
+        table=TableModel(
+            max_rate_dps=spec.table.max_rate_dps,
+            max_accel_dps2=spec.table.max_accel_dps2,
+            settle_s=spec.table.settle_s,
+            indexing_error_deg=spec.table.indexing_error_deg,
+        ),
+        drift_rps=SpecDrift(spec) if has_drift else None,
+    )

@@ -1,0 +1,295 @@
+"""The simulated instrument embedded in a host process: one helper for the CLI, tests and applications.
+
+:class:`SimulatedInstrument` builds the simulated firmware for a sensor and a truth, puts it on a
+link, drives it from a background thread with a clock, and hands back what a host needs: a CAN bus
+or a ready :class:`~northfinder.driver.device.Device`, the truth, the control channel, and the
+runner (whose failure :meth:`~SimulatedInstrument.check` reports)::
+
+    from northfinder.firmware_sim.imu import Truth
+    from northfinder.host.embed import SimulatedInstrument
+
+    with SimulatedInstrument("nav-fog", Truth(azimuth_deg=42.0), seed=1, speed=50, warmup_s=0) as sim:
+        with sim.open_device() as dev:
+            dev.wait_ready()
+            window = dev.acquire(10.0)
+
+Links (``link=``):
+
+- ``"virtual"``: python-can's ``virtual`` bus, reachable from this process only (:meth:`open_bus`);
+- ``"serial-pty"``: the protocol's serial frames on a new pseudo-terminal (:attr:`path`);
+- ``"slcan-pty"``: an SLCAN adapter on a new pseudo-terminal, for python-can's ``slcan`` interface.
+
+A pty is reachable from other processes too (``northfinder find --serial PATH``).
+
+Time: the firmware runs on a clock (:class:`~northfinder.firmware_sim.runner.Clock`): by default
+wall time times ``speed`` (:class:`~northfinder.firmware_sim.runner.RealTimeClock`); pass
+``clock=`` for another (a virtual clock shared with a test). This module is part of the
+application layer: it is the one place, with the CLI, that imports the simulator and the driver.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import uuid
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from northfinder.driver.device import Device
+from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT, SERIAL_BAUD_DEFAULT
+from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
+from northfinder.firmware_sim.errors import SimError
+from northfinder.firmware_sim.firmware import Firmware, LinkInfo
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.links import (
+    CanLink,
+    PseudoTerminal,
+    SerialLink,
+    SlcanAdapter,
+)
+from northfinder.firmware_sim.runner import BackgroundRunner, Clock, Link, RealTimeClock, Runner
+from northfinder.firmware_sim.sensors import SensorSpec, load_spec
+from northfinder.host.errors import HostConfigError
+
+__all__ = [
+    "LINKS",
+    "RELAXED_DEVICE_OPTIONS",
+    "SimulatedInstrument",
+]
+
+LINKS = ("virtual", "serial-pty", "slcan-pty")
+"""The links :class:`SimulatedInstrument` can put the simulator on."""
+
+RELAXED_DEVICE_OPTIONS: dict[str, float] = {"reply_timeout": 2.0, "min_supervision_s": 3.0}
+"""Driver options for a device whose simulator runs in the same interpreter on a busy machine: a
+reply can wait for the other thread, so allow more than a real unit's deadlines
+(``sim.open_device(**RELAXED_DEVICE_OPTIONS)``)."""
+
+
+class SimulatedInstrument:
+    """A simulated instrument running in this process on a link a host can open.
+
+    Use it as a context manager (or call :meth:`start` and :meth:`close`); everything it opened is
+    released on leaving, also when starting fails.
+
+    Parameters
+    ----------
+    sensor : str, Path or SensorSpec
+        A preset name (``"paper-rlg"``), a TOML file of the same layout, or a spec.
+    truth : Truth, optional
+        Where the instrument really stands (default ``Truth()``: azimuth 0, 34 deg N, level).
+    seed : int, numpy Generator or None
+        Seed of the sensor noise, or the generator itself (then it is used, not copied).
+    speed : float, optional
+        Simulated seconds per wall second of the default clock (default 1). Not with ``clock``.
+    warmup_s : float
+        The instrument's warm-up time, simulated s (the firmware's default 120; 0 for none).
+    link : {"virtual", "serial-pty", "slcan-pty"}
+        Where the simulator is reachable (see the module docstring).
+    node_id : int
+        CAN node id of the simulated device.
+    clock : Clock, optional
+        The clock that drives the firmware (default ``RealTimeClock(speed)``).
+    control : str, optional
+        Serve the control channel on this address (``"127.0.0.1:0"``: any free loopback port;
+        ``"unix:PATH"``); :attr:`control` is then a connected client.
+    bitrate : int
+        CAN bit rate (``virtual``, ``slcan-pty``) or serial baud rate (``serial-pty``) the firmware
+        reports and budgets its sample rates for; default the protocol's.
+
+    Attributes
+    ----------
+    spec : SensorSpec
+    truth : Truth
+    firmware, runner : Firmware, Runner
+        Available once started.
+    channel : str or None
+        The ``virtual`` bus channel.
+    path : str or None
+        The pseudo-terminal a host opens (``serial-pty``, ``slcan-pty``).
+    control : ControlClient or None
+        Client of the control channel, if one was asked for.
+    control_address : str or None
+        The control channel's address (the port chosen when 0 was asked for).
+
+    Raises
+    ------
+    HostConfigError
+        An unknown link, or both ``speed`` and ``clock``.
+    SimConfigError
+        An unknown sensor preset or an invalid value (from the simulator).
+    """
+
+    def __init__(
+        self,
+        sensor: str | Path | SensorSpec = "paper-rlg",
+        truth: Truth | None = None,
+        *,
+        seed: int | np.random.Generator | None = None,
+        speed: float | None = None,
+        warmup_s: float = 120.0,
+        link: str = "virtual",
+        node_id: int = 1,
+        clock: Clock | None = None,
+        control: str | None = None,
+        bitrate: int | None = None,
+    ) -> None:
+        if link not in LINKS:
+            raise HostConfigError(f"link={link!r}: choose one of {', '.join(LINKS)}")
+        if clock is not None and speed is not None:
+            raise HostConfigError("give speed or clock, not both (the speed is the clock's)")
+        self.spec = sensor if isinstance(sensor, SensorSpec) else load_spec(sensor)
+        self.truth = Truth() if truth is None else truth
+        self.rng = np.random.default_rng(seed)
+        self.warmup_s = warmup_s
+        self.link = link
+        self.node_id = node_id
+        self.clock: Clock = (
+            RealTimeClock(1.0 if speed is None else speed) if clock is None else clock
+        )
+        self.bitrate = bitrate or (
+            SERIAL_BAUD_DEFAULT if link == "serial-pty" else CAN_BITRATE_DEFAULT
+        )
+        self._control_request = control
+        self.channel: str | None = None
+        self.path: str | None = None
+        self.control: ControlClient | None = None
+        self.control_address: str | None = None
+        self._firmware: Firmware | None = None
+        self._runner: Runner | None = None
+        self._background: BackgroundRunner | None = None
+        self._stack: contextlib.ExitStack | None = None
+
+    # -- life cycle -----------------------------------------------------------------------------
+    def start(self) -> SimulatedInstrument:
+        """Build the firmware, open the link, start the runner (and the control channel)."""
+        if self._stack is not None:
+            raise HostConfigError("the simulated instrument is already started")
+        kind = "serial" if self.link == "serial-pty" else "can"
+        firmware = Firmware(
+            self.spec,
+            self.truth,
+            self.rng,
+            warmup_s=self.warmup_s,
+            node_id=self.node_id,
+            link=LinkInfo(kind, self.bitrate),
+        )
+        with contextlib.ExitStack() as stack:
+            wire: Link
+            if self.link == "virtual":
+                self.channel = f"northfinder-sim-{uuid.uuid4().hex}"
+                bus = can.Bus(interface="virtual", channel=self.channel)
+                stack.callback(bus.shutdown)
+                wire = CanLink(bus, firmware, self.node_id)
+            else:
+                pty = PseudoTerminal()
+                stack.callback(pty.close)
+                self.path = pty.path
+                if self.link == "serial-pty":
+                    wire = SerialLink(pty.stream, firmware)
+                else:
+                    wire = CanLink(SlcanAdapter(pty.stream), firmware, self.node_id)
+            runner = Runner(firmware, wire, self.clock)
+            self._background = stack.enter_context(BackgroundRunner(runner))
+            if self._control_request is not None:
+                server = ControlServer(Controller(runner), self._control_request).start()
+                stack.callback(server.close)
+                self.control_address = server.address
+                self.control = ControlClient(server.address)
+                stack.callback(self.control.close)
+            self._firmware, self._runner = firmware, runner
+            self._stack = stack.pop_all()
+        return self
+
+    def close(self) -> None:
+        """Stop the runner and release the link and the control channel (idempotent)."""
+        stack, self._stack = self._stack, None
+        if stack is not None:
+            stack.close()
+
+    def __enter__(self) -> SimulatedInstrument:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- what a host needs ----------------------------------------------------------------------
+    @property
+    def firmware(self) -> Firmware:
+        """The simulated firmware (lock :attr:`runner`'s ``lock`` to change it while it runs)."""
+        if self._firmware is None:
+            raise HostConfigError("the simulated instrument is not started")
+        return self._firmware
+
+    @property
+    def runner(self) -> Runner:
+        """The loop that drives the firmware on its link."""
+        if self._runner is None:
+            raise HostConfigError("the simulated instrument is not started")
+        return self._runner
+
+    @property
+    def speed(self) -> float:
+        """Simulated seconds per wall second of the clock now."""
+        return float(self.clock.speed)
+
+    def describe(self) -> dict[str, Any]:
+        """The truth with the sensor's name and the speed, for printing beside a result."""
+        return {**dataclasses.asdict(self.truth), "sensor": self.spec.name, "speed": self.speed}
+
+    def check(self) -> None:
+        """Raise if the simulator's thread has stopped.
+
+        Raises
+        ------
+        SimError
+            The runner failed (its exception is the cause) or was stopped.
+        """
+        bg = self._background
+        if bg is None or not bg.alive:
+            error = None if bg is None else bg.error
+            raise SimError(
+                f"the simulated instrument is not running: {error!r}"
+                if error is not None
+                else "the simulated instrument is not running"
+            ) from error
+
+    def open_bus(self, **options: Any) -> can.BusABC:
+        """A new python-can bus on the simulator's CAN link (``virtual`` or ``slcan-pty``); the
+        caller shuts it down.
+
+        Raises
+        ------
+        HostConfigError
+            The link is not CAN (``serial-pty``).
+        """
+        if self.link == "virtual":
+            return can.Bus(interface="virtual", channel=self._started(self.channel), **options)
+        if self.link == "slcan-pty":
+            options.setdefault("sleep_after_open", 0)
+            return can.Bus(
+                interface="slcan", channel=self._started(self.path), bitrate=self.bitrate, **options
+            )
+        raise HostConfigError(f"the {self.link} link is not a CAN bus: use open_device() or path")
+
+    def open_device(self, **options: Any) -> Device:
+        """A :class:`~northfinder.driver.device.Device` on the simulator's link; closing it
+        releases its bus or port.
+
+        Parameters
+        ----------
+        **options
+            Driver options (``reply_timeout``, ``retries``, ``min_supervision_s``); see also
+            :data:`RELAXED_DEVICE_OPTIONS`.
+        """
+        if self.link == "serial-pty":
+            return Device.open_serial(self._started(self.path), self.bitrate, **options)
+        return Device.from_bus(self.open_bus(), self.node_id, own_bus=True, **options)
+
+    def _started(self, where: str | None) -> str:
+        if where is None or self._stack is None:
+            raise HostConfigError("the simulated instrument is not started")
+        return where

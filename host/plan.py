@@ -1,0 +1,207 @@
+"""What a north-finding run measures and how its windows are reduced: the one plan type.
+
+A :class:`Plan` is used alike by the procedure on a device (:mod:`northfinder.host.procedure`),
+the accuracy study (:mod:`northfinder.host.montecarlo`) and the planner
+(:mod:`northfinder.host.planner`): table positions, one recording window of ``window_s`` at each,
+the settle time after every move, the denoising method applied to every window and the solver.
+
+Settle time
+-----------
+``settle_s`` is the time from the end of a move (the end of the table's motion profile) to the
+start of the next window; None means the table's own settle time (:attr:`TableModel.settle_s`,
+on a device its ``SETTLE_TIME_MS``, after which it reports READY). A device cannot record before
+its own settle time has passed, so on a device the procedure waits for READY and then whatever
+remains of ``settle_s``; a study simulates exactly ``settle_s`` (a what-if for a table that
+settles faster).
+
+Plan time
+---------
+Moves go the shorter way with the table's trapezoidal profile
+(:func:`northfinder.driver.protocol.motion.move_time_s`); a position equal to the previous one
+needs neither move nor settling. The **plan time** runs from the start of the first window to the
+end of the last: windows, moves and settling, not the warm-up before the first window.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from northfinder.driver.protocol.motion import move_time_s, shortest_delta_deg
+from northfinder.host.denoise import METHODS
+from northfinder.host.errors import GeometryError, HostConfigError, InputError, check_choice
+from northfinder.host.kernels import MIN_MU_SEPARATION_DEG
+
+__all__ = [
+    "PAPER_SWEEP",
+    "PLANS",
+    "SOLVERS",
+    "Plan",
+    "TableModel",
+    "moves_deg",
+    "plan_time_s",
+    "settle_time_s",
+    "window_starts_s",
+]
+
+#: Heading solvers a plan may name.
+SOLVERS: Mapping[str, str] = {
+    "auto": "two-position for 2 positions, least-squares for more",
+    "two-position": "paper eq. 14 (eq. 15 when level is assumed); exactly 2 positions",
+    "least-squares": "multi-position least squares, gyro biases estimated",
+    "pairwise": "every position against the first by eq. 14 (the paper's Table 2; studies only)",
+}
+
+
+@dataclass(frozen=True)
+class TableModel:
+    """What plans need to know about the turntable.
+
+    Attributes
+    ----------
+    max_rate_dps, max_accel_dps2 : float
+        Speed and acceleration limits, deg/s and deg/s^2.
+    settle_s : float
+        The table's own settle time after a move, s (the plans' default).
+    indexing_error_deg : float
+        Stop-position error per move, 1 sigma, deg.
+    """
+
+    max_rate_dps: float = 10.0
+    max_accel_dps2: float = 20.0
+    settle_s: float = 2.0
+    indexing_error_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Table positions with one window each, the settle time, and how the windows are reduced.
+
+    Attributes
+    ----------
+    positions_deg : tuple of float
+        Commanded table angle of each window, deg (any angles; at least two of them
+        :data:`~northfinder.host.kernels.MIN_MU_SEPARATION_DEG` apart mod 360).
+    window_s : float
+        Recording time per window, s.
+    settle_s : float or None
+        Time from the end of each move to the next window, s; None: the table's own (see the
+        module docstring).
+    denoise : str
+        A method of :data:`northfinder.host.denoise.METHODS`, applied to every window before its
+        mean.
+    method : str
+        A solver of :data:`SOLVERS`.
+    denoise_options : tuple of (str, value) pairs
+        Options of the denoising method, e.g. ``(("window", 5),)`` for ``moving-average``.
+
+    Raises
+    ------
+    GeometryError
+        Fewer than two positions, or none far enough apart to separate the Earth rate.
+    HostConfigError
+        A bad number, an unknown method, or ``two-position`` with other than two positions.
+    """
+
+    positions_deg: tuple[float, ...] = (0.0, 180.0)
+    window_s: float = 10.0
+    settle_s: float | None = None
+    denoise: str = "none"
+    method: str = "auto"
+    denoise_options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        pos = tuple(float(p) for p in self.positions_deg)
+        if len(pos) < 2:
+            raise GeometryError(
+                f"positions {list(pos)}: need at least two table angles "
+                f"(a plan needs at least 2 positions, got {len(pos)})"
+            )
+        if not all(math.isfinite(p) for p in pos):
+            raise InputError(f"positions_deg: must be finite, got {pos}")
+        spread = np.abs(np.sin(np.radians(np.subtract.outer(pos, pos)) / 2.0)).max()
+        if spread < math.sin(math.radians(MIN_MU_SEPARATION_DEG) / 2.0):
+            raise GeometryError(
+                f"positions {list(pos)} deg lie within {MIN_MU_SEPARATION_DEG} deg of each other: "
+                f"at least two must be {MIN_MU_SEPARATION_DEG:g} deg apart (mod 360) for the gyro "
+                "biases to separate from the Earth rate"
+            )
+        if not (math.isfinite(self.window_s) and self.window_s > 0):
+            raise InputError(f"window_s: must be a positive number of seconds, got {self.window_s}")
+        if self.settle_s is not None and not (math.isfinite(self.settle_s) and self.settle_s >= 0):
+            raise InputError(f"settle_s: must be >= 0 s, got {self.settle_s}")
+        check_choice(self.denoise, METHODS, "denoise", "method")
+        check_choice(self.method, SOLVERS, "method")
+        if self.method == "two-position" and len(pos) != 2:
+            raise HostConfigError(
+                f"method two-position needs exactly two positions, got {len(pos)}"
+            )
+        pairs = tuple(self.denoise_options)
+        if not all(
+            isinstance(kv, tuple | list) and len(kv) == 2 and isinstance(kv[0], str) for kv in pairs
+        ):
+            raise HostConfigError(
+                f"denoise_options: expected (name, value) pairs, got {self.denoise_options!r}"
+            )
+        object.__setattr__(self, "positions_deg", pos)
+        object.__setattr__(self, "denoise_options", tuple((k, v) for k, v in pairs))
+
+    @property
+    def solver(self) -> str:
+        """The solver ``method`` stands for (``auto`` resolved by the number of positions)."""
+        if self.method == "auto":
+            return "two-position" if len(self.positions_deg) == 2 else "least-squares"
+        return self.method
+
+    def label(self) -> str:
+        """The positions as ``0,90,180``."""
+        return ",".join(f"{p:g}" for p in self.positions_deg)
+
+    def pairs(self) -> tuple[tuple[int, int], ...]:
+        """Index pairs (first, k) of the ``pairwise`` solver."""
+        return tuple((0, k) for k in range(1, len(self.positions_deg)))
+
+    def pair_mu_deg(self) -> tuple[float, ...]:
+        """Table angle of each pair, deg."""
+        a0 = self.positions_deg[0]
+        return tuple(a - a0 for a in self.positions_deg[1:])
+
+
+#: The source paper's prototype procedure: eight positions 30 deg apart, 10 s each, every position
+#: after the first solved against the first (seven azimuths, mu = 30 ... 210 deg).
+PAPER_SWEEP = Plan(tuple(float(a) for a in range(0, 240, 30)), 10.0, method="pairwise")
+
+#: Plans by name.
+PLANS: Mapping[str, Plan] = {"paper-30deg-sweep": PAPER_SWEEP}
+
+
+def settle_time_s(plan: Plan, table: TableModel) -> float:
+    """Time from the end of each move to the next window, s (the plan's, else the table's)."""
+    return table.settle_s if plan.settle_s is None else plan.settle_s
+
+
+def moves_deg(plan: Plan) -> list[float]:
+    """Signed shortest move before each window after the first, deg (0 where none)."""
+    pos = plan.positions_deg
+    return [shortest_delta_deg(a, b) for a, b in itertools.pairwise(pos)]
+
+
+def window_starts_s(plan: Plan, table: TableModel) -> NDArray[np.float64]:
+    """Start of each window relative to the start of the first, s."""
+    settle = settle_time_s(plan, table)
+    starts = [0.0]
+    for d in moves_deg(plan):
+        move = move_time_s(d, table.max_rate_dps, table.max_accel_dps2)
+        starts.append(starts[-1] + plan.window_s + (move + settle if d != 0.0 else 0.0))
+    return np.array(starts)
+
+
+def plan_time_s(plan: Plan, table: TableModel) -> float:
+    """Windows, moves and settling from the first window's start to the last one's end, s."""
+    return float(window_starts_s(plan, table)[-1] + plan.window_s)

@@ -1,0 +1,92 @@
+"""``northfinder sim`` as a subprocess, for the tests: started, its facts read, always stopped."""
+
+from __future__ import annotations
+
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Collection, Iterator
+from contextlib import contextmanager
+from typing import IO
+
+COMMAND = [
+    sys.executable,
+    "-c",
+    "from northfinder.host.cli import main; raise SystemExit(main())",
+    "sim",
+]
+
+
+def _pump(stream: IO[str], into: queue.SimpleQueue[str] | list[str]) -> None:
+    for line in stream:
+        if isinstance(into, list):
+            into.append(line)
+        else:
+            into.put(line)
+
+
+@contextmanager
+def sim_process(
+    *args: str,
+    wanted: Collection[str] = ("pty", "control"),
+    timeout: float = 20.0,
+    check_exit: bool = True,
+) -> Iterator[dict[str, str]]:
+    """Start ``northfinder sim ARGS`` and yield the ``key value`` facts it prints on stdout (once
+    every name in ``wanted`` was seen); on leaving stop it with SIGTERM.
+
+    Parameters
+    ----------
+    check_exit : bool
+        Assert that it exits with status 0 (its stderr is the message).
+
+    Raises
+    ------
+    RuntimeError
+        The facts did not come within ``timeout`` wall seconds (the message has its stderr).
+    """
+    proc = subprocess.Popen(
+        [*COMMAND, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+    errors: list[str] = []
+    # Threads, not select(): the text wrapper may hold several lines already read from the pipe;
+    # stderr is read all along so that the simulator's log never fills the pipe.
+    readers = [
+        threading.Thread(target=_pump, args=(proc.stdout, lines), daemon=True),
+        threading.Thread(target=_pump, args=(proc.stderr, errors), daemon=True),
+    ]
+    for r in readers:
+        r.start()
+    try:
+        facts: dict[str, str] = {}
+        deadline = time.monotonic() + timeout
+        while not set(wanted) <= set(facts):
+            try:
+                line = lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                raise RuntimeError(
+                    f"the simulator did not print {sorted(wanted)} in {timeout} s "
+                    f"(exit status {proc.poll()}): {''.join(errors)}"
+                ) from None
+            key, _, value = line.strip().partition(" ")
+            facts[key] = value
+        yield facts
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        for r in readers:
+            r.join(5)
+        proc.stdout.close()
+        proc.stderr.close()
+    if check_exit:
+        assert proc.returncode == 0, "".join(errors)

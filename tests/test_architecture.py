@@ -1,0 +1,241 @@
+"""The import direction of the three packages, read from the source (every import statement, also
+those inside functions), so that a wrong import fails here before it spreads.
+
+- ``driver`` imports neither ``firmware_sim`` nor ``host``; its wire format ``driver.protocol``
+  imports nothing outside itself;
+- ``firmware_sim`` imports only the wire format, ``driver.protocol``;
+- the host library (``host`` but the application layer: ``host.cli``, ``host.embed`` and
+  ``host.pytest_plugin``) does not import ``firmware_sim``;
+- no module imports itself through others (no cycles).
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("driver", "firmware_sim", "host")
+APPLICATION = ("northfinder.host.cli", "northfinder.host.embed", "northfinder.host.pytest_plugin")
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(["northfinder", *parts])
+
+
+def modules() -> dict[str, Path]:
+    """Every module of the three packages by its installed name."""
+    found = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            found[module_name(path)] = path
+    return found
+
+
+MODULES = modules()
+
+
+def imported(name: str, path: Path) -> Iterator[tuple[str, int]]:
+    """``(module, line)`` for each import in the file, relative imports resolved; ``from X import
+    Y`` counts X, and X.Y too when that is a module."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - node.level + 1]
+                target = ".".join([*base, node.module] if node.module else base)
+            else:
+                target = node.module or ""
+            yield target, node.lineno
+            for alias in node.names:
+                if f"{target}.{alias.name}" in MODULES:
+                    yield f"{target}.{alias.name}", node.lineno
+
+
+def imports_of(prefix: str) -> list[tuple[str, str, int]]:
+    """``(importer, imported, line)`` for every project import made by modules under ``prefix``."""
+    out = []
+    for name, path in MODULES.items():
+        if name == prefix or name.startswith(prefix + "."):
+            for target, line in imported(name, path):
+                if target.startswith("northfinder."):
+                    out.append((name, target, line))
+    return out
+
+
+def under(name: str, *prefixes: str) -> bool:
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+def show(bad: list[tuple[str, str, int]]) -> str:
+    return "\n".join(
+        f"{MODULES[a].relative_to(ROOT)}:{line}: {a} imports {b}" for a, b, line in bad
+    )
+
+
+WIRE = "the wire format imports only itself"
+DRIVER = "the driver imports neither the simulator nor the host"
+SIM = "the simulator imports only the wire format"
+HOST = "the host library does not import the simulator"
+
+
+def broken_rule(importer: str, target: str) -> str | None:
+    """The rule that ``importer`` importing ``target`` breaks, or None."""
+    if under(importer, "northfinder.driver.protocol") and not under(
+        target, "northfinder.driver.protocol"
+    ):
+        return WIRE
+    if under(importer, "northfinder.driver") and under(
+        target, "northfinder.firmware_sim", "northfinder.host"
+    ):
+        return DRIVER
+    if under(importer, "northfinder.firmware_sim") and not under(
+        target, "northfinder.firmware_sim", "northfinder.driver.protocol"
+    ):
+        return SIM
+    if (
+        under(importer, "northfinder.host")
+        and not under(importer, *APPLICATION)
+        and under(target, "northfinder.firmware_sim")
+    ):
+        return HOST
+    return None
+
+
+def breaking(rule: str) -> list[tuple[str, str, int]]:
+    return [(a, b, n) for a, b, n in imports_of("northfinder") if broken_rule(a, b) == rule]
+
+
+def test_the_source_is_found_and_read():
+    assert {"northfinder.driver.device", "northfinder.firmware_sim.firmware"} <= set(MODULES)
+    edges = {(a, b) for a, b, _ in imports_of("northfinder")}
+    assert ("northfinder.driver.device", "northfinder.driver.window") in edges
+    # an import inside a function counts (the CLI loads the simulator lazily)
+    assert ("northfinder.host.cli.measure", "northfinder.host.embed") in edges
+
+
+@pytest.mark.parametrize("rule", [DRIVER, WIRE, SIM, HOST])
+def test_the_import_direction(rule):
+    bad = breaking(rule)
+    assert not bad, show(bad)
+
+
+@pytest.mark.parametrize(
+    ("importer", "target", "rule"),
+    [
+        ("northfinder.driver.device", "northfinder.driver.protocol.can", None),
+        ("northfinder.driver.device", "northfinder.host.errors", DRIVER),
+        ("northfinder.driver.conformance.runner", "northfinder.firmware_sim.runner", DRIVER),
+        ("northfinder.driver.protocol.can", "northfinder.driver.errors", WIRE),
+        ("northfinder.driver.protocol.can", "northfinder.driver.protocol.errors", None),
+        ("northfinder.firmware_sim.links", "northfinder.driver.protocol.serial", None),
+        ("northfinder.firmware_sim.links", "northfinder.driver.errors", SIM),
+        ("northfinder.firmware_sim.control", "northfinder.host.errors", SIM),
+        ("northfinder.host.procedure", "northfinder.driver.device", None),
+        ("northfinder.host.study", "northfinder.firmware_sim.batch", HOST),
+        ("northfinder.host.cli.study", "northfinder.firmware_sim.batch", None),
+        ("northfinder.host.embed", "northfinder.firmware_sim.runner", None),
+        ("northfinder.host.pytest_plugin", "northfinder.firmware_sim.control", None),
+    ],
+)
+def test_the_rules(importer, target, rule):
+    assert broken_rule(importer, target) == rule
+
+
+def test_imports_are_read_everywhere_in_a_file(tmp_path):
+    path = tmp_path / "__init__.py"
+    path.write_text(
+        "import northfinder.driver.device\n"
+        "from . import links\n"
+        "from .. import host\n"
+        "def f():\n"
+        "    from northfinder.driver.protocol import can\n"
+    )
+    got = {t for t, _ in imported("northfinder.firmware_sim", path)}
+    assert got == {
+        "northfinder.driver.device",
+        "northfinder.firmware_sim",
+        "northfinder.firmware_sim.links",
+        "northfinder",
+        "northfinder.host",
+        "northfinder.driver.protocol",
+        "northfinder.driver.protocol.can",
+    }
+
+
+def test_no_import_cycles():
+    graph: dict[str, set[str]] = {name: set() for name in MODULES}
+    for name in MODULES:
+        for a, b, _ in imports_of(name):
+            if a == name and b in MODULES and b != a:
+                graph[a].add(b)
+    cycles = [c for c in strongly_connected(graph) if len(c) > 1]
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(sorted(c)) for c in cycles)
+
+
+def strongly_connected(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Tarjan's strongly connected components, iteratively."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = counter
+                    counter += 1
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                parent = work[-1][0]
+                low[parent] = min(low[parent], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                out.append(component)
+    return out
+
+
+@pytest.mark.parametrize(
+    ("graph", "cyclic"),
+    [
+        ({"a": {"b"}, "b": {"c"}, "c": set()}, []),
+        ({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}, [["a", "b", "c"]]),
+        ({"a": {"b"}, "b": {"a"}, "c": {"d"}, "d": {"c"}}, [["a", "b"], ["c", "d"]]),
+    ],
+)
+def test_the_cycle_finder_finds_cycles(graph, cyclic):
+    found = sorted(sorted(c) for c in strongly_connected(graph) if len(c) > 1)
+    assert found == cyclic

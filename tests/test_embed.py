@@ -1,0 +1,89 @@
+"""The embedding helper: a simulated instrument in this process on each link it offers."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from northfinder.driver.protocol.constants import DeviceState
+from northfinder.firmware_sim.errors import SimConfigError, SimError
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.runner import RealTimeClock
+from northfinder.host.embed import LINKS, RELAXED_DEVICE_OPTIONS, SimulatedInstrument
+from northfinder.host.errors import HostConfigError
+
+TRUTH = Truth(azimuth_deg=42.0, latitude_deg=34.0)
+
+
+def wait_for(predicate, timeout: float = 10.0) -> bool:
+    """Poll ``predicate`` until it holds (the simulator runs in another thread)."""
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+@pytest.mark.parametrize("link", LINKS)
+def test_a_device_on_each_link_reads_the_simulated_instrument(link):
+    speed = 1.0 if link == "slcan-pty" else 5.0  # python-can's slcan reads one byte per call
+    with SimulatedInstrument("ideal", TRUTH, seed=1, speed=speed, warmup_s=0.0, link=link) as sim:
+        assert (sim.channel is not None) == (link == "virtual")
+        assert (sim.path is not None) == (link != "virtual")
+        with sim.open_device(**RELAXED_DEVICE_OPTIONS) as dev:
+            assert dev.link_kind == ("serial" if link == "serial-pty" else "can")
+            assert dev.wait_ready(timeout=10.0).state == DeviceState.READY
+            window = dev.acquire(0.1)
+            assert window.complete and len(window) == 20
+        sim.check()
+    with pytest.raises(SimError, match="not running"):
+        sim.check()
+
+
+def test_truth_sensor_and_speed_are_described():
+    with SimulatedInstrument("nav-fog", TRUTH, seed=2, speed=3.0, warmup_s=0.0) as sim:
+        facts = sim.describe()
+        assert facts["azimuth_deg"] == 42.0 and facts["latitude_deg"] == 34.0
+        assert facts["sensor"] == "nav-fog" and facts["speed"] == 3.0
+        assert sim.firmware.node_id == 1 and sim.runner.clock is sim.clock
+
+
+def test_control_channel_and_the_given_clock_drive_the_simulator():
+    clock = RealTimeClock(4.0)
+    clock.pause()
+    with SimulatedInstrument(
+        "ideal", TRUTH, seed=3, clock=clock, warmup_s=0.0, control="127.0.0.1:0"
+    ) as sim:
+        assert sim.runner.clock is clock and sim.control is not None
+        assert sim.control_address is not None and sim.control_address.startswith("127.0.0.1:")
+        status = sim.control.call("status")
+        assert status["paused"] is True and status["speed"] == 4.0
+        assert sim.firmware.now == 0.0  # a paused clock does not move the firmware
+        sim.control.call("resume")
+        assert wait_for(lambda: sim.firmware.now > 0.0)
+
+
+def test_the_seed_or_generator_feeds_the_sensor_noise():
+    g = np.random.default_rng(5)
+    assert (
+        SimulatedInstrument("ideal", seed=g).rng is g
+    )  # used, not copied: the caller's draws count
+    state = SimulatedInstrument("ideal", seed=7).rng.bit_generator.state
+    assert state == np.random.default_rng(7).bit_generator.state
+
+
+def test_bad_arguments_are_named():
+    with pytest.raises(HostConfigError, match="virtual, serial-pty, slcan-pty"):
+        SimulatedInstrument(link="socketcan")
+    with pytest.raises(HostConfigError, match="speed or clock"):
+        SimulatedInstrument(speed=2.0, clock=RealTimeClock())
+    with pytest.raises(SimConfigError):
+        SimulatedInstrument("no-such-sensor")
+    sim = SimulatedInstrument("ideal", TRUTH, link="serial-pty", warmup_s=0.0)
+    with pytest.raises(HostConfigError, match="not started"):
+        sim.open_device()
+    with sim, pytest.raises(HostConfigError, match="not a CAN bus"):
+        sim.open_bus()
