@@ -150,6 +150,31 @@ def machine_cpu() -> tuple[float, float] | None:
     return sum(fields) - idle, sum(fields)
 
 
+def drain(proc: subprocess.Popen, log: Path, quiet_s: float = 2.0, timeout: float = 120.0) -> float:
+    """Wait until candump has written what the bus carried (its log stops growing); seconds.
+
+    candump may run behind (niced, with a large receive buffer): stopping it at once would drop
+    what is still queued in its socket. Once the bus is quiet it is given back normal priority.
+    """
+    try:
+        os.setpriority(os.PRIO_PROCESS, proc.pid, 0)
+    except OSError:
+        pass
+    t0 = since = time.monotonic()
+    last = -1
+    while time.monotonic() - t0 < timeout and proc.poll() is None:
+        try:
+            size = log.stat().st_size
+        except OSError:
+            size = -1
+        if size != last:
+            last, since = size, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            break
+        time.sleep(0.25)
+    return time.monotonic() - t0
+
+
 def wait_for_heartbeat(log: Path, status_id: int, timeout: float) -> float | None:
     """Seconds until the first STATUS frame shows in the candump log (None: not within timeout)."""
     needle = f" {status_id:03X}#".encode()
@@ -375,9 +400,11 @@ def main() -> int:
     finally:
         c0 = cpu_seconds_children()
         result["sim_exit"] = stop(sim)
+        sim_stopped = time.time()
         cpu["sim"] = cpu_seconds_children() - c0
         if dump is not None:
             c0 = cpu_seconds_children()
+            result["candump_drain_s"] = round(drain(dump, dump_log), 1)
             stop(dump)
             cpu["candump"] = cpu_seconds_children() - c0
             if dump_log != out / "candump.log":
@@ -409,6 +436,15 @@ def main() -> int:
             out / "candump.log", args.repo / "protocol.dbc", find_end, conformance_start
         )
         result.update(stats)
+        # The log must reach the end of the traffic: the simulator's heartbeats run until it stops.
+        lines = (out / "candump.log").read_text(errors="replace").split("\n(")
+        last = float(lines[-1].split(")")[0].lstrip("(")) if len(lines) > 1 else math.nan
+        result["candump_log_ends_before_sim_stop_s"] = round(sim_stopped - last, 2)
+        if not sim_stopped - last <= 2.0:
+            failures.append(
+                f"candump's log ends {sim_stopped - last:.1f} s before the simulator stopped: "
+                "traffic not recorded"
+            )
         if stats["unknown_frames"] or stats["undecodable_frames"]:
             failures.append(
                 f"{stats['unknown_frames']} unknown and {stats['undecodable_frames']} undecodable frames"
