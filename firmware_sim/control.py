@@ -2,8 +2,13 @@
 
 Tests and rehearsals use it to read and set the truth and the sensor parameters while the
 simulator runs, to inject faults, and to pause, resume or change speed. Every request is a JSON
-object with an ``op`` naming one entry of a fixed table; nothing received is ever executed as code.
+object with an ``op`` naming one entry of :data:`OPS`; nothing received is ever executed as code.
 Each reply is one JSON line: ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``.
+
+Every argument is checked against its entry in :data:`OPS` (type, finite, inside stated bounds)
+before anything changes, so nothing the channel accepts can stop the device or its stream: a
+refusal names the key, the value and the bound. A request line is at most :data:`MAX_LINE_BYTES`
+long; a longer one is refused without being held in memory.
 """
 
 from __future__ import annotations
@@ -11,24 +16,253 @@ from __future__ import annotations
 import dataclasses
 import ipaddress
 import json
+import logging
 import os
 import socket
 import socketserver
+import stat
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from northfinder.firmware_sim.errors import SimConfigError, SimError
-from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.firmware import BASE_RATE_HZ
 from northfinder.firmware_sim.runner import Runner
+
+log = logging.getLogger("northfinder.sim.control")
+
+#: Longest request line, bytes (without its newline).
+MAX_LINE_BYTES = 65536
+#: Longest burst of impulses one request may order (count x interval), s.
+MAX_BURST_S = 86_400.0
 
 
 class ControlError(SimError):
     """A control request that cannot be carried out (bad op or argument, or no answer)."""
 
 
+def _num(x: float) -> str:
+    """A bound as people write it: 100000, 0.01, 1e+20."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    """``repr`` of a received value, shortened: a refusal must stay one short line."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[: limit - 3]}..."
+
+
+_REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class Key:
+    """One key of a control request, with the checks applied before the request acts.
+
+    Parameters
+    ----------
+    kind : str
+        ``"number"`` (finite int or float), ``"int"`` (whole number), ``"bool"`` (true/false),
+        ``"vec3"`` (three numbers) or ``"fields"`` (an object of sensor fields).
+    default : object
+        Used when the key is absent; required keys have none, and ``None`` means "unchanged".
+    lo, hi : float or None
+        Inclusive bounds of a number, a whole number or each element of a vec3.
+    unit : str
+        Unit of the value, for the help text.
+    """
+
+    kind: str
+    default: Any = _REQUIRED
+    lo: float | None = None
+    hi: float | None = None
+    unit: str = ""
+
+    def expected(self) -> str:
+        """What the key takes, e.g. ``a whole number from 1 to 10000``."""
+        span = (
+            f" from {_num(self.lo)} to {_num(self.hi)}"
+            if self.lo is not None and self.hi is not None
+            else ""
+        )
+        unit = f" {self.unit}" if self.unit else ""
+        return {
+            "number": f"a number{span}{unit}",
+            "int": f"a whole number{span}{unit}",
+            "bool": "true or false",
+            "vec3": f"a list of three numbers{span}{unit}",
+            "fields": 'an object of sensor fields, e.g. {"gyro.arw_dpsh": 0.002}',
+        }[self.kind]
+
+    def describe(self, name: str) -> str:
+        """``name=default: what it takes`` for the help text."""
+        if self.default is _REQUIRED:
+            head = f"{name} (required)"
+        elif self.default is None:
+            head = f"{name} (default: unchanged)"
+        else:
+            head = f"{name}={json.dumps(self.default)}"
+        return f"{head}: {self.expected()}"
+
+    def check(self, name: str, value: Any) -> Any:
+        """The value as the op uses it, or :class:`ControlError` naming the key and the bound."""
+        if self.kind == "bool":
+            if not isinstance(value, bool):
+                raise ControlError(f"{name}: expected {self.expected()}, got {_show(value)}")
+            return value
+        if self.kind == "fields":
+            if not isinstance(value, dict):
+                raise ControlError(f"{name}: expected {self.expected()}, got {_show(value)}")
+            return value
+        if self.kind == "vec3":
+            if not isinstance(value, list | tuple) or len(value) != 3:
+                raise ControlError(f"{name}: expected {self.expected()}, got {_show(value)}")
+            return tuple(self._scalar(f"{name}[{i}]", v, whole=False) for i, v in enumerate(value))
+        return self._scalar(name, value, whole=self.kind == "int")
+
+    def _scalar(self, name: str, value: Any, *, whole: bool) -> float | int:
+        ok_type = isinstance(value, int) if whole else isinstance(value, int | float)
+        # Python ints compare exactly with float bounds, so a 4000-digit integer is refused
+        # here without being converted (which could overflow).
+        if (
+            isinstance(value, bool)
+            or not ok_type
+            or value != value  # NaN
+            or (self.lo is not None and not self.lo <= value)
+            or (self.hi is not None and not value <= self.hi)
+            or value in (float("inf"), float("-inf"))
+        ):
+            raise ControlError(f"{name}: expected {self.expected()}, got {_show(value)}")
+        return value if whole else float(value)
+
+
+@dataclass(frozen=True)
+class Op:
+    """One operation of the control channel: what it does and the keys it takes."""
+
+    help: str
+    keys: Mapping[str, Key] = field(default_factory=dict)
+
+    def usage(self, name: str) -> list[str]:
+        """The op and its help, then one line per key (for ``simctl --help``)."""
+        return [f"{name}: {self.help}", *(key.describe(k) for k, key in self.keys.items())]
+
+
+_GYRO_DPH = 1e6  # beyond the range of any gyro preset (200 deg/s = 7.2e5 deg/h)
+_ACCEL_UG = 1e7  # 10 g
+_ON = Key("bool", True)
+
+#: The operations and their keys: the controller checks every request against this table and
+#: ``northfinder simctl --help`` prints it, so the two cannot disagree.
+OPS: dict[str, Op] = {
+    "status": Op("time, state, counters, speed and injected faults now"),
+    "get_truth": Op("where the simulated instrument really stands"),
+    "set_truth": Op(
+        "move the simulated base; keys not given stay as they are",
+        {
+            "azimuth_deg": Key("number", None, -360.0, 360.0, "deg clockwise from north"),
+            "latitude_deg": Key("number", None, -90.0, 90.0, "deg"),
+            "pitch_deg": Key("number", None, -90.0, 90.0, "deg (the base stands at most 45)"),
+            "roll_deg": Key("number", None, -90.0, 90.0, "deg (the base stands at most 45)"),
+        },
+    ),
+    "get_sensor": Op("the sensor specification in datasheet units"),
+    "set_sensor": Op("change sensor fields while running", {"values": Key("fields")}),
+    "drop": Op("drop the next COUNT outgoing frames", {"count": Key("int", 1, 0, 100_000)}),
+    "corrupt": Op("corrupt the next COUNT outgoing frames", {"count": Key("int", 1, 0, 100_000)}),
+    "delay_replies": Op(
+        "send every reply SECONDS late (0 ends it)",
+        {"seconds": Key("number", lo=0, hi=3600, unit="s")},
+    ),
+    "silent": Op("stop sending anything (on=false ends it)", {"on": _ON}),
+    "skip_counter": Op(
+        "advance the sample counter by COUNT ticks once", {"count": Key("int", 1, 0, 1_000_000)}
+    ),
+    "wrong_result": Op(
+        "the next reply carries result CODE and no data", {"code": Key("int", 7, 0, 255)}
+    ),
+    "stall": Op(
+        "jam the table where it is; a move in progress ends in a DRIVE fault (on=false frees it)",
+        {"on": _ON},
+    ),
+    "bias_step": Op(
+        "add a permanent bias step from now",
+        {
+            "gyro_dph": Key("vec3", [0.0, 0.0, 0.0], -_GYRO_DPH, _GYRO_DPH, "deg/h"),
+            "accel_ug": Key("vec3", [0.0, 0.0, 0.0], -_ACCEL_UG, _ACCEL_UG, "ug"),
+        },
+    ),
+    "impulses": Op(
+        f"a burst of COUNT half-sine shocks, one every INTERVAL_S, from now "
+        f"(count x interval_s at most {MAX_BURST_S:g} s)",
+        {
+            "count": Key("int", 1, 1, 10_000),
+            "interval_s": Key("number", 0.5, 0.01, 3600.0, "s"),
+            "gyro_dph": Key("number", 50.0, 0.0, _GYRO_DPH, "deg/h peak"),
+            "accel_ug": Key("number", 5000.0, 0.0, _ACCEL_UG, "ug peak"),
+        },
+    ),
+    "vibration": Op(
+        "switch vibration on or off (hz and amplitudes apply when the sensor has none)",
+        {
+            "on": _ON,
+            "hz": Key("number", 35.0, 0.01, BASE_RATE_HZ / 2, "Hz"),
+            "gyro_dph": Key("number", 5.0, 0.0, _GYRO_DPH, "deg/h"),
+            "accel_ug": Key("number", 2000.0, 0.0, _ACCEL_UG, "ug"),
+        },
+    ),
+    "reset": Op("restart the firmware as a watchdog would and clear injected faults"),
+    "pause": Op("stop simulated time"),
+    "resume": Op("let simulated time run again"),
+    "speed": Op(
+        "simulated seconds per wall second", {"value": Key("number", lo=0.001, hi=10_000.0)}
+    ),
+}
+
+
+def check_request(request: Any) -> tuple[str, dict[str, Any]]:
+    """``(op, arguments)`` of a request object, every argument checked and defaulted.
+
+    Raises
+    ------
+    ControlError
+        Not an object with a string ``op``, an unknown op or key (the message lists the right
+        ones), or a value outside its bounds (the message states them).
+    """
+    if not isinstance(request, dict) or not isinstance(request.get("op"), str):
+        raise ControlError('a request is a JSON object with a string "op"')
+    name = request["op"]
+    op = OPS.get(name)
+    if op is None:
+        raise ControlError(f"unknown op {_show(name)}; ops are {', '.join(sorted(OPS))}")
+    unknown = sorted(set(request) - set(op.keys) - {"op"})
+    if unknown:
+        right = f"keys are {', '.join(op.keys)}" if op.keys else "it takes no keys"
+        raise ControlError(f"{name}: unknown key {_show(unknown[0])}; {right}")
+    args: dict[str, Any] = {}
+    for key_name, key in op.keys.items():
+        if key_name in request:
+            try:
+                args[key_name] = key.check(key_name, request[key_name])
+            except ControlError as exc:
+                raise ControlError(f"{name}: {exc}") from None
+        elif key.default is _REQUIRED:
+            raise ControlError(f"{name}: {key_name} is required: {key.expected()}")
+        elif key.default is not None:
+            args[key_name] = key.check(key_name, key.default)
+    if name == "impulses" and args["count"] * args["interval_s"] > MAX_BURST_S:
+        raise ControlError(
+            f"impulses: count x interval_s = {args['count'] * args['interval_s']:g} s exceeds "
+            f"the {MAX_BURST_S:g} s a burst may last"
+        )
+    return name, args
+
+
 def parse_address(text: str) -> tuple[str, Any]:
     """``("tcp", (host, port))`` for ``HOST:PORT`` on loopback, ``("unix", path)`` otherwise.
+
+    IPv6 hosts are written in brackets, ``[::1]:7700``.
 
     Raises
     ------
@@ -36,11 +270,14 @@ def parse_address(text: str) -> tuple[str, Any]:
         A TCP host that is not a loopback address: the channel must not be reachable from outside.
     """
     if text.startswith("unix:") or "/" in text:
-        return "unix", text.removeprefix("unix:")
+        path = text.removeprefix("unix:")
+        if not path:
+            raise SimConfigError(f"control address {text!r}: expected unix:PATH")
+        return "unix", path
     host, sep, port = text.rpartition(":")
     if not sep:
         raise SimConfigError(f"control address {text!r}: expected HOST:PORT or unix:PATH")
-    host = host.strip("[]") or "127.0.0.1"
+    host = host.removeprefix("[").removesuffix("]") or "127.0.0.1"
     try:
         loopback = host == "localhost" or ipaddress.ip_address(host).is_loopback
         port_n = int(port)
@@ -51,32 +288,6 @@ def parse_address(text: str) -> tuple[str, Any]:
     if not 0 <= port_n <= 65535:
         raise SimConfigError(f"control address {text!r}: port out of range")
     return "tcp", (host, port_n)
-
-
-def _number(args: dict[str, Any], key: str, default: float | None = None) -> float:
-    value = args.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ControlError(f"{key}: expected a number, got {value!r}")
-    return float(value)
-
-
-def _count(args: dict[str, Any], key: str = "count") -> int:
-    value = args.get(key, 1)
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1_000_000:
-        raise ControlError(f"{key}: expected a whole number from 0 to 1000000, got {value!r}")
-    return value
-
-
-def _vec3(args: dict[str, Any], key: str) -> tuple[float, float, float]:
-    value = args.get(key, [0.0, 0.0, 0.0])
-    if (
-        not isinstance(value, list)
-        or len(value) != 3
-        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-    ):
-        raise ControlError(f"{key}: expected a list of three numbers, got {value!r}")
-    x, y, z = (float(v) for v in value)
-    return x, y, z
 
 
 class Controller:
@@ -91,40 +302,38 @@ class Controller:
             "set_truth": self._set_truth,
             "get_sensor": lambda a: {"sensor": fw.instrument.spec.to_dict()},
             "set_sensor": self._set_sensor,
-            "drop": lambda a: self._set_fault("drop_frames", _count(a)),
-            "corrupt": lambda a: self._set_fault("corrupt_frames", _count(a)),
-            "delay_replies": lambda a: self._set_fault("reply_delay_s", self._seconds(a)),
-            "silent": lambda a: self._set_fault("silent", bool(a.get("on", True))),
-            "skip_counter": lambda a: self._set_fault("skip_counter", _count(a)),
-            "wrong_result": self._wrong_result,
-            "stall": lambda a: self._call(fw.stall_table, bool(a.get("on", True))),
+            "drop": lambda a: self._set_fault("drop_frames", a["count"]),
+            "corrupt": lambda a: self._set_fault("corrupt_frames", a["count"]),
+            "delay_replies": lambda a: self._set_fault("reply_delay_s", a["seconds"]),
+            "silent": lambda a: self._set_fault("silent", a["on"]),
+            "skip_counter": lambda a: self._set_fault("skip_counter", a["count"]),
+            "wrong_result": lambda a: self._set_fault("wrong_result", a["code"]),
+            "stall": lambda a: self._call(fw.stall_table, a["on"]),
             "bias_step": lambda a: self._call(
-                fw.apply,
-                lambda: fw.instrument.inject_bias_step(_vec3(a, "gyro_dph"), _vec3(a, "accel_ug")),
+                fw.apply, lambda: fw.instrument.inject_bias_step(a["gyro_dph"], a["accel_ug"])
             ),
-            "impulses": self._impulses,
-            "vibration": self._vibration,
+            "impulses": lambda a: self._call(fw.apply, lambda: fw.instrument.inject_impulses(**a)),
+            "vibration": lambda a: self._call(fw.apply, lambda: fw.instrument.set_vibration(**a)),
             "reset": lambda a: self._call(self._reset),
             "pause": lambda a: self._call(runner.clock.pause),
             "resume": lambda a: self._call(runner.clock.resume),
-            "speed": lambda a: self._call(runner.clock.set_speed, _number(a, "value")),
+            "speed": lambda a: self._call(runner.clock.set_speed, a["value"]),
         }
+        assert set(self._ops) == set(OPS), "every op in the table has an implementation"
 
     @property
     def ops(self) -> list[str]:
         return sorted(self._ops)
 
     def handle(self, request: Any) -> dict[str, Any]:
-        """Carry out one request object; always returns a reply object."""
-        if not isinstance(request, dict) or not isinstance(request.get("op"), str):
-            return {"ok": False, "error": 'a request is a JSON object with a string "op"'}
-        op = request["op"]
-        fn = self._ops.get(op)
-        if fn is None:
-            return {"ok": False, "error": f"unknown op {op!r}; ops are {', '.join(self.ops)}"}
+        """Check and carry out one request object; always returns a reply object."""
+        try:
+            op, args = check_request(request)
+        except ControlError as exc:
+            return {"ok": False, "error": str(exc)}
         try:
             with self.runner.lock:
-                return {"ok": True, **fn(request)}
+                return {"ok": True, **self._ops[op](args)}
         except (SimError, ValueError, TypeError) as exc:
             return {"ok": False, "error": f"{op}: {exc}"}
 
@@ -150,64 +359,20 @@ class Controller:
 
     def _set_truth(self, args: dict[str, Any]) -> dict[str, Any]:
         fw = self.runner.firmware
-        fields = {f.name for f in dataclasses.fields(Truth)}
-        unknown = sorted(set(args) - fields - {"op"})
-        if unknown:
-            raise ControlError(
-                f"unknown truth field {unknown[0]!r}; fields are {', '.join(sorted(fields))}"
-            )
-        values = {k: _number(args, k) for k in fields if k in args}
-        truth = dataclasses.replace(fw.instrument.truth, **values)
+        truth = dataclasses.replace(fw.instrument.truth, **args)  # Truth checks the whole
         fw.set_truth(truth)
         return {"truth": dataclasses.asdict(truth)}
 
     def _set_sensor(self, args: dict[str, Any]) -> dict[str, Any]:
         fw = self.runner.firmware
-        values = args.get("values")
-        if not isinstance(values, dict):
-            raise ControlError('set_sensor needs "values": {"gyro.arw_dpsh": 0.002, ...}')
-        spec = fw.instrument.spec.with_values(values)
-        fw.set_spec(spec)
+        spec = fw.instrument.spec.with_values(args["values"])
+        fw.set_spec(spec)  # refuses, unchanged, what the device cannot run
         return {"sensor": spec.to_dict()}
 
     def _set_fault(self, name: str, value: Any) -> dict[str, Any]:
         faults = self.runner.firmware.faults
         self.runner.firmware.apply(lambda: setattr(faults, name, value))
         return {"faults": dataclasses.asdict(self.runner.firmware.faults)}
-
-    @staticmethod
-    def _seconds(args: dict[str, Any]) -> float:
-        s = _number(args, "seconds")
-        if not 0 <= s <= 3600:
-            raise ControlError(f"seconds: expected 0 to 3600, got {s}")
-        return s
-
-    def _wrong_result(self, args: dict[str, Any]) -> dict[str, Any]:
-        code = args.get("code", 7)
-        if isinstance(code, bool) or not isinstance(code, int) or not 0 <= code <= 255:
-            raise ControlError(f"code: expected a result code 0..255, got {code!r}")
-        return self._set_fault("wrong_result", code)
-
-    def _impulses(self, args: dict[str, Any]) -> dict[str, Any]:
-        count = _count(args)
-        fw = self.runner.firmware
-        fw.apply(lambda: fw.instrument.inject_impulses(
-            count,
-            interval_s=_number(args, "interval_s", 0.5),
-            gyro_dph=_number(args, "gyro_dph", 50.0),
-            accel_ug=_number(args, "accel_ug", 5000.0),
-        ))  # fmt: skip
-        return {}
-
-    def _vibration(self, args: dict[str, Any]) -> dict[str, Any]:
-        fw = self.runner.firmware
-        fw.apply(lambda: fw.instrument.set_vibration(
-            bool(args.get("on", True)),
-            hz=_number(args, "hz", 35.0),
-            gyro_dph=_number(args, "gyro_dph", 5.0),
-            accel_ug=_number(args, "accel_ug", 2000.0),
-        ))  # fmt: skip
-        return {}
 
     def _reset(self) -> None:
         fw = self.runner.firmware
@@ -216,42 +381,130 @@ class Controller:
         fw.reboot()
 
 
+def _reply_line(reply: dict[str, Any]) -> bytes:
+    """One JSON line, also for a reply that JSON cannot carry (then an error says so)."""
+    try:
+        text = json.dumps(reply, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        text = json.dumps({"ok": False, "error": f"reply not representable in JSON: {exc}"})
+    return text.encode() + b"\n"
+
+
 class _Handler(socketserver.StreamRequestHandler):
     server: _TcpServer | _UnixServer
 
     def handle(self) -> None:
-        for raw in self.rfile:
-            if len(raw) > 65536:
-                reply: dict[str, Any] = {"ok": False, "error": "request line longer than 64 KiB"}
-            else:
-                try:
-                    request = json.loads(raw)
-                except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                    reply = {"ok": False, "error": f"not a JSON line: {exc}"}
-                else:
-                    reply = self.server.controller.handle(request)
-            self.wfile.write(json.dumps(reply).encode() + b"\n")
+        try:
+            while self._one_line():
+                pass
+        except OSError:
+            pass  # the client went away; nothing to answer
+
+    def _one_line(self) -> bool:
+        """Read, answer one request line; False at the end of the connection."""
+        raw = self.rfile.readline(MAX_LINE_BYTES + 1)  # the longest line and its newline
+        if not raw:
+            return False
+        if len(raw.removesuffix(b"\n")) > MAX_LINE_BYTES:
+            error = f"request line longer than {MAX_LINE_BYTES} bytes"
+            self.wfile.write(_reply_line({"ok": False, "error": error}))
+            while raw and not raw.endswith(b"\n"):  # skip the rest of it, never holding more
+                raw = self.rfile.readline(MAX_LINE_BYTES + 1)
+            return bool(raw)
+        try:
+            request = json.loads(raw)
+        except RecursionError:
+            reply: dict[str, Any] = {"ok": False, "error": "not a JSON line: nested too deeply"}
+        except ValueError as exc:  # also a too long integer, and bytes that are not UTF-8
+            reply = {"ok": False, "error": f"not a JSON line: {_show(str(exc), 120)}"}
+        else:
+            try:
+                reply = self.server.controller.handle(request)
+            except Exception as exc:  # a bug must cost one reply, not the channel
+                log.exception("control request failed")
+                reply = {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
+        self.wfile.write(_reply_line(reply))
+        return True
 
 
-class _TcpServer(socketserver.ThreadingTCPServer):
+class _Quiet:
+    """Errors of one connection are logged in one line, never printed as a traceback."""
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        log.warning("control connection %s ended with an error", client_address, exc_info=False)
+
+
+class _TcpServer(_Quiet, socketserver.ThreadingTCPServer):
     daemon_threads = True
     allow_reuse_address = True
     controller: Controller
 
 
-class _UnixServer(socketserver.ThreadingUnixStreamServer):
+class _Tcp6Server(_TcpServer):
+    address_family = socket.AF_INET6
+
+
+class _UnixServer(_Quiet, socketserver.ThreadingUnixStreamServer):
     daemon_threads = True
     controller: Controller
 
 
+def _claim_unix_path(path: str) -> None:
+    """Make ``path`` free for a new socket: only a stale socket (nobody listening) is removed.
+
+    Raises
+    ------
+    SimConfigError
+        The path is something else than a socket, or a process listens on it.
+    """
+    where = f"control address unix:{path}"
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise SimConfigError(f"{where}: cannot inspect the path ({exc.strerror})") from exc
+    if not stat.S_ISSOCK(mode):
+        raise SimConfigError(f"{where}: the path exists and is not a socket; choose another path")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    probe.settimeout(1.0)
+    try:
+        probe.connect(path)
+    except ConnectionRefusedError:
+        os.unlink(path)  # a socket left behind by a process that has ended
+        return
+    except OSError as exc:
+        raise SimConfigError(f"{where}: cannot tell whether the socket is in use ({exc})") from exc
+    finally:
+        probe.close()
+    raise SimConfigError(f"{where}: another process is listening on that socket")
+
+
 class ControlServer:
-    """Serves a :class:`Controller` on a loopback TCP address or a Unix socket, in a thread."""
+    """Serves a :class:`Controller` on a loopback TCP address or a Unix socket, in a thread.
+
+    Raises
+    ------
+    SimConfigError
+        A bad address, a path that exists and is not a stale socket, or an address it cannot
+        listen on (in use, no IPv6); one line naming the address.
+    """
 
     def __init__(self, controller: Controller, address: str) -> None:
         kind, addr = parse_address(address)
-        if kind == "unix" and os.path.exists(addr):
-            os.unlink(addr)
-        self._server = _TcpServer(addr, _Handler) if kind == "tcp" else _UnixServer(addr, _Handler)
+        self._inode: int | None = None
+        try:
+            if kind == "unix":
+                _claim_unix_path(addr)
+                self._server: _TcpServer | _UnixServer = _UnixServer(addr, _Handler)
+                self._inode = os.stat(addr).st_ino
+            else:
+                ipv6 = ":" in addr[0]
+                self._server = (_Tcp6Server if ipv6 else _TcpServer)(addr, _Handler)
+        except OSError as exc:
+            raise SimConfigError(
+                f"control address {address}: cannot listen there ({exc.strerror or exc})"
+            ) from exc
         self._server.controller = controller
         self.kind = kind
         self._thread = threading.Thread(
@@ -264,20 +517,28 @@ class ControlServer:
         if isinstance(address, tuple):
             host = address[0]
             host = host.decode() if isinstance(host, bytes | bytearray) else host
-            return f"{host}:{address[1]}"
+            return f"[{host}]:{address[1]}" if ":" in host else f"{host}:{address[1]}"
         return f"unix:{os.fsdecode(address) if isinstance(address, str | bytes) else address!r}"
 
     def start(self) -> ControlServer:
         self._thread.start()
         return self
 
+    def __enter__(self) -> ControlServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
-        self._server.shutdown()
+        if self._thread.is_alive():  # shutdown() waits for a serve loop that never started
+            self._server.shutdown()
         self._server.server_close()
         address = self._server.server_address
         if self.kind == "unix" and isinstance(address, str | bytes):
             try:
-                os.unlink(address)
+                if os.stat(address).st_ino == self._inode:  # ours, not a successor's
+                    os.unlink(address)
             except OSError:
                 pass
 
@@ -309,14 +570,18 @@ class ControlClient:
         try:
             self._file.write(json.dumps({"op": op, **args}).encode() + b"\n")
             self._file.flush()
-            line = self._file.readline()
+            line = self._file.readline(4 * MAX_LINE_BYTES)
         except OSError as exc:
             raise ControlError(f"control channel: {exc}") from exc
         if not line:
             raise ControlError("control channel closed by the simulator")
-        reply = json.loads(line)
-        if not reply.get("ok"):
-            raise ControlError(reply.get("error", "request refused"))
+        try:
+            reply = json.loads(line)
+        except ValueError as exc:
+            raise ControlError(f"control channel: the reply is not a JSON line ({exc})") from exc
+        if not isinstance(reply, dict) or not reply.get("ok"):
+            error = reply.get("error") if isinstance(reply, dict) else None
+            raise ControlError(error or "request refused")
         return reply
 
     def close(self) -> None:

@@ -68,6 +68,11 @@ log = logging.getLogger("northfinder.sim")
 #: Rate at which the physics runs; every output rate divides it and a tick is the sum of
 #: ``BASE_RATE_HZ / rate`` physics increments, as a pulse-counting output would add them.
 BASE_RATE_HZ = 400.0
+#: The device's clock counts whole nanoseconds: the present, the computed horizon and the heartbeat
+#: schedule are integers, so which tick is due at a time is exact integer arithmetic and no
+#: rounding can accumulate over a long run.
+NS_PER_S = 1_000_000_000
+_BASE_RATE = round(BASE_RATE_HZ)
 _GYRO_COUNT = GYRO_DPH_PER_COUNT * DPH  # rad/s per count
 _ACCEL_COUNT = ACCEL_G_PER_COUNT * G0  # m/s^2 per count
 # Counts per unit (exactly 1e6 and 100): a product rounds like the literal factors did.
@@ -77,9 +82,56 @@ _COUNTS_PER_DEGC = 1.0 / TEMPERATURE_DEGC_PER_COUNT
 DRIVE_FAULT_LIMIT_DEG = 0.5
 #: How far ahead of the present the firmware computes its output, s (see Firmware.process).
 LOOKAHEAD_S = 0.2
+_LOOKAHEAD_NS = round(LOOKAHEAD_S * NS_PER_S)
 #: Time from receiving a command to sending its reply, s.
 REPLY_LATENCY_S = 0.001
+_REPLY_LATENCY_NS = round(REPLY_LATENCY_S * NS_PER_S)
 MOTION_OPCODES = (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME)
+#: Most random impulses per second the device's physics is asked to draw: one per physics sample.
+MAX_IMPULSE_RATE_HZ = BASE_RATE_HZ
+#: Longest impulse, s: a shock, not a bias change (which ``bias_step`` injects).
+MAX_IMPULSE_DURATION_S = 1.0
+#: Table fields the device reports through configuration keys (protocol.md 4.4): field, key, and
+#: the key's unit in the field's unit.
+_TABLE_KEYS = (
+    ("max_rate_dps", ConfigKey.TABLE_MAX_RATE_MDPS, 1e-3),
+    ("max_accel_dps2", ConfigKey.TABLE_MAX_ACCEL_MDPS2, 1e-3),
+    ("settle_s", ConfigKey.SETTLE_TIME_MS, 1e-3),
+)
+
+
+def check_device_spec(spec: SensorSpec) -> SensorSpec:
+    """Return ``spec`` if the simulated device can run it, else raise.
+
+    The table's limits must be values the device can report in its configuration keys
+    (protocol.md 4.4), and the random impulses few and short enough to compute in real time.
+
+    Raises
+    ------
+    SimConfigError
+        Naming the field, its value and the bound.
+    """
+    table = spec.table
+    for name, key, unit in _TABLE_KEYS:
+        value = getattr(table, name)
+        lo, hi = CONFIG_LIMITS[key]
+        if not lo <= round(value / unit) <= hi:
+            raise SimConfigError(
+                f"table.{name}: {value:g} is outside what the device runs and reports as "
+                f"{key.name} ({lo * unit:g} to {hi * unit:g})"
+            )
+    d = spec.disturbance
+    if d.impulse_rate_hz > MAX_IMPULSE_RATE_HZ:
+        raise SimConfigError(
+            f"disturbance.impulse_rate_hz: {d.impulse_rate_hz:g} exceeds the "
+            f"{MAX_IMPULSE_RATE_HZ:g} impulses per second the device simulates"
+        )
+    if d.impulse_duration_s > MAX_IMPULSE_DURATION_S:
+        raise SimConfigError(
+            f"disturbance.impulse_duration_s: {d.impulse_duration_s:g} s exceeds the "
+            f"{MAX_IMPULSE_DURATION_S:g} s an impulse may last"
+        )
+    return spec
 
 
 @dataclass(frozen=True)
@@ -167,7 +219,9 @@ class Firmware:
                 raise SimConfigError(
                     f"{name}: must be a finite number of seconds >= 0, got {value!r}"
                 )
-        self.instrument = Instrument(spec, truth, rng, sample_rate_hz=BASE_RATE_HZ)
+        self.instrument = Instrument(
+            check_device_spec(spec), truth, rng, sample_rate_hz=BASE_RATE_HZ
+        )
         self.link = link or LinkInfo()
         self.node_id = node_id
         self.serial_number = serial_number
@@ -181,56 +235,63 @@ class Firmware:
         self._fault = Fault(0)
         self._fault_time = math.inf
         self._pending: list[Outgoing] = []
-        self._now = 0.0  # time up to which the device has sent its output
-        self._horizon = 0.0  # time up to which output has been computed ahead
+        self._now_ns = 0  # time up to which the device has sent its output
+        self._horizon_ns = 0  # time up to which output has been computed ahead
         self._ahead: list[Outgoing] = []
-        self._snapshots: list[tuple[float, dict[str, object], int]] = []
+        self._snapshots: list[tuple[int, dict[str, object], int]] = []  # (start ns, ...)
         self.boot_count = 0
-        self._reboot(0.0)
+        self._reboot(0, REPLY_LATENCY_S, first_status_ns=0)
         self._last_state = self.state_at(0.0)
 
     # -- configuration and state --------------------------------------------------------------
-    def _reboot(self, t: float) -> None:
+    def _reboot(self, t_ns: int, identify_s: float, first_status_ns: int) -> None:
+        """Enter BOOT at ``t_ns``; IDENTIFY leaves at ``identify_s`` and the heartbeat starts at
+        ``first_status_ns``."""
         table = self.instrument.spec.table
-        self._boot_end = t + self.boot_s
+        self._boot_end = t_ns / NS_PER_S + self.boot_s
         self._counter = 0
         self._tick = _Tick()
         self._remainder = np.zeros(6)
-        self._next_heartbeat = t
+        self._next_heartbeat_ns = first_status_ns
         self._settle_end = -math.inf
         self._checked_move = True
+        self._commanded_deg = self.instrument.table.target_deg
         self._fault = Fault(0)
         self._fault_time = math.inf
         self.config: dict[ConfigKey, int] = {
             ConfigKey.SAMPLE_RATE_HZ: 200,
             ConfigKey.HEARTBEAT_PERIOD_MS: 100,
-            ConfigKey.TABLE_MAX_RATE_MDPS: round(table.max_rate_dps * 1000),
-            ConfigKey.TABLE_MAX_ACCEL_MDPS2: round(table.max_accel_dps2 * 1000),
-            ConfigKey.SETTLE_TIME_MS: round(table.settle_s * 1000),
+            **{key: round(getattr(table, name) / unit) for name, key, unit in _TABLE_KEYS},
             ConfigKey.STREAMING: 0,
         }
         if not self.link.fits(200, 100):
             self.config[ConfigKey.SAMPLE_RATE_HZ] = self.link.max_rate(100) or min(SAMPLE_RATES_HZ)
         self.boot_count += 1
         # protocol.md 5: the device announces itself during BOOT.
-        self._pending.append(Outgoing(t + REPLY_LATENCY_S, self.identity()))
+        self._pending.append(Outgoing(identify_s, self.identity()))
 
     def reboot(self) -> None:
-        """Restart the firmware now (RESET, or a reset from the control channel): BOOT, counter 0,
-        configuration back to defaults, streaming off. Warm-up is thermal and counts from power-on."""
+        """Restart the firmware now, as a watchdog or supply reset does (the control channel's
+        ``reset``): what waited in the transmit queue is lost; BOOT, counter 0, configuration back
+        to defaults, streaming off. Warm-up is thermal and counts from power-on."""
         self._rewind()
         self._pending.clear()
-        self._reboot(self.now)
+        self._restart(self.now + REPLY_LATENCY_S)
+
+    def _restart(self, first_s: float) -> None:
+        """BOOT from now; its first message leaves at ``first_s`` (after the reply to RESET)."""
+        self._rewind()
+        first_ns = max(math.ceil(first_s * NS_PER_S), self._now_ns + _REPLY_LATENCY_NS)
+        self._reboot(self._now_ns, first_ns / NS_PER_S, first_ns + _REPLY_LATENCY_NS)
         # protocol.md 4.6 and 6: the counters restart, and the reply to RESET leaves before the
         # first status of BOOT.
         self.rx_malformed = self.tx_dropped = self.cmd_rejected = 0
-        self._next_heartbeat = self.now + 2 * REPLY_LATENCY_S
         log.info("t=%.3f s reset", self.now)
 
     @property
     def now(self) -> float:
         """Simulated time since power-on up to which the device has acted and sent, s."""
-        return self._now
+        return self._now_ns / NS_PER_S
 
     @property
     def sample_rate_hz(self) -> int:
@@ -280,7 +341,17 @@ class Firmware:
         self.apply(lambda: self.instrument.set_truth(truth))
 
     def set_spec(self, spec: SensorSpec) -> None:
+        """Change the instrument while running; the configuration keys of the table follow it.
+
+        Raises
+        ------
+        SimConfigError
+            A specification the device cannot run (:func:`check_device_spec`); nothing changed.
+        """
+        check_device_spec(spec)
         self.apply(lambda: self.instrument.set_spec(spec))
+        for name, key, unit in _TABLE_KEYS:
+            self.config[key] = round(getattr(spec.table, name) / unit)
 
     # -- commands ------------------------------------------------------------------------------
     def identity(self) -> Identify:
@@ -327,6 +398,7 @@ class Firmware:
         self._rewind()
         before = self.state
         result, data, follow = self._execute(command)
+        self._check_move(self.now, self.now)  # a move into a jammed table fails at once
         self._reply(Reply(command.seq, command.OPCODE, result, data))
         if follow is not None:
             self._queue(follow, REPLY_LATENCY_S + self.faults.reply_delay_s)
@@ -334,9 +406,9 @@ class Firmware:
             # protocol.md 5: a change caused by a command (a move starting) also sends a status.
             self._queue(self.status(), REPLY_LATENCY_S + self.faults.reply_delay_s)
         if command.OPCODE == Opcode.RESET and result == Result.OK:
-            reply = self._pending[-1]  # the reply to RESET goes out first (protocol.md 6)
-            self.reboot()
-            self._pending.insert(0, reply)
+            # protocol.md 4.2 and 6: replies queued before the RESET still go out, in order; then
+            # the reply to RESET; then what BOOT sends.
+            self._restart(self._pending[-1].time_s)
 
     def _reply(self, reply: Reply) -> None:
         if self.faults.wrong_result is not None:
@@ -414,18 +486,10 @@ class Firmware:
             )
             if not self.link.fits(rate, hb):
                 return Result.RATE_EXCEEDS_LINK
-        if key in (
-            ConfigKey.TABLE_MAX_RATE_MDPS,
-            ConfigKey.TABLE_MAX_ACCEL_MDPS2,
-            ConfigKey.SETTLE_TIME_MS,
-        ):
-            field_name = {
-                ConfigKey.TABLE_MAX_RATE_MDPS: ("max_rate_dps", 1e-3),
-                ConfigKey.TABLE_MAX_ACCEL_MDPS2: ("max_accel_dps2", 1e-3),
-                ConfigKey.SETTLE_TIME_MS: ("settle_s", 1e-3),
-            }[key]
-            table = replace(self.instrument.table.spec, **{field_name[0]: value * field_name[1]})
-            self.instrument.table.spec = table
+        for name, table_key, unit in _TABLE_KEYS:
+            if key == table_key:
+                table = replace(self.instrument.table.spec, **{name: value * unit})
+                self.instrument.table.spec = table
         if key == ConfigKey.SAMPLE_RATE_HZ and value != self.sample_rate_hz:
             self._close_tick_for_rate_change()
         self.config[key] = value
@@ -449,6 +513,9 @@ class Firmware:
             elif direction == Direction.NEGATIVE and delta > 0.0:
                 delta -= 360.0
         table.move_by(t, delta)
+        # The firmware keeps its own copy of the command: the drive's target moves when it is
+        # stopped or jams, the command does not.
+        self._commanded_deg = table.target_deg
         self._settle_end = table.motion_end_s + table.spec.settle_s
         self._checked_move = False
         return Result.OK
@@ -459,19 +526,29 @@ class Firmware:
             table.stop(t)
             self._settle_end = table.motion_end_s + table.spec.settle_s
             self._checked_move = True  # a stopped move is short of its target by intent
+            self._commanded_deg = table.target_deg
 
     def stall_table(self, stalled: bool = True) -> None:
-        """Jam (or free) the table, as a control-channel fault."""
+        """Jam (or free) the table, as a control-channel fault.
+
+        A table jammed during a move stops short of the command: the drive supervision sees it at
+        once (DRIVE fault, state FAULT, a status sent; protocol.md 4.6). A table jammed at rest
+        holds its angle, so the fault shows only when the next move cannot be carried out.
+        """
         self._rewind()
+        before = self.state
         self.instrument.table.stall(self.now, stalled)
         if stalled:
             self._settle_end = min(self._settle_end, self.now)
+            self._check_move(self.now, self.now)
+        if self.state != before:
+            self._queue(self.status(), 0.0)  # protocol.md 5: a state change sends a status
 
     # -- time ----------------------------------------------------------------------------------
     #: Attributes the output computation changes; a snapshot of them allows a rewind.
     _ENGINE = (
-        "instrument", "_counter", "_tick", "_remainder", "_next_heartbeat",
-        "_settle_end", "_checked_move", "_fault", "_fault_time",
+        "instrument", "_counter", "_tick", "_remainder", "_next_heartbeat_ns",
+        "_settle_end", "_checked_move", "_commanded_deg", "_fault", "_fault_time",
     )  # fmt: skip
 
     def process(self, dt: float) -> list[Outgoing]:
@@ -480,12 +557,15 @@ class Firmware:
         Output is computed in chunks of :data:`LOOKAHEAD_S` ahead of time, because one large
         step of the physics costs little more than one small one; anything that changes the
         device rewinds to the present first (see :meth:`apply`), so the result is the same as
-        computing every tick as it comes.
+        computing every tick as it comes. The device's clock counts whole nanoseconds
+        (:data:`NS_PER_S`): ``dt`` is rounded to one, so steps of 1 ms add up exactly and a tick
+        is due at the same step whether or not a command came just before it.
         """
         if not (math.isfinite(dt) and dt >= 0):
             raise SimConfigError(f"dt: must be a finite number of seconds >= 0, got {dt!r}")
-        target = self._now + dt
-        while self._horizon < target:
+        target_ns = self._now_ns + round(dt * NS_PER_S)
+        target = target_ns / NS_PER_S
+        while self._horizon_ns < target_ns:
             self._compute_ahead()
         n = bisect.bisect_right(self._ahead, target, key=lambda o: o.time_s)
         out, self._ahead = self._ahead[:n], self._ahead[n:]
@@ -493,8 +573,8 @@ class Firmware:
         if due:
             self._pending = [p for p in self._pending if p.time_s > target]
             out = sorted(out + due, key=lambda o: o.time_s)
-        self._now = target
-        while len(self._snapshots) > 1 and self._snapshots[1][0] <= target:
+        self._now_ns = target_ns
+        while len(self._snapshots) > 1 and self._snapshots[1][0] <= target_ns:
             self._snapshots.pop(0)  # chunks wholly in the past are never rewound to
         state = self.state_at(target)
         if state != self._last_state:
@@ -523,9 +603,8 @@ class Firmware:
     def _compute_ahead(self) -> None:
         """Compute one more chunk, keeping a snapshot of the state at its start for a rewind."""
         engine = {name: getattr(self, name) for name in self._ENGINE}
-        self._snapshots.append((self._horizon, copy.deepcopy(engine), self.faults.skip_counter))
-        self._ahead.extend(self._compute(LOOKAHEAD_S))
-        self._horizon = self.instrument.clock_s
+        self._snapshots.append((self._horizon_ns, copy.deepcopy(engine), self.faults.skip_counter))
+        self._ahead.extend(self._compute_to(self._horizon_ns + _LOOKAHEAD_NS))
 
     def prefetch(self) -> None:
         """Compute the next chunk of output early, when less than half a chunk is left.
@@ -533,41 +612,46 @@ class Firmware:
         A runner calls this right after sending, so that the computation does not delay a
         message that is due (the chunk then starts where the last one ended, as it would anyway).
         """
-        if self._horizon - self._now < LOOKAHEAD_S / 2:
+        if self._horizon_ns - self._now_ns < _LOOKAHEAD_NS // 2:
             self._compute_ahead()
 
     def next_output_s(self) -> float:
         """Simulated time of the next message the device will send (or of the computed horizon)."""
-        t = self._ahead[0].time_s if self._ahead else self._horizon
+        t = self._ahead[0].time_s if self._ahead else self._horizon_ns / NS_PER_S
         if self._pending:
             t = min(t, min(p.time_s for p in self._pending))
         return t
 
     def _rewind(self) -> None:
         """Bring the computed state back to :attr:`now`, dropping output computed beyond it."""
-        if self._horizon <= self._now or not self._snapshots:
+        if self._horizon_ns <= self._now_ns or not self._snapshots:
             return
-        # The latest chunk that starts at or before the present: its output before the present
-        # has been sent, everything after it is dropped and computed again.
-        start, engine, skip = next(
-            snap for snap in reversed(self._snapshots) if snap[0] <= self._now
+        # The latest chunk that starts at or before the present: its output up to the present
+        # has been sent, everything after it is dropped and computed again. Sent and computed
+        # again are decided by the same integer times, so nothing falls between them.
+        start_ns, engine, skip = next(
+            snap for snap in reversed(self._snapshots) if snap[0] <= self._now_ns
         )
         for name, value in engine.items():
             setattr(self, name, value)
         self.faults.skip_counter = skip
         self._snapshots.clear()
-        if self._now > start:
-            self._compute(self._now - start)  # the same output again, already sent
+        self._horizon_ns = start_ns
+        self._compute_to(self._now_ns)  # the same output again, already sent
         self._ahead.clear()
-        self._horizon = self._now
 
-    def _compute(self, dt: float) -> list[Outgoing]:
-        """Run the physics and the firmware for ``dt`` seconds from the computed horizon."""
-        t0 = self.instrument.clock_s
+    def _compute_to(self, until_ns: int) -> list[Outgoing]:
+        """Run the physics and the firmware from the computed horizon up to ``until_ns``.
+
+        The physics samples due are those whose interval ends at or before ``until_ns``,
+        counted in integers, exactly as :meth:`process` decides what has been sent.
+        """
+        t0, t1 = self._horizon_ns / NS_PER_S, until_ns / NS_PER_S
         counter0 = self._counter
-        block = self.instrument.advance(dt)
-        t1 = self.instrument.clock_s
-        self._check_move(t1)
+        due = until_ns * _BASE_RATE // NS_PER_S - self.instrument.samples_emitted
+        block = self.instrument.generate(max(due, 0))
+        self._horizon_ns = until_ns
+        self._check_move(t0, t1)
         out, tick_times, tick_counters = (
             self._ticks(block) if len(block) else ([], np.empty(0), np.empty(0, dtype=np.int64))
         )
@@ -577,11 +661,11 @@ class Firmware:
             i = int(np.searchsorted(tick_times, t, side="right"))
             return int(tick_counters[i - 1]) if i else (counter0 - 1) & 0xFFFFFFFF
 
-        period = self.config[ConfigKey.HEARTBEAT_PERIOD_MS] / 1000.0
-        while self._next_heartbeat <= t1:
-            t = self._next_heartbeat
+        period_ns = self.config[ConfigKey.HEARTBEAT_PERIOD_MS] * 1_000_000
+        while self._next_heartbeat_ns <= until_ns:
+            t = self._next_heartbeat_ns / NS_PER_S
             out.append(Outgoing(t, self._status_at(t, counter_at(t))))
-            self._next_heartbeat += period
+            self._next_heartbeat_ns += period_ns
         for t in self._transitions(t0, t1):
             out.append(Outgoing(t, self._status_at(t, counter_at(t))))
         out.sort(key=lambda o: o.time_s)
@@ -594,6 +678,7 @@ class Firmware:
             self.warmup_s,
             self.instrument.table.motion_end_s,
             self._settle_end,
+            self._fault_time,
         )
         return sorted(
             t
@@ -601,21 +686,24 @@ class Firmware:
             if t0 < t <= t1 and self.state_at(t - 1e-9) != self.state_at(t)
         )
 
-    def _check_move(self, t: float) -> None:
+    def _check_move(self, t0: float, t1: float) -> None:
+        """The drive supervision over the computed interval ``[t0, t1]``: a move that has ended
+        further than :data:`DRIVE_FAULT_LIMIT_DEG` from its command sets DRIVE when it ended (not
+        before ``t0``, which keeps a recomputation after a rewind identical)."""
         table = self.instrument.table
-        if self._checked_move or table.is_moving(t):
+        if self._checked_move or table.is_moving(t1):
             return
         self._checked_move = True
-        actual = float(table.encoder(table.state(t)[0]))
-        error = (actual - table.target_deg + 180.0) % 360.0 - 180.0
+        actual = float(table.encoder(table.state(t1)[0]))
+        error = (actual - self._commanded_deg + 180.0) % 360.0 - 180.0
         if abs(error) > DRIVE_FAULT_LIMIT_DEG:
             self._fault |= Fault.DRIVE
-            self._fault_time = min(self._fault_time, max(table.motion_end_s, self._now))
+            self._fault_time = min(self._fault_time, max(table.motion_end_s, t0))
             log.warning(
                 "t=%.3f s drive fault: table at %.4f deg, commanded %.4f deg",
-                t,
+                self._fault_time,
                 actual,
-                table.target_deg,
+                self._commanded_deg,
             )
 
     def _close_tick_for_rate_change(self) -> None:
@@ -652,6 +740,14 @@ class Firmware:
                 continue
             sat_g[i] = bool(np.any(block.gyro_saturated[lo:hi]))
             sat_a[i] = bool(np.any(block.accel_saturated[lo:hi]))
+        # A value that is not a number cannot be sent; the device reports it as an invalid
+        # (saturated) reading instead of stopping, and it must not poison the quantiser's carry.
+        for values, flags in ((g, sat_g), (a, sat_a)):
+            bad = ~np.isfinite(values).all(axis=1)
+            if bad.any():
+                log.warning("%d samples not a number, sent as saturated", int(bad.sum()))
+                values[bad] = 0.0
+                flags |= bad
         # TABLE_MOVING marks ticks that overlap the motion profile (state ROTATING); the ring-down
         # after the stop belongs to SETTLING (protocol.md 4.5).
         table = self.instrument.table

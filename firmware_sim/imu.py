@@ -196,6 +196,8 @@ class Instrument:
         self._imp_rng = impulses
         self._imp_next = math.inf
         self._events: list[tuple[float, float, NDArray[np.float64]]] = []
+        # Bursts not yet drawn: (first start, interval, next index, count, duration, amplitude).
+        self._bursts: list[tuple[float, float, int, int, float, NDArray[np.float64]]] = []
         self._k = 0
         self._clock = 0.0
         self._remainder = np.zeros(6)
@@ -250,11 +252,15 @@ class Instrument:
         accel_ug: float = 5000.0,
         duration_s: float | None = None,
     ) -> None:
-        """Queue a burst of ``count`` half-sine impulses, one every ``interval_s``, from now."""
+        """Queue a burst of ``count`` half-sine impulses, one every ``interval_s``, from now.
+
+        Each impulse is drawn when it falls due, so a burst costs the same memory and time to
+        queue whatever its count.
+        """
         dur = self.spec.disturbance.impulse_duration_s if duration_s is None else duration_s
         amp = channels_si(gyro_dph, accel_ug)
-        for i in range(int(count)):
-            self._events.append((self.time_s + i * interval_s, dur, amp * self._direction()))
+        if int(count) > 0:
+            self._bursts.append((self.time_s, float(interval_s), 0, int(count), dur, amp))
 
     def set_vibration(
         self, on: bool, *, hz: float = 35.0, gyro_dph: float = 5.0, accel_ug: float = 2000.0
@@ -414,6 +420,14 @@ class Instrument:
             amp = self._terms.impulse_amp * self._direction()
             self._events.append((self._imp_next, self.spec.disturbance.impulse_duration_s, amp))
             self._imp_next += self._imp_rng.exponential(1.0 / rate) if rate > 0 else math.inf
+        bursts = []
+        for first, interval, i, count, dur, amp in self._bursts:
+            while i < count and first + i * interval <= t[-1]:
+                self._events.append((first + i * interval, dur, amp * self._direction()))
+                i += 1
+            if i < count:
+                bursts.append((first, interval, i, count, dur, amp))
+        self._bursts = bursts
         t0, t1 = t[0] - 1.0 / self.sample_rate_hz, t[-1]
         keep = []
         for start, dur, amp in self._events:

@@ -42,6 +42,21 @@ def node_id(text: str) -> int:
     return value
 
 
+#: Highest serial baud rate accepted, bit/s (fast USB UARTs reach about 12 Mbaud).
+MAX_BAUD = 100_000_000
+
+
+def baud_rate(text: str) -> int:
+    """argparse type: a serial baud rate, a whole number of bit/s from 1 to :data:`MAX_BAUD`."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if not 1 <= value <= MAX_BAUD:
+        raise argparse.ArgumentTypeError(f"must be 1..{MAX_BAUD} bit/s, got {value}")
+    return value
+
+
 def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
     """The links every command speaks: python-can bus options (``-i/-c/-b``, as python-can's own
     tools spell them), ``--serial PORT``, ``--baud`` and ``--node-id``. Returns the serial group so
@@ -53,7 +68,7 @@ def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse.
     group.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
     group.add_argument(
         "--baud",
-        type=int,
+        type=baud_rate,
         default=SERIAL_BAUD_DEFAULT,
         help=f"serial baud rate (default {SERIAL_BAUD_DEFAULT})",
     )

@@ -25,7 +25,8 @@ import numpy as np
 import serial
 
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT
-from northfinder.firmware_sim.control import Controller, ControlServer
+from northfinder.firmware_sim.control import Controller, ControlServer, parse_address
+from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.firmware import Firmware, LinkInfo
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.links import (
@@ -47,6 +48,15 @@ from northfinder.host.cli.common import (
     sim_latitude,
 )
 from northfinder.host.errors import HostConfigError
+
+
+def control_address(text: str) -> str:
+    """argparse type: a control address the simulator may listen on (checked, not opened)."""
+    try:
+        parse_address(text)
+    except SimConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -78,8 +88,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--control",
+        type=control_address,
         metavar="ADDRESS",
-        help="control channel: 127.0.0.1:PORT (0 = any free port) or unix:PATH",
+        help="control channel: 127.0.0.1:PORT or [::1]:PORT (0 = any free port) or unix:PATH",
     )
     p.add_argument(
         "--duration", type=positive_float, default=None, help="stop after this many wall seconds"

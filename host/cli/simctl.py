@@ -12,9 +12,24 @@ from __future__ import annotations
 
 import argparse
 import json
+import textwrap
 
-from northfinder.firmware_sim.control import ControlClient
+from northfinder.firmware_sim.control import OPS, ControlClient
 from northfinder.host.errors import HostConfigError
+
+
+def operations_help(width: int = 100) -> str:
+    """Every operation with its keys, defaults and bounds, from the table the simulator checks
+    requests against (so the help cannot drift from what is accepted)."""
+    lines = ["operations and their keys (KEY=DEFAULT: what it takes):"]
+    for name in sorted(OPS):
+        head, *keys = OPS[name].usage(name)
+        lines += textwrap.wrap(head, width, initial_indent="  ", subsequent_indent="      ")
+        for key in keys:
+            lines += textwrap.wrap(
+                key, width, initial_indent="      ", subsequent_indent="        "
+            )
+    return "\n".join(lines)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -22,13 +37,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "simctl",
         help="control a running simulator",
         description=__doc__,
+        epilog=operations_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("address", help="control address printed by `northfinder sim --control`")
-    p.add_argument(
-        "op",
-        help="operation, e.g. status, set_truth, drop, silent, reset (`status` lists none; a bad op lists all)",
-    )
+    p.add_argument("op", help="operation (listed below)")
     p.add_argument("args", nargs="*", metavar="KEY=VALUE")
     return p
 

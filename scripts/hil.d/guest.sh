@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Guest side of the HIL runner. Runs inside the virtual machine (or directly on a host that
-# already has the CAN interface): makes sure the CAN interface exists, then runs each step.
+# Guest side of the HIL runner. Runs inside the virtual machine (user-mode Linux or QEMU) or
+# directly on a host that already has the CAN interface: makes sure the CAN interface exists,
+# then runs each step.
 #
 # Usage: guest.sh <out-dir>      Reads <out-dir>/config.env written by scripts/hil.
 # Writes: <out-dir>/guest-started, <out-dir>/guest.log (this script's own log),
@@ -11,31 +12,50 @@ set -uo pipefail
 
 OUT=${1:?usage: guest.sh <out-dir>}
 # shellcheck source=/dev/null
+set -a   # every HIL_ variable goes on to the steps
 source "$OUT/config.env" || { echo "fail no config.env" >"$OUT/status"; exit 2; }
+set +a
 export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin:$PATH
 export HIL_OUT=$OUT HIL_D HIL_REPO HIL_PYTHON HIL_CAN_IF HIL_MODE
-export PYTHONDONTWRITEBYTECODE=1   # the guest's root filesystem is read-only
+export PYTHONDONTWRITEBYTECODE=1   # read-only root under QEMU; elsewhere: leave the checkout as it is
 
 now() { date +%s.%N; }
-printf 'host_mode=%s\nuptime=%s\nkernel=%s\n' "$HIL_MODE" "$(cut -d' ' -f1 /proc/uptime)" "$(uname -r)" \
-    >"$OUT/guest-started"
+printf 'host_mode=%s\nuptime=%s\nkernel=%s\ncpus=%s\n' "$HIL_MODE" "$(cut -d' ' -f1 /proc/uptime)" \
+    "$(uname -r)" "$(nproc)" >"$OUT/guest-started"
 exec >>"$OUT/guest.log" 2>&1
-echo "guest: kernel $(uname -r), mode $HIL_MODE, uptime $(cut -d' ' -f1 /proc/uptime) s, $(nproc) cpus"
+echo "guest: kernel $(uname -r) ($(uname -m)), mode $HIL_MODE, uptime $(cut -d' ' -f1 /proc/uptime) s, $(nproc) cpus"
 
 finish() { echo "$1" >"$OUT/status.tmp" && mv "$OUT/status.tmp" "$OUT/status"; sync; exit "$2"; }
+
+# The user-mode Linux kernel keeps its modules in /usr/lib/uml/modules/<version>/, not in
+# /lib/modules, so modprobe does not find them there: load them in dependency order by path
+# (can-raw too: the kernel's own module autoload would look in /lib/modules as well).
+load_uml_can_modules() {
+    local dir m
+    dir=/usr/lib/uml/modules/$(uname -r)/kernel
+    [[ -d $dir ]] || { echo "guest: no module tree $dir"; return 1; }
+    for m in drivers/net/can/dev/can-dev net/can/can net/can/can-raw drivers/net/can/vcan; do
+        grep -q "^$(basename "$m" | tr - _) " /proc/modules && continue
+        insmod "$dir/$m.ko" || return 1
+    done
+}
 
 # CAN interface
 if ip link show "$HIL_CAN_IF" >/dev/null 2>&1; then
     echo "guest: $HIL_CAN_IF present"
 else
-    modprobe vcan || finish "fail setup: modprobe vcan" 2
+    if [[ $HIL_MODE == uml ]]; then
+        load_uml_can_modules || finish "fail setup: insmod of the CAN modules (can-dev, can, can-raw, vcan)" 2
+    else
+        modprobe vcan || finish "fail setup: modprobe vcan" 2
+    fi
     ip link add dev "$HIL_CAN_IF" type vcan || finish "fail setup: ip link add $HIL_CAN_IF" 2
     echo "guest: created $HIL_CAN_IF"
 fi
 ip link set up "$HIL_CAN_IF" 2>/dev/null || ip link show "$HIL_CAN_IF" | grep -q '[<,]UP[,>]' \
     || finish "fail setup: $HIL_CAN_IF is down" 2
 ip -details link show "$HIL_CAN_IF"
-if [[ $HIL_MODE == vm ]]; then
+if [[ $HIL_MODE != direct ]]; then
     # The guest's own kernel: let sockets ask for large receive buffers (see smoke_can.py).
     sysctl -qw net.core.rmem_max=33554432 || true
 fi

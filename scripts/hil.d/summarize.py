@@ -40,7 +40,10 @@ def main(out: str) -> int:
     status = read(os.path.join(out, "status"))
     summary: dict = {
         "mode": timings.get("mode"),
+        "mode_reason": timings.get("mode_reason"),
         "kernel": guest.get("kernel") or timings.get("kernel"),
+        "kernel_image": timings.get("kernel"),
+        "guest_cpus": int(guest["cpus"]) if guest.get("cpus", "").isdigit() else None,
         "status": status,
         "runner_rc": num(timings.get("runner_rc")),
         "timings_s": {
@@ -68,6 +71,12 @@ def main(out: str) -> int:
             except json.JSONDecodeError as e:
                 step["result_error"] = f"result.json is not JSON: {e}"
         summary["steps"].append(step)
+    results = {s["name"]: s.get("result") or {} for s in summary["steps"]}
+    rehearsal = results.get("rehearsal", {})
+    # The headline figures, also found in the steps' results.
+    summary["sample_arrival_jitter_ms"] = rehearsal.get("sample_arrival_jitter_ms")
+    summary["conformance_counted"] = rehearsal.get("conformance_counted")
+    summary["report_only"] = rehearsal.get("report_only")
 
     if status is None:
         verdict, rc = "ERROR (no status from the guest: see vm.log / guest.log)", 2
@@ -86,7 +95,10 @@ def main(out: str) -> int:
 
     t = summary["timings_s"]
     fmt = lambda v: "-" if v is None else f"{v:.1f} s"  # noqa: E731
-    print(f"hil: mode {summary['mode']}, kernel {summary['kernel']}")
+    print(
+        f"hil: mode {summary['mode']} ({summary['mode_reason']}), kernel {summary['kernel']}, "
+        f"{summary['guest_cpus']} CPU(s)"
+    )
     print(
         f"hil: install {fmt(t['install'])}, project venv {fmt(t['project_venv'])}, "
         f"boot to guest script {fmt(t['vm_boot_to_guest_script'])}, "
@@ -105,7 +117,36 @@ def main(out: str) -> int:
                 f"{rx.get('interarrival', {}).get('p99_us')} us; jitter p50 "
                 f"{rx.get('jitter', {}).get('p50_us')} us p99 {rx.get('jitter', {}).get('p99_us')} us"
             )
+        if s["name"] == "probe" and r:
+            line += (
+                f"; 2e6-iteration loop {r.get('python_loop_2e6_s')} s, time.monotonic "
+                f"{r.get('monotonic_call_us')} us, SocketCAN send {r.get('socketcan_send_ms')} ms"
+            )
+        if s["name"] == "rehearsal" and r:
+            err, sigma = r.get("azimuth_error_deg"), r.get("sigma_deg")
+            if err is not None and sigma is not None:
+                line += f"; azimuth error {err:+.3f} deg, sigma {sigma:.3f} deg"
+            line += (
+                f"; candump {r.get('frames')} frames, {r.get('unknown_frames')} unknown, "
+                f"{r.get('undecodable_frames')} undecodable, {r.get('ticks_lost')} ticks lost"
+            )
+            c = r.get("conformance_counted") or {}
+            if c:
+                line += f"; conformance counted {c.get('passed')}/{c.get('checks')} passed"
+                if c.get("failed"):
+                    line += f" (failed: {', '.join(c['failed'])})"
+            if r.get("machine_cpu_busy_percent") is not None:
+                line += f"; guest CPU {r['machine_cpu_busy_percent']} % busy"
         print(line)
+        for name, item in (
+            (r.get("report_only") or {}) if s["name"] == "rehearsal" else {}
+        ).items():
+            print(f"hil:   reported, not counted: {name}: {item.get('result')}")
+    j = summary["sample_arrival_jitter_ms"]
+    if j:
+        print(
+            f"hil: sample arrival jitter on {timings.get('can_if', 'vcan0')}: p50 {j.get('p50')} ms, p99 {j.get('p99')} ms"
+        )
     print(f"hil: {verdict}  (summary: {os.path.join(out, 'summary.json')})")
     return rc
 

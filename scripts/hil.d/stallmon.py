@@ -1,0 +1,65 @@
+"""Stall monitor: how long the whole machine (the guest, in a VM) stops running its processes.
+
+Sleeps ``--period`` seconds in a loop and records every wake-up later than ``--threshold``
+seconds after it was due. Run at the highest real-time priority, nothing inside the machine
+delays it, so what it records is the machine itself not running: in a VM, the host not
+scheduling the VM or the VM's kernel blocked on the host. Until SIGTERM or SIGINT, then one JSON
+line on stdout: ``{"wakeups", "stalls", "stall_ms_max", "stalls_ms": [[t_s, ms], ...]}`` with t_s
+seconds since the start.
+
+    python stallmon.py [--period 0.01] [--threshold 0.02]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--period", type=float, default=0.01)
+    p.add_argument("--threshold", type=float, default=0.02)
+    args = p.parse_args(argv)
+    stop = False
+
+    def on_signal(*_: object) -> None:
+        nonlocal stop
+        stop = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    clock = time.monotonic
+    t0 = due = clock()
+    wakeups = 0
+    stalls: list[list[float]] = []
+    while not stop:
+        due += args.period
+        now = clock()
+        if due > now:
+            time.sleep(due - now)
+            now = clock()
+        wakeups += 1
+        late = now - due
+        if late > args.threshold:
+            stalls.append([round(due - t0, 3), round(late * 1e3, 1)])
+            due = now  # one stall is one record, not a train of late wake-ups
+    print(
+        json.dumps(
+            {
+                "wakeups": wakeups,
+                "stalls": len(stalls),
+                "stall_ms_max": max((s[1] for s in stalls), default=0.0),
+                "stalls_ms": stalls,
+            }
+        ),
+        flush=True,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

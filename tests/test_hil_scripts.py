@@ -1,0 +1,193 @@
+"""The HIL runner's analysis code (scripts/hil.d), on logs made here: no VM, no vcan0.
+
+- the rehearsal's candump analysis: unknown and undecodable frames, lost ticks, arrival jitter,
+  the conformance suite's deliberate bad input;
+- the rehearsal's reading of the conformance suite's JUnit report and the report-only lists;
+- the runner's summary: mode, kernel, verdict and exit status from an output directory.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+cantools = pytest.importorskip("cantools")
+
+ROOT = Path(__file__).resolve().parents[1]
+HIL_D = ROOT / "scripts" / "hil.d"
+DBC = ROOT / "protocol.dbc"
+
+
+def load(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(f"hil_{name}", HIL_D / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+rehearsal = load("rehearsal")
+
+
+def frame(db, name: str, **signals) -> tuple[int, bytes]:
+    msg = db.get_message_by_name(name)
+    values = {s.name: 0 for s in msg.signals if s.multiplexer_ids is None}
+    values.update(signals)
+    return msg.frame_id, msg.encode(values, strict=False)
+
+
+def candump_line(t: float, arb: int, data: bytes) -> str:
+    return f"({t:.6f}) vcan0 {arb:03X}#{data.hex().upper()}"
+
+
+def write_log(tmp_path: Path, lines: list[str]) -> Path:
+    path = tmp_path / "candump.log"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def stream(db, t0: float, ticks: range, period: float, late: dict[int, float] | None = None):
+    """SAMPLE_AUX lines, one per tick (tick counter mod 256), some of them late by ``late[i]``."""
+    late = late or {}
+    arb, _ = frame(db, "SAMPLE_AUX")
+    lines = []
+    for i, tick in enumerate(ticks):
+        _, data = frame(db, "SAMPLE_AUX", Tick=tick % 256)
+        lines.append(candump_line(t0 + i * period + late.get(i, 0.0), arb, data))
+    return lines
+
+
+def test_candump_clean_stream_has_no_loss_and_exact_jitter(tmp_path):
+    db = cantools.database.load_file(str(DBC))
+    # 400 ticks at 5 ms, tick 100 leaves 3 ms late: intervals 8 ms and 2 ms, both 3 ms off.
+    lines = stream(db, 1000.0, range(250, 650), 0.005, late={100: 0.003})
+    stats = rehearsal.analyse_candump(write_log(tmp_path, lines), DBC, 2000.0, 2000.0)
+    assert stats["frames"] == 400
+    assert stats["unknown_frames"] == stats["undecodable_frames"] == 0
+    assert stats["sample_ticks"] == 400 and stats["ticks_lost"] == 0
+    jitter = stats["sample_arrival_jitter_ms"]
+    assert jitter["intervals"] == 399
+    assert jitter["max"] == pytest.approx(3.0, abs=1e-3)
+    assert jitter["p50"] == pytest.approx(0.0, abs=1e-3)
+    assert jitter["over_2ms_percent"] == pytest.approx(100 * 2 / 399, abs=0.01)
+    assert stats["sample_period_ms_mean"] == pytest.approx(5.0, abs=1e-3)
+
+
+def test_candump_counts_lost_ticks_unknown_and_undecodable_frames(tmp_path):
+    db = cantools.database.load_file(str(DBC))
+    ticks = [t for t in range(0, 300) if t not in (10, 11, 12, 255)]  # 4 lost, one at the wrap
+    aux, _ = frame(db, "SAMPLE_AUX")
+    lines = []
+    for t in ticks:
+        _, data = frame(db, "SAMPLE_AUX", Tick=t % 256)
+        lines.append(candump_line(1000.0 + t * 0.005, aux, data))
+    lines.append(candump_line(1001.6, 0x7A5, b"\x01\x02"))  # no such frame in the DBC
+    command = db.get_message_by_name("COMMAND").frame_id
+    lines.append(candump_line(1001.7, command, b"\x01\x7f"))  # opcode outside the multiplexer
+    stats = rehearsal.analyse_candump(write_log(tmp_path, sorted(lines)), DBC, 2000.0, 2000.0)
+    assert stats["sample_ticks"] == 296
+    assert stats["ticks_lost"] == 4
+    assert stats["unknown_frames"] == 1
+    assert stats["undecodable_frames"] == 1
+
+
+def test_candump_bad_input_of_the_conformance_suite_is_counted_apart(tmp_path):
+    db = cantools.database.load_file(str(DBC))
+    reply = db.get_message_by_name("REPLY")
+    command = db.get_message_by_name("COMMAND")
+    lines = stream(db, 1000.0, range(10), 0.005)
+    lines.append(candump_line(1000.5, 0x7A5, b"\x00"))  # foreign frame, after the suite started
+    lines.append(candump_line(1000.6, command.frame_id, b"\x01"))  # short command, on purpose
+    lines.append(candump_line(1000.7, reply.frame_id, bytes([1, 0x7F, 4])))  # echo of opcode 0x7F
+    stats = rehearsal.analyse_candump(write_log(tmp_path, lines), DBC, 1000.4, 1000.4)
+    assert stats["unknown_frames"] == 0 and stats["undecodable_frames"] == 0
+    assert stats["conformance_bad_input_frames"] == 2
+    assert stats["replies_to_undefined_opcodes"] == 1
+    # Before the suite starts the same foreign frame is an unknown frame.
+    stats = rehearsal.analyse_candump(write_log(tmp_path, lines), DBC, 1000.4, 5000.0)
+    assert stats["unknown_frames"] == 1
+
+
+def test_junit_cases_reads_pass_fail_and_skip(tmp_path):
+    xml = tmp_path / "c.xml"
+    xml.write_text(
+        """<?xml version='1.0' encoding='utf-8'?>
+<testsuite name="s" tests="3" failures="1" skipped="1">
+  <testcase classname="c" name="identify"><system-out>model X</system-out></testcase>
+  <testcase classname="c" name="heartbeat.jitter"><failure message="late by 80 ms">x</failure></testcase>
+  <testcase classname="c" name="bad_input.resync"><skipped message="serial only" /></testcase>
+</testsuite>"""
+    )
+    assert rehearsal.junit_cases(xml) == {
+        "identify": ("pass", "model X"),
+        "heartbeat.jitter": ("fail", "late by 80 ms"),
+        "bad_input.resync": ("skip", "serial only"),
+    }
+    assert rehearsal.junit_cases(tmp_path / "missing.xml") == {}
+
+
+def test_report_only_lists():
+    # On a host with vcan0 every check counts; each exception elsewhere carries its reason.
+    assert rehearsal.REPORT_ONLY["direct"] == {}
+    assert set(rehearsal.REPORT_ONLY["uml"]) < set(rehearsal.REPORT_ONLY["qemu"])
+    for mode in ("uml", "qemu"):
+        assert all(len(why) > 40 for why in rehearsal.REPORT_ONLY[mode].values())
+    # Under user-mode Linux the logical checks and the heartbeat's median pace still count.
+    assert "link.integrity" not in rehearsal.REPORT_ONLY["uml"]
+    assert "pace.heartbeat_period" not in rehearsal.REPORT_ONLY["uml"]
+
+
+def make_out(tmp_path: Path, status: str | None, rcs: dict[str, int]) -> Path:
+    out = tmp_path / "hil-out"
+    (out / "steps").mkdir(parents=True)
+    (out / "timings.env").write_text(
+        "mode=uml\nmode_reason=this host has no vcan0\ncan_if=vcan0\nkernel=uml 6.1.176\n"
+        "install_seconds=0.1\nboot_seconds=2.5\nvm_seconds=190.0\ntotal_seconds=191.0\n"
+    )
+    (out / "guest-started").write_text("host_mode=uml\nuptime=2.2\nkernel=6.1.176\ncpus=1\n")
+    if status is not None:
+        (out / "status").write_text(status + "\n")
+    (out / "steps.tsv").write_text("".join(f"{n}\t{rc}\t1.0\n" for n, rc in rcs.items()))
+    rehearsal_result = {
+        "azimuth_error_deg": -0.04,
+        "sigma_deg": 0.11,
+        "sample_arrival_jitter_ms": {"p50": 0.5, "p99": 18.0},
+        "conformance_counted": {"checks": 33, "passed": 33, "failed": []},
+        "report_only": {"timing.reply": {"result": "FAIL: late", "why_not_counted": "uml"}},
+    }
+    for name in rcs:
+        (out / "steps" / name).mkdir()
+        if name == "rehearsal":
+            (out / "steps" / name / "result.json").write_text(json.dumps(rehearsal_result))
+    return out
+
+
+@pytest.mark.parametrize(
+    ("status", "rcs", "exit_status", "verdict"),
+    [
+        ("pass", {"probe": 0, "rehearsal": 0}, 0, "PASS"),
+        ("fail steps: rehearsal", {"probe": 0, "rehearsal": 1}, 1, "FAIL"),
+        ("fail setup: insmod", {}, 2, "ERROR"),
+        (None, {}, 2, "ERROR"),
+    ],
+)
+def test_summary_verdict_and_headline_figures(tmp_path, status, rcs, exit_status, verdict):
+    out = make_out(tmp_path, status, rcs)
+    run = subprocess.run(
+        [sys.executable, str(HIL_D / "summarize.py"), str(out)], capture_output=True, text=True
+    )
+    assert run.returncode == exit_status, run.stdout + run.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["verdict"].startswith(verdict)
+    assert summary["mode"] == "uml" and summary["kernel"] == "6.1.176"
+    assert summary["mode_reason"] == "this host has no vcan0"
+    if "rehearsal" in rcs:
+        assert summary["sample_arrival_jitter_ms"] == {"p50": 0.5, "p99": 18.0}
+        assert summary["conformance_counted"]["passed"] == 33
+        assert "reported, not counted: timing.reply" in run.stdout
