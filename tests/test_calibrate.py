@@ -112,7 +112,7 @@ def test_ieee952_fit_recovers_the_coefficients_of_an_exact_model_curve():
         "arw": 0.5,
         "bias_instability": 0.2,
         "rrw": 3e-3,
-        "rate_ramp": 3e-6,
+        "rate_ramp": 1e-5,
     }
     fit = fit_ieee952(exact_curve(coef))
     for term in TERMS:
