@@ -23,7 +23,6 @@ from northfinder.host.allan import TERMS, AllanCurve, allan_curve, fit_ieee952, 
 from northfinder.host.calibrate import (
     READERS,
     RecordedRun,
-    RunWindow,
     RunWindows,
     SlowNoise,
     calibrate,
@@ -302,9 +301,10 @@ def test_a_new_recording_format_plugs_into_the_reader_table(tmp_path, monkeypatc
     del READERS[".fake"]
     n = 4000
     rng = np.random.default_rng(4)
-    window = RunWindow(
+    window = RecordedWindow(
         0.0, np.arange(n), np.arange(1, n + 1) / 10.0, rng.normal(0.0, 1.0, (n, 3)),
-        rng.normal(0.0, 1e-4, (n, 3)), np.zeros(n), np.full(n, 3, dtype=np.uint8),
+        rng.normal(0.0, 1e-4, (n, 3)), np.zeros(n), np.full(n, 20.0),
+        np.full(n, 3, dtype=np.uint8),
     )  # fmt: skip
     register_reader(".fake", lambda p: RecordedRun(str(p), 10.0, (window,)))
     (tmp_path / "a.fake").write_text("")

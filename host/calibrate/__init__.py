@@ -21,7 +21,7 @@ from northfinder.host.calibrate.core import AXES, Calibration, IndexingFit, cali
 from northfinder.host.calibrate.readers import (
     READERS,
     RecordedRun,
-    RunWindow,
+    good_stretches,
     read_runs,
     register_reader,
 )
@@ -35,11 +35,11 @@ __all__ = [
     "Calibration",
     "IndexingFit",
     "RecordedRun",
-    "RunWindow",
     "RunWindows",
     "SlowNoise",
     "calibrate",
     "fit_between_positions",
+    "good_stretches",
     "read_runs",
     "register_reader",
 ]

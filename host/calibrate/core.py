@@ -46,7 +46,7 @@ from northfinder.host.calibrate.between import (
     SlowNoise,
     fit_between_positions,
 )
-from northfinder.host.calibrate.readers import RecordedRun
+from northfinder.host.calibrate.readers import RecordedRun, good_stretches
 from northfinder.host.errors import HostConfigError, InputError
 
 __all__ = ["AXES", "Calibration", "IndexingFit", "calibrate"]
@@ -507,7 +507,7 @@ def calibrate(
     pieces: list[tuple[int, int, slice]] = []
     for i, run in enumerate(runs):
         for j, w in enumerate(run.windows):
-            pieces += [(i, j, s) for s in w.pieces(MIN_PIECE_SAMPLES)]
+            pieces += [(i, j, s) for s in good_stretches(w, MIN_PIECE_SAMPLES)]
     if not pieces:
         raise InputError(
             f"no stretch of {MIN_PIECE_SAMPLES} or more consecutive good samples in the recordings"
@@ -566,7 +566,7 @@ def _between(
     for run in runs:
         rows = []
         for w in run.windows:
-            good = w.pieces(1)
+            good = good_stretches(w)
             if not good:
                 continue
             idx = np.concatenate([np.arange(s.start, s.stop) for s in good])

@@ -1,8 +1,8 @@
 """Recordings as calibration input: every format the project reads, behind one reader table.
 
 A reader turns one file into a :class:`RecordedRun`: the windows of one power-on in time order,
-each with its samples (gyro in deg/h, accelerometer in m/s^2), device times, table angles and
-validity bits. :data:`READERS` maps a file name's ending to its reader; a new format (a CAN log,
+each the project's :class:`~northfinder.host.recording.RecordedWindow` (gyro in deg/h,
+accelerometer in m/s^2, device times, table angles, validity bits). :data:`READERS` maps a file name's ending to its reader; a new format (a CAN log,
 say) plugs in with :func:`register_reader` and nothing else changes.
 """
 
@@ -15,65 +15,34 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from northfinder.host.errors import RecordingError
 from northfinder.host.procedure import BAD_BITS
-from northfinder.host.recording import Recording
+from northfinder.host.recording import RecordedWindow, Recording
 
 __all__ = [
     "READERS",
     "RecordedRun",
-    "RunWindow",
+    "good_stretches",
     "read_runs",
     "register_reader",
 ]
 
 
-@dataclass(frozen=True)
-class RunWindow:
-    """One still window of a run.
-
-    Attributes
-    ----------
-    commanded_deg : float
-        Table angle ordered for the window, deg.
-    counter : (n,) int64
-        Sample counter (consecutive where no sample was lost).
-    time_s : (n,) float
-        Device time at the end of each sample, s.
-    gyro_dph : (n, 3) float
-        Gyro, deg/h.
-    accel_mps2 : (n, 3) float
-        Accelerometer, m/s^2.
-    table_deg : (n,) float
-        Encoder angle, deg.
-    validity : (n,) uint8
-        Validity bits.
-    """
-
-    commanded_deg: float
-    counter: NDArray[np.int64]
-    time_s: NDArray[np.float64]
-    gyro_dph: NDArray[np.float64]
-    accel_mps2: NDArray[np.float64]
-    table_deg: NDArray[np.float64]
-    validity: NDArray[np.uint8]
-
-    def pieces(self, min_samples: int = 1) -> list[slice]:
-        """Runs of consecutive good samples (none of the procedure's bad validity bits, no counter
-        gap), as slices."""
-        good = (np.asarray(self.validity, dtype=np.int64) & int(BAD_BITS)) == 0
-        breaks = np.flatnonzero(np.diff(self.counter) != 1) + 1
-        out = []
-        for seg in np.split(np.arange(len(self.counter)), breaks):
-            g = good[seg]
-            # Split each gap-free stretch again at bad samples.
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], g.astype(np.int8), [0]])))
-            for a, b in zip(edges[::2], edges[1::2], strict=True):
-                if b - a >= min_samples:
-                    out.append(slice(int(seg[a]), int(seg[b - 1]) + 1))
-        return out
+def good_stretches(window: RecordedWindow, min_samples: int = 1) -> list[slice]:
+    """Runs of consecutive good samples of a window (none of the procedure's bad validity bits,
+    no counter gap) of at least ``min_samples``, as slices."""
+    good = (np.asarray(window.validity, dtype=np.int64) & int(BAD_BITS)) == 0
+    breaks = np.flatnonzero(np.diff(window.counter) != 1) + 1
+    out = []
+    for seg in np.split(np.arange(len(window.counter)), breaks):
+        g = good[seg]
+        # Split each gap-free stretch again at bad samples.
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], g.astype(np.int8), [0]])))
+        for lo, hi in zip(edges[::2], edges[1::2], strict=True):
+            if hi - lo >= min_samples:
+                out.append(slice(int(seg[lo]), int(seg[hi - 1]) + 1))
+    return out
 
 
 @dataclass(frozen=True)
@@ -86,7 +55,9 @@ class RecordedRun:
         Where it came from (the file name).
     sample_rate_hz : float
         Sample rate, Hz.
-    windows : tuple of RunWindow
+    windows : tuple of RecordedWindow
+        The project's window of raw samples (:class:`northfinder.host.recording.RecordedWindow`:
+        gyro in deg/h, accelerometer in m/s^2, device times, encoder angles, validity bits).
     latitude_deg : float or None
         Latitude, if the recording states it.
     meta : dict
@@ -95,7 +66,7 @@ class RecordedRun:
 
     source: str
     sample_rate_hz: float
-    windows: tuple[RunWindow, ...]
+    windows: tuple[RecordedWindow, ...]
     latitude_deg: float | None = None
     meta: dict[str, Any] = field(default_factory=dict, repr=False)
 
@@ -118,18 +89,7 @@ def _read_northfinder(path: Path) -> RecordedRun:
         raise RecordingError(f"{path}: no sample_rate_hz in the metadata (got {rate!r})")
     lat = rec.meta.get("latitude_deg")
     latitude = float(lat) if isinstance(lat, int | float) and math.isfinite(lat) else None
-    windows = tuple(
-        RunWindow(
-            commanded_deg=w.commanded_deg,
-            counter=np.asarray(w.counter, dtype=np.int64),
-            time_s=np.asarray(w.time_s, dtype=float),
-            gyro_dph=np.asarray(w.gyro_dph, dtype=float),
-            accel_mps2=np.asarray(w.accel_mps2, dtype=float),
-            table_deg=np.asarray(w.table_deg, dtype=float),
-            validity=np.asarray(w.validity, dtype=np.uint8),
-        )
-        for w in rec.windows
-    )
+    windows = rec.windows
     order = np.argsort([w.time_s[0] for w in windows], kind="stable")
     return RecordedRun(str(path), float(rate), tuple(windows[i] for i in order), latitude, rec.meta)
 
