@@ -397,13 +397,17 @@ class Calibration:
         ramp of the gyros, the smallest value the longest cluster time would show, and the
         record length a given value needs."""
         out: list[str] = []
-        fits = [self.fits[a] for a in AXES[:3]]
+        fit = self.triad_fits["gyro"]
         tau = float(self.curves[AXES[0]].taus_s[-1])
-        b = float(np.mean([f.coefficients["bias_instability"] for f in fits]))
-        if not b > 0:
+        if not fit.resolved["bias_instability"]:
+            if not (fit.resolved["rrw"] or fit.resolved["rate_ramp"]):
+                out.append(
+                    f"the gyros' bias instability is not resolved (longest cluster {tau:.3g} s): "
+                    "the slow terms need longer still stretches"
+                )
             return out
-        floor = math.sqrt(_FLOOR) * b
-        if not any(f.resolved["rrw"] for f in fits):
+        floor = math.sqrt(_FLOOR) * fit.coefficients["bias_instability"]
+        if not fit.resolved["rrw"]:
             k_min = floor * math.sqrt(3.0 / tau) * 60.0
             out.append(
                 f"rrw: not resolved; the longest cluster ({tau:.3g} s) shows a rate random walk "
@@ -413,7 +417,7 @@ class Calibration:
                 "(longest clusters a ninth of the record, where it supplies most of the variance) "
                 "resolve it"
             )
-        if not any(f.resolved["rate_ramp"] for f in fits):
+        if not fit.resolved["rate_ramp"]:
             r_min = floor * math.sqrt(2.0) / tau * 3600.0
             out.append(
                 f"rate ramp: not resolved; the longest cluster shows a ramp only above about "
