@@ -11,7 +11,9 @@ link supervision), identify updates :attr:`Device.identity`, samples go to an :m
 in progress and are dropped otherwise. Every public method may be called from any thread;
 :meth:`Device.acquire` calls run one at a time.
 
-Timing (wall clock). A command is sent with a fresh sequence number and waits
+Timing. Every deadline, timeout and wait reads the device's clock (``clock=``: the wall clock by
+default, or a :class:`~northfinder.driver.clock.VirtualClock` shared with an in-process simulator,
+on which time jumps to the next event whenever every party waits). A command is sent with a fresh sequence number and waits
 ``reply_timeout`` (default 0.25 s; protocol.md 6 asks for at least 0.1 s) for its reply. Commands
 that are safe to repeat (:data:`RETRYABLE`) are sent again with a new sequence number, up to
 ``retries`` more times (default 2), so a query fails with :class:`~northfinder.driver.errors.ReplyTimeout`
@@ -22,18 +24,19 @@ no status arrived for three heartbeat periods (0.3 s by default).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
-import queue
 import threading
-import time
+from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from dataclasses import dataclass
+from typing import Any, Concatenate, ParamSpec, TypeVar
 
 import can
 import serial
 
+from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.errors import (
     ArgumentError,
     DeviceFault,
@@ -128,6 +131,19 @@ _CONFIG_NAMES = ", ".join(k.name.lower() for k in ConfigKey)
 _DIRECTIONS = {"shortest": Direction.SHORTEST, "positive": Direction.POSITIVE}
 _DIRECTIONS["negative"] = Direction.NEGATIVE
 T = TypeVar("T")
+P = ParamSpec("P")
+
+
+def _on_clock(method: Callable[Concatenate[Device, P], T]) -> Callable[Concatenate[Device, P], T]:
+    """A public call: its thread counts as a party of the device's clock while it runs (a
+    virtual clock does not move on while the caller works between two waits)."""
+
+    @functools.wraps(method)
+    def call(self: Device, *args: P.args, **kwargs: P.kwargs) -> T:
+        with self._clock.participant():
+            return method(self, *args, **kwargs)
+
+    return call
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,7 +164,7 @@ class DeviceStatus:
     rx_malformed, tx_dropped, cmd_rejected : int
         The device's wrapping counters (protocol.md 4.6).
     received_at : float
-        ``time.monotonic()`` when the status arrived.
+        The device clock's time (``time.monotonic()`` on the wall clock) when the status arrived.
     """
 
     state: DeviceState
@@ -208,9 +224,15 @@ class LinkStats:
 @dataclass
 class _Waiter:
     opcode: Opcode
-    event: threading.Event = field(default_factory=threading.Event)
     reply: Reply | None = None
     error: DriverError | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.reply is not None or self.error is not None
+
+    def is_done(self) -> bool:
+        return self.done
 
 
 class Device:
@@ -231,9 +253,13 @@ class Device:
     retries : int
         Extra attempts for commands in :data:`RETRYABLE`.
     min_supervision_s : float
-        Lower limit, in wall seconds, of the time without a status (or without samples while
+        Lower limit, in seconds, of the time without a status (or without samples while
         acquiring) before the link counts as lost. 0 keeps protocol.md's three heartbeat periods;
-        a simulator embedded in the same busy process may need more.
+        a host that cannot read its link in time (a busy machine, a slow adapter) may need more.
+    clock : Clock, optional
+        What every timeout and wait reads (default: a :class:`~northfinder.driver.clock.WallClock`).
+        With a :class:`~northfinder.driver.clock.VirtualClock` the device has no reader thread:
+        the clock polls the link at every instant (in-process links only).
 
     Raises
     ------
@@ -250,6 +276,7 @@ class Device:
         reply_timeout: float = REPLY_TIMEOUT_S,
         retries: int = RETRIES,
         min_supervision_s: float = 0.0,
+        clock: Clock | None = None,
     ) -> None:
         if not reply_timeout >= 0.1:
             raise ArgumentError(f"reply_timeout={reply_timeout!r}: must be at least 0.1 s")
@@ -258,13 +285,16 @@ class Device:
         self._transport = transport
         self.reply_timeout = float(reply_timeout)
         self.retries = int(retries)
+        if not (math.isfinite(min_supervision_s) and min_supervision_s >= 0):
+            raise ArgumentError(f"min_supervision_s={min_supervision_s!r}: must be >= 0 s")
         self.min_supervision_s = float(min_supervision_s)
+        self._clock: Clock = WallClock() if clock is None else clock
         self._lock = threading.RLock()
-        self._cond = threading.Condition(self._lock)
         self._acquire_lock = threading.Lock()
         self._waiters: dict[int, _Waiter] = {}
+        self._events = 0  # counts everything the reader delivered: waiters look again on a change
         self._seq = 0
-        self._opened_at = time.monotonic()
+        self._opened_at = self._clock.now()
         self._status: DeviceStatus | None = None
         self._status_count = 0
         self._motion_count = 0  # _status_count of the latest ROTATING or SETTLING status
@@ -274,9 +304,10 @@ class Device:
         self._scales = CountScales()
         self._boot_epoch = 0
         self._reset_reason = ""
-        # What the reader thread hands to an acquire() in progress: samples, losses, resets.
-        self._inbox: queue.SimpleQueue[tuple[str, Any, float]] | None = None
-        self._inbox_since = 0.0  # monotonic time the inbox was registered
+        # What the reader hands to an acquire() in progress: (kind, item, clock time, wall time)
+        # for samples, losses, resets and a lost link.
+        self._inbox: deque[tuple[str, Any, float, float]] | None = None
+        self._inbox_since = 0.0  # clock time the inbox was registered
         self._config: dict[ConfigKey, int] = {}
         self._config_stale = True
         self._streaming = False
@@ -284,12 +315,17 @@ class Device:
         self._closed = False
         self._stop = threading.Event()
         self._counts = {"samples": 0, "stray": 0, "retries": 0, "timeouts": 0, "resets": 0}
-        self._reader = threading.Thread(
-            target=self._read_loop, name=f"northfinder-{transport.kind}-reader", daemon=True
-        )
-        self._reader.start()
+        self._reader: threading.Thread | None = None
+        if self._clock.virtual:
+            self._clock.add_poller(self._pump)
+        else:
+            self._reader = threading.Thread(
+                target=self._read_loop, name=f"northfinder-{transport.kind}-reader", daemon=True
+            )
+            self._reader.start()
         try:
-            self._connect()
+            with self._clock.participant():
+                self._connect()
         except BaseException:
             self.close()
             raise
@@ -308,7 +344,7 @@ class Device:
         node_id : int
             The device's CAN node id, 1..15.
         **options
-            ``reply_timeout``, ``retries`` (see :class:`Device`).
+            ``reply_timeout``, ``retries``, ``min_supervision_s``, ``clock`` (see :class:`Device`).
         """
         return cls(CanTransport(bus, node_id, own_bus=own_bus), **options)
 
@@ -323,6 +359,7 @@ class Device:
         reply_timeout: float = REPLY_TIMEOUT_S,
         retries: int = RETRIES,
         min_supervision_s: float = 0.0,
+        clock: Clock | None = None,
         **bus_options: Any,
     ) -> Device:
         """Open a python-can bus and the device on it; :meth:`close` shuts the bus down.
@@ -350,6 +387,7 @@ class Device:
             reply_timeout=reply_timeout,
             retries=retries,
             min_supervision_s=min_supervision_s,
+            clock=clock,
         )
 
     @classmethod
@@ -361,6 +399,7 @@ class Device:
         reply_timeout: float = REPLY_TIMEOUT_S,
         retries: int = RETRIES,
         min_supervision_s: float = 0.0,
+        clock: Clock | None = None,
         **port_options: Any,
     ) -> Device:
         """Open a serial port (a path such as ``/dev/ttyUSB0`` or ``/dev/pts/3``, or a pyserial
@@ -377,6 +416,7 @@ class Device:
             reply_timeout=reply_timeout,
             retries=retries,
             min_supervision_s=min_supervision_s,
+            clock=clock,
         )
 
     # -- life cycle ---------------------------------------------------------------------------
@@ -393,21 +433,30 @@ class Device:
         """
         if self._closed:
             return
-        if self._streaming and self._dead is None and self._reader.is_alive():
+        reading = self._reader.is_alive() if self._reader is not None else True
+        if self._streaming and self._dead is None and reading:
             try:
-                self._request(StreamStop, attempts=1)
+                with self._clock.participant():
+                    self._request(StreamStop, attempts=1)
             except DriverError as exc:
                 log.info("stream not stopped on close: %s", exc)
         self._closed = True
         self._stop.set()
-        if self._reader is not threading.current_thread():
+        if self._reader is None:
+            self._clock.remove_poller(self._pump)
+        elif self._reader is not threading.current_thread():
             self._reader.join(2.0)
         self._transport.close()
-        with self._cond:
+        with self._lock:
             for waiter in self._waiters.values():
                 waiter.error = LinkError("the device was closed")
-                waiter.event.set()
-            self._cond.notify_all()
+            self._events += 1
+        self._clock.notify()
+
+    @property
+    def clock(self) -> Clock:
+        """The clock every timeout and wait of this device reads."""
+        return self._clock
 
     @property
     def closed(self) -> bool:
@@ -435,7 +484,7 @@ class Device:
             while not self._stop.is_set():
                 items = self._transport.recv(READ_POLL_S)
                 if items:
-                    self._dispatch(items, time.monotonic(), time.time())
+                    self._dispatch(items, self._clock.now(), self._clock.wall())
         except DriverError as exc:
             if not self._stop.is_set():
                 self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
@@ -444,20 +493,36 @@ class Device:
                 self._fail(LinkLost(f"the driver's reader thread failed: {exc!r}"), exc)
                 raise
 
+    def _pump(self) -> bool:
+        """On a virtual clock: receive what has arrived, without blocking (the clock calls this
+        at every instant); True if anything came."""
+        if self._closed or self._dead is not None:
+            return False
+        try:
+            items = self._transport.recv(0.0)
+        except DriverError as exc:
+            self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
+            return True
+        if not items:
+            return False
+        self._dispatch(items, self._clock.now(), self._clock.wall())
+        return True
+
     def _fail(self, error: DriverError, cause: BaseException) -> None:
         error.__cause__ = cause
         log.error("link lost: %s", error)
-        with self._cond:
+        with self._lock:
             self._dead = error
             for waiter in self._waiters.values():
                 waiter.error = error
-                waiter.event.set()
             if self._inbox is not None:
-                self._inbox.put(("lost", error, time.time()))
-            self._cond.notify_all()
+                now = self._clock.now()
+                self._inbox.append(("lost", error, now, self._clock.wall()))
+            self._events += 1
+        self._clock.notify()
 
     def _dispatch(self, items: list[Received], mono: float, wall: float) -> None:
-        with self._cond:
+        with self._lock:
             for item in items:
                 if isinstance(item, Sample | TickLoss):
                     if isinstance(item, Sample):
@@ -465,23 +530,24 @@ class Device:
                     # Only what was received after acquire() was called belongs to its window.
                     if self._inbox is not None and mono >= self._inbox_since:
                         kind = "sample" if isinstance(item, Sample) else "loss"
-                        self._inbox.put((kind, item, wall))
+                        self._inbox.append((kind, item, mono, wall))
                 elif isinstance(item, Reply):
                     self._on_reply(item)
                 elif isinstance(item, Status):
                     self._on_status(item, mono)
                 elif isinstance(item, Identify):
                     self._on_identify(item, mono)
-            self._cond.notify_all()
+            self._events += 1
+        if self._reader is not None:
+            self._clock.notify()  # a virtual clock looks at its waiters after every poll anyway
 
     def _on_reply(self, reply: Reply) -> None:
         waiter = self._waiters.get(reply.seq)
-        if waiter is None or waiter.opcode != reply.opcode or waiter.event.is_set():
+        if waiter is None or waiter.opcode != reply.opcode or waiter.done:
             self._counts["stray"] += 1
             log.debug("stray reply %s", reply)
             return
         waiter.reply = reply
-        waiter.event.set()
 
     def _on_status(self, status: Status, mono: float) -> None:
         sc = self._scales
@@ -523,7 +589,7 @@ class Device:
         self._transport.restart_stream()
         log.warning("device restart detected: %s", reason)
         if self._inbox is not None:
-            self._inbox.put(("reset", reason, time.time()))
+            self._inbox.append(("reset", reason, self._clock.now(), self._clock.wall()))
 
     # -- requests -----------------------------------------------------------------------------
     def _check_open(self) -> None:
@@ -535,18 +601,29 @@ class Device:
     def _heartbeat_period_s(self) -> float:
         return self._config.get(ConfigKey.HEARTBEAT_PERIOD_MS, HEARTBEAT_PERIOD_DEFAULT_MS) / 1000.0
 
+    def _last_status_at(self) -> float:
+        return self._status.received_at if self._status is not None else self._opened_at
+
     def _status_age_s(self) -> float:
         """Seconds since the latest status (or since opening, if none came yet)."""
-        last = self._status.received_at if self._status is not None else self._opened_at
-        return time.monotonic() - last
+        return self._clock.now() - self._last_status_at()
 
     def _supervision_s(self) -> float:
-        """Wall seconds without a status before the link counts as lost (protocol.md 6: three
+        """Seconds without a status before the link counts as lost (protocol.md 6: three
         heartbeat periods; never less than ``min_supervision_s``)."""
         return max(HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s(), self.min_supervision_s)
 
+    def _link_deadline(self) -> float:
+        """Clock time at which the link counts as lost if no status comes before."""
+        return self._last_status_at() + self._supervision_s()
+
     def _link_alive(self) -> bool:
-        return self._status_age_s() <= self._supervision_s()
+        return self._status_age_s() < self._supervision_s()
+
+    def _wait_change(self, seen: int, until: float) -> None:
+        """Wait until the reader delivered something after ``seen`` (:attr:`_events`) or the
+        clock reaches ``until``."""
+        self._clock.wait_until(lambda: self._events != seen, until)
 
     def _link_lost_error(self) -> LinkLost:
         return LinkLost(
@@ -574,10 +651,12 @@ class Device:
                 seq = self._next_seq()
                 self._waiters[seq] = waiter
                 if opcode == Opcode.IDENTIFY:
-                    self._identify_expected_until = time.monotonic() + per + 1.0
+                    self._identify_expected_until = self._clock.now() + per + 1.0
             try:
                 self._transport.send(command(seq, *args))
-                answered = waiter.event.wait(per)
+                if self._reader is None:
+                    self._clock.notify()  # the virtual clock: the device takes it now
+                answered = self._clock.wait_until(waiter.is_done, self._clock.now() + per)
             finally:
                 with self._lock:
                     self._waiters.pop(seq, None)
@@ -621,21 +700,25 @@ class Device:
         *,
         supervise: bool = True,
     ) -> T:
-        """Wait (lock held between checks) until ``check`` returns a value; it may raise."""
-        with self._cond:
-            while True:
-                self._check_open()
+        """Wait until ``check`` (called with the lock held) returns a value; it may raise."""
+        while True:
+            seen = self._events
+            self._check_open()
+            with self._lock:
                 result = check()
-                if result is not None:
-                    return result
-                now = time.monotonic()
-                if now >= deadline:
-                    raise on_timeout()
-                if supervise and not self._link_alive():
+            if result is not None:
+                return result
+            if self._clock.now() >= deadline:
+                raise on_timeout()
+            until = deadline
+            if supervise:
+                if not self._link_alive():
                     raise self._link_lost_error()
-                self._cond.wait(min(deadline - now, READ_POLL_S))
+                until = min(until, self._link_deadline())
+            self._wait_change(seen, until)
 
     # -- queries ------------------------------------------------------------------------------
+    @_on_clock
     def identify(self) -> Identify:
         """Ask the device who it is (IDENTIFY) and return its answer.
 
@@ -655,7 +738,7 @@ class Device:
             try:
                 return self._wait_for(
                     arrived,
-                    time.monotonic() + self.reply_timeout,
+                    self._clock.now() + self.reply_timeout,
                     lambda: DriverTimeout("", 0.0),
                     supervise=False,
                 )
@@ -677,6 +760,7 @@ class Device:
         assert self._identify is not None
         return self._identify
 
+    @_on_clock
     def status(self) -> DeviceStatus:
         """Ask for the status now (GET_STATUS) and return it.
 
@@ -690,7 +774,7 @@ class Device:
         self._request(GetStatus)
         return self._wait_for(
             lambda: self._status if self._status_count > n0 else None,
-            time.monotonic() + self.reply_timeout,
+            self._clock.now() + self.reply_timeout,
             lambda: ReplyTimeout(
                 "GET_STATUS was accepted but no status followed it",
                 self.reply_timeout,
@@ -724,6 +808,7 @@ class Device:
             resets_detected=c["resets"],
         )
 
+    @_on_clock
     def self_test(self) -> int:
         """Run the built-in test (SELF_TEST, sent once); return the failure mask (0 = passed)."""
         return int(
@@ -742,6 +827,7 @@ class Device:
                 f"unknown configuration key {key!r}; keys are {_CONFIG_NAMES}"
             ) from None
 
+    @_on_clock
     def get_config(self, key: ConfigKey | int | str) -> int:
         """Read one configuration value (GET_CONFIG), e.g. ``get_config("sample_rate_hz")``.
 
@@ -749,6 +835,7 @@ class Device:
         """
         return self._config_request(GetConfig, self._key(key))
 
+    @_on_clock
     def set_config(self, key: ConfigKey | int | str, value: int) -> int:
         """Write one configuration value (SET_CONFIG); return the value now in effect.
 
@@ -776,6 +863,7 @@ class Device:
                 self._streaming = bool(in_effect)
         return in_effect
 
+    @_on_clock
     def config(self) -> dict[ConfigKey, int]:
         """Every configuration value the protocol defines, read from the device now."""
         return {k: self.get_config(k) for k in ConfigKey}
@@ -814,6 +902,7 @@ class Device:
         self.status()
         self._transport.restart_stream()
 
+    @_on_clock
     def start_streaming(self) -> None:
         """Start the sample stream (STREAM_START). :meth:`acquire` does this when needed."""
         if not self._streaming:
@@ -821,12 +910,14 @@ class Device:
         self._request(StreamStart)
         self._streaming = True
 
+    @_on_clock
     def stop_streaming(self) -> None:
         """Stop the sample stream (STREAM_STOP)."""
         self._request(StreamStop)
         self._streaming = False
 
     # -- motion -------------------------------------------------------------------------------
+    @_on_clock
     def move_duration_s(self, distance_deg: float) -> float:
         """Expected device seconds for a move of ``distance_deg`` and its settling, from the
         table's configured rate and acceleration limits and settle time (trapezoid profile)."""
@@ -836,6 +927,7 @@ class Device:
     def _current_angle(self) -> float:
         return self._status.angle_deg if self._status is not None else 0.0
 
+    @_on_clock
     def rotate_to(
         self,
         angle_deg: float,
@@ -876,6 +968,7 @@ class Device:
             distance = delta if d == Direction.POSITIVE else (360.0 - delta) % 360.0
         return self._move(RotateTo, (counts, d), distance, wait, timeout)
 
+    @_on_clock
     def rotate_by(
         self, delta_deg: float, *, wait: bool = True, timeout: float | None = None
     ) -> DeviceStatus | None:
@@ -884,11 +977,13 @@ class Device:
         counts = round(delta_deg / self._scales.angle_deg)
         return self._move(RotateBy, (counts,), abs(delta_deg), wait, timeout)
 
+    @_on_clock
     def home(self, *, wait: bool = True, timeout: float | None = None) -> DeviceStatus | None:
         """Turn the table to the encoder zero by the shortest way (HOME, sent once)."""
         a = self._current_angle()
         return self._move(Home, (), min(a, 360.0 - a), wait, timeout)
 
+    @_on_clock
     def stop(self, *, wait: bool = False, timeout: float | None = None) -> DeviceStatus | None:
         """Stop the table (STOP; accepted in every state, repeated if its reply is lost).
 
@@ -896,7 +991,7 @@ class Device:
         """
         with self._lock:
             n0, epoch = self._status_count, self._boot_epoch
-        t0 = time.monotonic()
+        t0 = self._clock.now()
         self._request(Stop)
         if not wait:
             return None
@@ -904,6 +999,7 @@ class Device:
         limit = self.move_duration_s(0.0) * 1.5 + 5.0 if timeout is None else timeout
         return self._wait_settled(n0, epoch, t0, 0.0, limit, "STOP")
 
+    @_on_clock
     def wait_ready(self, timeout: float = 5.0) -> DeviceStatus:
         """Wait until the device reports READY (boot and warm-up done, table settled).
 
@@ -914,7 +1010,7 @@ class Device:
         DriverTimeout
             Not READY within ``timeout`` s.
         """
-        t0 = time.monotonic()
+        t0 = self._clock.now()
 
         def check() -> DeviceStatus | None:
             st = self._status
@@ -959,7 +1055,7 @@ class Device:
         expected = self.move_duration_s(distance_deg)
         with self._lock:
             n0, epoch = self._status_count, self._boot_epoch
-        t0 = time.monotonic()
+        t0 = self._clock.now()
         self._request(command, *args)
         if not wait:
             return None
@@ -983,7 +1079,7 @@ class Device:
                     f"{st.angle_deg:.4f} deg; RESET clears it",
                     int(st.faults),
                 )
-            moved = self._motion_count > n0 or time.monotonic() - t0 >= min_s
+            moved = self._motion_count > n0 or self._clock.now() - t0 >= min_s
             return st if st.state == DeviceState.READY and moved else None
 
         return self._wait_for(
@@ -996,6 +1092,7 @@ class Device:
             ),
         )
 
+    @_on_clock
     def reset(self, *, wait: bool = True, timeout: float = 3.0) -> DeviceStatus | None:
         """Restart the device (RESET, sent once): configuration and counters go back to
         defaults and the stream stops. With ``wait``, return the first status after BOOT.
@@ -1007,7 +1104,7 @@ class Device:
         """
         with self._lock:
             epoch = self._boot_epoch
-        t0 = time.monotonic()
+        t0 = self._clock.now()
         self._request(Reset)
         with self._lock:
             self._streaming = False
@@ -1035,6 +1132,7 @@ class Device:
         return st
 
     # -- acquisition --------------------------------------------------------------------------
+    @_on_clock
     def acquire(
         self, seconds: float, *, on_gap: OnGap = "raise", timeout: float | None = None
     ) -> Window:
@@ -1080,11 +1178,11 @@ class Device:
             n = round(seconds * rate)
             if n < 1:
                 raise ArgumentError(f"seconds={seconds!r} is less than one sample at {rate} Hz")
-            inbox: queue.SimpleQueue[tuple[str, Any, float]] = queue.SimpleQueue()
+            inbox: deque[tuple[str, Any, float, float]] = deque()
             with self._lock:
                 epoch = self._boot_epoch
                 self._inbox = inbox
-                self._inbox_since = time.monotonic()
+                self._inbox_since = self._clock.now()
             try:
                 if not self._streaming:
                     self.start_streaming()
@@ -1099,52 +1197,61 @@ class Device:
 
     def _collect(
         self,
-        inbox: queue.SimpleQueue[tuple[str, Any, float]],
+        inbox: deque[tuple[str, Any, float, float]],
         n: int,
         rate: float,
         on_gap: OnGap,
         timeout: float | None,
     ) -> Window:
         """Feed the window collector from the reader's queue, watching the link and deadlines."""
+        clock = self._clock
         stall_limit = max(0.5, self._supervision_s(), 5.0 / rate)
-        t_start = time.monotonic()
+        t_start = clock.now()
         limit = n / rate + 2.0 + stall_limit if timeout is None else timeout
         deadline = t_start + limit
         collector = WindowCollector(n, on_gap=on_gap)
         last_sample_at = t_start
         while not collector.done:
-            now = time.monotonic()
-            try:
-                kind, item, wall = inbox.get(timeout=max(0.0, min(READ_POLL_S, deadline - now)))
-            except queue.Empty:
-                now = time.monotonic()
-                self._check_open()
-                if not self._link_alive():
-                    raise self._link_lost_error() from None
-                if now - last_sample_at > stall_limit:
-                    raise StreamTimeout(
-                        f"no sample for {now - last_sample_at:.2f} s while the device's status "
-                        f"still arrives ({collector.received} of {n} received): the stream was "
-                        "stopped (STREAM_STOP or a configuration change by another host?)",
-                        stall_limit,
-                    ) from None
-                if now >= deadline:
-                    raise StreamTimeout(
-                        f"the window of {n} samples was not complete after {limit:.1f} s "
-                        f"({collector.received} received)",
-                        limit,
-                    ) from None
+            seen = self._events
+            with self._lock:
+                items = list(inbox)
+                inbox.clear()
+            for kind, item, mono, wall in items:
+                if kind == "lost":
+                    raise LinkLost(f"the link was lost during the window: {item}") from item
+                if kind == "reset":
+                    raise DeviceReset(
+                        f"the device restarted during the window after {collector.received} of "
+                        f"{n} samples ({item}); its configuration and stream are back to defaults"
+                    )
+                if kind == "loss":
+                    collector.add_loss(item)
+                else:
+                    last_sample_at = mono
+                    if collector.add_sample(item, wall):
+                        break
+            if collector.done:
+                break
+            if items:
                 continue
-            if kind == "lost":
-                raise LinkLost(f"the link was lost during the window: {item}") from item
-            if kind == "reset":
-                raise DeviceReset(
-                    f"the device restarted during the window after {collector.received} of {n} "
-                    f"samples ({item}); its configuration and stream are back to defaults"
-                )
-            if kind == "loss":
-                collector.add_loss(item)
-            else:
-                last_sample_at = time.monotonic()
-                collector.add_sample(item, wall)
+            now = clock.now()
+            self._check_open()
+            if not self._link_alive():
+                raise self._link_lost_error() from None
+            if now - last_sample_at >= stall_limit:
+                raise StreamTimeout(
+                    f"no sample for {now - last_sample_at:.2f} s while the device's status "
+                    f"still arrives ({collector.received} of {n} received): the stream was "
+                    "stopped (STREAM_STOP or a configuration change by another host?)",
+                    stall_limit,
+                ) from None
+            if now >= deadline:
+                raise StreamTimeout(
+                    f"the window of {n} samples was not complete after {limit:.1f} s "
+                    f"({collector.received} received)",
+                    limit,
+                ) from None
+            self._wait_change(
+                seen, min(deadline, last_sample_at + stall_limit, self._link_deadline())
+            )
         return collector.window(rate, self._scales)

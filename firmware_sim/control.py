@@ -315,9 +315,9 @@ class Controller:
             "impulses": lambda a: self._call(fw.apply, lambda: fw.instrument.inject_impulses(**a)),
             "vibration": lambda a: self._call(fw.apply, lambda: fw.instrument.set_vibration(**a)),
             "reset": lambda a: self._call(self._reset),
-            "pause": lambda a: self._call(runner.clock.pause),
-            "resume": lambda a: self._call(runner.clock.resume),
-            "speed": lambda a: self._call(runner.clock.set_speed, a["value"]),
+            "pause": lambda a: self._call(runner.pause),
+            "resume": lambda a: self._call(runner.resume),
+            "speed": lambda a: self._call(runner.set_speed, a["value"]),
         }
         assert set(self._ops) == set(OPS), "every op in the table has an implementation"
 
@@ -336,6 +336,8 @@ class Controller:
                 return {"ok": True, **self._ops[op](args)}
         except (SimError, ValueError, TypeError) as exc:
             return {"ok": False, "error": f"{op}: {exc}"}
+        finally:
+            self.runner.changed()
 
     def _call(self, fn: Callable[..., Any], *args: Any) -> dict[str, Any]:
         fn(*args)
@@ -352,8 +354,10 @@ class Controller:
             "tx_dropped": fw.tx_dropped,
             "cmd_rejected": fw.cmd_rejected,
             "table_deg": float(fw.instrument.table.encoder(fw.instrument.table.state(fw.now)[0])),
-            "speed": self.runner.clock.speed,
-            "paused": self.runner.clock.paused,
+            "speed": self.runner.speed,
+            "paused": self.runner.paused,
+            "clock": "virtual" if self.runner.virtual else "paced",
+            "lag": dataclasses.asdict(self.runner.lag),
             "faults": dataclasses.asdict(fw.faults),
         }
 

@@ -19,6 +19,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -292,6 +293,11 @@ class Firmware:
     def now(self) -> float:
         """Simulated time since power-on up to which the device has acted and sent, s."""
         return self._now_ns / NS_PER_S
+
+    @property
+    def now_ns(self) -> int:
+        """:attr:`now` in whole nanoseconds (the device's own count)."""
+        return self._now_ns
 
     @property
     def sample_rate_hz(self) -> int:
@@ -603,7 +609,12 @@ class Firmware:
     def _compute_ahead(self) -> None:
         """Compute one more chunk, keeping a snapshot of the state at its start for a rewind."""
         engine = {name: getattr(self, name) for name in self._ENGINE}
-        self._snapshots.append((self._horizon_ns, copy.deepcopy(engine), self.faults.skip_counter))
+        # The specification, the truth and the error terms are frozen: shared, not copied.
+        ins = self.instrument
+        memo: dict[int, Any] = {id(o): o for o in (ins.spec, ins.truth, ins.terms, ins.table.spec)}
+        self._snapshots.append(
+            (self._horizon_ns, copy.deepcopy(engine, memo), self.faults.skip_counter)
+        )
         self._ahead.extend(self._compute_to(self._horizon_ns + _LOOKAHEAD_NS))
 
     def prefetch(self) -> None:

@@ -230,6 +230,11 @@ class Instrument:
         )
         self.table.spec = spec.table
 
+    @property
+    def terms(self) -> ErrorTerms:
+        """The error terms of the current specification (frozen)."""
+        return self._terms
+
     def set_truth(self, truth: Truth) -> None:
         """Move the base; applies from the next sample on."""
         self.truth = truth

@@ -1,21 +1,44 @@
 """Clocks and the loop that drives the firmware on a link.
 
-Three clocks: :class:`RealTimeClock` (paced from its start instant, so no drift accumulates),
+Paced clocks: :class:`RealTimeClock` (paced from its start instant, so no drift accumulates),
 the same with a speed factor (accelerated rehearsal), and :class:`LockstepClock` (the caller
 advances time; for tests). The :class:`Runner` polls the link, advances the firmware to the
 clock's time and sends what the firmware emits. A lock serialises the loop with the control
 channel.
+
+Pacing (protocol.md 9, "The simulator's pace"): a paced runner that falls behind its clock (the
+process was stalled or starved of CPU) catches up at once only while it is at most
+:data:`MAX_LAG_WALL_S` wall seconds behind (ordinary scheduling jitter). Further behind, it does
+not send the backlog in a burst: the clock slips (:meth:`RealTimeClock.slip`), so the simulated
+time the device had reached continues from now at the configured pace, and the time lost is
+counted (:attr:`Runner.lag`), logged and reported by the control channel's ``status``.
+
+Virtual time: given a clock with ``virtual = True`` (``northfinder.driver.clock.VirtualClock``,
+shared with the driver in the same process), the runner has no loop of its own. It is one of the
+clock's sources (:meth:`Runner.next_event_s`, :meth:`Runner.run_until`): the clock lets it act
+whenever a host waits, and moves time straight to the next message it will send.
 """
 
 from __future__ import annotations
 
+import logging
+import math
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 from northfinder.firmware_sim.errors import SimConfigError
-from northfinder.firmware_sim.firmware import Firmware, Outgoing
+from northfinder.firmware_sim.firmware import NS_PER_S, Firmware, Outgoing
+
+log = logging.getLogger("northfinder.sim.runner")
+
+#: How far a paced runner may fall behind its clock, wall seconds, before it slips the clock
+#: instead of catching up (a catch-up sends its backlog faster than the configured pace).
+MAX_LAG_WALL_S = 0.05
+#: While a paced runner keeps falling behind, it logs a summary this often, wall seconds.
+LAG_LOG_EVERY_S = 10.0
 
 
 class Link(Protocol):
@@ -51,6 +74,23 @@ class Clock(Protocol):
     def wall_until(self, sim_t: float) -> float:
         """Wall seconds until simulated time ``sim_t`` (0 if past)."""
         ...
+
+    def slip(self, seconds: float) -> None:
+        """Let simulated time fall back by ``seconds`` (the runner lost them; see the module
+        docstring)."""
+        ...
+
+
+class VirtualTime(Protocol):
+    """A virtual clock that drives sources (``northfinder.driver.clock.VirtualClock``)."""
+
+    @property
+    def virtual(self) -> bool: ...
+
+    def now(self) -> float: ...
+    def notify(self) -> None: ...
+    def add_source(self, source: object) -> None: ...
+    def remove_source(self, source: object) -> None: ...
 
 
 class RealTimeClock:
@@ -114,6 +154,9 @@ class RealTimeClock:
             return 0.05
         return max(0.0, (sim_t - self.now()) / self._speed)
 
+    def slip(self, seconds: float) -> None:
+        self._anchor_sim -= seconds
+
 
 class LockstepClock:
     """A clock that moves only when told: ``advance(dt)``."""
@@ -141,19 +184,136 @@ class LockstepClock:
     def wall_until(self, sim_t: float) -> float:
         return 0.0
 
+    def slip(self, seconds: float) -> None:
+        self._t -= seconds
+
+
+@dataclass
+class Lag:
+    """How a paced runner kept its pace (see the module docstring).
+
+    Attributes
+    ----------
+    behind_s : float
+        Simulated seconds the firmware is behind its clock now.
+    slipped_s : float
+        Simulated seconds dropped in total by slipping the clock (time the device lost).
+    slips : int
+        How many times the clock slipped.
+    last_slip_s : float
+        Simulated seconds dropped by the latest slip.
+    """
+
+    behind_s: float = 0.0
+    slipped_s: float = 0.0
+    slips: int = 0
+    last_slip_s: float = 0.0
+
 
 class Runner:
     """Drives one firmware on one link with one clock.
 
     ``step()`` does one round (poll, advance, send); ``run(stop)`` loops until ``stop`` is set.
+    With a virtual clock (``clock.virtual``) the runner is a source of that clock instead
+    (:meth:`attach`), and :meth:`step` and :meth:`run` are not used.
     """
 
-    def __init__(self, firmware: Firmware, link: Link, clock: Clock) -> None:
+    def __init__(self, firmware: Firmware, link: Link, clock: Clock | VirtualTime) -> None:
         self.firmware = firmware
         self.link = link
         self.clock = clock
         self.lock = threading.RLock()
         self.sent = 0
+        self.lag = Lag()
+        self._lag_logged_at = -math.inf
+        self._lag_since_log = 0.0
+        # Virtual time: the clock's time minus the firmware's, ns (grows while paused).
+        self._offset_ns = 0
+        self._paused_at: float | None = None
+
+    @property
+    def virtual(self) -> bool:
+        """Whether the runner is driven by a virtual clock."""
+        return bool(getattr(self.clock, "virtual", False))
+
+    def _paced(self) -> Clock:
+        if self.virtual:
+            raise SimConfigError("the runner is driven by a virtual clock: it has no loop")
+        return self.clock  # type: ignore[return-value]
+
+    # -- speed and pause, for the control channel -------------------------------------------------
+    @property
+    def speed(self) -> float | None:
+        """Simulated seconds per wall second; None on a virtual clock (as fast as it can)."""
+        return None if self.virtual else float(self._paced().speed)
+
+    @property
+    def paused(self) -> bool:
+        return self._paused_at is not None if self.virtual else bool(self._paced().paused)
+
+    def set_speed(self, speed: float) -> None:
+        if self.virtual:
+            raise SimConfigError(
+                "speed: this simulator runs in virtual time, as fast as its host lets it; "
+                "a speed applies to a paced simulator (northfinder sim --speed)"
+            )
+        self._paced().set_speed(speed)
+
+    def pause(self) -> None:
+        """Stop simulated time (the device falls silent; a host's time goes on)."""
+        if not self.virtual:
+            self._paced().pause()
+        elif self._paused_at is None:
+            self._paused_at = self.clock.now()
+
+    def resume(self) -> None:
+        if not self.virtual:
+            self._paced().resume()
+        elif self._paused_at is not None:
+            self._offset_ns += round((self.clock.now() - self._paused_at) * NS_PER_S)
+            self._paused_at = None
+
+    # -- virtual time: a source of the clock -----------------------------------------------------
+    def attach(self) -> None:
+        """Become a source of the virtual clock (``northfinder.driver.clock.VirtualClock``)."""
+        clock = self.clock
+        if not self.virtual:
+            raise SimConfigError("attach: the runner's clock is not a virtual clock")
+        clock.add_source(self)  # type: ignore[union-attr]
+
+    def detach(self) -> None:
+        if self.virtual:
+            self.clock.remove_source(self)  # type: ignore[union-attr]
+
+    def changed(self) -> None:
+        """The firmware was changed from outside the loop (the control channel): a virtual
+        clock lets it act at the present."""
+        notify = getattr(self.clock, "notify", None)
+        if self.virtual and notify is not None:
+            notify()
+
+    def next_event_s(self) -> float:
+        """Clock time of the next message the device sends by itself (inf while paused)."""
+        with self.lock:
+            if self._paused_at is not None:
+                return math.inf
+            self.firmware.prefetch()
+            return self.firmware.next_output_s() + self._offset_ns / NS_PER_S
+
+    def run_until(self, t: float) -> bool:
+        """Take the commands that arrived, advance the firmware to clock time ``t`` and send
+        what is due; True if anything was received or sent."""
+        with self.lock:
+            n = self.link.poll(0.0)
+            if self._paused_at is not None:
+                return n > 0
+            target_ns = round(t * NS_PER_S) - self._offset_ns
+            dt_ns = target_ns - self.firmware.now_ns
+            out = self.firmware.process(dt_ns / NS_PER_S) if dt_ns >= 0 else []
+            if out:
+                self.sent += len(out)
+                self.link.send(out)
+        return bool(n or out)
 
     #: Most simulated time one step covers. When the simulator runs behind (a fast speed factor or
     #: a busy machine) it catches up in steps this long, polling the link between them, so
@@ -163,21 +323,53 @@ class Runner:
     MAX_WAIT_S = 0.05
 
     def step(self, poll_timeout: float = 0.0) -> None:
+        clock = self._paced()
         self.link.poll(poll_timeout)
         with self.lock:
-            dt = min(self.clock.now() - self.firmware.now, self.MAX_STEP_S)
+            behind = clock.now() - self.firmware.now
+            self.lag.behind_s = max(0.0, behind)
+            if behind > MAX_LAG_WALL_S * clock.speed and not clock.paused:
+                self._slip(clock, behind)
+                behind = 0.0
+            dt = min(behind, self.MAX_STEP_S)
             if dt > 0:
                 out = self.firmware.process(dt)
                 self.sent += len(out)
                 self.link.send(out)
                 self.firmware.prefetch()
 
+    def _slip(self, clock: Clock, behind: float) -> None:
+        """Fallen too far behind: the clock slips back to the firmware's time (no burst)."""
+        clock.slip(behind)
+        lag = self.lag
+        lag.behind_s = 0.0
+        lag.slipped_s += behind
+        lag.slips += 1
+        lag.last_slip_s = behind
+        self._lag_since_log += behind
+        wall = time.monotonic()
+        if wall - self._lag_logged_at >= LAG_LOG_EVERY_S:
+            log.warning(
+                "t=%.3f s: the simulator fell behind its clock by %.3f s (%.3f s wall at speed "
+                "%g) and continues at its pace from here; %.3f s of simulated time lost in %d "
+                "slip(s) so far",
+                self.firmware.now,
+                self._lag_since_log,
+                self._lag_since_log / clock.speed,
+                clock.speed,
+                lag.slipped_s,
+                lag.slips,
+            )
+            self._lag_logged_at = wall
+            self._lag_since_log = 0.0
+
     def run(self, stop: threading.Event) -> None:
+        clock = self._paced()
         while not stop.is_set():
             # Sleep until the next message is due; a frame arriving ends the wait at once.
             with self.lock:
                 due = self.firmware.next_output_s()
-            self.step(min(self.MAX_WAIT_S, self.clock.wall_until(due)))
+            self.step(min(self.MAX_WAIT_S, clock.wall_until(due)))
 
 
 class BackgroundRunner:

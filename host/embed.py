@@ -21,23 +21,37 @@ Links (``link=``):
 
 A pty is reachable from other processes too (``northfinder find --serial PATH``).
 
-Time: the firmware runs on a clock (:class:`~northfinder.firmware_sim.runner.Clock`): by default
-wall time times ``speed`` (:class:`~northfinder.firmware_sim.runner.RealTimeClock`); pass
-``clock=`` for another (a virtual clock shared with a test). This module is part of the
-application layer: it is the one place, with the CLI, that imports the simulator and the driver.
+Time (``clock=``):
+
+- default, or ``speed=S``: paced, wall time times ``S``
+  (:class:`~northfinder.firmware_sim.runner.RealTimeClock`) on a background thread;
+- ``clock="virtual"`` or a :class:`~northfinder.driver.clock.VirtualClock`: virtual time, as fast
+  as the CPU allows and the same for a seed whatever the machine's load. The simulator has no
+  thread: it is a source of the clock, which the device from :meth:`open_device` shares
+  (``sim.clock``). Time stands still while the host works and jumps to the next event (a
+  message due, a deadline) whenever it waits, so a host waits with ``sim.clock.sleep(s)``, never
+  ``time.sleep``. ``link="virtual"`` only (a pty is read by other processes on the wall clock);
+- any other :class:`~northfinder.firmware_sim.runner.Clock` (a lockstep clock, for instance).
+
+This module is part of the application layer: it is the one place, with the CLI, that imports
+the simulator and the driver.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import queue
+import time
 import uuid
 from pathlib import Path
 from typing import Any
 
 import can
 import numpy as np
+from can.interfaces.virtual import VirtualBus
 
+from northfinder.driver.clock import VirtualClock
 from northfinder.driver.device import Device
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT, SERIAL_BAUD_DEFAULT
 from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
@@ -69,6 +83,33 @@ reply can wait for the other thread, so allow more than a real unit's deadlines
 (``sim.open_device(**RELAXED_DEVICE_OPTIONS)``)."""
 
 
+class _DeviceEndBus(VirtualBus):
+    """The simulated device's end of a python-can ``virtual`` channel, without the copies.
+
+    python-can's virtual bus gives every receiver a deep copy of each message sent, in case a
+    receiver changes it; that copy costs more than the rest of a frame's journey. The device
+    builds a new message for every frame and never touches it again, and receivers only read
+    them, so this end hands every receiver on the channel the same message (stamped once).
+    Receivers are ordinary ``virtual`` buses on the same channel.
+    """
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._check_if_open()
+        msg.timestamp = time.time()
+        msg.channel = self.channel_id
+        msg.is_rx = True
+        full = False
+        for bus_queue in self.channel:
+            if bus_queue is self.queue:
+                continue
+            try:
+                bus_queue.put(msg, block=True, timeout=timeout)
+            except queue.Full:
+                full = True
+        if full:
+            raise can.CanOperationError("Could not send message to one or more recipients")
+
+
 class SimulatedInstrument:
     """A simulated instrument running in this process on a link a host can open.
 
@@ -91,8 +132,9 @@ class SimulatedInstrument:
         Where the simulator is reachable (see the module docstring).
     node_id : int
         CAN node id of the simulated device.
-    clock : Clock, optional
-        The clock that drives the firmware (default ``RealTimeClock(speed)``).
+    clock : Clock, VirtualClock or "virtual", optional
+        The clock that drives the firmware (default ``RealTimeClock(speed)``); ``"virtual"`` makes
+        a new :class:`~northfinder.driver.clock.VirtualClock` (see the module docstring).
     control : str, optional
         Serve the control channel on this address (``"127.0.0.1:0"``: any free loopback port;
         ``"unix:PATH"``); :attr:`control` is then a connected client.
@@ -118,7 +160,7 @@ class SimulatedInstrument:
     Raises
     ------
     HostConfigError
-        An unknown link, or both ``speed`` and ``clock``.
+        An unknown link, both ``speed`` and ``clock``, or a virtual clock on a pty link.
     SimConfigError
         An unknown sensor preset or an invalid value (from the simulator).
     """
@@ -133,7 +175,7 @@ class SimulatedInstrument:
         warmup_s: float = 120.0,
         link: str = "virtual",
         node_id: int = 1,
-        clock: Clock | None = None,
+        clock: Clock | VirtualClock | str | None = None,
         control: str | None = None,
         bitrate: int | None = None,
     ) -> None:
@@ -147,9 +189,18 @@ class SimulatedInstrument:
         self.warmup_s = warmup_s
         self.link = link
         self.node_id = node_id
-        self.clock: Clock = (
+        if isinstance(clock, str):
+            if clock != "virtual":
+                raise HostConfigError(f"clock={clock!r}: give 'virtual' or a clock object")
+            clock = VirtualClock()
+        self.clock: Clock | VirtualClock = (
             RealTimeClock(1.0 if speed is None else speed) if clock is None else clock
         )
+        if self.virtual and link != "virtual":
+            raise HostConfigError(
+                f"link={link!r}: virtual time needs the in-process link 'virtual' (a pty is "
+                "read by other processes on the wall clock)"
+            )
         self.bitrate = bitrate or (
             SERIAL_BAUD_DEFAULT if link == "serial-pty" else CAN_BITRATE_DEFAULT
         )
@@ -181,7 +232,7 @@ class SimulatedInstrument:
             wire: Link
             if self.link == "virtual":
                 self.channel = f"northfinder-sim-{uuid.uuid4().hex}"
-                bus = can.Bus(interface="virtual", channel=self.channel)
+                bus = _DeviceEndBus(channel=self.channel)
                 stack.callback(bus.shutdown)
                 wire = CanLink(bus, firmware, self.node_id)
             else:
@@ -193,7 +244,11 @@ class SimulatedInstrument:
                 else:
                     wire = CanLink(SlcanAdapter(pty.stream), firmware, self.node_id)
             runner = Runner(firmware, wire, self.clock)
-            self._background = stack.enter_context(BackgroundRunner(runner))
+            if self.virtual:
+                runner.attach()
+                stack.callback(runner.detach)
+            else:
+                self._background = stack.enter_context(BackgroundRunner(runner))
             if self._control_request is not None:
                 server = ControlServer(Controller(runner), self._control_request).start()
                 stack.callback(server.close)
@@ -232,22 +287,36 @@ class SimulatedInstrument:
         return self._runner
 
     @property
-    def speed(self) -> float:
-        """Simulated seconds per wall second of the clock now."""
-        return float(self.clock.speed)
+    def virtual(self) -> bool:
+        """Whether the simulator runs in virtual time."""
+        return bool(getattr(self.clock, "virtual", False))
+
+    @property
+    def speed(self) -> float | None:
+        """Simulated seconds per wall second of the clock now (None in virtual time)."""
+        return None if self.virtual else float(self.clock.speed)  # type: ignore[union-attr]
 
     def describe(self) -> dict[str, Any]:
         """The truth with the sensor's name and the speed, for printing beside a result."""
         return {**dataclasses.asdict(self.truth), "sensor": self.spec.name, "speed": self.speed}
 
     def check(self) -> None:
-        """Raise if the simulator's thread has stopped.
+        """Raise if the simulator has stopped (its thread, or its part of a virtual clock).
 
         Raises
         ------
         SimError
             The runner failed (its exception is the cause) or was stopped.
         """
+        if self.virtual and self._runner is not None and self._stack is not None:
+            clock = self.clock
+            assert isinstance(clock, VirtualClock)
+            failed = [exc for party, exc in clock.errors if party is self._runner]
+            if failed:
+                raise SimError(f"the simulated instrument is not running: {failed[-1]!r}") from (
+                    failed[-1]
+                )
+            return
         bg = self._background
         if bg is None or not bg.alive:
             error = None if bg is None else bg.error
@@ -283,8 +352,10 @@ class SimulatedInstrument:
         ----------
         **options
             Driver options (``reply_timeout``, ``retries``, ``min_supervision_s``); see also
-            :data:`RELAXED_DEVICE_OPTIONS`.
+            :data:`RELAXED_DEVICE_OPTIONS`. In virtual time the device shares :attr:`clock`.
         """
+        if self.virtual:
+            options.setdefault("clock", self.clock)
         if self.link == "serial-pty":
             return Device.open_serial(self._started(self.path), self.bitrate, **options)
         return Device.from_bus(self.open_bus(), self.node_id, own_bus=True, **options)

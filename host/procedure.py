@@ -355,6 +355,10 @@ def _state_name(status: Any) -> str:
     return DeviceState(int(state)).name
 
 
+#: How often the procedure asks for the status while the device warms up, s.
+WARMUP_POLL_S = 0.5
+
+
 def find_north(
     device: DeviceLike,
     plan: Plan,
@@ -423,7 +427,7 @@ def find_north(
                 f"the device did not become READY within {warmup_timeout_s:g} s (state {state})"
             )
         report(Progress("warm-up", 0, n, _angle(status), None))
-        sleep(0.05)
+        sleep(WARMUP_POLL_S)
     windows: list[PositionWindow] = []
     raw: list[Any] = []
     notes: list[str] = []

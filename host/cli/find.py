@@ -2,7 +2,9 @@
 
 Device links: python-can bus options as python-can's own tools spell them (``-i socketcan -c vcan0``),
 or ``--serial PORT``. With ``--sim`` an in-process simulated instrument on python-can's ``virtual``
-bus runs accelerated (``--speed``), and its truth is printed beside the result.
+bus runs in virtual time (as fast as the CPU allows; the same result for a ``--seed`` whatever the
+machine's load), or paced at ``--speed S`` times real time, and its truth is printed beside the
+result.
 
 The plan: ``--positions`` any table angles (default 0,180), ``--window`` seconds per position,
 ``--settle`` extra seconds after the device reports READY, ``--denoise`` a method of northfinder.host.denoise,

@@ -32,30 +32,34 @@ from northfinder.host.errors import HostConfigError
 from northfinder.host.procedure import METHOD_CHOICES, FindResult, Plan, Progress, find_north
 from northfinder.host.recording import RecordedWindow, Recording
 
-#: Default acceleration of the embedded simulator (simulated seconds per wall second).
-SIM_SPEED = 100.0
-
 
 def add_device_arguments(p: argparse.ArgumentParser) -> None:
     g = add_link_arguments(p, "serial link and simulation")
     g.add_argument(
         "--link-timeout", type=positive_float, default=None, metavar="SECONDS",
         help="seconds without a status before the link counts as lost (default: 3 heartbeat periods, "
-        "as protocol.md says; raise it on a slow or busy host)",
+        "0.3 s, as protocol.md says; raise it on a slow or busy host)",
     )  # fmt: skip
     g.add_argument(
         "--reply-timeout",
         type=positive_float,
         default=None,
         metavar="SECONDS",
-        help="seconds to wait for each reply before resending a safe command (default: the driver's)",
+        help="seconds to wait for each reply before resending a safe command (default 0.25; "
+        "safe commands are sent 3 times in all)",
     )
-    g.add_argument("--sim", action="store_true", help="use the embedded simulated instrument")
+    g.add_argument(
+        "--sim",
+        action="store_true",
+        help="use the embedded simulated instrument (in virtual time: as fast as the CPU allows, "
+        "the same result for a --seed whatever the machine's load)",
+    )
     g.add_argument(
         "--speed",
         type=positive_float,
-        default=SIM_SPEED,
-        help=f"--sim acceleration (default {SIM_SPEED:g})",
+        default=None,
+        metavar="S",
+        help="--sim paced instead, S simulated seconds per wall second (1 = real time), to watch it",
     )
     g.add_argument(
         "--warmup",
@@ -116,11 +120,9 @@ def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, An
         with embedded_simulator(args) as (device, truth):
             yield device, truth
         return
-    options: dict[str, Any] = {}
-    if args.link_timeout:
-        options["min_supervision_s"] = args.link_timeout
-    if args.reply_timeout:
-        options["reply_timeout"] = args.reply_timeout
+    if args.speed is not None:
+        raise HostConfigError("--speed: only with --sim (a real unit runs at its own pace)")
+    options = device_options(args)
     if args.serial:
         device = Device.open_serial(args.serial, baudrate=args.baud, **options)
     else:
@@ -133,9 +135,23 @@ def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, An
         yield device, None
 
 
+def device_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Driver options from ``--link-timeout`` and ``--reply-timeout``."""
+    options: dict[str, Any] = {}
+    if args.link_timeout:
+        options["min_supervision_s"] = args.link_timeout
+    if args.reply_timeout:
+        options["reply_timeout"] = args.reply_timeout
+    return options
+
+
 @contextlib.contextmanager
 def embedded_simulator(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, Any]]]:
-    """A device on the simulated instrument in this process (virtual CAN), and its truth."""
+    """A device on the simulated instrument in this process (virtual CAN), and its truth.
+
+    Virtual time by default; paced (``--speed S``) on a thread, with the driver's relaxed
+    deadlines since the simulator shares this interpreter.
+    """
     from northfinder.firmware_sim.imu import Truth
     from northfinder.host.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 
@@ -144,15 +160,18 @@ def embedded_simulator(args: argparse.Namespace) -> Iterator[tuple[Device, dict[
     rng = np.random.default_rng(args.seed)
     azimuth = float(rng.uniform(0.0, 360.0)) if args.azimuth is None else args.azimuth
     truth = Truth(azimuth, sim_latitude(args), args.pitch, args.roll)
+    paced = args.speed is not None
     sim = SimulatedInstrument(
         args.sensor,
         truth,
         seed=rng,
         speed=args.speed,
+        clock=None if paced else "virtual",
         warmup_s=args.warmup,
         node_id=args.node_id,
     )
-    with sim, sim.open_device(**RELAXED_DEVICE_OPTIONS) as device:
+    options = {**(RELAXED_DEVICE_OPTIONS if paced else {}), **device_options(args)}
+    with sim, sim.open_device(**options) as device:
         yield device, sim.describe()
 
 
@@ -202,8 +221,15 @@ def run_plan(args: argparse.Namespace) -> Measured:
             raise HostConfigError(
                 "--latitude: give the site's latitude in degrees (north positive)"
             )
+        clock = device.clock
         result, windows = find_north(
-            device, plan, latitude, warmup_timeout_s=args.timeout, progress=ProgressLine()
+            device,
+            plan,
+            latitude,
+            warmup_timeout_s=args.timeout,
+            progress=ProgressLine(),
+            sleep=clock.sleep,
+            clock=clock.now,
         )
         return Measured(result, windows, plan, latitude, device.sample_rate_hz, truth)
 
