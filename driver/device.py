@@ -293,6 +293,10 @@ class Device:
         self._acquire_lock = threading.Lock()
         self._waiters: dict[int, _Waiter] = {}
         self._events = 0  # counts everything the reader delivered: waiters look again on a change
+        # Whether the reader's latest read found nothing: supervision judges the time since the
+        # last status only once the host has read everything that arrived (a busy host or a slow
+        # adapter delivers statuses late behind the stream, while the link is plainly up).
+        self._link_idle = True
         self._seq = 0
         self._opened_at = self._clock.now()
         self._status: DeviceStatus | None = None
@@ -484,7 +488,10 @@ class Device:
             while not self._stop.is_set():
                 items = self._transport.recv(READ_POLL_S)
                 if items:
+                    self._link_idle = False
                     self._dispatch(items, self._clock.now(), self._clock.wall())
+                elif not self._link_idle:
+                    self._went_idle()
         except DriverError as exc:
             if not self._stop.is_set():
                 self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
@@ -504,9 +511,19 @@ class Device:
             self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
             return True
         if not items:
+            if not self._link_idle:
+                self._went_idle()
             return False
+        self._link_idle = False
         self._dispatch(items, self._clock.now(), self._clock.wall())
         return True
+
+    def _went_idle(self) -> None:
+        with self._lock:
+            self._link_idle = True
+            self._events += 1
+        if self._reader is not None:
+            self._clock.notify()
 
     def _fail(self, error: DriverError, cause: BaseException) -> None:
         error.__cause__ = cause
@@ -614,11 +631,17 @@ class Device:
         return max(HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s(), self.min_supervision_s)
 
     def _link_deadline(self) -> float:
-        """Clock time at which the link counts as lost if no status comes before."""
-        return self._last_status_at() + self._supervision_s()
+        """Clock time at which supervision is to be judged again: when the link counts as lost if
+        no status comes before, or (past that, while frames still arrive) a moment later."""
+        deadline = self._last_status_at() + self._supervision_s()
+        if deadline > self._clock.now():
+            return deadline
+        return self._clock.now() + READ_POLL_S
 
     def _link_alive(self) -> bool:
-        return self._status_age_s() < self._supervision_s()
+        """A status within the supervision time, or frames still being read (protocol.md 6: the
+        time without a status counts once the host has read all that arrived)."""
+        return self._status_age_s() < self._supervision_s() or not self._link_idle
 
     def _wait_change(self, seen: int, until: float) -> None:
         """Wait until the reader delivered something after ``seen`` (:attr:`_events`) or the

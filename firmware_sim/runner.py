@@ -195,7 +195,7 @@ class Lag:
     Attributes
     ----------
     behind_s : float
-        Simulated seconds the firmware is behind its clock now.
+        Simulated seconds by which the oldest message not yet sent is late now.
     slipped_s : float
         Simulated seconds dropped in total by slipping the clock (time the device lost).
     slips : int
@@ -326,12 +326,15 @@ class Runner:
         clock = self._paced()
         self.link.poll(poll_timeout)
         with self.lock:
-            behind = clock.now() - self.firmware.now
-            self.lag.behind_s = max(0.0, behind)
-            if behind > MAX_LAG_WALL_S * clock.speed and not clock.paused:
-                self._slip(clock, behind)
-                behind = 0.0
-            dt = min(behind, self.MAX_STEP_S)
+            now = clock.now()
+            # How late the oldest message not yet sent is: a backlog beyond the limit would go
+            # out as a burst, so the clock slips instead.
+            late = now - self.firmware.next_output_s()
+            self.lag.behind_s = max(0.0, late)
+            if late > MAX_LAG_WALL_S * clock.speed and not clock.paused:
+                self._slip(clock, late)
+                now -= late
+            dt = min(now - self.firmware.now, self.MAX_STEP_S)
             if dt > 0:
                 out = self.firmware.process(dt)
                 self.sent += len(out)
@@ -339,7 +342,7 @@ class Runner:
                 self.firmware.prefetch()
 
     def _slip(self, clock: Clock, behind: float) -> None:
-        """Fallen too far behind: the clock slips back to the firmware's time (no burst)."""
+        """Fallen too far behind: the clock slips back to the oldest message due (no burst)."""
         clock.slip(behind)
         lag = self.lag
         lag.behind_s = 0.0

@@ -4,15 +4,18 @@
 :class:`northfinder.driver.device.Device` per test, with the simulator's control channel) are parametrised
 over the links of ``LINKS``:
 
-- ``virtual``: python-can's ``virtual`` bus, the simulator's runner in a thread of this process;
+- ``virtual``: python-can's ``virtual`` bus, the simulator in this process in **virtual time**
+  (``northfinder.driver.clock.VirtualClock`` shared with the driver): time jumps to the next
+  event whenever the test waits, so these tests are exact and do not depend on the machine's load;
 - ``serial-pty``: ``northfinder sim --pty`` in another process, the driver on the pty with pyserial;
 - ``slcan-pty``: ``northfinder sim --slcan-pty`` in another process, the driver through python-can's
   ``slcan`` interface;
 - ``socketcan``: ``northfinder sim -i socketcan -c vcan0``; skipped where the kernel has no vcan0.
 
-The simulators run ``SPEED`` times faster than real time (``SPEEDS`` per link; a test may change
-the speed through the control channel; the ``link`` fixture restores it and resets the simulated
-device afterwards).
+The processes on ptys and vcan0 run on the wall clock, ``SPEED`` times faster than real time
+(``SPEEDS`` per link), and their tests are marked ``realtime``. A test reads time and waits through
+``sim.clock`` (virtual or wall) and schedules an action during a wait with ``sim.later``. The
+``link`` fixture restores the speed of a paced simulator and resets the simulated device afterwards.
 """
 
 from __future__ import annotations
@@ -20,12 +23,15 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import pytest
 from simprocess import sim_process
+
+from northfinder.driver.clock import VirtualClock, WallClock
 
 SPEED = 5.0
 """Simulated seconds per wall second for the simulators of the driver tests."""
@@ -39,15 +45,73 @@ LINKS = ("virtual", "serial-pty", "slcan-pty", "socketcan")
 VCAN = "vcan0"
 
 
+@contextlib.contextmanager
+def later_on(clock: Any, delay: float, fn: Callable[..., Any], *args: Any, **kwargs: Any):
+    """Call ``fn`` ``delay`` seconds of ``clock`` from now, in another thread, while the body runs
+    (it typically waits on a device); join the thread on exit.
+
+    On a virtual clock the thread, and the caller while the body runs, count as parties of the
+    clock, so the call happens exactly ``delay`` virtual seconds from now and time moves only
+    while the body waits.
+    """
+    if not isinstance(clock, VirtualClock):
+        timer = threading.Timer(delay, fn, args, kwargs)
+        timer.start()
+        try:
+            yield
+        finally:
+            timer.join(5.0)
+        return
+    ready = threading.Event()
+    errors: list[BaseException] = []
+    deadline = clock.now() + delay
+
+    def run() -> None:
+        with clock.participant():
+            ready.set()
+            clock.wait_until(lambda: False, deadline)
+            try:
+                fn(*args, **kwargs)
+            except BaseException as exc:
+                errors.append(exc)
+
+    # The body's thread too is a party while it runs: else the waiting thread would move time
+    # on while the body works between its calls.
+    with clock.participant():
+        thread = threading.Thread(target=run, name="later", daemon=True)
+        thread.start()
+        ready.wait()
+        try:
+            yield
+        finally:
+            thread.join(5.0)
+    if errors:
+        raise errors[0]
+
+
 @dataclass
 class SimHandle:
-    """A running simulator: how to reach it, and how to stop it."""
+    """A running simulator: how to reach it, its clock, and how to stop it.
+
+    ``clock`` is the clock the tests read and wait on: the simulator's virtual clock (shared with
+    the devices from ``open_device``) or the wall clock for a simulator in another process.
+    ``speed`` is the simulated seconds per second of that clock (1 in virtual time).
+    """
 
     kind: str
     open_device: Callable[[], Any]
     control: Any  # northfinder.firmware_sim.control.ControlClient
     speed: float = SPEED
     closers: list[Callable[[], None]] = field(default_factory=list)
+    clock: Any = field(default_factory=WallClock)
+
+    @property
+    def virtual(self) -> bool:
+        return isinstance(self.clock, VirtualClock)
+
+    def later(self, delay: float, fn: Callable[..., Any], *args: Any, **kwargs: Any):
+        """``later_on(self.clock, ...)``."""
+        return later_on(self.clock, delay, fn, *args, **kwargs)
 
     def close(self) -> None:
         for close in reversed(self.closers):
@@ -57,7 +121,7 @@ class SimHandle:
                 print(f"simulator teardown: {exc!r}", file=sys.stderr)
 
 
-def _start_in_process(speed: float) -> SimHandle:
+def _start_in_process() -> SimHandle:
     from northfinder.firmware_sim.imu import Truth
     from northfinder.host.embed import SimulatedInstrument
 
@@ -65,11 +129,11 @@ def _start_in_process(speed: float) -> SimHandle:
         "paper-rlg",
         Truth(azimuth_deg=30.0, latitude_deg=34.0),
         seed=3,
-        speed=speed,
+        clock="virtual",
         warmup_s=0.0,
         control="127.0.0.1:0",
     ).start()
-    handle = SimHandle("virtual", sim.open_device, sim.control, speed)
+    handle = SimHandle("virtual", sim.open_device, sim.control, 1.0, clock=sim.clock)
     handle.closers.append(sim.close)
     return handle
 
@@ -106,9 +170,18 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
     return handle
 
 
-@pytest.fixture(scope="module", params=LINKS)
+def link_params(links: tuple[str, ...] = LINKS) -> list[Any]:
+    """Fixture parameters for ``links``: the processes on ptys and vcan0 marked ``realtime``."""
+    return [
+        pytest.param(kind, marks=() if kind == "virtual" else pytest.mark.realtime, id=kind)
+        for kind in links
+    ]
+
+
+@pytest.fixture(scope="module", params=link_params())
 def sim(request: pytest.FixtureRequest) -> Iterator[SimHandle]:
-    """A simulator on one link, shared by the tests of a module (warm-up 0, ``SPEED`` x)."""
+    """A simulator on one link, shared by the tests of a module (warm-up 0; virtual time, or
+    ``SPEED`` x on the wall clock for a simulator in another process)."""
     kind = request.param
     speed = SPEEDS.get(kind, SPEED)
     if kind == "socketcan" and not os.path.exists(f"/sys/class/net/{VCAN}"):
@@ -117,7 +190,7 @@ def sim(request: pytest.FixtureRequest) -> Iterator[SimHandle]:
             "whose kernel has it)"
         )
     if kind == "virtual":
-        handle = _start_in_process(speed)
+        handle = _start_in_process()
     else:
         handle = _start_subprocess(kind, speed, seed=LINKS.index(kind) + 10)
     try:
@@ -133,12 +206,15 @@ def link(sim: SimHandle) -> Iterator[tuple[Any, Any]]:
     Afterwards the device is closed, and the simulated device is reset (faults cleared, defaults
     back) at the fixture's speed.
     """
-    sim.control.call("speed", value=sim.speed)
+    if not sim.virtual:
+        sim.control.call("speed", value=sim.speed)
     device = sim.open_device()
     try:
         device.wait_ready(timeout=5.0)
         yield device, sim.control
     finally:
         device.close()
-        sim.control.call("speed", value=sim.speed)
+        if not sim.virtual:
+            sim.control.call("speed", value=sim.speed)
+        sim.control.call("resume")
         sim.control.call("reset")

@@ -1,19 +1,22 @@
 """The host driver against the simulated instrument on every link: each call, the 2000-sample
-window, and the faults the simulator's control channel injects (nothing may hang)."""
+window, and the faults the simulator's control channel injects (nothing may hang).
+
+On the ``virtual`` link the simulator and the driver share a virtual clock: every duration below is
+exact there. The links to a simulator in another process run on the wall clock (marked
+``realtime``) with margins that hold on a loaded machine."""
 
 from __future__ import annotations
 
 import math
 import threading
-import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import can
 import numpy as np
 import pytest
+from conftest import link_params
 
 import northfinder.driver.protocol.errors
+from northfinder.driver.clock import VirtualClock
 from northfinder.driver.conformance.errors import ConformanceError
 from northfinder.driver.device import Device, Window
 from northfinder.driver.errors import (
@@ -42,17 +45,16 @@ from northfinder.driver.protocol.constants import (
 from northfinder.driver.protocol.messages import Sample, SampleAux, SampleX, SampleY, SampleZ
 
 G_34N = 9.7966  # normal gravity at 34 deg N, m/s^2
+#: The driver's logic, which is the same on every link: in virtual time only.
+VIRTUAL_ONLY = pytest.mark.parametrize("sim", link_params(("virtual",)), indirect=True)
 
 
-@contextmanager
-def later(delay: float, fn, *args, **kwargs) -> Iterator[None]:
-    """Call ``fn`` ``delay`` wall seconds from now in another thread; join it on exit."""
-    timer = threading.Timer(delay, fn, args, kwargs)
-    timer.start()
-    try:
-        yield
-    finally:
-        timer.join(5.0)
+def within(sim, elapsed: float, exact: float, wall_margin: float) -> bool:
+    """``elapsed`` is ``exact`` in virtual time (to 1 us), and at most ``exact + wall_margin`` on
+    the wall clock, where a loaded machine delays every step."""
+    if sim.virtual:
+        return abs(elapsed - exact) <= 1e-6
+    return elapsed <= exact + wall_margin
 
 
 def fast_table(dev: Device) -> None:
@@ -66,7 +68,7 @@ def angle_error(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
 
-def test_every_call_on_the_happy_path(link):
+def test_every_call_on_the_happy_path(link, sim):
     dev, _ = link
     ident = dev.identify()
     assert ident.model == "NF-SIM" and ident.protocol_version[0] == 1
@@ -88,7 +90,7 @@ def test_every_call_on_the_happy_path(link):
     done = dev.rotate_to(300.0, direction="negative", timeout=10.0)
     assert angle_error(done.angle_deg, 300.0) < 0.1
     assert dev.rotate_by(90.0, wait=False) is None
-    time.sleep(0.05)
+    sim.clock.sleep(0.05 * sim.speed)
     assert dev.status().state == DeviceState.ROTATING
     stopped = dev.stop(wait=True)
     # STOP leaves the table short of the target of the move it interrupted (300 + 90 = 30 deg)
@@ -112,20 +114,12 @@ def test_every_call_on_the_happy_path(link):
     assert stats.frames_received > 0 and stats.reply_timeouts == 0 and stats.resets_detected >= 1
 
 
-@pytest.fixture
-def realtime_on_virtual(link, sim):
-    """Run the simulator at real time on the in-process link, accelerated on the others."""
-    speed = 1.0 if sim.kind == "virtual" else sim.speed
-    link[1].call("speed", value=speed)
-    return speed
-
-
-def test_ten_second_window_at_200_hz_has_2000_contiguous_samples(link, realtime_on_virtual):
+def test_ten_second_window_at_200_hz_has_2000_contiguous_samples(link, sim):
     dev, _ = link
-    requested_at = time.time()
-    t0 = time.monotonic()
+    requested_at = sim.clock.wall()
+    t0 = sim.clock.now()
     window = dev.acquire(10.0)
-    elapsed = time.monotonic() - t0
+    elapsed = sim.clock.now() - t0
     assert isinstance(window, Window)
     assert len(window) == 2000 and window.requested == 2000
     assert window.missing == 0 and window.gaps == ()
@@ -139,8 +133,13 @@ def test_ten_second_window_at_200_hz_has_2000_contiguous_samples(link, realtime_
     assert np.linalg.norm(gyro) == pytest.approx(15.04, abs=0.5)  # Earth rate + bias, deg/h
     assert accel[2] == pytest.approx(G_34N, abs=0.01)
     assert np.allclose(window.gyro_rps, window.gyro_dph * math.pi / 180 / 3600)
-    # wall time: 10 s of device time at the simulator's speed
-    assert 0.95 * 10.0 / realtime_on_virtual <= elapsed <= 10.0 / realtime_on_virtual + 1.5
+    # 10 s of device time at the simulator's speed, never faster than the pace: in virtual time
+    # 1999 tick periods after the first sample, which follows the request within the round trips
+    # of GET_STATUS and STREAM_START and one tick
+    if sim.virtual:
+        assert 1999 * 0.005 <= elapsed <= 1999 * 0.005 + 2 * 0.002 + 0.005 + 1e-9
+    else:
+        assert 0.95 * 10.0 / sim.speed <= elapsed <= 10.0 / sim.speed + 5.0
     with pytest.raises(ValueError):
         window.counter[0] = 0  # the window is read-only
 
@@ -149,21 +148,21 @@ def inject(control, op: str, **args) -> None:
     control.call(op, **args)
 
 
-def consumed(control, fault: str) -> None:
+def consumed(sim, control, fault: str) -> None:
     """Wait until the simulator has applied a frame fault to as many frames as it was told."""
-    deadline = time.monotonic() + 5.0
-    while control.call("status")["faults"][fault] and time.monotonic() < deadline:
-        time.sleep(0.02)
-    time.sleep(0.1)  # and the frames after it have reached the driver
+    deadline = sim.clock.now() + 5.0 * sim.speed
+    while control.call("status")["faults"][fault] and sim.clock.now() < deadline:
+        sim.clock.sleep(0.02)
+    sim.clock.sleep(0.1)  # and the frames after it have reached the driver
 
 
 def test_dropped_frames_are_detected_and_reported(link, sim):
     dev, ctl = link
     dev.start_streaming()
     before = dev.stats()
-    with later(0.2, inject, ctl, "drop", count=5):
+    with sim.later(0.2, inject, ctl, "drop", count=5):
         window = dev.acquire(1.0 * sim.speed, on_gap="report")  # 1 s of wall time
-    consumed(ctl, "drop_frames")
+    consumed(sim, ctl, "drop_frames")
     assert window.missing >= 1 and window.gaps
     assert sum(count for _, count in window.gaps) == window.missing
     assert len(window) + window.missing == window.requested
@@ -177,7 +176,7 @@ def test_dropped_frames_are_detected_and_reported(link, sim):
         lost = after.ticks_lost + after.ticks_incomplete
         assert lost - before.ticks_lost - before.ticks_incomplete >= 1
 
-    with later(0.2, inject, ctl, "drop", count=5), pytest.raises(StreamGap) as err:
+    with sim.later(0.2, inject, ctl, "drop", count=5), pytest.raises(StreamGap) as err:
         dev.acquire(1.0 * sim.speed)
     assert err.value.missing >= 1 and err.value.gaps and "on_gap='report'" in str(err.value)
 
@@ -186,9 +185,9 @@ def test_corrupted_frames_are_ignored_and_counted(link, sim):
     dev, ctl = link
     dev.start_streaming()
     before = dev.stats()
-    with later(0.2, inject, ctl, "corrupt", count=3):
+    with sim.later(0.2, inject, ctl, "corrupt", count=3):
         window = dev.acquire(1.0 * sim.speed, on_gap="report")
-    consumed(ctl, "corrupt_frames")
+    consumed(sim, ctl, "corrupt_frames")
     after = dev.stats()
     assert after.frames_rejected - before.frames_rejected >= 3, (before, after)
     assert window.missing <= 3  # a corrupt frame costs at most its own tick
@@ -199,17 +198,23 @@ def test_corrupted_frames_are_ignored_and_counted(link, sim):
 def test_silent_device_times_out_within_the_stated_deadline(link, sim):
     dev, ctl = link
     dev.start_streaming()
-    t0 = time.monotonic()
-    with later(0.2, inject, ctl, "silent", on=True), pytest.raises(LinkLost, match="no status"):
+    t0 = sim.clock.now()
+    with sim.later(0.2, inject, ctl, "silent", on=True), pytest.raises(LinkLost, match="no status"):
         dev.acquire(5.0 * sim.speed)
-    assert time.monotonic() - t0 < 0.2 + 0.3 + 0.3  # three heartbeat periods after it fell silent
-    t0 = time.monotonic()
+    elapsed = sim.clock.now() - t0
+    # three heartbeat periods (0.3 s) after the last status, which came 0.1 s before it fell
+    # silent at the latest
+    if sim.virtual:
+        assert 0.1 + 0.3 <= elapsed <= 0.2 + 0.3 + 1e-9
+    else:
+        assert elapsed < 0.2 + 0.3 + 2.0  # not the window's own deadline of several seconds
+    t0 = sim.clock.now()
     with pytest.raises(ReplyTimeout) as err:
         dev.get_config("sample_rate_hz")
-    elapsed = time.monotonic() - t0
+    elapsed = sim.clock.now() - t0
     assert err.value.deadline_s == pytest.approx(0.75)
     assert err.value.attempts == 3 and err.value.opcode == Opcode.GET_CONFIG
-    assert elapsed <= err.value.deadline_s + 0.2
+    assert within(sim, elapsed, err.value.deadline_s, 1.0)
     assert not err.value.link_alive and "silent" in str(err.value)
     assert isinstance(err.value, TimeoutError)
     with pytest.raises(LinkLost):
@@ -218,19 +223,23 @@ def test_silent_device_times_out_within_the_stated_deadline(link, sim):
     assert dev.status().state == DeviceState.READY  # the link comes back
 
 
+@VIRTUAL_ONLY
 def test_reset_in_the_middle_of_a_window_raises_a_clear_error(link, sim):
     dev, ctl = link
-    t0 = time.monotonic()
-    with later(0.3, inject, ctl, "reset"), pytest.raises(DeviceReset, match="restarted"):
-        dev.acquire(3.0 * sim.speed)  # 3 s of wall time
-    assert time.monotonic() - t0 < 1.5
+    t0 = sim.clock.now()
+    with sim.later(0.3, inject, ctl, "reset"), pytest.raises(DeviceReset, match="restarted"):
+        dev.acquire(3.0 * sim.speed)  # 3 s of the test's clock
+    elapsed = sim.clock.now() - t0
+    # the unit announces itself (IDENTIFY, then a BOOT status) within two reply latencies
+    assert 0.3 < elapsed <= 0.3 + 0.002 + 1e-9 if sim.virtual else elapsed < 3.0
     assert not dev.streaming
     dev.wait_ready()
     window = dev.acquire(0.2)  # starts the stream again
     assert window.complete and len(window) == 40
 
 
-def test_busy_refusal_surfaces_with_its_code(link):
+@VIRTUAL_ONLY
+def test_busy_refusal_surfaces_with_its_code(link, sim):
     dev, ctl = link
     dev.rotate_by(90.0, wait=False)  # 15 s of table motion at the default 6 deg/s
     with pytest.raises(DeviceRefused) as err:
@@ -247,7 +256,8 @@ def test_busy_refusal_surfaces_with_its_code(link):
     assert err.value.result == Result.READ_ONLY
 
 
-def test_a_fault_during_a_move_raises(link):
+@VIRTUAL_ONLY
+def test_a_fault_during_a_move_raises(link, sim):
     dev, ctl = link
     ctl.call("stall", on=True)
     with pytest.raises(DeviceFault) as err:
@@ -257,24 +267,26 @@ def test_a_fault_during_a_move_raises(link):
     assert dev.reset().state != DeviceState.FAULT
 
 
+@VIRTUAL_ONLY
 def test_only_commands_safe_to_repeat_are_sent_again(link, sim):
     dev, ctl = link
     ctl.call("delay_replies", seconds=0.4 * sim.speed)  # each reply 0.4 s late: after the deadline
-    t0 = time.monotonic()
+    t0 = sim.clock.now()
     with pytest.raises(ReplyTimeout) as err:
         dev.get_config("sample_rate_hz")
     assert err.value.attempts == 3 and err.value.link_alive
-    assert time.monotonic() - t0 <= err.value.deadline_s + 0.2
+    assert within(sim, sim.clock.now() - t0, err.value.deadline_s, 1.0)
     with pytest.raises(ReplyTimeout) as err:
         dev.rotate_by(1.0, wait=False)
     assert err.value.attempts == 1 and "may have been carried out" in str(err.value)
     ctl.call("delay_replies", seconds=0.0)
-    time.sleep(0.5)
+    sim.clock.sleep(0.5 * sim.speed)
     stats = dev.stats()
     assert stats.retries >= 2 and stats.stray_replies >= 3  # late replies are counted, not used
     assert dev.get_config("sample_rate_hz") == 200
 
 
+@VIRTUAL_ONLY
 def test_calls_from_several_threads_while_a_window_is_acquired(link, sim):
     dev, _ = link
     errors: list[BaseException] = []
@@ -302,7 +314,7 @@ def test_calls_from_several_threads_while_a_window_is_acquired(link, sim):
 def test_a_long_gap_is_measured_in_full(link, sim):
     dev, ctl = link
     dev.start_streaming()
-    with later(0.2, inject, ctl, "skip_counter", count=300):
+    with sim.later(0.2, inject, ctl, "skip_counter", count=300):
         # more than 300 ticks after the jump, however fast the simulator runs
         window = dev.acquire(0.6 * sim.speed + 2.0, on_gap="report")
     assert window.missing == 300 and len(window) == window.requested - 300
@@ -312,7 +324,11 @@ def test_closing_releases_the_link_and_stops_the_reader(link, sim):
     dev, _ = link
     dev.start_streaming()
     dev.close()
-    assert dev.closed and not dev._reader.is_alive()
+    assert dev.closed
+    if sim.virtual:  # no reader thread: the clock polled the link, and polls it no more
+        assert dev._reader is None and dev._pump not in sim.clock._pollers
+    else:
+        assert not dev._reader.is_alive()
     with pytest.raises(LinkError):
         dev.status()
     dev.close()  # idempotent
@@ -328,10 +344,10 @@ def test_closing_releases_the_link_and_stops_the_reader(link, sim):
 
 def test_a_failed_open_releases_the_bus():
     bus = can.Bus(interface="virtual", channel="northfinder-nobody", receive_own_messages=False)
-    t0 = time.monotonic()
+    clock = VirtualClock()
     with pytest.raises(ReplyTimeout, match="IDENTIFY"):
-        Device.from_bus(bus, own_bus=True)
-    assert time.monotonic() - t0 < 1.0
+        Device.from_bus(bus, own_bus=True, clock=clock)
+    assert clock.now() == pytest.approx(3 * 0.25)  # IDENTIFY sent three times, then given up
     assert bus._is_shutdown
 
 
