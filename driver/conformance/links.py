@@ -9,6 +9,7 @@ stamped with the host's monotonic clock on receipt. Decoding uses the shared cod
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, TypeVar
 
@@ -85,6 +86,8 @@ class RawLink(Protocol):
 
     kind: str
     """``"can"`` or ``"serial"``."""
+    after_send: Callable[[], None] | None
+    """Called after every send (a virtual clock's ``notify``), or None."""
 
     def send_command(self, payload: bytes) -> None:
         """Send a COMMAND carrying ``payload`` (any bytes, also malformed)."""
@@ -123,6 +126,7 @@ class CanRawLink:
         self._parts: dict[type, SampleAxis | SampleAux] = {}
         self.frames = 0
         self.other = 0
+        self.after_send: Callable[[], None] | None = None
 
     def send_command(self, payload: bytes) -> None:
         self.send_frame(self.command_id, payload)
@@ -132,6 +136,8 @@ class CanRawLink:
         self.bus.send(
             can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=extended)
         )
+        if self.after_send is not None:
+            self.after_send()
 
     def receive(self, timeout: float) -> list[Arrival]:
         out: list[Arrival] = []
@@ -225,6 +231,7 @@ class SerialRawLink:
         self.port = port
         self.deframer = Deframer()
         self.seq = 0
+        self.after_send: Callable[[], None] | None = None
 
     def send_command(self, payload: bytes) -> None:
         self.send_frame(SerialType.COMMAND, payload)
@@ -238,6 +245,8 @@ class SerialRawLink:
         self.seq = (self.seq + 1) & 0xFF
         self.port.write(data)
         self.port.flush()
+        if self.after_send is not None:
+            self.after_send()
 
     def receive(self, timeout: float) -> list[Arrival]:
         self.port.timeout = max(timeout, 0.0)

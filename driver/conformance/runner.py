@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -10,6 +9,7 @@ from typing import Any
 import can
 import serial
 
+from northfinder.driver.clock import Clock
 from northfinder.driver.conformance.checks import select_checks
 from northfinder.driver.conformance.core import CheckResult, Ctx, Report, SuiteOptions
 from northfinder.driver.conformance.errors import LinkFault, Skipped
@@ -36,6 +36,7 @@ def run_suite(
     link: RawLink,
     options: SuiteOptions,
     progress: Callable[[CheckResult], None] | None = None,
+    clock: Clock | None = None,
 ) -> Report:
     """Run the selected checks against the unit on ``link``; never stops at a failure.
 
@@ -50,6 +51,11 @@ def run_suite(
     options : SuiteOptions
     progress : callable, optional
         Called with each result as soon as it is known.
+    clock : Clock, optional
+        The host's clock: the wall clock by default, or a
+        :class:`~northfinder.driver.clock.VirtualClock` shared with an in-process simulated unit
+        (then the suite runs in virtual time, its durations are the clock's, and ``time_scale``
+        must be 1).
 
     Returns
     -------
@@ -57,11 +63,23 @@ def run_suite(
     """
     checks = select_checks(options.only)
     reply_wait = max(1.0, 2 * options.reply_limit_ms / 1000.0)
-    session = Session(link, options.time_scale, reply_wait)
+    session = Session(link, options.time_scale, reply_wait, clock)
+    try:
+        return _run(session, checks, options, progress)
+    finally:
+        session.close()
+
+
+def _run(
+    session: Session,
+    checks: list[Any],
+    options: SuiteOptions,
+    progress: Callable[[CheckResult], None] | None,
+) -> Report:
     session.drain(0.2)
     shared: dict[str, Any] = {}
     results: list[CheckResult] = []
-    start = time.monotonic()
+    start = session.now()
     dead: str | None = None
     for chk in checks:
         if dead is not None:
@@ -71,7 +89,7 @@ def run_suite(
                 progress(results[-1])
             continue
         ctx = Ctx(session, options, shared)
-        t0 = time.monotonic()
+        t0 = session.now()
         outcome, message = "pass", ""
         try:
             chk.fn(ctx)
@@ -88,7 +106,7 @@ def run_suite(
             message = chk.summary
             if ctx.notes:
                 message += " [" + "; ".join(ctx.notes) + "]"
-        result = CheckResult(chk.name, outcome, message, ctx.figures, time.monotonic() - t0)
+        result = CheckResult(chk.name, outcome, message, ctx.figures, session.now() - t0)
         results.append(result)
         if progress is not None:
             progress(result)
@@ -98,7 +116,7 @@ def run_suite(
                 result.message += f" (restore: {note})"
             if note.startswith(_NO_RECOVERY):
                 dead = f"the unit stopped answering after {chk.name}"
-    return Report(results, link.kind, options, time.monotonic() - start)
+    return Report(results, session.link.kind, options, session.now() - start)
 
 
 def _where(exc: BaseException) -> str:

@@ -6,18 +6,21 @@ with their full counters, and every irregularity seen on the way (a counter gap,
 tick, a serial frame lost, an undecodable frame, a reply nobody asked for). Checks read these
 records; the session itself judges nothing.
 
-Times: ``t`` values are host monotonic seconds (wall clock). The unit may run faster than wall time
-(an accelerated simulator); ``time_scale`` is the unit's seconds per wall second, and
-:meth:`Session.unit` / :meth:`Session.wall` convert durations.
+Times: ``t`` values are seconds of the session's clock: host monotonic seconds (the wall clock) by
+default. The unit may run faster than wall time (an accelerated simulator); ``time_scale`` is the
+unit's seconds per wall second, and :meth:`Session.unit` / :meth:`Session.wall` convert durations.
+On a :class:`~northfinder.driver.clock.VirtualClock` shared with an in-process simulator the clock
+polls the link at every instant and stamps each arrival with the instant it was sent; the unit's
+time is the clock's (``time_scale`` 1).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.conformance.errors import LinkFault
 from northfinder.driver.conformance.links import Arrival, RawLink, TickParts
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
@@ -106,10 +109,24 @@ class Session:
     reply_wait_s : float
         Wall seconds to wait for a reply before declaring it missing (long enough to measure a
         late reply; the check judges lateness separately).
+    clock : Clock, optional
+        The host's clock (default the wall clock); see the module docstring for a virtual one.
     """
 
-    def __init__(self, link: RawLink, time_scale: float = 1.0, reply_wait_s: float = 1.0) -> None:
+    def __init__(
+        self,
+        link: RawLink,
+        time_scale: float = 1.0,
+        reply_wait_s: float = 1.0,
+        clock: Clock | None = None,
+    ) -> None:
+        self.clock: Clock = WallClock() if clock is None else clock
         self.link = link
+        if self.clock.virtual:
+            # The checks also send on the link directly: every send tells the clock, so that the
+            # unit takes it at this instant.
+            link.after_send = self.clock.notify
+        self._arrived = 0  # arrivals recorded so far (a virtual clock's waits watch it)
         self.time_scale = float(time_scale)
         self.reply_wait_s = reply_wait_s
         self._seq = 0
@@ -132,6 +149,12 @@ class Session:
         self._last_seq: int | None = None
         self.seq_restart_pending = False
         self.serial_frames_lost = 0
+        if self.clock.virtual:
+            self.clock.add_poller(self._poll)
+
+    def close(self) -> None:
+        """Stop being polled by a virtual clock (the link is the caller's)."""
+        self.clock.remove_poller(self._poll)
 
     # -- time -------------------------------------------------------------------------------------
     def unit(self, wall_s: float) -> float:
@@ -142,13 +165,25 @@ class Session:
         """A duration in the unit's seconds as wall seconds."""
         return unit_s / self.time_scale
 
-    @staticmethod
-    def now() -> float:
-        return time.monotonic()
+    def now(self) -> float:
+        return self.clock.now()
 
     # -- receiving --------------------------------------------------------------------------------
+    def _poll(self) -> bool:
+        """On a virtual clock: record what has arrived, stamped with the present instant."""
+        arrivals = self.link.receive(0.0)
+        t = self.clock.now()
+        for arrival in arrivals:
+            self._record(dataclasses.replace(arrival, t=t))
+        return bool(arrivals)
+
     def pump(self, timeout: float = 0.0) -> None:
-        """Receive and record what arrives within ``timeout`` wall seconds."""
+        """Receive and record what arrives within ``timeout`` wall seconds (returns early once
+        something came)."""
+        if self.clock.virtual:
+            seen = self._arrived
+            self.clock.wait_until(lambda: self._arrived != seen, self.now() + timeout)
+            return
         for arrival in self.link.receive(timeout):
             self._record(arrival)
 
@@ -178,6 +213,7 @@ class Session:
         self.gaps.clear()
 
     def _record(self, a: Arrival) -> None:
+        self._arrived += 1
         if a.seq is not None:
             self._check_serial_seq(a)
         m = a.message

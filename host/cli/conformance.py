@@ -5,6 +5,9 @@ Links (choose one):
                     ``-i slcan -c /dev/ttyACM0 -b 500000`` (for a pseudo-terminal add
                     ``--bus-kwargs sleep_after_open=0``)
   --serial PORT     the protocol's serial frames on a serial port (path or pyserial URL)
+  --sim             the simulated instrument in this process, in virtual time: the whole suite
+                    runs as fast as the CPU allows and its timing checks are exact (a rehearsal
+                    of the suite, and a check of the simulator itself)
 
 The report (one row per check: result, measured figures, message) goes to stdout as the checks
 run; ``--junit FILE`` also writes JUnit XML. Exit status: 0 all checks passed (skips allowed),
@@ -12,6 +15,7 @@ run; ``--junit FILE`` also writes JUnit XML. Exit status: 0 all checks passed (s
 
 Timing is judged in the unit's time: for a simulator running at ``--speed S`` give
 ``--time-scale S``. Against a real instrument keep the defaults (time scale 1, a 30 s stream).
+With ``--sim`` the unit's time is the virtual clock's (no time scale).
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from northfinder.driver.conformance import (
 from northfinder.driver.conformance.errors import SuiteConfigError
 from northfinder.host.cli.common import (
     add_link_arguments,
+    add_sensor_argument,
     angle_list,
     bus_given,
     finite_float,
@@ -80,7 +85,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_link_arguments(p, "serial link")
+    group = add_link_arguments(p, "serial link and simulation")
+    group.add_argument(
+        "--sim",
+        action="store_true",
+        help="check the simulated instrument in this process, in virtual time",
+    )
+    add_sensor_argument(p)
+    group.add_argument("--seed", type=int, default=None, help="--sim random seed")
     g = p.add_argument_group("what to check and how strictly")
     for flag, field, kind, metavar, text in _FLAGS:
         default = getattr(_DEFAULTS, field)
@@ -112,12 +124,17 @@ def run(args: argparse.Namespace) -> int:
     try:
         options = _options(args)
         select_checks(options.only)
-        can_given = bus_given(args)
-        if can_given == bool(args.serial):
-            raise HostConfigError("choose exactly one link: -i/-c (python-can) or --serial PORT")
+        if sum((bus_given(args), bool(args.serial), bool(args.sim))) != 1:
+            raise HostConfigError(
+                "choose exactly one link: -i/-c (python-can), --serial PORT or --sim"
+            )
+        if args.sim and options.time_scale != 1.0:
+            raise HostConfigError("--time-scale: not with --sim (the unit runs in virtual time)")
     except (HostConfigError, SuiteConfigError) as exc:
         print(f"northfinder conformance: error: {exc}", file=sys.stderr)
         return 2
+    if args.sim:
+        return _run_simulated(args, options)
     closers = []
     try:
         if args.serial:
@@ -142,6 +159,27 @@ def run(args: argparse.Namespace) -> int:
                 close()
             except (can.CanError, serial.SerialException, OSError):
                 pass  # the link is already gone; the report says what failed
+    print(f"\n{format_summary(report)}", flush=True)
+    if args.junit:
+        write_junit(report, args.junit)
+    return 0 if report.passed else 1
+
+
+def _run_simulated(args: argparse.Namespace, options: SuiteOptions) -> int:
+    """The suite against the simulated instrument on virtual CAN in this process, in virtual time."""
+    from northfinder.firmware_sim.imu import Truth
+    from northfinder.host.embed import SimulatedInstrument
+
+    sim = SimulatedInstrument(
+        args.sensor, Truth(), seed=args.seed, clock="virtual", warmup_s=0.0, node_id=args.node_id
+    )
+    with sim, sim.open_bus() as bus:
+        link = CanRawLink(bus, args.node_id)
+        print(format_header(link.kind, options), flush=True)
+        report = run_suite(
+            link, options, progress=lambda r: print(format_result(r), flush=True), clock=sim.clock
+        )
+        sim.check()
     print(f"\n{format_summary(report)}", flush=True)
     if args.junit:
         write_junit(report, args.junit)

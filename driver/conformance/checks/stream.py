@@ -86,7 +86,9 @@ def observation(c: Ctx) -> tuple[float, float]:
 def heartbeat_intervals(c: Ctx) -> list[float]:
     """Intervals between statuses of the window, unit ms (a state change sends an extra status)."""
     t0, t1 = observation(c)
-    sts = [(t, st) for t, st in c.s.statuses if t0 <= t <= t1]
+    # After t0: a status that answered the last command before the window arrived at t0 (at the
+    # same instant in virtual time) and is no heartbeat.
+    sts = [(t, st) for t, st in c.s.statuses if t0 < t <= t1]
     out = []
     for (ta, sa), (tb, sb) in itertools.pairwise(sts):
         if sa.state == sb.state:
@@ -101,7 +103,7 @@ def heartbeat_intervals(c: Ctx) -> list[float]:
 def heartbeat_period(c: Ctx) -> None:
     period = c.config()[ConfigKey.HEARTBEAT_PERIOD_MS]
     t0, t1 = observation(c)
-    times = [t for t, _ in c.s.statuses if t0 <= t <= t1]
+    times = [t for t, _ in c.s.statuses if t0 < t <= t1]
     if len(times) < 6:
         c.fail(f"only {len(times)} status message(s) in the window")
         return
