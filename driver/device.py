@@ -19,7 +19,9 @@ that are safe to repeat (:data:`RETRYABLE`) are sent again with a new sequence n
 ``retries`` more times (default 2), so a query fails with :class:`~northfinder.driver.errors.ReplyTimeout`
 after at most ``(1 + retries) * reply_timeout`` = 0.75 s. Moves, HOME, RESET and SELF_TEST are
 sent once: a lost reply leaves open whether they were carried out. The link counts as lost when
-no status arrived for three heartbeat periods (0.3 s by default).
+no status arrived for three heartbeat periods (0.3 s by default; ``min_supervision_s`` raises it),
+counted once the reader has read everything that arrived (protocol.md 6), so a host that is busy
+or an adapter that reads slowly does not take a late status for a lost link.
 """
 
 from __future__ import annotations

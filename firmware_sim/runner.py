@@ -6,7 +6,7 @@ advances time; for tests). The :class:`Runner` polls the link, advances the firm
 clock's time and sends what the firmware emits. A lock serialises the loop with the control
 channel.
 
-Pacing (protocol.md 9, "The simulator's pace"): a paced runner that falls behind its clock (the
+Pacing (protocol.md 12, "The simulator's pace"): a paced runner that falls behind its clock (the
 process was stalled or starved of CPU) catches up at once only while it is at most
 :data:`MAX_LAG_WALL_S` wall seconds behind (ordinary scheduling jitter). Further behind, it does
 not send the backlog in a burst: the clock slips (:meth:`RealTimeClock.slip`), so the simulated
@@ -279,6 +279,8 @@ class Runner:
         clock = self.clock
         if not self.virtual:
             raise SimConfigError("attach: the runner's clock is not a virtual clock")
+        with self.lock:  # the firmware's time goes on from the clock's present
+            self._offset_ns = round(clock.now() * NS_PER_S) - self.firmware.now_ns
         clock.add_source(self)  # type: ignore[union-attr]
 
     def detach(self) -> None:

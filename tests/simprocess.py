@@ -75,6 +75,7 @@ def sim_process(
                 ) from None
             key, _, value = line.strip().partition(" ")
             facts[key] = value
+        facts["pid"] = str(proc.pid)
         yield facts
     finally:
         if proc.poll() is None:

@@ -1,4 +1,5 @@
-"""The embedding helper: a simulated instrument in this process on each link it offers."""
+"""The embedding helper: a simulated instrument in this process on each link it offers, paced on
+the wall clock or in virtual time."""
 
 from __future__ import annotations
 
@@ -7,7 +8,10 @@ import time
 import numpy as np
 import pytest
 
+from northfinder.driver.clock import VirtualClock
+from northfinder.driver.errors import ReplyTimeout
 from northfinder.driver.protocol.constants import DeviceState
+from northfinder.firmware_sim.control import ControlError
 from northfinder.firmware_sim.errors import SimConfigError, SimError
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import RealTimeClock
@@ -27,6 +31,7 @@ def wait_for(predicate, timeout: float = 10.0) -> bool:
     return True
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("link", LINKS)
 def test_a_device_on_each_link_reads_the_simulated_instrument(link):
     speed = 1.0 if link == "slcan-pty" else 5.0  # python-can's slcan reads one byte per call
@@ -51,6 +56,7 @@ def test_truth_sensor_and_speed_are_described():
         assert sim.firmware.node_id == 1 and sim.runner.clock is sim.clock
 
 
+@pytest.mark.realtime
 def test_control_channel_and_the_given_clock_drive_the_simulator():
     clock = RealTimeClock(4.0)
     clock.pause()
@@ -87,3 +93,60 @@ def test_bad_arguments_are_named():
         sim.open_device()
     with sim, pytest.raises(HostConfigError, match="not a CAN bus"):
         sim.open_bus()
+
+
+def test_virtual_time_shares_the_clock_with_the_device_and_jumps_to_the_next_event():
+    with SimulatedInstrument("ideal", TRUTH, seed=1, clock="virtual", warmup_s=0.0) as sim:
+        clock = sim.clock
+        assert isinstance(clock, VirtualClock) and sim.virtual and sim.speed is None
+        assert sim.describe()["speed"] is None
+        with sim.open_device() as dev:
+            assert dev.clock is clock
+            assert clock.now() < 0.01  # IDENTIFY, GET_STATUS and the configuration: round trips
+            assert dev.wait_ready().state == DeviceState.READY
+            assert clock.now() == pytest.approx(0.5, abs=0.001)  # the firmware boots in 0.5 s
+            t0 = clock.now()
+            window = dev.acquire(60.0)  # a minute of instrument time
+            assert window.complete and len(window) == 12_000
+            assert 60.0 - 0.005 <= clock.now() - t0 <= 60.0 + 0.01
+            assert np.all(np.diff(window.arrival_s) == pytest.approx(0.005))  # stamped on the clock
+            clock.sleep(2.5)
+            assert clock.now() - t0 == pytest.approx(62.5 + (window.arrival_s[-1] - t0 - 60.0))
+        sim.check()
+
+
+def test_a_virtual_clock_given_as_an_object_and_its_refusals():
+    clock = VirtualClock(start_s=100.0)
+    with SimulatedInstrument("ideal", TRUTH, seed=2, clock=clock, warmup_s=0.0) as sim:
+        assert sim.clock is clock and sim.runner.clock is clock
+        with sim.open_device() as dev:
+            assert dev.wait_ready().state == DeviceState.READY
+            assert clock.now() == pytest.approx(100.5, abs=0.001)
+    with pytest.raises(HostConfigError, match="virtual time needs the in-process link"):
+        SimulatedInstrument("ideal", clock="virtual", link="serial-pty")
+    with pytest.raises(HostConfigError, match="'virtual' or a clock"):
+        SimulatedInstrument("ideal", clock="fast")
+
+
+def test_pausing_a_virtual_simulator_is_a_silent_device_to_the_host():
+    with SimulatedInstrument(
+        "ideal", TRUTH, seed=3, clock="virtual", warmup_s=0.0, control="127.0.0.1:0"
+    ) as sim:
+        with sim.open_device() as dev:
+            dev.wait_ready()
+            status = sim.control.call("status")
+            assert status["clock"] == "virtual" and status["speed"] is None
+            with pytest.raises(ControlError, match="virtual time"):
+                sim.control.call("speed", value=2.0)
+            frozen_at = sim.firmware.now
+            sim.control.call("pause")
+            t0 = sim.clock.now()
+            with pytest.raises(ReplyTimeout, match="no status for") as err:
+                dev.status()
+            assert sim.clock.now() - t0 == pytest.approx(3 * 0.25)  # three attempts, exactly
+            assert err.value.link_alive is False  # and no heartbeat for longer than 0.3 s
+            assert sim.firmware.now == frozen_at  # the device's own time stood still
+            sim.control.call("resume")
+        with sim.open_device() as again:  # and it answers again, its time continuing
+            assert again.wait_ready().state == DeviceState.READY
+            assert sim.firmware.now - frozen_at < 0.01

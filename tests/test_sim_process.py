@@ -47,6 +47,7 @@ def read_serial(port: serial.Serial, deframer: Deframer, seconds: float) -> list
     return out
 
 
+@pytest.mark.realtime
 def test_serial_pty_subprocess_identifies_streams_and_answers():
     with simulator("--pty") as (path, control):
         with serial.Serial(path, 115200, timeout=0.05) as port:
@@ -83,6 +84,7 @@ def read_can(bus: can.BusABC, rx: CanReceiver, seconds: float) -> list:
     return out
 
 
+@pytest.mark.realtime
 def test_slcan_pty_subprocess_reached_with_python_can():
     with simulator("--slcan-pty") as (path, _control):
         with can.Bus(interface="slcan", channel=path, sleep_after_open=0, bitrate=500_000) as bus:
@@ -99,6 +101,7 @@ def test_slcan_pty_subprocess_reached_with_python_can():
         assert np.all(np.diff([s.counter for s in samples]) == 1)
 
 
+@pytest.mark.realtime
 def test_random_bytes_on_serial_do_not_disturb_the_stream():
     rng = np.random.default_rng(7)
     with simulator("--pty", seed=4) as (path, control):
@@ -131,6 +134,7 @@ def test_random_bytes_on_serial_do_not_disturb_the_stream():
             assert ctl.call("status")["rx_malformed"] >= 10
 
 
+@pytest.mark.realtime
 def test_random_can_frames_do_not_disturb_the_stream():
     rng = np.random.default_rng(11)
     with simulator("--slcan-pty", seed=5) as (path, control):
