@@ -47,7 +47,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import lfilter
 
 from northfinder.driver.protocol.units import DPH, DPH_PSH, DPS, DPSH, G0, UG
 from northfinder.firmware_sim.errors import SimConfigError
@@ -412,6 +411,10 @@ def triad_matrices(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray
     return m
 
 
+#: Runs of at most this many grid steps are filtered by the recursion itself, longer ones by lfilter.
+_SHORT_RUN = 16
+
+
 def slow_noise_steps(
     w: NDArray[np.float64], state: NDArray[np.float64], walk: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
@@ -435,14 +438,31 @@ def slow_noise_steps(
     state, walk
         The components and the walk at the last new grid point.
     """
-    acc = np.zeros((w.shape[0], *w.shape[2:]))
+    m = w.shape[0]
+    acc = np.zeros((m, *w.shape[2:]))
     new_state = np.empty_like(state)
-    for i, phi in enumerate(FLICKER_PHI):
-        comp, _ = lfilter(
-            [FLICKER_GAIN[i]], [1.0, -phi], w[:, i], axis=0, zi=(phi * state[i])[None]
-        )
-        acc += comp
-        new_state[i] = comp[-1]
+    if m <= _SHORT_RUN:
+        # A few steps (the instrument's look-ahead): the recursion itself, all components at
+        # once; the same operations in the same order as lfilter's, so the same numbers.
+        shape = (-1,) + (1,) * (state.ndim - 1)
+        phi, gain = FLICKER_PHI.reshape(shape), FLICKER_GAIN.reshape(shape)
+        s = state
+        comps = np.empty((m, *state.shape))
+        for j in range(m):
+            s = gain * w[j, :-1] + phi * s
+            comps[j] = s
+        for i in range(len(FLICKER_PHI)):
+            acc += comps[:, i]
+            new_state[i] = comps[-1, i]
+    else:
+        from scipy.signal import lfilter  # imported when first needed: it takes a second
+
+        for i, phi in enumerate(FLICKER_PHI):
+            comp, _ = lfilter(
+                [FLICKER_GAIN[i]], [1.0, -phi], w[:, i], axis=0, zi=(phi * state[i])[None]
+            )
+            acc += comp
+            new_state[i] = comp[-1]
     walks = walk + np.cumsum(math.sqrt(FLICKER_GRID_S) * w[:, -1], axis=0)
     return acc, walks, new_state, walks[-1]
 

@@ -33,15 +33,25 @@ import itertools
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pywt
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import ArrayLike, NDArray
-from scipy.ndimage import median_filter
 
 from northfinder.host.errors import DenoiseError, HostConfigError, InputError, check_choice
+
+if TYPE_CHECKING:
+    import pywt
+
+
+def _pywt() -> Any:
+    """PyWavelets, imported when a wavelet method first runs (it and scipy take a second to
+    import; a command that does not denoise with wavelets does not pay for it)."""
+    import pywt
+
+    return pywt
+
 
 __all__ = [
     "EXTENSIONS",
@@ -70,7 +80,11 @@ THRESHOLD_MODES: Mapping[str, str] = {
     "003": "reconstruction: sign(w) (|w| - lambda (1 - u) ** beta), u = 1 - exp(-mu (|w| - lambda)**2)",
 }
 #: Wavelet signal-extension modes accepted (PyWavelets names).
-EXTENSIONS: tuple[str, ...] = tuple(pywt.Modes.modes)
+EXTENSIONS: tuple[str, ...] = (
+    "zero", "constant", "symmetric", "periodic", "smooth", "periodization", "reflect",
+    "antisymmetric", "antireflect",
+)  # fmt: skip
+"""PyWavelets' signal extension modes (``pywt.Modes.modes``; a test keeps them the same)."""
 #: Edge handling of :func:`moving_average`.
 MOVING_AVERAGE_EDGES: Mapping[str, str] = {
     "shrink": "same length; windows are truncated (and re-normalised) at the ends",
@@ -108,17 +122,17 @@ def _positive_int(value: int, name: str, minimum: int = 1) -> int:
 
 
 def _wavelet(name: str) -> pywt.Wavelet:
-    if name not in pywt.wavelist(kind="discrete"):
+    if name not in _pywt().wavelist(kind="discrete"):
         raise HostConfigError(
             f"wavelet: unknown discrete wavelet {name!r}; see pywt.wavelist(kind='discrete') "
             "(e.g. 'db4', 'db6', 'sym4')"
         )
-    return pywt.Wavelet(name)
+    return _pywt().Wavelet(name)
 
 
 def _check_level(n: int, wavelet: pywt.Wavelet, level: int) -> int:
     level = _positive_int(level, "level")
-    max_level = pywt.dwt_max_level(n, wavelet.dec_len)
+    max_level = _pywt().dwt_max_level(n, wavelet.dec_len)
     if level > max_level:
         raise DenoiseError(
             f"level {level} is too deep for {n} samples with {wavelet.name} "
@@ -273,13 +287,13 @@ def wavelet_denoise(
     n = arr.shape[ax]
     wav = _wavelet(wavelet)
     level = _check_level(n, wav, level)
-    coeffs = pywt.wavedec(arr, wav, mode=extension, level=level, axis=ax)
+    coeffs = _pywt().wavedec(arr, wav, mode=extension, level=level, axis=ax)
     if value is None:
         lam = universal_threshold(mad_sigma(coeffs[-1], axis=ax), n)
     else:
         lam = np.asarray(value, dtype=float)
     out = [coeffs[0]] + [threshold(d, lam, mode, alpha=alpha, beta=beta, mu=mu) for d in coeffs[1:]]
-    return _trim(pywt.waverec(out, wav, mode=extension, axis=ax), n, ax)
+    return _trim(_pywt().waverec(out, wav, mode=extension, axis=ax), n, ax)
 
 
 def forced_denoise(
@@ -324,7 +338,7 @@ def forced_denoise(
     n = arr.shape[ax]
     wav = _wavelet(wavelet)
     level = _check_level(n, wav, level)
-    coeffs = pywt.wavedec(arr, wav, mode=extension, level=level, axis=ax)
+    coeffs = _pywt().wavedec(arr, wav, mode=extension, level=level, axis=ax)
     approx = coeffs[0]
     if median_window is not None and median_window != 1:
         window = _positive_int(median_window, "median_window")
@@ -337,9 +351,11 @@ def forced_denoise(
             )
         size = [1] * approx.ndim
         size[ax] = window
+        from scipy.ndimage import median_filter
+
         approx = median_filter(approx, size=size, mode="nearest")
     out = [approx] + [np.zeros_like(d) for d in coeffs[1:]]
-    return _trim(pywt.waverec(out, wav, mode=extension, axis=ax), n, ax)
+    return _trim(_pywt().waverec(out, wav, mode=extension, axis=ax), n, ax)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -605,7 +621,7 @@ def _wavelet_003(
     if level is None:
         # The source used 8 levels on long records; a 10 s window at 200 Hz allows 7 with db6.
         n = np.shape(x)[axis] if np.ndim(x) else 0
-        level = max(1, min(8, pywt.dwt_max_level(n, _wavelet(wavelet).dec_len)))
+        level = max(1, min(8, _pywt().dwt_max_level(n, _wavelet(wavelet).dec_len)))
     return wavelet_denoise(
         x, "003", axis=axis, wavelet=wavelet, level=level, beta=beta, mu=mu, **options
     )

@@ -12,6 +12,9 @@ those inside functions), so that a wrong import fails here before it spreads.
 from __future__ import annotations
 
 import ast
+import importlib
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -239,3 +242,39 @@ def strongly_connected(graph: dict[str, set[str]]) -> list[list[str]]:
 def test_the_cycle_finder_finds_cycles(graph, cyclic):
     found = sorted(sorted(c) for c in strongly_connected(graph) if len(c) > 1)
     assert found == cyclic
+
+
+HEAVY = ("scipy", "pywt", "matplotlib", "cantools", "allantools", "threadpoolctl", "hypothesis")
+
+
+def _modules_after(code: str) -> set[str]:
+    """The top-level packages imported by running ``code`` in a fresh interpreter."""
+    done = subprocess.run(
+        [sys.executable, "-c", f"{code}\nimport sys; print(' '.join(sys.modules))"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode in (0, 2), done.stderr
+    return {name.split(".")[0] for name in done.stdout.split()}
+
+
+def test_the_cli_imports_heavy_modules_only_where_a_command_needs_them():
+    run = "from northfinder.host.cli import main\ntry:\n    main({})\nexcept SystemExit: pass"
+    help_only = _modules_after(run.format("['--help']"))
+    assert not help_only & {*HEAVY, "can", "serial", "numpy"}
+    find_sim = _modules_after(
+        run.format("['find', '--sim', '--seed', '1', '--warmup', '1', '--window', '0.5', '--json']")
+    )
+    assert not find_sim & set(HEAVY)  # the quick start needs no scipy, PyWavelets, plotting
+    assert {"numpy", "can"} <= find_sim
+
+
+def test_the_command_list_summaries_are_the_commands_own():
+    import argparse
+
+    from northfinder.host import cli
+
+    for name, module_name in cli.COMMANDS.items():
+        parser = argparse.ArgumentParser()
+        sub = parser.add_subparsers()
+        importlib.import_module(module_name).add_parser(sub)
+        assert sub._choices_actions[0].help == cli.SUMMARIES[name], name

@@ -324,3 +324,11 @@ def test_registry_errors_name_the_choices() -> None:
         denoise(np.ones(100), "moving-average")
     with pytest.raises(HostConfigError, match="bad options"):
         denoise(np.ones(100), "five-point", alpha=0.1)
+
+
+def test_the_extension_modes_are_pywavelets_own():
+    import pywt
+
+    from northfinder.host.denoise import EXTENSIONS
+
+    assert tuple(pywt.Modes.modes) == EXTENSIONS

@@ -701,3 +701,25 @@ def test_the_instrument_and_the_batch_refuse_the_same_sample_rates():
             make(5)
         make(10.0)
         make(2000.0)
+
+
+def test_short_runs_of_the_slow_noise_recursion_equal_lfilter_to_the_bit():
+    """The instrument filters its few look-ahead steps without scipy; the batch generator's long
+    runs use lfilter: both must give the same numbers."""
+    import northfinder.firmware_sim.error_terms as terms
+
+    rng = np.random.default_rng(1)
+    k = len(terms.FLICKER_PHI)
+    for shape in [(6,), (3, 6)]:
+        for m in (1, 2, terms._SHORT_RUN):
+            w = rng.standard_normal((m, k + 1, *shape))
+            state, walk = rng.standard_normal((k, *shape)), rng.standard_normal(shape)
+            short = terms.slow_noise_steps(w, state, walk)
+            saved = terms._SHORT_RUN
+            terms._SHORT_RUN = 0
+            try:
+                long = terms.slow_noise_steps(w, state, walk)
+            finally:
+                terms._SHORT_RUN = saved
+            for a, b in zip(short, long, strict=True):
+                np.testing.assert_array_equal(a, b)
