@@ -347,6 +347,6 @@ class VirtualClock:
     def _detach(self, party: object, exc: BaseException) -> None:
         self.errors.append((party, exc))
         if party in self._sources:
-            self._sources.remove(party)  # type: ignore[arg-type]
+            self._sources.remove(party)
         if party in self._pollers:
-            self._pollers.remove(party)  # type: ignore[arg-type]
+            self._pollers.remove(party)

@@ -27,7 +27,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.firmware import NS_PER_S, Firmware, Outgoing
@@ -89,8 +89,8 @@ class VirtualTime(Protocol):
 
     def now(self) -> float: ...
     def notify(self) -> None: ...
-    def add_source(self, source: object) -> None: ...
-    def remove_source(self, source: object) -> None: ...
+    def add_source(self, source: Any) -> None: ...
+    def remove_source(self, source: Any) -> None: ...
 
 
 class RealTimeClock:

@@ -170,6 +170,17 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
     return handle
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """``NORTHFINDER_REALTIME=separate`` leaves out the ``realtime`` tests (``.ci/run`` runs them in
+    a step of their own, ``-m realtime``); without it every test runs."""
+    if os.environ.get("NORTHFINDER_REALTIME") != "separate" or config.getoption("-m"):
+        return
+    keep = [item for item in items if item.get_closest_marker("realtime") is None]
+    if len(keep) != len(items):
+        config.hook.pytest_deselected(items=[i for i in items if i not in keep])
+        items[:] = keep
+
+
 def link_params(links: tuple[str, ...] = LINKS) -> list[Any]:
     """Fixture parameters for ``links``: the processes on ptys and vcan0 marked ``realtime``."""
     return [

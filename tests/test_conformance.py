@@ -29,7 +29,7 @@ import can
 import pytest
 from simprocess import sim_process
 
-from northfinder.driver.clock import WallClock
+from northfinder.driver.clock import VirtualClock, WallClock
 from northfinder.driver.conformance import (
     CHECKS,
     CanRawLink,
@@ -172,6 +172,7 @@ def outcomes(report) -> dict[str, str]:
 def test_suite_passes_on_virtual_can_in_virtual_time_with_the_strict_margins():
     with virtual_unit() as (bus, sim):
         options = SuiteOptions(stream_seconds=3.0)  # the CLI's margins: exact timing, no retry
+        assert isinstance(sim.clock, VirtualClock)
         report = run_suite(CanRawLink(bus, node_id=1), options, clock=sim.clock)
         text = format_report(report)
         assert report.passed, text
@@ -188,6 +189,7 @@ def test_suite_passes_on_virtual_can_in_virtual_time_with_the_strict_margins():
 
 def test_the_retry_of_timing_checks_is_a_list_the_suite_accepts():
     again = timing_retry({"heartbeat.jitter", "timing.reply"})
+    assert again is not None
     assert again == [c.name for c in CHECKS if c.name in set(again)]
     assert {"heartbeat.jitter", "timing.reply", "command.get_config"} <= set(again)
     assert [c.name for c in select_checks(tuple(again))] == again

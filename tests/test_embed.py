@@ -134,6 +134,7 @@ def test_pausing_a_virtual_simulator_is_a_silent_device_to_the_host():
     ) as sim:
         with sim.open_device() as dev:
             dev.wait_ready()
+            assert sim.control is not None
             status = sim.control.call("status")
             assert status["clock"] == "virtual" and status["speed"] is None
             with pytest.raises(ControlError, match="virtual time"):

@@ -167,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_simulated(args: argparse.Namespace, options: SuiteOptions) -> int:
     """The suite against the simulated instrument on virtual CAN in this process, in virtual time."""
+    from northfinder.driver.clock import VirtualClock
     from northfinder.firmware_sim.imu import Truth
     from northfinder.host.embed import SimulatedInstrument
 
@@ -174,6 +175,7 @@ def _run_simulated(args: argparse.Namespace, options: SuiteOptions) -> int:
         args.sensor, Truth(), seed=args.seed, clock="virtual", warmup_s=0.0, node_id=args.node_id
     )
     with sim, sim.open_bus() as bus:
+        assert isinstance(sim.clock, VirtualClock)
         link = CanRawLink(bus, args.node_id)
         print(format_header(link.kind, options), flush=True)
         report = run_suite(
