@@ -1,6 +1,8 @@
-"""Speed of an accelerated ``northfinder find --sim`` of a 160 s plan, end to end.
+"""Speed of ``northfinder find --sim`` of a 160 s plan, end to end, and of the quick start.
 
-Run: ``.venv/bin/python benchmarks/bench_find.py [--repeats 5] [--speed 100] [--mode both]``.
+Run: ``.venv/bin/python benchmarks/bench_find.py [--repeats 5] [--speed S] [--mode both]``.
+Without ``--speed`` the simulator runs in virtual time (the default of ``find --sim``); with it,
+paced at S x real time.
 
 The plan: positions 0,180 with two 59.95 s windows; the paper-rlg table turns 180 deg in 30.1 s
 (6 deg/s, 60 deg/s^2) and settles 10 s, so the plan time (BENCHMARKS.md convention: windows +
@@ -12,6 +14,10 @@ Simulated time is read from the device's own clock: the recording (``--record``)
 sample's counter, and the last sample's end (``counter / 200 Hz``) is the instrument time from
 boot to the end of the plan. The ratio is that over the wall time; the conservative ratio counts
 only the 160 s plan as simulated.
+
+The quick start (``northfinder find --sim``, default plan: 120 s warm-up, 0 and 180 deg, 10 s
+windows) is timed as a command too (``--quickstart N`` repeats, 0 for none), with its simulated
+time from ``--record``.
 
 Modes: ``subprocess`` runs the venv's ``northfinder find --sim ... --json --record FILE`` as a
 new process and times it from start to exit (interpreter start and imports included, as a user
@@ -38,7 +44,7 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-TARGET_RATIO = 30.0
+TARGET_RATIO = 150.0
 POSITIONS = "0,180"
 WINDOW_S = 59.95
 WARMUP_S = 120.0
@@ -64,15 +70,38 @@ def bound_deg(sensor: str, window_s: float, latitude_deg: float = 34.0) -> float
     )
 
 
-def argv(seed: int, speed: float, window_s: float, sensor: str, record: str) -> list[str]:
+def argv(seed: int, speed: float | None, window_s: float, sensor: str, record: str) -> list[str]:
+    pace = [] if speed is None else ["--speed", f"{speed:g}"]
     return [
-        *("find", "--sim", "--speed", f"{speed:g}", "--sensor", sensor, "--seed", str(seed)),
+        *("find", "--sim", *pace, "--sensor", sensor, "--seed", str(seed)),
         *("--positions", POSITIONS, "--window", f"{window_s:g}", "--warmup", f"{WARMUP_S:g}"),
         *("--json", "--record", record),
     ]
 
 
-def run_once(mode: str, seed: int, speed: float, window_s: float, sensor: str) -> dict[str, Any]:
+def quickstart_once(seed: int) -> tuple[float, float]:
+    """Wall and simulated seconds of ``northfinder find --sim`` as the quick start runs it (plus
+    ``--seed`` and ``--record``, to read the simulated time)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        record = os.path.join(tmp, "run.npz")
+        t0 = time.perf_counter()
+        done = subprocess.run(
+            [str(ROOT / ".venv/bin/northfinder"), "find", "--sim", "--seed", str(seed),
+             "--record", record],
+            capture_output=True, text=True, cwd=ROOT,
+        )  # fmt: skip
+        wall = time.perf_counter() - t0
+        if done.returncode != 0:
+            raise SystemExit(f"northfinder find failed: {done.stderr.strip()}")
+        with np.load(record) as rec:
+            rate = float(json.loads(str(rec["meta_json"]))["sample_rate_hz"])
+            sim = float(rec["time_s"][-1]) + 1.0 / rate
+    return wall, sim
+
+
+def run_once(
+    mode: str, seed: int, speed: float | None, window_s: float, sensor: str
+) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         record = os.path.join(tmp, "run.npz")
         args = argv(seed, speed, window_s, sensor, record)
@@ -125,7 +154,8 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--speed", type=float, default=100.0)
+    ap.add_argument("--speed", type=float, default=None, help="paced (default: virtual time)")
+    ap.add_argument("--quickstart", type=int, default=5, help="quick-start repeats (0: none)")
     ap.add_argument("--window", type=float, default=WINDOW_S)
     ap.add_argument("--sensor", default="paper-rlg")
     ap.add_argument("--mode", choices=("subprocess", "inprocess", "both"), default="both")
@@ -143,7 +173,8 @@ def main() -> None:
     print(
         f"plan: {args.sensor}, positions {POSITIONS}, 2 x {args.window:g} s windows, 180 deg move + "
         f"settle {move_s:.1f} s: plan time {plan_s:.1f} s; plus {WARMUP_S:g} s warm-up and the "
-        f"first settle, simulated; --speed {args.speed:g}\n"
+        f"first settle, simulated; "
+        f"{'virtual time' if args.speed is None else f'--speed {args.speed:g}'}\n"
     )
     print(
         "| mode | seed | wall s | simulated s | first window at s | plan measured s | "
@@ -177,6 +208,19 @@ def main() -> None:
             f" deg, largest |error| {np.max(np.abs(errors)):.4f} deg, mean sigma "
             f"{np.mean([r['sigma_deg'] for r in rs]):.4f} deg; white-noise bound "
             f"{bound_deg(args.sensor, args.window):.4f} deg"
+        )
+    if args.quickstart:
+        print("\nquick start: northfinder find --sim (default plan), as a command")
+        runs = [quickstart_once(seed) for seed in range(1, args.quickstart + 1)]
+        for i, (wall, sim) in enumerate(runs, 1):
+            print(
+                f"  seed {i}: wall {wall:.2f} s, simulated {sim:.1f} s, {sim / wall:.1f} x real time"
+            )
+        wall = statistics.median(w for w, _ in runs)
+        sim = statistics.median(s for _, s in runs)
+        print(
+            f"quick start: median wall {wall:.2f} s for {sim:.1f} s simulated: "
+            f"{sim / wall:.1f} x real time"
         )
 
 

@@ -199,6 +199,7 @@ class VirtualClock:
     def add_source(self, source: Source) -> None:
         with self._cv:
             self._sources.append(source)
+            self._dirty = True
             self._cv.notify_all()
 
     def remove_source(self, source: Source) -> None:
@@ -211,6 +212,7 @@ class VirtualClock:
         """Call ``poll()`` at every instant (it receives without blocking; True if it got any)."""
         with self._cv:
             self._pollers.append(poll)
+            self._dirty = True
             self._cv.notify_all()
 
     def remove_poller(self, poll: Callable[[], bool]) -> None:
@@ -310,9 +312,10 @@ class VirtualClock:
         """Let the sources act and then the pollers receive at the present; True if any did.
 
         One round is enough: what the pollers receive gives the sources nothing to do (a host
-        that sends in reply does so from its own code, and notifies).
+        that sends in reply does so from its own code, and notifies). The pollers run when a
+        source sent or took something, or a party notified: otherwise nothing can have arrived.
         """
-        self._dirty = False
+        dirty, self._dirty = self._dirty, False
         done = False
         t = self._ns / NS_PER_S
         for source in list(self._sources):
@@ -320,6 +323,8 @@ class VirtualClock:
                 done |= bool(source.run_until(t))
             except BaseException as exc:
                 self._detach(source, exc)
+        if not (done or dirty):
+            return False
         for poll in list(self._pollers):
             try:
                 done |= bool(poll())
