@@ -14,19 +14,34 @@ be called from any thread (python-can buses and pyserial ports allow one reader 
 
 from __future__ import annotations
 
+import errno
 import socket
 import threading
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import can
 import serial
+
+try:  # python-can's SocketCAN backend: importable on Linux only
+    from can.interfaces.socketcan.socketcan import SocketcanBus, capture_message
+except ImportError:  # pragma: no cover - not Linux
+    SocketcanBus = None  # type: ignore[assignment,misc]
+    capture_message = None  # type: ignore[assignment]
 
 from northfinder.driver.errors import LinkError, LinkLost, ProtocolError
 from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
 from northfinder.driver.protocol.messages import Command, Identify, Reply, Sample, Status
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
 
-__all__ = ["CanTransport", "Received", "SerialTransport", "Transport", "open_serial_port"]
+__all__ = [
+    "CanTransport",
+    "Received",
+    "SerialTransport",
+    "Transport",
+    "frame_drain",
+    "open_serial_port",
+]
 
 Received = Reply | Status | Identify | Sample | TickLoss
 """What a transport delivers."""
@@ -77,6 +92,40 @@ def enlarge_receive_buffer(bus: can.BusABC, size: int = SOCKET_RCVBUF) -> int | 
     return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
 
 
+def frame_drain(bus: can.BusABC) -> Callable[[], can.Message | None]:
+    """A function that returns the next frame already received on ``bus``, or None, at once.
+
+    On python-can's SocketCAN bus it reads the kernel socket directly (non-blocking, with
+    python-can's own frame parser): one system call a frame, where ``bus.recv(0)`` makes three
+    (a clock read, ``select`` and ``recvmsg``). Where system calls are dear (a virtual machine,
+    user-mode Linux: 60 to 100 us each) this halves a reader's cost per frame. Every other bus,
+    and a SocketCAN bus with filters set in python-can, gets ``bus.recv(0.0)``.
+
+    The socket is switched to non-blocking mode, which python-can's own ``recv`` and ``send``
+    allow (both wait with ``select`` before they read or write).
+    """
+    sock = getattr(bus, "socket", None)
+    if SocketcanBus is None or not isinstance(bus, SocketcanBus) or bus.filters:
+        return lambda: bus.recv(0.0)
+    if not isinstance(sock, socket.socket):
+        return lambda: bus.recv(0.0)
+    sock.setblocking(False)
+    channel = bus.channel
+
+    def next_frame() -> can.Message | None:
+        try:
+            msg = capture_message(sock)
+        except can.CanOperationError as exc:
+            if exc.error_code in (errno.EAGAIN, errno.EWOULDBLOCK):
+                return None
+            raise
+        if msg is not None and not msg.channel:
+            msg.channel = channel
+        return msg
+
+    return next_frame
+
+
 class CanTransport:
     """The protocol on a python-can bus, for one node.
 
@@ -98,6 +147,7 @@ class CanTransport:
         self.own_bus = own_bus
         self.receiver = CanReceiver(node_id=node_id)
         self.rcvbuf = enlarge_receive_buffer(bus)
+        self._next_frame = frame_drain(bus)
         self._send_lock = threading.Lock()
         self._rx_lock = threading.RLock()
         self._closed = False
@@ -135,7 +185,7 @@ class CanTransport:
                 frames.append(msg)
                 if len(frames) >= MAX_FRAMES_PER_RECV:
                     break
-                msg = self.bus.recv(0.0)
+                msg = self._next_frame()
         except (can.CanError, OSError, ValueError, serial.SerialException) as exc:
             raise LinkLost(f"cannot receive from the CAN bus {self._name()}: {exc}") from exc
         out: list[Any] = []
