@@ -115,8 +115,8 @@ def sim(request: pytest.FixtureRequest) -> Iterator[SimHandle]:
     speed = SPEEDS.get(kind, SPEED)
     if kind == "socketcan" and not os.path.exists(f"/sys/class/net/{VCAN}"):
         pytest.skip(
-            f"no {VCAN}: this kernel has no SocketCAN/vcan (scripts/hil runs these tests in a VM "
-            "whose kernel has it: its step 'driver')"
+            f"no {VCAN}: this kernel has no SocketCAN/vcan (`scripts/hil --steps driver` runs "
+            "these tests in a VM whose kernel has it)"
         )
     if kind == "virtual":
         handle = _start_in_process(speed)
