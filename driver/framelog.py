@@ -9,7 +9,9 @@ simulator's links take as ``tap``. It may be called from several threads at once
 
 Frames keep their own timestamp when they have one (a bus's receive time); frames without one
 (``timestamp == 0``, as a sender builds them) are stamped with the wall clock when logged. A
-frame the host or device sent is logged with ``is_rx=False`` (``Tx`` in ASC and BLF).
+frame the host or device sent is logged with ``is_rx=False`` (``Tx`` in ASC and BLF). Every
+frame is logged on one channel: ``channel`` (default ``can0`` for candump, whose lines name an
+interface; the writer's own default, channel 1, for the formats that number channels).
 
 A write that fails (disk full, say) does not stop the link: the first error is kept in
 :attr:`FrameLog.error`, later frames are counted in :attr:`FrameLog.lost`, and :meth:`close`
@@ -77,12 +79,16 @@ class FrameLog:
     ----------
     path : str or Path
         The log file (created or replaced).
+    channel : str or int, optional
+        The channel of every logged frame (see the module docstring).
     **options
         Passed to python-can's writer (for example ``channel=`` of the ASC writer).
 
     Attributes
     ----------
     path : Path
+    channel : str, int or None
+        The channel every frame is logged on.
     frames : int
         Frames written.
     lost : int
@@ -98,9 +104,12 @@ class FrameLog:
         The file cannot be created, or the format's library is missing (``.mf4``).
     """
 
-    def __init__(self, path: str | Path, **options: Any) -> None:
+    def __init__(
+        self, path: str | Path, *, channel: str | int | None = None, **options: Any
+    ) -> None:
         self.path = Path(path)
-        log_suffix(self.path)
+        suffix = log_suffix(self.path)
+        self.channel = "can0" if channel is None and suffix == ".log" else channel
         try:
             self._writer = can.Logger(str(self.path), **options)
         except (OSError, ValueError, ImportError) as exc:
@@ -113,8 +122,21 @@ class FrameLog:
 
     def __call__(self, msg: can.Message) -> None:
         """Log one frame (thread-safe; after :meth:`close` frames are counted as lost)."""
-        if msg.timestamp == 0.0:
-            msg.timestamp = time.time()
+        msg = can.Message(
+            timestamp=msg.timestamp or time.time(),
+            arbitration_id=msg.arbitration_id,
+            is_extended_id=msg.is_extended_id,
+            is_remote_frame=msg.is_remote_frame,
+            is_error_frame=msg.is_error_frame,
+            channel=self.channel,
+            dlc=msg.dlc,
+            data=msg.data,
+            is_fd=msg.is_fd,
+            is_rx=msg.is_rx,
+            bitrate_switch=msg.bitrate_switch,
+            error_state_indicator=msg.error_state_indicator,
+            check=False,
+        )
         with self._lock:
             if self._closed or self.error is not None:
                 self.lost += 1

@@ -59,6 +59,7 @@ __all__ = [
     "LINKS",
     "RELAXED_DEVICE_OPTIONS",
     "SimulatedInstrument",
+    "Truth",
 ]
 
 LINKS = ("virtual", "serial-pty", "slcan-pty")
