@@ -164,8 +164,7 @@ def _pick_node(path: Path) -> int:
         raise RecordingError(f"{path}: no frame of the north finder protocol in this CAN log")
     if len(nodes) > 1:
         raise RecordingError(
-            f"{path}: frames of nodes {', '.join(map(str, sorted(nodes)))}; "
-            "choose one (--node-id)"
+            f"{path}: frames of nodes {', '.join(map(str, sorted(nodes)))}; choose one (--node-id)"
         )
     return next(iter(nodes))
 
@@ -301,4 +300,3 @@ def read_can_log(
     return CanLogSession(
         str(p), node, rate, tuple(windows), identity, tuple(commands), tuple(notes), frames, t0
     )
-

@@ -91,7 +91,9 @@ def hdt_sentence(fix: HeadingFix) -> str:
 
 def nfdh_sentence(fix: HeadingFix) -> str:
     """``$PNFDH,heading,sigma,status,pitch,roll,positions*hh``."""
-    sigma = "" if fix.sigma_deg is None or not math.isfinite(fix.sigma_deg) else f"{fix.sigma_deg:.4f}"
+    sigma = (
+        "" if fix.sigma_deg is None or not math.isfinite(fix.sigma_deg) else f"{fix.sigma_deg:.4f}"
+    )
     heading = f"{fix.azimuth_deg % 360.0:.4f}" if fix.valid else ""
     status = "A" if fix.valid else "V"
     return sentence(

@@ -28,7 +28,7 @@ from simprocess import sim_process
 
 from northfinder.driver.framelog import FrameLog, log_suffix
 from northfinder.driver.protocol.can import decode_can
-from northfinder.driver.protocol.messages import RotateTo
+from northfinder.driver.protocol.messages import RotateTo, SampleX
 from northfinder.host.canlog import is_can_log, read_can_log
 from northfinder.host.cli import main
 from northfinder.host.nmea import HeadingFix, hdt_sentence, nfdh_sentence
@@ -93,7 +93,7 @@ def test_a_logged_find_solves_again_to_the_same_heading(logged_runs, suffix, val
 
 
 def test_a_log_without_window_takes_every_sample_at_the_position(logged_runs):
-    path, found = logged_runs[".blf"]
+    path, _ = logged_runs[".blf"]
     session = read_can_log(path)
     # find stops the stream after its window: a few more samples arrived at each position.
     assert all(len(w.counter) >= 400 for w in session.windows)
@@ -135,7 +135,9 @@ def test_the_embedded_simulator_logs_what_it_sends_and_receives(tmp_path):
     from northfinder.host.procedure import Plan, find_north
 
     log = tmp_path / "sim.asc"
-    with SimulatedInstrument("ideal", Truth(azimuth_deg=10.0), speed=200, warmup_s=0, log=log) as sim:
+    with SimulatedInstrument(
+        "ideal", Truth(azimuth_deg=10.0), speed=200, warmup_s=0, log=log
+    ) as sim:
         with sim.open_device(**RELAXED_DEVICE_OPTIONS) as dev:
             result, _ = find_north(dev, Plan((0.0, 180.0), 1.0), 34.0)
     assert result.azimuth_deg == pytest.approx(10.0, abs=1e-5)
@@ -144,7 +146,9 @@ def test_the_embedded_simulator_logs_what_it_sends_and_receives(tmp_path):
     tx = [m for m in frames if not m.is_rx]
     rx = [m for m in frames if m.is_rx]
     assert {m.arbitration_id for m in rx} == {0x041}  # the simulator receives commands only
-    assert {0x051, 0x101, 0x111, 0x121, 0x131, 0x201, 0x211, 0x301} <= {m.arbitration_id for m in tx}
+    assert {0x051, 0x101, 0x111, 0x121, 0x131, 0x201, 0x211, 0x301} <= {
+        m.arbitration_id for m in tx
+    }
     session = read_can_log(log, window_s=1.0)
     assert [len(w.counter) for w in session.windows] == [200, 200]
 
@@ -205,11 +209,13 @@ def test_cantools_decodes_a_candump_log_as_the_readme_says(logged_runs):
 def test_cantools_decode_message_agrees_with_the_codec(logged_runs):
     path, _ = logged_runs[".log"]
     db = cantools.database.load_file(str(DBC), strict=True)
+    assert isinstance(db, cantools.database.can.Database)
     rotations = []
     with can.LogReader(str(path)) as reader:
         for msg in reader:
             data = bytes(msg.data)
             _, ours = decode_can(msg.arbitration_id, data)
+            decoded: Any
             if len(data) == 8:
                 decoded = db.decode_message(msg.arbitration_id, data)
             else:
@@ -219,7 +225,7 @@ def test_cantools_decode_message_agrees_with_the_codec(logged_runs):
             if isinstance(ours, RotateTo):
                 assert decoded["RotateToAngle"] == pytest.approx(ours.angle * 1e-6, abs=1e-9)
                 rotations.append(decoded["RotateToAngle"])
-            if msg.arbitration_id == 0x101:
+            if isinstance(ours, SampleX):
                 assert decoded["GyroX"] == pytest.approx(ours.gyro * 1e-4, abs=1e-9)
     assert rotations == pytest.approx([0.0, 180.0])
 
@@ -417,7 +423,7 @@ def test_simctl_help_lists_every_operation_and_its_keys():
 
 
 # -- the pytest plugin, as a user uses it -----------------------------------------------------
-USER_TEST = '''
+USER_TEST = """
 import pytest
 from northfinder.host.procedure import Plan, find_north
 
@@ -439,7 +445,7 @@ def test_a_pty_for_another_process(northfinder_sim):
 def test_faults_through_the_control_channel(northfinder_sim, northfinder_device):
     northfinder_sim.control.call("drop", count=3)
     assert northfinder_device.status().state.name == "READY"
-'''
+"""
 
 
 @pytest.mark.subprocess
@@ -480,4 +486,6 @@ def test_the_c_host_example_reaches_the_simulator_on_a_pty(tmp_path):
     # z the vertical one (NOTES.md 2), to the wire's resolution.
     omega_dph = 7.292115e-5 * 180 / np.pi * 3600
     lat = np.radians(34.0)
-    assert values == pytest.approx([omega_dph * np.cos(lat), 0.0, omega_dph * np.sin(lat)], abs=2e-6)
+    assert values == pytest.approx(
+        [omega_dph * np.cos(lat), 0.0, omega_dph * np.sin(lat)], abs=2e-6
+    )

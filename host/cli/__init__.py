@@ -12,6 +12,7 @@ import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from northfinder.driver.errors import DriverError
 from northfinder.firmware_sim.errors import SimError
@@ -49,7 +50,7 @@ def _log_level(text: str) -> str:
 def add_global_options(parser: argparse.ArgumentParser, *, sub: bool = False) -> None:
     """``--debug``, ``-v`` and ``--log-level``, before or after the subcommand. On a
     subcommand their defaults are left out, so that an option given before it stays."""
-    default = {"default": argparse.SUPPRESS} if sub else {}
+    default: dict[str, Any] = {"default": argparse.SUPPRESS} if sub else {}
     g = parser.add_argument_group("output") if sub else parser
     g.add_argument(
         "--debug", action="store_true", help="show tracebacks on errors", **default
@@ -86,9 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="northfinder", description="Workbench for gyro north finders."
     )
-    parser.add_argument(
-        "--version", action="version", version=f"northfinder {package_version()}"
-    )
+    parser.add_argument("--version", action="version", version=f"northfinder {package_version()}")
     add_global_options(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module_name in COMMANDS.values():

@@ -203,7 +203,9 @@ class ProgressBar:
             )  # fmt: skip
         bar = self._bar
         angle = "---" if p.table_deg is None else f"{p.table_deg:.3f}"
-        bar.set_description_str(f"{p.phase:<8} position {p.position}/{p.positions} table {angle} deg")
+        bar.set_description_str(
+            f"{p.phase:<8} position {p.position}/{p.positions} table {angle} deg"
+        )
         if p.seconds_left is not None and math.isfinite(p.seconds_left):
             if bar.total is None:
                 bar.total = max(p.seconds_left, 1e-9)
