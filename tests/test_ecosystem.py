@@ -123,6 +123,34 @@ def test_a_log_with_lost_frames_reports_the_gap(logged_runs, tmp_path):
     assert "missing" in err and "window 1" in err
 
 
+def test_python_can_player_replays_a_log_onto_a_bus(logged_runs, monkeypatch):
+    """``python -m can.player`` (README): the replayed frames rebuild the same samples."""
+    import uuid
+
+    import can.player
+
+    from northfinder.driver.protocol.can import CanReceiver
+    from northfinder.driver.protocol.messages import Sample
+
+    path, _ = logged_runs[".asc"]
+    channel = f"replay-{uuid.uuid4().hex}"
+    with can.Bus(interface="virtual", channel=channel) as host:
+        argv = ["can.player", "-i", "virtual", "-c", channel, "--ignore-timestamps", str(path)]
+        monkeypatch.setattr(sys, "argv", argv)
+        can.player.main()
+        receiver = CanReceiver(node_id=1)
+        replayed = []
+        while (msg := host.recv(0.5)) is not None:
+            replayed += [
+                m
+                for m in receiver.feed(msg.arbitration_id, bytes(msg.data))
+                if isinstance(m, Sample)
+            ]
+    logged = [s for w in read_can_log(path).windows for s in w.counter]
+    assert len(replayed) >= len(logged) > 800
+    assert [s.counter for s in replayed][-len(logged[-10:]) :] == [int(c) for c in logged[-10:]]
+
+
 def test_the_log_name_must_name_a_format(tmp_path):
     with pytest.raises(SystemExit) as exc:
         run_cli("find", *FAST, "--can-log", str(tmp_path / "run.xyz"))

@@ -111,7 +111,7 @@ def plot(
     fig, axes = plt.subplots(
         3, 1, figsize=(10, 8.5), gridspec_kw={"height_ratios": [1, 1, 1.1]}, constrained_layout=True
     )
-    sub = "\n".join(textwrap.wrap(_subtitle(result, truth), 120))
+    sub = "\n".join(textwrap.wrap(_subtitle(result, truth), 135))
     fig.suptitle(_title(result, truth) + "\n" + sub, fontsize=10.5)
     t0 = min(float(np.asarray(w.time_s)[0]) for w in windows) if windows else 0.0
     colours = plt.get_cmap("tab10")
