@@ -17,6 +17,7 @@ from __future__ import annotations
 import errno
 import socket
 import threading
+import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
@@ -137,12 +138,23 @@ class CanTransport:
         The device's node id (1..15); frames of other nodes are counted and ignored.
     own_bus : bool
         Shut the bus down on :meth:`close` (True when the driver opened it).
+    tap : callable, optional
+        Called with every frame sent and received, in that order
+        (a :class:`~northfinder.driver.framelog.FrameLog` writes them to a CAN log).
     """
 
     kind = "can"
 
-    def __init__(self, bus: can.BusABC, node_id: int = 1, *, own_bus: bool = False) -> None:
+    def __init__(
+        self,
+        bus: can.BusABC,
+        node_id: int = 1,
+        *,
+        own_bus: bool = False,
+        tap: Callable[[can.Message], None] | None = None,
+    ) -> None:
         self.bus = bus
+        self.tap = tap
         self.node_id = node_id
         self.own_bus = own_bus
         self.receiver = CanReceiver(node_id=node_id)
@@ -166,6 +178,14 @@ class CanTransport:
         )
         try:
             with self._send_lock:
+                if self.tap is not None:
+                    # Logged before it goes out, so that no answer can precede it in the log.
+                    self.tap(
+                        can.Message(
+                            arbitration_id=frame.arbitration_id, data=frame.data,
+                            is_extended_id=False, is_rx=False, timestamp=time.time(),
+                        )
+                    )  # fmt: skip
                 self.bus.send(msg, timeout=0.1)
         except (can.CanError, OSError, ValueError) as exc:
             raise LinkLost(f"cannot send on the CAN bus {self._name()}: {exc}") from exc
@@ -189,6 +209,9 @@ class CanTransport:
         except (can.CanError, OSError, ValueError, serial.SerialException) as exc:
             raise LinkLost(f"cannot receive from the CAN bus {self._name()}: {exc}") from exc
         out: list[Any] = []
+        if self.tap is not None:
+            for msg in frames:
+                self.tap(msg)
         with self._rx_lock:
             for msg in frames:
                 if not (msg.is_error_frame or msg.is_remote_frame):
@@ -269,12 +292,26 @@ class SerialTransport:
         An opened port; its ``timeout`` is set on every :meth:`recv`.
     own_port : bool
         Close the port on :meth:`close`.
+    tap : callable, optional
+        Called with every message sent and received as the CAN frames that carry it on the
+        CAN link (protocol.md 2.1, node ``tap_node_id``), so a serial session logs as a CAN one.
+    tap_node_id : int
+        The node id of those frames (default 1).
     """
 
     kind = "serial"
 
-    def __init__(self, port: serial.SerialBase, *, own_port: bool = True) -> None:
+    def __init__(
+        self,
+        port: serial.SerialBase,
+        *,
+        own_port: bool = True,
+        tap: Callable[[can.Message], None] | None = None,
+        tap_node_id: int = 1,
+    ) -> None:
         self.port = port
+        self.tap = tap
+        self.tap_node_id = tap_node_id
         self.own_port = own_port
         self.deframer = Deframer()
         self.encoder = SerialEncoder()
@@ -296,10 +333,26 @@ class SerialTransport:
         """
         try:
             with self._send_lock:
+                if self.tap is not None:
+                    self._tap(command, is_rx=False)  # before it goes out: no answer precedes it
                 self.port.write(self.encoder.encode(command))
                 self.port.flush()
         except (serial.SerialException, OSError) as exc:
             raise LinkLost(f"cannot write to the serial port {self.port.name}: {exc}") from exc
+
+    def _tap(self, message: Any, *, is_rx: bool) -> None:
+        assert self.tap is not None
+        now = time.time()
+        for frame in encode_can(message, self.tap_node_id):
+            self.tap(
+                can.Message(
+                    arbitration_id=frame.arbitration_id,
+                    data=frame.data,
+                    is_extended_id=False,
+                    is_rx=is_rx,
+                    timestamp=now,
+                )
+            )
 
     def recv(self, timeout: float) -> list[Received]:
         """Wait up to ``timeout`` s for bytes; return the messages and tick losses they complete.
@@ -333,6 +386,8 @@ class SerialTransport:
                 self.deframer.malformed += 1
                 self.deframer.last_error = exc
                 continue
+            if self.tap is not None:
+                self._tap(message, is_rx=True)
             if isinstance(message, Sample):
                 out += self._check_counter(message.counter)
                 self.samples += 1

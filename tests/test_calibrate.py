@@ -312,7 +312,7 @@ def test_a_new_recording_format_plugs_into_the_reader_table(tmp_path, monkeypatc
     cal = calibrate([run])
     # White noise of sigma 1 deg/h per sample at 10 Hz: N = 1 / sqrt(10) deg/h sqrt(s).
     assert cal.fits["gyro_x"].coefficients["arw"] == pytest.approx(1 / math.sqrt(10), rel=0.05)
-    with pytest.raises(RecordingError, match=r"no reader for '.bin'; readable: .csv, .fake, .npz"):
+    with pytest.raises(RecordingError, match=r"no reader for '.bin'; readable: .asc, .blf, .csv, .db, .fake, .gz, .log, .mf4, .npz, .trc"):
         read_runs([tmp_path / "b.bin"])
 
 

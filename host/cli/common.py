@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 
 from northfinder.driver.protocol.constants import (
     NODE_ID_DEFAULT,
@@ -126,3 +127,26 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
     g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
     g.add_argument("--seed", type=int, default=None, help="random seed (default: fresh each run)")
+
+
+def add_solver_argument(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, choices: Sequence[str]
+) -> None:
+    """``--solver`` as ``find``, ``record``, ``solve`` and ``study`` spell it (``--method``, the
+    old spelling of ``find`` and ``solve``, is kept as a hidden alias)."""
+    parser.add_argument(
+        "--solver", choices=list(choices), default="auto", help="heading solver (default auto)"
+    )
+    parser.add_argument("--method", dest="solver", choices=list(choices), help=argparse.SUPPRESS)
+
+
+def can_log_path(text: str) -> str:
+    """argparse type: a CAN log file name whose ending names one of python-can's formats."""
+    from northfinder.driver.errors import ArgumentError
+    from northfinder.driver.framelog import log_suffix
+
+    try:
+        log_suffix(text)
+    except ArgumentError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text

@@ -29,17 +29,19 @@ from northfinder.firmware_sim.sensors import SensorSpec, load_spec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.cli.common import (
     add_sensor_argument,
+    add_solver_argument,
     angle_list,
     finite_float,
     positive_float,
 )
-from northfinder.host.cli.simulated import SimulatedWindows, error_model
+from northfinder.host.cli.simulated import SimulatedWindows, error_model, simulator_identity
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows, verify_plan
 from northfinder.host.plan import PLANS, SOLVERS, Plan, plan_time_s, settle_time_s
 from northfinder.host.planner import PlanCandidate, search_plans, shortest_plan
+from northfinder.host.results import envelope
 
 
 def _non_negative_float(text: str) -> float:
@@ -144,7 +146,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     g.add_argument(
         "--denoise-accel", action="store_true", help="denoise the accelerometer windows too"
     )
-    g.add_argument("--solver", choices=list(SOLVERS), default="auto", help="heading solver")
+    add_solver_argument(g, list(SOLVERS))
     g.add_argument("--tilt", choices=list(TILT_SOURCES), default="accel", help="tilt source")
     g.add_argument(
         "--angles", choices=list(ANGLE_SOURCES), default="encoder", help="table angles used"
@@ -288,7 +290,11 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         "tilt": args.tilt,
         "angles": args.angles,
     }
-    report: dict[str, Any] = {"sensor": spec.name, "latitude_deg": args.latitude}
+    report: dict[str, Any] = {
+        "kind": "plan-search",
+        "sensor": spec.name,
+        "latitude_deg": args.latitude,
+    }
     best_plan: Plan | None = None
     if args.plan_budget is not None:
         cands = search_plans(model, args.latitude, args.plan_budget, **common)
@@ -318,7 +324,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
             "wall_time_s": time.perf_counter() - t0,
         }
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json.dumps(envelope("study", simulator_identity(spec.name), report), indent=2))
         return 0
     what = (
         f"plan time <= {args.plan_budget:g} s"
@@ -418,6 +424,7 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     rows = study_rows(model, plan, settings, errors)
     report: dict[str, Any] = {
+        "kind": "monte-carlo",
         "sensor": spec.name,
         "latitude_deg": args.latitude,
         "plan": _plan_json(plan, model, args.warmup),
@@ -443,7 +450,7 @@ def run(args: argparse.Namespace) -> int:
         )
         report["plot"] = args.plot
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json.dumps(envelope("study", simulator_identity(spec.name), report), indent=2))
         return 0
     p = report["plan"]
     print(
