@@ -247,6 +247,11 @@ def _grid_windows(pos: NDArray[np.float64]) -> tuple[_GridWindow, ...]:
 
 
 @functools.lru_cache(maxsize=8)
+def _error_terms(spec: SensorSpec) -> ErrorTerms:
+    return ErrorTerms.from_spec(spec)
+
+
+@functools.lru_cache(maxsize=8)
 def _timeline(
     spec: SensorSpec,
     positions_deg: tuple[float, ...],
@@ -411,7 +416,7 @@ def simulate_windows(
     pc = starts.size
     commanded = np.mod(pos_deg, 360.0)
     tab, d = spec.table, spec.disturbance
-    terms = ErrorTerms.from_spec(spec)
+    terms = _error_terms(spec)
     az, lat, pitch, roll = _truth_arrays(truth, n_runs)
     turn_on, white, slow, impulses, table_rng, moves_rng = rng.spawn(6)
 

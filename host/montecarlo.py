@@ -19,26 +19,27 @@ function of the plan and the sample rate only, so that a chunk's arrays fit in a
 cache), and chunk ``k`` draws from its own generator, seeded with child ``k`` of
 ``numpy.random.SeedSequence(seed)`` (``SeedSequence(seed).spawn(...)[k]``). A chunk is
 therefore the same wherever and whenever it runs: results for a seed are identical whether
-the chunks run one after the other in this process, on a pool of local worker processes
-(:func:`local_executor`) or on a cluster (any :class:`concurrent.futures.Executor`, such as a
-Dask client's), and the first runs of a longer study are those of a shorter one. They depend
-on the generator, the plan, the settings and :data:`CHUNK_SAMPLES`.
+the chunks run one after the other, on a pool of local threads (:func:`local_executor`) or on
+a cluster (any :class:`concurrent.futures.Executor`, such as a Dask client's, see
+:mod:`northfinder.host.distributed`), and the whole chunks of a shorter study are the first
+chunks of a longer one. They depend on the generator, the plan, the settings and
+:data:`CHUNK_SAMPLES`.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-import multiprocessing
 import os
-from collections.abc import Iterator
-from concurrent.futures import Executor, ProcessPoolExecutor
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, bound_deg, predict
 from northfinder.host.errors import HostConfigError, check_choice
@@ -49,6 +50,7 @@ __all__ = [
     "CHUNK_SAMPLES",
     "ChunkTask",
     "RunRequest",
+    "Study",
     "StudySettings",
     "WindowBatch",
     "WindowGenerator",
@@ -56,6 +58,7 @@ __all__ = [
     "chunk_tasks",
     "local_executor",
     "monte_carlo",
+    "monte_carlo_many",
     "run_chunk",
     "study_rows",
     "verify_plan",
@@ -225,6 +228,17 @@ def chunk_tasks(
     ]
 
 
+@functools.cache
+def _blas() -> ThreadpoolController:
+    return ThreadpoolController()  # looks up the loaded BLAS libraries once
+
+
+def _one_blas_thread() -> Any:
+    """A context in which BLAS runs on the calling thread alone (results then do not depend on
+    how many threads BLAS would use: large products split their sums differently)."""
+    return _blas().limit(limits=1, user_api="blas")
+
+
 def _channels(settings: StudySettings) -> tuple[int, ...]:
     """The channels the solvers read: gyro x and y, and accelerometer x and y unless level."""
     return (0, 1) if settings.tilt == "level" else (0, 1, 3, 4)
@@ -251,7 +265,7 @@ def run_chunk(task: ChunkTask) -> NDArray[np.float64]:
         _channels(settings),
     )
     # The products inside are small: BLAS threads would only contend with the other workers.
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _one_blas_thread():
         batch = task.generator(request, rng)
         angles = batch.table_deg if settings.angles == "encoder" else batch.commanded_deg
         return chunk_errors(
@@ -279,13 +293,13 @@ def monte_carlo(
     """Azimuth errors of ``runs`` seeded runs, deg: shape (runs,), or (runs, P - 1) pairwise.
 
     The runs are drawn and solved chunk by chunk (see the module doc): one after the other in
-    this process, or on ``executor``; the result is the same. A run without a solution (tilt
+    this thread, or on ``executor``; the result is the same. A run without a solution (tilt
     beyond the solvers' limit) has a NaN error.
 
     Parameters
     ----------
     generator : WindowGenerator
-        Where the samples come from (picklable, to run on an executor).
+        Where the samples come from (picklable, to run in other processes).
     plan : Plan
         Positions, window, settle, denoising and solver.
     settings : StudySettings
@@ -296,30 +310,49 @@ def monte_carlo(
     executor : concurrent.futures.Executor, optional
         Where the chunks run: :func:`local_executor`, a Dask client's executor, any other.
     """
-    tasks = chunk_tasks(generator, plan, settings, runs, seed)
-    if executor is None:
-        return np.concatenate([run_chunk(t) for t in tasks])
-    return np.concatenate(list(executor.map(run_chunk, tasks)))
+    return monte_carlo_many([(generator, plan, settings, runs, seed)], executor=executor)[0]
 
 
-def _worker_start() -> None:
-    # A worker runs one chunk at a time on one core.
-    threadpool_limits(limits=1, user_api="blas")
+#: One study of :func:`monte_carlo_many`: generator, plan, settings, runs, seed.
+Study = tuple[WindowGenerator, Plan, StudySettings, int, int]
+
+
+def monte_carlo_many(
+    studies: Sequence[Study], *, executor: Executor | None = None
+) -> list[NDArray[np.float64]]:
+    """:func:`monte_carlo` of several studies, their chunks all handed out at once.
+
+    A sweep keeps every worker busy to its end this way; each study's errors are those
+    :func:`monte_carlo` gives it alone.
+    """
+    tasks = [chunk_tasks(*study) for study in studies]
+    flat = [t for ts in tasks for t in ts]
+    # Small products inside: BLAS threads would only contend with the study's own workers (and
+    # make results depend on them).
+    with _one_blas_thread():
+        if executor is None:
+            done = [run_chunk(t) for t in flat]
+        else:
+            done = list(executor.map(run_chunk, flat))
+    out, k = [], 0
+    for ts in tasks:
+        out.append(np.concatenate(done[k : k + len(ts)]))
+        k += len(ts)
+    return out
 
 
 @contextmanager
 def local_executor(workers: int | None = None) -> Iterator[Executor]:
-    """A pool of ``workers`` worker processes on this machine (default: one per core).
+    """A pool of ``workers`` threads in this process (default: one per core).
 
-    Workers start from a fresh interpreter (``forkserver`` where the platform has it, else
-    ``spawn``), never by forking this one: a fork of a process with threads can deadlock.
+    Threads suffice: numpy draws its random numbers and does its array arithmetic without
+    holding the interpreter lock, so chunks run on all cores, with no worker start-up and
+    nothing to copy between processes.
     """
     count = (os.cpu_count() or 1) if workers is None else workers
     if isinstance(count, bool) or int(count) != count or count < 1:
         raise HostConfigError(f"workers: must be a positive integer, got {workers!r}")
-    methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    pool = ProcessPoolExecutor(int(count), mp_context=ctx, initializer=_worker_start)
+    pool = ThreadPoolExecutor(int(count), thread_name_prefix="northfinder-study")
     try:
         yield pool
     finally:
