@@ -159,9 +159,10 @@ def embedded_simulator(args: argparse.Namespace) -> Iterator[tuple[Device, dict[
 class ProgressLine:
     """One updating line on a terminal: phase, position, table angle, seconds left."""
 
-    def __init__(self, stream: Any = sys.stderr) -> None:
-        self.stream = stream
-        self.enabled = bool(getattr(stream, "isatty", lambda: False)())
+    def __init__(self, stream: Any = None) -> None:
+        # The stream of the moment (default stderr), not the one there was at import.
+        self.stream = sys.stderr if stream is None else stream
+        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
 
     def __call__(self, p: Progress) -> None:
         if not self.enabled:
