@@ -534,7 +534,7 @@ def simulate_windows(
             terms.impulse_amp,
         )
     if d.vibration_hz > 0 and terms.vibration_amp.any():
-        for ch in np.flatnonzero(terms.vibration_amp):
+        for ch in map(int, np.flatnonzero(terms.vibration_amp)):
             if ch in chans:
                 data[ch] += vibration(
                     t[None],
@@ -561,7 +561,7 @@ def simulate_windows(
     if lsb.any():
         # What the samples before each window left over.
         remainder = turn_on.uniform(-0.5, 0.5, (n_runs, pc, 6))
-        for ch in np.flatnonzero(lsb):
+        for ch in map(int, np.flatnonzero(lsb)):
             if ch in chans:
                 counts, _ = quantise_carry(data[ch] / lsb[ch], remainder[:, :, ch])
                 data[ch] = counts * lsb[ch]

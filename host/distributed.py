@@ -92,7 +92,7 @@ def dask_executor(address: str, *, timeout_s: float = 10.0) -> Iterator[Executor
                 threads_per_worker=1,
                 processes=True,
                 host="127.0.0.1",
-                dashboard_address=None,
+                dashboard_address="127.0.0.1:0",
                 silence_logs=logging.ERROR,
             )
             client = Client(cluster, timeout=timeout_s)

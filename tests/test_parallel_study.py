@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -56,9 +57,9 @@ def serial(generator):
 # ----------------------------------------------------------------------------------------------
 
 
-def test_chunks_are_fixed_by_the_plan_not_by_the_workers():
+def test_chunks_are_fixed_by_the_plan_not_by_the_workers(generator):
     assert chunk_runs(PLAN, SETTINGS) == 65
-    assert [t.runs for t in chunk_tasks(None, PLAN, SETTINGS, RUNS, 5)] == [65, 65, 20]
+    assert [t.runs for t in chunk_tasks(generator, PLAN, SETTINGS, RUNS, 5)] == [65, 65, 20]
     assert chunk_runs(Plan((0.0, 180.0), 1000.0), SETTINGS) == 1  # at least one run
 
 
@@ -107,6 +108,7 @@ def test_many_studies_give_what_each_gives_alone(generator, serial):
 
 
 def test_bad_runs_seeds_and_workers_are_refused(generator):
+    runs: Any
     for runs in (1, 2.5, True):
         with pytest.raises(HostConfigError, match="runs"):
             monte_carlo(generator, PLAN, SETTINGS, runs, 0)
@@ -130,7 +132,7 @@ def test_a_local_dask_cluster_gives_the_results_of_one_process(generator, serial
             processes=False,
             protocol="tcp://",  # real messages (pickled chunks), on the loopback interface
             host="127.0.0.1",
-            dashboard_address=None,
+            dashboard_address="127.0.0.1:0",
         ) as cluster,
         distributed.Client(cluster) as client,
     ):
@@ -267,12 +269,13 @@ def test_the_joint_flicker_draw_has_the_law_of_the_steps(m):
     d = sum(size - 1 + k for size in pieces)  # draws: m - 1 + K a piece
     draws = _BasisDraws(d)
     f, walks, s, walk = et.slow_noise_window(
-        draws, np.zeros((k, d)), np.zeros(d), m, with_walk=False
+        cast(np.random.Generator, draws), np.zeros((k, d)), np.zeros(d), m, with_walk=False
     )
     assert draws.used == d and (d < m * k or m == 1)
     noise = np.vstack([f, s])  # (m + K, d): the response to every draw
     assert_allclose(noise @ noise.T, cov, rtol=0, atol=1e-12 * cov.max())
-    f0, _, s0, _ = et.slow_noise_window(_ZeroDraws(), np.eye(k), np.zeros(k), m, with_walk=False)
+    zeros = cast(np.random.Generator, _ZeroDraws())
+    f0, _, s0, _ = et.slow_noise_window(zeros, np.eye(k), np.zeros(k), m, with_walk=False)
     assert_allclose(np.vstack([f0, s0]), mean, rtol=0, atol=1e-13)
     assert np.all(walks == 0) and np.all(walk == 0)
 
@@ -316,6 +319,7 @@ def test_channels_left_out_are_nan_and_the_others_keep_their_noise():
     )
     assert_array_equal(some.gyro_rps[..., 1], every.gyro_rps[..., 1])
     assert_array_equal(some.accel_mps2[..., 2], every.accel_mps2[..., 2])
+    bad: Any
     for bad in ([], [6], [-1], ["x"], [1.5]):
         with pytest.raises(SimConfigError, match="channels"):
             simulate_windows(

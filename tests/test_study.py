@@ -28,7 +28,7 @@ from northfinder.host.heading import (
 )
 from northfinder.host.kernels import solve_least_squares_batch, solve_two_position_batch
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
-from northfinder.host.plan import PAPER_SWEEP, Plan, TableModel, plan_time_s, window_starts_s
+from northfinder.host.plan import Plan, TableModel, plan_time_s, window_starts_s
 from northfinder.host.planner import search_plans, shortest_plan
 from northfinder.host.study import summarize
 
@@ -281,6 +281,7 @@ def test_paper_rlg_study_follows_the_prediction():
 # ----------------------------------------------------------------------------------------------
 # The engine: results for a seed, excessive tilt, picklable pieces
 # ----------------------------------------------------------------------------------------------
+
 
 def _tilted_runs(pitches):
     """Window means of noise-free runs, one per pitch, at table angles 0, 90, 180, 270 deg."""

@@ -15,6 +15,10 @@ counted; the total time including it is reported too).
 
 A run whose tilt, as the accelerometers measure it, exceeds the solvers' limit (15 deg) has no
 solution; such runs are counted in ``rejected`` and left out of the statistics, never clipped.
+
+The runs use every core (``--workers N`` threads) or a Dask cluster (``--dask tcp://HOST:PORT``
+or ``--dask local:N``); the results for a seed are the same wherever they run. ``northfinder
+sweep`` runs many studies at once.
 """
 
 from __future__ import annotations
