@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "simctl": "northfinder.host.cli.simctl",
     "conformance": "northfinder.host.cli.conformance",
     "study": "northfinder.host.cli.study",
+    "sweep": "northfinder.host.cli.sweep",
     "solve": "northfinder.host.cli.solve",
     "find": "northfinder.host.cli.find",
     "record": "northfinder.host.cli.record",

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
-from collections.abc import Sequence
+import os
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor
 
 from northfinder.driver.protocol.constants import (
     NODE_ID_DEFAULT,
@@ -150,3 +153,64 @@ def can_log_path(text: str) -> str:
     except ArgumentError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
+    return value
+
+
+def _dask_address(text: str) -> str:
+    from northfinder.host.distributed import parse_dask_address
+    from northfinder.host.errors import HostConfigError
+
+    try:
+        parse_dask_address(text)
+    except HostConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("dask: ")) from None
+    return text
+
+
+def add_execution_arguments(parser: argparse.ArgumentParser) -> None:
+    """Where a Monte Carlo study runs: threads on this machine, or a Dask cluster."""
+    g = parser.add_argument_group("execution (results for a seed are the same everywhere)")
+    x = g.add_mutually_exclusive_group()
+    x.add_argument(
+        "--workers",
+        type=_workers,
+        default=None,
+        metavar="N",
+        help="threads on this machine (default: one per core)",
+    )
+    x.add_argument(
+        "--dask",
+        type=_dask_address,
+        default=None,
+        metavar="ADDRESS",
+        help="run on the Dask cluster whose scheduler is at tcp://HOST:PORT, or on local:N "
+        "(a local cluster of N worker processes); needs the dask extra",
+    )
+
+
+@contextlib.contextmanager
+def study_executor(args: argparse.Namespace) -> Iterator[Executor | None]:
+    """The executor of :func:`add_execution_arguments`' choice (None: run in this thread)."""
+    from northfinder.host.montecarlo import local_executor
+
+    if args.dask is not None:
+        from northfinder.host.distributed import dask_executor
+
+        with dask_executor(args.dask) as ex:
+            yield ex
+        return
+    workers = args.workers or os.cpu_count() or 1
+    if workers == 1:
+        yield None
+        return
+    with local_executor(workers) as ex:
+        yield ex

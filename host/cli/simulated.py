@@ -74,6 +74,7 @@ class SimulatedWindows:
             sample_rate_hz=request.sample_rate_hz,
             warmup_s=request.warmup_s,
             bias_step_dph=request.bias_step_dph,
+            channels=request.channels,
         )
 
 
