@@ -211,13 +211,13 @@ def main() -> None:
         )
     if args.quickstart:
         print("\nquick start: northfinder find --sim (default plan), as a command")
-        runs = [quickstart_once(seed) for seed in range(1, args.quickstart + 1)]
-        for i, (wall, sim) in enumerate(runs, 1):
+        quick = [quickstart_once(seed) for seed in range(1, args.quickstart + 1)]
+        for i, (wall, sim) in enumerate(quick, 1):
             print(
                 f"  seed {i}: wall {wall:.2f} s, simulated {sim:.1f} s, {sim / wall:.1f} x real time"
             )
-        wall = statistics.median(w for w, _ in runs)
-        sim = statistics.median(s for _, s in runs)
+        wall = statistics.median(w for w, _ in quick)
+        sim = statistics.median(s for _, s in quick)
         print(
             f"quick start: median wall {wall:.2f} s for {sim:.1f} s simulated: "
             f"{sim / wall:.1f} x real time"

@@ -339,7 +339,13 @@ class Device:
     # -- constructors -------------------------------------------------------------------------
     @classmethod
     def from_bus(
-        cls, bus: can.BusABC, node_id: int = 1, *, own_bus: bool = False, **options: Any
+        cls,
+        bus: can.BusABC,
+        node_id: int = 1,
+        *,
+        own_bus: bool = False,
+        tap: Callable[[can.Message], None] | None = None,
+        **options: Any,
     ) -> Device:
         """A device on an opened python-can bus.
 
@@ -349,10 +355,14 @@ class Device:
             The bus; shut down by :meth:`close` only with ``own_bus=True``.
         node_id : int
             The device's CAN node id, 1..15.
+        tap : callable, optional
+            Called with every frame sent and received (a
+            :class:`~northfinder.driver.framelog.FrameLog` writes them to a CAN log; the caller
+            closes it).
         **options
             ``reply_timeout``, ``retries``, ``min_supervision_s``, ``clock`` (see :class:`Device`).
         """
-        return cls(CanTransport(bus, node_id, own_bus=own_bus), **options)
+        return cls(CanTransport(bus, node_id, own_bus=own_bus, tap=tap), **options)
 
     @classmethod
     def open_can(
@@ -366,6 +376,7 @@ class Device:
         retries: int = RETRIES,
         min_supervision_s: float = 0.0,
         clock: Clock | None = None,
+        tap: Callable[[can.Message], None] | None = None,
         **bus_options: Any,
     ) -> Device:
         """Open a python-can bus and the device on it; :meth:`close` shuts the bus down.
@@ -390,6 +401,7 @@ class Device:
             bus,
             node_id,
             own_bus=True,
+            tap=tap,
             reply_timeout=reply_timeout,
             retries=retries,
             min_supervision_s=min_supervision_s,
@@ -406,10 +418,15 @@ class Device:
         retries: int = RETRIES,
         min_supervision_s: float = 0.0,
         clock: Clock | None = None,
+        tap: Callable[[can.Message], None] | None = None,
         **port_options: Any,
     ) -> Device:
         """Open a serial port (a path such as ``/dev/ttyUSB0`` or ``/dev/pts/3``, or a pyserial
         URL such as ``rfc2217://host:port``) and the device on it; :meth:`close` closes the port.
+
+        ``tap`` is called with every message sent and received, as the CAN frames that carry it
+        (see :class:`~northfinder.driver.transport.SerialTransport`), so a serial session logs
+        to a CAN log like a CAN one.
 
         Raises
         ------
@@ -418,7 +435,7 @@ class Device:
         """
         port = open_serial_port(port_or_url, baudrate, **port_options)
         return cls(
-            SerialTransport(port),
+            SerialTransport(port, tap=tap),
             reply_timeout=reply_timeout,
             retries=retries,
             min_supervision_s=min_supervision_s,

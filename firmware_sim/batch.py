@@ -34,12 +34,15 @@ linearised (its amplitude at a window start is far below any other term).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg.blas import daxpy
 
 from northfinder.driver.protocol.motion import move_time_s, shortest_delta_deg
 from northfinder.driver.protocol.units import DPH, normal_gravity
@@ -58,7 +61,7 @@ from northfinder.firmware_sim.error_terms import (
     quantise_carry,
     random_directions,
     slow_noise_jump,
-    slow_noise_steps,
+    slow_noise_window,
     temperature_c,
     vibration,
 )
@@ -67,7 +70,7 @@ from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec, TableSpec
 from northfinder.firmware_sim.turntable import Turntable
 
-__all__ = ["BatchWindows", "plan_timeline", "simulate_windows"]
+__all__ = ["ALL_CHANNELS", "BatchWindows", "plan_timeline", "simulate_windows"]
 
 #: Gyro and accelerometer error matrices of every run, each (runs, 3, 3).
 _Matrices = tuple[NDArray[np.float64], NDArray[np.float64]]
@@ -183,63 +186,163 @@ def _truth_arrays(truth: Truth | Sequence[Truth], n_runs: int) -> tuple[NDArray[
     )
 
 
-def _slow_noise(
+@dataclass(frozen=True, eq=False)
+class _GridWindow:
+    """Where one window's samples lie on the slow-noise grid.
+
+    ``g0`` and ``g1`` are the first and last grid points the window needs (its coarse values
+    run over ``g0..g1``); ``blocks`` cover the window's samples in pieces of at most
+    :data:`_BLOCK`, each ``(s0, s1, j0, j1, weights)``: samples ``s0:s1`` are
+    ``coarse[j0:j1] @ weights`` (linear interpolation between the grid points around each).
+    """
+
+    g0: int
+    g1: int
+    blocks: tuple[tuple[int, int, int, int, NDArray[np.float64]], ...]
+
+
+@dataclass(frozen=True, eq=False)
+class _Timeline:
+    """Everything about a plan's samples that is the same for every run (cached per plan)."""
+
+    starts: NDArray[np.int64]
+    n: int
+    move_end: NDArray[np.float64]
+    delta: NDArray[np.float64]
+    t: NDArray[np.float64]  # (P, n) sample end times, s
+    drift: NDArray[np.float64] | None  # (6, P, n) warm-up, temperature and ramp terms, SI
+    ringing: NDArray[np.bool_]  # (P,) window rings after a stop
+    ring_dmu: NDArray[np.float64]  # (P, n) mean angle offset per sample, rad
+    ring_rate: NDArray[np.float64]  # (P, n) mean table rate per sample, rad/s
+    ring_offset_deg: NDArray[np.float64]  # (P,) mean angle offset of each window, deg
+    grid: tuple[_GridWindow, ...]
+
+
+#: Samples per product of the slow terms: a block touches about ``_BLOCK / (fs * grid) + 2``
+#: grid points, so the product costs that many multiply-adds per sample instead of the window's.
+_BLOCK = 200
+
+
+def _grid_windows(pos: NDArray[np.float64]) -> tuple[_GridWindow, ...]:
+    out = []
+    for p in range(pos.shape[0]):
+        g0 = math.floor(pos[p, 0])
+        g1 = math.floor(pos[p, -1]) + 1
+        size = g1 - g0 + 1
+        x = pos[p] - g0
+        j = np.minimum(np.floor(x).astype(np.int64), size - 2)
+        f = x - j
+        blocks = []
+        for s0 in range(0, x.size, _BLOCK):
+            s1 = min(x.size, s0 + _BLOCK)
+            j0, j1 = int(j[s0]), int(j[s1 - 1]) + 2
+            w = np.zeros((j1 - j0, s1 - s0))
+            cols = np.arange(s1 - s0)
+            w[j[s0:s1] - j0, cols] = 1.0 - f[s0:s1]
+            w[j[s0:s1] - j0 + 1, cols] = f[s0:s1]
+            w.flags.writeable = False
+            blocks.append((s0, s1, j0, j1, w))
+        out.append(_GridWindow(g0, g1, tuple(blocks)))
+    return tuple(out)
+
+
+@functools.lru_cache(maxsize=8)
+def _error_terms(spec: SensorSpec) -> ErrorTerms:
+    return ErrorTerms.from_spec(spec)
+
+
+@functools.lru_cache(maxsize=8)
+def _timeline(
+    spec: SensorSpec,
+    positions_deg: tuple[float, ...],
+    window_s: float,
+    settle_s: float | None,
+    warmup_s: float,
+    fs: float,
+) -> _Timeline:
+    starts, n, move_end, delta = plan_timeline(
+        spec, positions_deg, window_s, settle_s, warmup_s=warmup_s, sample_rate_hz=fs
+    )
+    terms = ErrorTerms.from_spec(spec)
+    # Sample times: sample k covers ((k)/fs, (k+1)/fs].
+    k = starts[:, None] + np.arange(n)[None, :]
+    t = (k + 1) / fs  # (P, n)
+    det = np.zeros((starts.size, n, 6))
+    if terms.warmup_bias.any():
+        det += terms.warmup(t)
+    if terms.temp_coeff.any():
+        det += terms.thermal(temperature_c(spec.thermal, t), spec.thermal)
+    if terms.ramp.any():
+        det += terms.ramp_bias(t)
+    drift = np.ascontiguousarray(np.moveaxis(det, -1, 0)) if det.any() else None
+    ringing, dmu, rate, offset = _ring_down(spec.table, move_end, delta, starts, n, fs)
+    grid = _grid_windows((t - 0.5 / fs) / FLICKER_GRID_S)
+    for a in (starts, move_end, delta, t, drift, ringing, dmu, rate, offset):
+        if a is not None:
+            a.flags.writeable = False
+    return _Timeline(starts, n, move_end, delta, t, drift, ringing, dmu, rate, offset, grid)
+
+
+def _slow_grid(
     rng: np.random.Generator,
-    pos: NDArray[np.float64],
+    grid: Sequence[_GridWindow],
     n_runs: int,
     flicker_b: NDArray[np.float64],
     walk_k: NDArray[np.float64],
-    out: NDArray[np.float64],
-) -> None:
-    """Add flicker plus random walk at fractional grid positions ``pos`` (P, n) to ``out``."""
-    chans = np.flatnonzero(flicker_b + walk_k)
-    p_count, n = pos.shape
-    if chans.size == 0:
-        return
-    nc = chans.size
+) -> list[NDArray[np.float64]]:
+    """Flicker plus random walk at the grid points of every window: per window (nc, runs, m).
+
+    ``flicker_b`` and ``walk_k`` are those of the nc channels that have slow noise.
+    """
+    nc = flicker_b.size
+    with_walk = bool(walk_k.any())
+    k = FLICKER_TAUS_S.size
     # Flicker components and walk at grid point ``last``; the walk has run since t = 0.
-    last = math.floor(pos[0, 0])
-    state = rng.standard_normal((FLICKER_TAUS_S.size, n_runs, nc))
-    walk = math.sqrt(FLICKER_GRID_S * last) * rng.standard_normal((n_runs, nc))
+    last = grid[0].g0
+    state = rng.standard_normal((k, n_runs, nc))
+    walk = np.zeros((n_runs, nc))
+    if with_walk:
+        walk = math.sqrt(FLICKER_GRID_S * last) * rng.standard_normal((n_runs, nc))
     prev = np.empty((0, n_runs, nc))  # coarse values of the previous window, (m, runs, nc)
-    for p in range(p_count):
-        g0 = math.floor(pos[p, 0])
-        g1 = math.floor(pos[p, -1]) + 1
+    out = []
+    for win in grid:
         # Jump exactly from the last grid point of the previous window to this window's.
-        first = max(g0, last)
+        first = max(win.g0, last)
         if first > last:
-            state, walk = slow_noise_jump(rng, state, walk, first - last)
+            state, walk = slow_noise_jump(rng, state, walk, first - last, with_walk=with_walk)
         flick = state.sum(axis=0)[None]
         walks = walk[None]
-        if g1 > first:
-            w = rng.standard_normal((g1 - first, FLICKER_TAUS_S.size + 1, n_runs, nc))
-            more, more_walks, state, walk = slow_noise_steps(w, state, walk)
+        if win.g1 > first:
+            more, more_walks, state, walk = slow_noise_window(
+                rng, state, walk, win.g1 - first, with_walk=with_walk
+            )
             flick = np.concatenate([flick, more])
             walks = np.concatenate([walks, more_walks])
-        last = g1
-        coarse = flick * (flicker_b[chans] * FLICKER_STD) + walks * walk_k[chans]  # (m, runs, nc)
-        if first > g0:  # this window begins one grid step before the previous one ended
+        last = win.g1
+        coarse = flick * (flicker_b * FLICKER_STD)  # (m, runs, nc)
+        if with_walk:
+            coarse += walks * walk_k
+        if first > win.g0:  # this window begins one grid step before the previous one ended
             coarse = np.concatenate([prev[-2:-1], coarse])
         prev = coarse
-        x = pos[p] - g0
-        j = np.minimum(np.floor(x).astype(np.int64), len(coarse) - 2)
-        f = x - j
-        if len(coarse) * n <= 4_000_000:
-            # Short windows: linear interpolation as a product with an (m, n) weight matrix.
-            weights = np.zeros((len(coarse), n))
-            cols = np.arange(n)
-            weights[j, cols] = 1.0 - f
-            weights[j + 1, cols] = f
-            c = np.ascontiguousarray(np.moveaxis(coarse, 0, -1))  # (runs, nc, m)
-            # One 2-D product: a stack of strided matrices would miss the fast BLAS path.
-            vals = (c.reshape(-1, c.shape[-1]) @ weights).reshape(n_runs, nc, n)
-        else:
-            c = np.ascontiguousarray(np.moveaxis(coarse, 0, -1))
-            vals = c[..., j] * (1.0 - f) + c[..., j + 1] * f
-        if chans.size == 6:
-            out[:, p] += vals
-        else:
-            out[:, p, chans] += vals
+        out.append(np.ascontiguousarray(np.moveaxis(coarse, (0, 2), (2, 0))))
+    return out
+
+
+#: Every channel: gyro x, y, z, accelerometer x, y, z.
+ALL_CHANNELS: tuple[int, ...] = (0, 1, 2, 3, 4, 5)
+
+
+def _check_channels(channels: Sequence[int] | None) -> tuple[int, ...]:
+    if channels is None:
+        return ALL_CHANNELS
+    try:
+        chans = tuple(sorted({operator.index(c) for c in channels}))
+    except TypeError:
+        raise SimConfigError(f"channels: expected channel numbers 0..5, got {channels!r}") from None
+    if not chans or chans[0] < 0 or chans[-1] > 5:
+        raise SimConfigError(f"channels: expected channel numbers 0..5, got {channels!r}")
+    return chans
 
 
 def simulate_windows(
@@ -254,6 +357,7 @@ def simulate_windows(
     sample_rate_hz: float = 200.0,
     warmup_s: float = 0.0,
     bias_step_dph: float = 0.0,
+    channels: Sequence[int] | None = None,
 ) -> BatchWindows:
     """Samples of every window of a plan for ``n_runs`` independent runs.
 
@@ -280,6 +384,10 @@ def simulate_windows(
     bias_step_dph : float
         Size of one permanent gyro bias step per run, deg/h, at a uniformly random time within
         the recorded span, in a random direction (as :meth:`Instrument.inject_bias_step`).
+    channels : sequence of int, optional
+        The channels to generate (0, 1, 2: gyro x, y, z; 3, 4, 5: accelerometer x, y, z);
+        default all. The others are NaN, so that nothing can use them unnoticed. Which channels
+        are generated changes the random draws (not their law).
 
     Returns
     -------
@@ -288,26 +396,29 @@ def simulate_windows(
     Raises
     ------
     SimConfigError
-        Bad plan, run count, rate or truths.
+        Bad plan, run count, rate, truths or channels.
     """
     if isinstance(n_runs, bool) or int(n_runs) != n_runs or int(n_runs) < 1:
         raise SimConfigError(f"n_runs: must be a positive integer, got {n_runs!r}")
     n_runs = int(n_runs)
-    fs = float(sample_rate_hz)
-    starts, n, move_end, delta = plan_timeline(
-        spec, positions_deg, window_s, settle_s, warmup_s=warmup_s, sample_rate_hz=fs
-    )
+    chans = _check_channels(channels)
+    fs = check_sample_rate(sample_rate_hz)
+    pos_deg = np.asarray(positions_deg, dtype=float)
+    if pos_deg.ndim != 1 or pos_deg.size < 1 or not np.all(np.isfinite(pos_deg)):
+        raise SimConfigError(f"positions_deg: expected finite table angles, got {positions_deg!r}")
+    window_s = _check_positive("window_s", window_s)
+    warmup_s = _check_positive("warmup_s", warmup_s, allow_zero=True)
+    if settle_s is not None:
+        settle_s = _check_positive("settle_s", settle_s, allow_zero=True)
+    tl = _timeline(spec, tuple(pos_deg.tolist()), window_s, settle_s, warmup_s, fs)
+    starts, n, delta, t = tl.starts, tl.n, tl.delta, tl.t
     bias_step_dph = _check_positive("bias_step_dph", bias_step_dph, allow_zero=True)
     pc = starts.size
-    commanded = np.mod(np.asarray(positions_deg, dtype=float), 360.0)
+    commanded = np.mod(pos_deg, 360.0)
     tab, d = spec.table, spec.disturbance
-    terms = ErrorTerms.from_spec(spec)
+    terms = _error_terms(spec)
     az, lat, pitch, roll = _truth_arrays(truth, n_runs)
     turn_on, white, slow, impulses, table_rng, moves_rng = rng.spawn(6)
-
-    # Sample times: sample k covers ((k)/fs, (k+1)/fs].
-    k = starts[:, None] + np.arange(n)[None, :]
-    t = (k + 1) / fs  # (P, n)
 
     # -- noise-free signal through the table and the sensor error matrices --------------------
     c_nb = mat_nb(alpha_from_azimuth(az), np.radians(pitch), np.radians(roll))  # (R, 3, 3)
@@ -323,7 +434,7 @@ def simulate_windows(
         last_stop = np.maximum.accumulate(np.where(moved, np.arange(pc), 0))
         idx_err = idx_err[:, last_stop]
     # Continuous angle: the commanded angle as reached the shorter way, plus the last stop's error.
-    angle = np.asarray(positions_deg, dtype=float)[0] + np.cumsum(delta)
+    angle = pos_deg[0] + np.cumsum(delta)
     true_angle = angle[None, :] + idx_err  # (R, P)
     mu = np.radians(true_angle)
     cm, sm = np.cos(mu), np.sin(mu)
@@ -347,26 +458,56 @@ def simulate_windows(
         )
     base = true + terms.turn_on(draws.z_bias)[:, None, :]  # (R, P, 6)
 
-    out = np.empty((n_runs, pc, 6, n))
+    # Channel-major memory: every (runs, positions, samples) block of one channel is contiguous.
+    data = np.empty((6, n_runs, pc, n))
+    for ch in set(ALL_CHANNELS) - set(chans):
+        data[ch] = np.nan
+    # -- the terms that are slow in time: one low-rank product per channel and window ---------
+    # Turn-on signal and bias (per run), drift of time (per sample), the post-stop ring-down
+    # (linearised in the angle: per run times per sample) and slow noise on its coarse grid.
+    ring_deriv, ring_rate = _ring_coefficients(true, mats, tl.ringing)
+    slow_chans = [ch for ch in chans if terms.flicker_b[ch] + terms.walk_k[ch]]
+    coarse = (
+        _slow_grid(slow, tl.grid, n_runs, terms.flicker_b[slow_chans], terms.walk_k[slow_chans])
+        if slow_chans
+        else []
+    )
+    ones = np.ones(max(n, n_runs))
+    for ch in chans:
+        for p in range(pc):
+            cols, rows = [base[:, p, ch]], [ones[:n]]
+            if tl.ringing[p]:
+                cols.append(ring_deriv[:, p, ch])
+                rows.append(tl.ring_dmu[p])
+                if ring_rate is not None and ch < 3:
+                    cols.append(ring_rate[:, ch])
+                    rows.append(tl.ring_rate[p])
+            if tl.drift is not None and tl.drift[ch, p].any():
+                cols.append(ones[:n_runs])
+                rows.append(tl.drift[ch, p])
+            a, b = np.stack(cols, axis=1), np.stack(rows)  # (R, k), (k, n)
+            dst = data[ch, :, p]  # (R, n)
+            if ch in slow_chans:
+                c = coarse[p][slow_chans.index(ch)]  # (R, m)
+                for s0, s1, j0, j1, w in tl.grid[p].blocks:
+                    np.matmul(
+                        np.concatenate([a, c[:, j0:j1]], axis=1),
+                        np.concatenate([b[:, s0:s1], w]),
+                        out=dst[:, s0:s1],
+                    )
+            else:
+                np.matmul(a, b, out=dst)
+    # -- white noise (ARW, VRW), channel by channel --------------------------------------------
     white_sigma = terms.white_sigma(fs)
-    if white_sigma.any():
-        # One draw for every channel keeps the array contiguous; silent channels get zero gain.
-        white.standard_normal(out.shape, out=out)
-        out *= white_sigma[None, None, :, None]
-        out += base[..., None]
-    else:
-        out[:] = base[..., None]
+    scratch = np.empty((n_runs, pc, n))
+    for ch in chans:
+        if white_sigma[ch]:
+            white.standard_normal(out=scratch)
+            # y += a x in one pass over memory.
+            daxpy(scratch.reshape(-1), data[ch].reshape(-1), a=white_sigma[ch])
+    del scratch
 
-    # -- deterministic terms of time: warm-up transient, temperature, ring-down ---------------
-    det = np.zeros((pc, 6, n))
-    if terms.warmup_bias.any():
-        det += np.moveaxis(terms.warmup(t), -1, 1)
-    if terms.temp_coeff.any():
-        det += np.moveaxis(terms.thermal(temperature_c(spec.thermal, t), spec.thermal), -1, 1)
-    if terms.ramp.any():
-        det += np.moveaxis(terms.ramp_bias(t), -1, 1)
-    if det.any():
-        out += det[None]
+    # -- disturbances that moves start --------------------------------------------------------
     if terms.has_move_terms and moved.any():
         # Each move starts at the end of the window before it (plan_timeline).
         move_start = (starts[moved.nonzero()[0] - 1] + n) / fs
@@ -376,51 +517,60 @@ def simulate_windows(
         for p in range(pc):
             if done[p]:
                 m = done[p]
-                bias = move_bias(terms, t[p], move_start[:m], size[:m], z[:, :m])
-                out[:, p] += np.moveaxis(bias, -1, 1)
-    ring = np.zeros(pc)
-    if tab.overshoot_deg:
-        ring = _ring_down(out, tab, move_end, delta, starts, n, fs, true, mats)
+                bias = move_bias(terms, t[p], move_start[:m], size[:m], z[:, :m])  # (R, n, 6)
+                for ch in chans:
+                    data[ch, :, p] += bias[..., ch]
 
-    # -- slow noise, impulses, vibration, bias step -------------------------------------------
-    if terms.flicker_b.any() or terms.walk_k.any():
-        _slow_noise(
-            slow, (t - 0.5 / fs) / FLICKER_GRID_S, n_runs, terms.flicker_b, terms.walk_k, out
-        )
+    # -- impulses, vibration, bias step -------------------------------------------------------
     if d.impulse_rate_hz > 0 and terms.impulse_amp.any():
         _add_impulses(
-            out, impulses, t, fs, d.impulse_rate_hz, d.impulse_duration_s, terms.impulse_amp
+            data,
+            chans,
+            impulses,
+            t,
+            fs,
+            d.impulse_rate_hz,
+            d.impulse_duration_s,
+            terms.impulse_amp,
         )
     if d.vibration_hz > 0 and terms.vibration_amp.any():
-        for ch in np.flatnonzero(terms.vibration_amp):
-            out[:, :, ch, :] += vibration(
-                t[None], d.vibration_hz, terms.vibration_amp[ch], draws.vib_phase[:, ch, None, None]
-            )
+        for ch in map(int, np.flatnonzero(terms.vibration_amp)):
+            if ch in chans:
+                data[ch] += vibration(
+                    t[None],
+                    d.vibration_hz,
+                    terms.vibration_amp[ch],
+                    draws.vib_phase[:, ch, None, None],
+                )
     if bias_step_dph:
         t_step = impulses.uniform(t[0, 0] - 1.0 / fs, t[-1, -1], n_runs)
         v = impulses.standard_normal((n_runs, 3))
         v /= np.linalg.norm(v, axis=1, keepdims=True)
         # The step applies from the first sample whose interval starts after it.
         on = (t[None] - 1.0 / fs) >= t_step[:, None, None]  # (R, P, n)
-        out[:, :, :3, :] += (bias_step_dph * DPH * v)[:, None, :, None] * on[:, :, None, :]
+        for ch in chans:
+            if ch < 3:
+                data[ch] += (bias_step_dph * DPH * v[:, ch])[:, None, None] * on
 
     # -- range and quantisation ---------------------------------------------------------------
-    for chan, limit in zip(np.moveaxis(out, 2, 0), terms.range, strict=True):  # views of out
+    for ch in chans:
+        chan, limit = data[ch], terms.range[ch]
         if chan.max() > limit or chan.min() < -limit:
             np.clip(chan, -limit, limit, out=chan)
     lsb = terms.lsb
     if lsb.any():
         # What the samples before each window left over.
         remainder = turn_on.uniform(-0.5, 0.5, (n_runs, pc, 6))
-        for ch in np.flatnonzero(lsb):
-            counts, _ = quantise_carry(out[:, :, ch, :] / lsb[ch], remainder[:, :, ch])
-            out[:, :, ch, :] = counts * lsb[ch]
+        for ch in map(int, np.flatnonzero(lsb)):
+            if ch in chans:
+                counts, _ = quantise_carry(data[ch] / lsb[ch], remainder[:, :, ch])
+                data[ch] = counts * lsb[ch]
 
     res = tab.encoder_resolution_deg
-    enc = true_angle + ring[None, :]
+    enc = true_angle + tl.ring_offset_deg[None, :]
     if res > 0:
         enc = np.round(enc / res) * res
-    view = np.moveaxis(out, 2, 3)  # (R, P, n, 6), channel-minor view of channel-major memory
+    view = np.moveaxis(data, 0, -1)  # (R, P, n, 6), channel-minor view of channel-major memory
     plan_time = (starts[-1] + n - starts[0]) / fs
     return BatchWindows(
         gyro_rps=view[..., :3],
@@ -435,26 +585,29 @@ def simulate_windows(
 
 
 def _ring_down(
-    out: NDArray[np.float64],
     tab: TableSpec,
     move_end: NDArray[np.float64],
     delta: NDArray[np.float64],
     starts: NDArray[np.int64],
     n: int,
     fs: float,
-    true: NDArray[np.float64],
-    mats: _Matrices | None,
-) -> NDArray[np.float64]:
-    """Add the damped oscillation after each stop (linearised in the angle; exact on gyro z).
+) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The damped oscillation after each stop, the same for every run.
 
-    Returns the mean angle offset of each window, deg (what the encoder sees on average).
+    Returns, per window, whether it rings, the mean angle offset (rad) and the mean table rate
+    (rad/s) over each sample, and the mean angle offset of the window (deg: what the encoder
+    sees on average).
     """
-    mean_offset = np.zeros(len(starts))
+    pc = len(starts)
+    ringing = np.zeros(pc, dtype=bool)
+    dmu, rate, mean_offset = np.zeros((pc, n)), np.zeros((pc, n)), np.zeros(pc)
+    if not tab.overshoot_deg:
+        return ringing, dmu, rate, mean_offset
     # The turntable's own model of the stop (indexing error aside: it is added per run).
     quiet = dataclasses.replace(tab, indexing_error_deg=0.0)
     last = None  # (move start s, move, angle before the move)
     angle = 0.0
-    for p in range(len(starts)):
+    for p in range(pc):
         if math.isfinite(move_end[p]):
             last = ((starts[p - 1] + n) / fs, delta[p], angle)
         angle += delta[p]
@@ -466,29 +619,41 @@ def _ring_down(
         osc = table.state(edges)[0] - (last[2] + last[1])  # deg, at the sample edges
         if np.abs(osc).max() < 1e-15:
             continue
+        ringing[p] = True
         mean_offset[p] = osc[1:].mean()
-        rate = np.radians(np.diff(osc) * fs)  # mean table rate per sample, rad/s
-        dmu = np.radians(0.5 * (osc[:-1] + osc[1:]))  # mean angle offset per sample, rad
-        # d/dmu of (c vx + s vy, -s vx + c vy) is (y, -x) of the rotated vector.
-        mg, ma = (None, None) if mats is None else mats
-        for sl, m in ((slice(0, 3), mg), (slice(3, 6), ma)):
-            rot = true[:, p, sl]
-            if m is not None:
-                rot = np.einsum("rij,rj->ri", np.linalg.inv(m), rot)
-            deriv = np.stack([rot[:, 1], -rot[:, 0], np.zeros(rot.shape[0])], axis=-1)
-            if m is not None:
-                deriv = np.einsum("rij,rj->ri", m, deriv)
-            out[:, p, sl, :] += deriv[:, :, None] * dmu[None, None, :]
-        gz = np.array([0.0, 0.0, 1.0])
-        if mg is None:
-            out[:, p, 2, :] += rate[None, :]
-        else:
-            out[:, p, 0:3, :] += (mg @ gz)[:, :, None] * rate[None, None, :]
-    return mean_offset
+        rate[p] = np.radians(np.diff(osc) * fs)
+        dmu[p] = np.radians(0.5 * (osc[:-1] + osc[1:]))
+    return ringing, dmu, rate, mean_offset
+
+
+def _ring_coefficients(
+    true: NDArray[np.float64], mats: _Matrices | None, ringing: NDArray[np.bool_]
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """Per run: what a unit angle offset adds to each channel (R, P, 6), and what a unit table
+    rate adds to the gyros (R, 3; None without error matrices: gyro z alone, by 1)."""
+    deriv = np.zeros(true.shape)
+    if not ringing.any():
+        return deriv, None
+    mg, ma = (None, None) if mats is None else mats
+    # d/dmu of (c vx + s vy, -s vx + c vy) is (y, -x) of the rotated vector.
+    for sl, m in ((slice(0, 3), mg), (slice(3, 6), ma)):
+        rot = true[:, :, sl]
+        if m is not None:
+            rot = np.einsum("rij,rpj->rpi", np.linalg.inv(m), rot)
+        d = np.stack([rot[..., 1], -rot[..., 0], np.zeros(rot.shape[:2])], axis=-1)
+        if m is not None:
+            d = np.einsum("rij,rpj->rpi", m, d)
+        deriv[:, :, sl] = d
+    gz = np.array([0.0, 0.0, 1.0])
+    rate = None if mg is None else mg @ gz
+    if rate is None:
+        rate = np.broadcast_to(gz, (true.shape[0], 3))
+    return deriv, rate
 
 
 def _add_impulses(
-    out: NDArray[np.float64],
+    data: NDArray[np.float64],
+    chans: tuple[int, ...],
     rng: np.random.Generator,
     t: NDArray[np.float64],
     fs: float,
@@ -497,7 +662,7 @@ def _add_impulses(
     amp: NDArray[np.float64],
 ) -> None:
     """Poisson half-sine impulses over each window (events that overlap it), random directions."""
-    n_runs, pc, _, n = out.shape
+    _, n_runs, pc, n = data.shape
     for p in range(pc):
         t0, t1 = t[p, 0] - 1.0 / fs, t[p, -1]
         span = t1 - t0 + duration_s
@@ -518,4 +683,5 @@ def _add_impulses(
         shape = np.where(valid, half_sine(x), 0.0)  # (E, m)
         contrib = shape[:, :, None] * (amp * v)[:, None, :]  # (E, m, 6)
         for j in np.flatnonzero(amp):
-            np.add.at(out[:, p, j, :], (run[:, None], idx_c), contrib[:, :, j])
+            if j in chans:
+                np.add.at(data[j, :, p, :], (run[:, None], idx_c), contrib[:, :, j])

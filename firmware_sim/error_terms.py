@@ -42,6 +42,7 @@ already holds needs no move and adds nothing.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -78,6 +79,7 @@ __all__ = [
     "random_directions",
     "slow_noise_jump",
     "slow_noise_steps",
+    "slow_noise_window",
     "temperature_c",
     "triad_matrices",
     "vibration",
@@ -468,13 +470,116 @@ def slow_noise_steps(
 
 
 def slow_noise_jump(
-    rng: np.random.Generator, state: NDArray[np.float64], walk: NDArray[np.float64], steps: int
+    rng: np.random.Generator,
+    state: NDArray[np.float64],
+    walk: NDArray[np.float64],
+    steps: int,
+    *,
+    with_walk: bool = True,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The flicker components and the walk ``steps`` grid steps later, drawn exactly in one go."""
+    """The flicker components and the walk ``steps`` grid steps later, drawn exactly in one go.
+
+    ``with_walk=False`` leaves the walk as it is and draws nothing for it (for channels
+    without a random walk, whose walk is multiplied by zero).
+    """
     a = FLICKER_PHI.reshape((-1,) + (1,) * (state.ndim - 1)) ** steps
     state = a * state + np.sqrt(1.0 - a * a) * rng.standard_normal(state.shape)
-    walk = walk + math.sqrt(FLICKER_GRID_S * steps) * rng.standard_normal(walk.shape)
+    if with_walk:
+        walk = walk + math.sqrt(FLICKER_GRID_S * steps) * rng.standard_normal(walk.shape)
     return state, walk
+
+
+#: Grid steps drawn jointly at most (the factor is (steps + K) squared).
+_JOINT_STEPS = 256
+
+
+@functools.lru_cache(maxsize=32)
+def _flicker_window_factor(m: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Factor of the joint law of the flicker noise over ``m`` grid steps (see
+    :func:`slow_noise_window`): ``(mean, factor)``.
+
+    ``mean`` (m + K, K): the noise-free part of the vector (sum at steps 1..m, then every
+    component at step m) from the components at step 0. ``factor`` (m - 1 + K, m + K): rows of
+    ``z @ factor`` are the zero-mean part when ``z`` is unit normal of length m - 1 + K (the sum
+    at step m is the sum of the components there, so it takes no draw of its own).
+    """
+    phi = FLICKER_PHI
+    g = np.arange(1, m + 1, dtype=float)
+    # Component i after g steps from x0: phi^g x0 + nu_g, Cov(nu_g, nu_h) = phi^|g-h| (1 - phi^2min).
+    pg = phi[None, :] ** g[:, None]  # (m, K)
+    lag = np.abs(g[:, None] - g[None, :])
+    low = np.minimum(g[:, None], g[None, :])
+    cov_ss = np.zeros((m, m))
+    for p in phi:
+        cov_ss += p**lag * (1.0 - p ** (2.0 * low))
+    cov_se = phi[None, :] ** (m - g)[:, None] * (1.0 - phi[None, :] ** (2.0 * g[:, None]))
+    cov_ee = np.diag(1.0 - phi ** (2.0 * m))
+    # Drawn: the sums at steps 1..m-1 and the K components at step m.
+    keep = np.r_[np.arange(m - 1), m + np.arange(phi.size)]
+    full = np.block([[cov_ss, cov_se], [cov_se.T, cov_ee]])
+    vals, vecs = np.linalg.eigh(full[np.ix_(keep, keep)])
+    root = vecs * np.sqrt(np.clip(vals, 0.0, None))  # (D, D): cov = root @ root.T
+    factor = np.zeros((keep.size, m + phi.size))
+    factor[:, keep] = root.T
+    factor[:, m - 1] = factor[:, m:].sum(axis=1)  # the sum at step m
+    mean = np.vstack([pg, np.diag(phi**m)])
+    return mean, factor
+
+
+def slow_noise_window(
+    rng: np.random.Generator,
+    state: NDArray[np.float64],
+    walk: NDArray[np.float64],
+    m: int,
+    *,
+    with_walk: bool = True,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """What :func:`slow_noise_steps` gives for ``m`` grid steps, drawn jointly in one go.
+
+    The flicker components are Gaussian and linear in their innovations, so the sums at the
+    ``m`` new grid points and the components at the last one have a joint normal law given the
+    state at the start; this draws that law exactly from ``m - 1 + K`` unit normals per channel
+    (per piece of at most 256 steps) instead of ``m K`` innovations (the law is the same; the
+    draws differ). The walk takes ``m``
+    innovations as before, none with ``with_walk=False`` (its values then stay at ``walk``).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    state : (K, ...) float
+        Unit-variance flicker components at the grid point before the first step.
+    walk : (...) float
+        Unit random walk (in sqrt(s)) at that grid point.
+    m : int
+        Grid steps, at least 1.
+
+    Returns
+    -------
+    flicker, walks : (m, ...) float
+    state, walk
+        As :func:`slow_noise_steps`.
+    """
+    k = FLICKER_PHI.size
+    shape = state.shape[1:]
+    x0 = state.reshape(k, -1)  # (K, N)
+    pieces = []
+    # Pieces of at most _JOINT_STEPS steps, each from the state the one before left (the
+    # process is Markov in its components): the factors stay small whatever the window.
+    for first in range(0, m, _JOINT_STEPS):
+        size = min(_JOINT_STEPS, m - first)
+        mean, factor = _flicker_window_factor(size)
+        z = rng.standard_normal((x0.shape[1], factor.shape[0]))  # (N, D)
+        vec = (z @ factor).T + mean @ x0  # (size + K, N)
+        pieces.append(vec[:size])
+        x0 = vec[size:]
+    flicker = (pieces[0] if len(pieces) == 1 else np.concatenate(pieces)).reshape((m, *shape))
+    new_state = x0.reshape(state.shape)
+    if with_walk:
+        steps = rng.standard_normal((m, *shape))
+        walks = walk + np.cumsum(math.sqrt(FLICKER_GRID_S) * steps, axis=0)
+    else:
+        walks = np.broadcast_to(walk, (m, *shape))
+    return flicker, walks, new_state, walks[-1]
 
 
 def random_directions(rng: np.random.Generator, n: int) -> NDArray[np.float64]:

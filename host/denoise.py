@@ -60,6 +60,7 @@ __all__ = [
     "THRESHOLD_MODES",
     "DenoiseMethod",
     "denoise",
+    "denoised_mean",
     "detrend_average_points",
     "five_point_smooth",
     "forced_denoise",
@@ -70,6 +71,7 @@ __all__ = [
     "threshold",
     "universal_threshold",
     "wavelet_denoise",
+    "wavelet_denoise_mean",
 ]
 
 #: Threshold functions by ``mode``.
@@ -99,10 +101,13 @@ _MAD_TO_SIGMA = 1.0 / 0.6745
 # ----------------------------------------------------------------------------------------------
 
 
-def _signal(x: ArrayLike, axis: int, name: str = "x") -> tuple[NDArray[np.float64], int]:
-    """Float copy of ``x`` and the normalised axis; refuses scalars and non-finite values."""
+def _signal(
+    x: ArrayLike, axis: int, name: str = "x", *, copy: bool = True
+) -> tuple[NDArray[np.float64], int]:
+    """Float array of ``x`` (a copy unless ``copy=False``, for callers that never write to it)
+    and the normalised axis; refuses scalars and non-finite values."""
     try:
-        arr = np.array(x, dtype=float)
+        arr = np.array(x, dtype=float) if copy else np.asarray(x, dtype=float)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name}: must be numeric") from exc
     if arr.ndim == 0:
@@ -110,7 +115,9 @@ def _signal(x: ArrayLike, axis: int, name: str = "x") -> tuple[NDArray[np.float6
     if not -arr.ndim <= axis < arr.ndim:
         raise InputError(f"axis {axis} is out of range for {name} with shape {arr.shape}")
     ax = axis % arr.ndim
-    if not np.all(np.isfinite(arr)):
+    # A finite sum has finite terms (NaN and inf propagate); only an overflowing sum needs the
+    # element-wise look.
+    if not math.isfinite(float(np.sum(arr))) and not np.all(np.isfinite(arr)):
         raise InputError(f"{name}: contains non-finite values")
     return arr, ax
 
@@ -121,7 +128,7 @@ def _positive_int(value: int, name: str, minimum: int = 1) -> int:
     return int(value)
 
 
-def _wavelet(name: str) -> pywt.Wavelet:
+def _wavelet_named(name: str) -> pywt.Wavelet:
     if name not in _pywt().wavelist(kind="discrete"):
         raise HostConfigError(
             f"wavelet: unknown discrete wavelet {name!r}; see pywt.wavelist(kind='discrete') "
@@ -196,11 +203,12 @@ def threshold(
     lam = np.asarray(value, dtype=float)
     if np.any(~np.isfinite(lam)) or np.any(lam < 0.0):
         raise HostConfigError(f"value: threshold must be finite and >= 0, got {value!r}")
-    mag = np.abs(w)
     if mode == "hard":
-        return np.where(mag > lam, w, 0.0)
+        return np.where(np.abs(w) > lam, w, 0.0)
     if mode == "soft":
-        return np.sign(w) * np.maximum(mag - lam, 0.0)
+        # sign(w) max(|w| - lambda, 0), in two passes over the coefficients.
+        return w - np.clip(w, -lam, lam)
+    mag = np.abs(w)
     if not beta > 0.0:
         raise HostConfigError(f"beta: must be > 0, got {beta!r}")
     if mode == "2p":
@@ -223,8 +231,13 @@ def mad_sigma(details: ArrayLike, *, axis: int = -1) -> NDArray[np.float64]:
     ``sigma = median(|d|) / 0.6745`` along ``axis`` (kept as a length-1 axis for broadcasting).
     Robust to the few large coefficients that carry signal.
     """
-    d, ax = _signal(details, axis, "details")
-    return np.median(np.abs(d), axis=ax, keepdims=True) * _MAD_TO_SIGMA
+    d, ax = _signal(details, axis, "details", copy=False)
+    return _mad_sigma(d, ax)
+
+
+def _mad_sigma(d: NDArray[np.float64], ax: int) -> NDArray[np.float64]:
+    # np.abs makes a new array, so the median may reorder it in place.
+    return np.median(np.abs(d), axis=ax, keepdims=True, overwrite_input=True) * _MAD_TO_SIGMA
 
 
 def universal_threshold(sigma: ArrayLike, n: int) -> NDArray[np.float64]:
@@ -283,17 +296,74 @@ def wavelet_denoise(
     """
     check_choice(mode, THRESHOLD_MODES, "mode")
     check_choice(extension, EXTENSIONS, "extension")
-    arr, ax = _signal(x, axis)
+    arr, ax = _signal(x, axis, copy=False)  # wavedec writes only to new arrays
     n = arr.shape[ax]
-    wav = _wavelet(wavelet)
+    wav = _wavelet_named(wavelet)
     level = _check_level(n, wav, level)
     coeffs = _pywt().wavedec(arr, wav, mode=extension, level=level, axis=ax)
     if value is None:
-        lam = universal_threshold(mad_sigma(coeffs[-1], axis=ax), n)
+        lam = universal_threshold(_mad_sigma(coeffs[-1], ax), n)
     else:
         lam = np.asarray(value, dtype=float)
     out = [coeffs[0]] + [threshold(d, lam, mode, alpha=alpha, beta=beta, mu=mu) for d in coeffs[1:]]
     return _trim(_pywt().waverec(out, wav, mode=extension, axis=ax), n, ax)
+
+
+def _keeps_mean(n: int, wav: pywt.Wavelet, level: int, extension: str) -> bool:
+    """True when editing detail coefficients cannot move the mean of the reconstruction.
+
+    With periodization, an orthogonal wavelet and ``n`` a multiple of ``2**level`` the transform
+    is an orthogonal matrix W, so ``mean(W^T c) = (W 1)^T c / n``; the details of a constant
+    signal are zero (every wavelet filter sums to zero), so only the approximation counts, and
+    the mean of the reconstruction is the mean of the signal whatever the details became.
+    """
+    return extension == "periodization" and bool(wav.orthogonal) and n % 2**level == 0
+
+
+def wavelet_denoise_mean(
+    x: ArrayLike,
+    mode: str = "soft",
+    *,
+    wavelet: str = "db4",
+    level: int = 4,
+    axis: int = -1,
+    value: ArrayLike | None = None,
+    alpha: float = 0.1,
+    beta: float = 6.0,
+    mu: float = 0.2,
+    extension: str = "periodization",
+) -> NDArray[np.float64]:
+    """``mean(wavelet_denoise(x, ...), axis)``: the same number up to rounding, with less work.
+
+    Where thresholding cannot move the mean (:func:`_keeps_mean`: the default periodization
+    with an orthogonal wavelet and a length that is a multiple of ``2**level``), it is the
+    plain mean of ``x`` and no transform runs; elsewhere the signal is decomposed,
+    thresholded and reconstructed. The arguments are checked alike either way. Parameters as
+    :func:`wavelet_denoise`; ``axis`` is reduced.
+    """
+    check_choice(mode, THRESHOLD_MODES, "mode")
+    check_choice(extension, EXTENSIONS, "extension")
+    arr, ax = _signal(x, axis, copy=False)
+    n = arr.shape[ax]
+    wav = _wavelet_named(wavelet)
+    level = _check_level(n, wav, level)
+    if not _keeps_mean(n, wav, level, extension):
+        denoised = wavelet_denoise(
+            arr,
+            mode,
+            wavelet=wavelet,
+            level=level,
+            axis=ax,
+            value=value,
+            alpha=alpha,
+            beta=beta,
+            mu=mu,
+            extension=extension,
+        )
+        return np.mean(denoised, axis=ax)
+    # The options must still be valid: check them on one coefficient.
+    threshold(np.ones(1), 0.0 if value is None else value, mode, alpha=alpha, beta=beta, mu=mu)
+    return np.mean(arr, axis=ax)
 
 
 def forced_denoise(
@@ -336,7 +406,7 @@ def forced_denoise(
     check_choice(extension, EXTENSIONS, "extension")
     arr, ax = _signal(x, axis)
     n = arr.shape[ax]
-    wav = _wavelet(wavelet)
+    wav = _wavelet_named(wavelet)
     level = _check_level(n, wav, level)
     coeffs = _pywt().wavedec(arr, wav, mode=extension, level=level, axis=ax)
     approx = coeffs[0]
@@ -588,30 +658,50 @@ class DenoiseMethod:
     name: str
     func: Callable[..., NDArray[np.float64]]
     description: str
+    #: True when ``func`` takes ``mean=True`` and then returns the mean along ``axis`` of what
+    #: it would return, computed with less work (the same number up to rounding).
+    has_mean: bool = False
 
 
 def _none(x: ArrayLike, *, axis: int = -1) -> NDArray[np.float64]:
     return _signal(x, axis)[0]
 
 
-def _wavelet_hard(x: ArrayLike, *, axis: int = -1, **options: Any) -> NDArray[np.float64]:
-    return wavelet_denoise(x, "hard", axis=axis, **options)
+def _wavelet(
+    x: ArrayLike, mode: str, *, mean: bool, axis: int, **options: Any
+) -> NDArray[np.float64]:
+    return (wavelet_denoise_mean if mean else wavelet_denoise)(x, mode, axis=axis, **options)
 
 
-def _wavelet_soft(x: ArrayLike, *, axis: int = -1, **options: Any) -> NDArray[np.float64]:
-    return wavelet_denoise(x, "soft", axis=axis, **options)
+def _wavelet_hard(
+    x: ArrayLike, *, axis: int = -1, mean: bool = False, **options: Any
+) -> NDArray[np.float64]:
+    return _wavelet(x, "hard", mean=mean, axis=axis, **options)
+
+
+def _wavelet_soft(
+    x: ArrayLike, *, axis: int = -1, mean: bool = False, **options: Any
+) -> NDArray[np.float64]:
+    return _wavelet(x, "soft", mean=mean, axis=axis, **options)
 
 
 def _wavelet_2p(
-    x: ArrayLike, *, axis: int = -1, alpha: float = 0.1, beta: float = 6.0, **options: Any
+    x: ArrayLike,
+    *,
+    axis: int = -1,
+    mean: bool = False,
+    alpha: float = 0.1,
+    beta: float = 6.0,
+    **options: Any,
 ) -> NDArray[np.float64]:
-    return wavelet_denoise(x, "2p", axis=axis, alpha=alpha, beta=beta, **options)
+    return _wavelet(x, "2p", mean=mean, axis=axis, alpha=alpha, beta=beta, **options)
 
 
 def _wavelet_003(
     x: ArrayLike,
     *,
     axis: int = -1,
+    mean: bool = False,
     wavelet: str = "db6",
     level: int | None = None,
     beta: float = 2.0,
@@ -621,9 +711,9 @@ def _wavelet_003(
     if level is None:
         # The source used 8 levels on long records; a 10 s window at 200 Hz allows 7 with db6.
         n = np.shape(x)[axis] if np.ndim(x) else 0
-        level = max(1, min(8, _pywt().dwt_max_level(n, _wavelet(wavelet).dec_len)))
-    return wavelet_denoise(
-        x, "003", axis=axis, wavelet=wavelet, level=level, beta=beta, mu=mu, **options
+        level = max(1, min(8, _pywt().dwt_max_level(n, _wavelet_named(wavelet).dec_len)))
+    return _wavelet(
+        x, "003", mean=mean, axis=axis, wavelet=wavelet, level=level, beta=beta, mu=mu, **options
     )
 
 
@@ -642,15 +732,23 @@ METHODS: Mapping[str, DenoiseMethod] = {
     m.name: m
     for m in (
         DenoiseMethod("none", _none, "no processing"),
-        DenoiseMethod("wavelet-hard", _wavelet_hard, "db4, 4 levels, universal hard threshold"),
-        DenoiseMethod("wavelet-soft", _wavelet_soft, "db4, 4 levels, universal soft threshold"),
         DenoiseMethod(
-            "wavelet-2p", _wavelet_2p, "db4, 4 levels, two-parameter threshold alpha=0.1 beta=6"
+            "wavelet-hard", _wavelet_hard, "db4, 4 levels, universal hard threshold", True
+        ),
+        DenoiseMethod(
+            "wavelet-soft", _wavelet_soft, "db4, 4 levels, universal soft threshold", True
+        ),
+        DenoiseMethod(
+            "wavelet-2p",
+            _wavelet_2p,
+            "db4, 4 levels, two-parameter threshold alpha=0.1 beta=6",
+            True,
         ),
         DenoiseMethod(
             "wavelet-003",
             _wavelet_003,
             "db6, up to 8 levels, reconstructed improved threshold mu=0.2 beta=2",
+            True,
         ),
         DenoiseMethod(
             "forced-median",
@@ -691,5 +789,24 @@ def denoise(x: ArrayLike, method: str, *, axis: int = -1, **options: Any) -> NDA
     entry = METHODS[check_choice(method, METHODS, "method")]
     try:
         return entry.func(x, axis=axis, **options)
+    except TypeError as exc:
+        raise HostConfigError(f"method {method!r}: bad options {sorted(options)}: {exc}") from exc
+
+
+def denoised_mean(
+    x: ArrayLike, method: str, *, axis: int = -1, **options: Any
+) -> NDArray[np.float64]:
+    """``mean(denoise(x, method, ...), axis)``: with less work where the method knows how.
+
+    Wavelet thresholding reconstructs linearly, so the mean follows from the thresholded
+    coefficients without the reconstruction (:func:`wavelet_denoise_mean`).
+    """
+    entry = METHODS[check_choice(method, METHODS, "method")]
+    if not entry.has_mean:
+        return np.mean(denoise(x, method, axis=axis, **options), axis=axis)
+    if "mean" in options:
+        raise HostConfigError(f"method {method!r}: bad options {sorted(options)}")
+    try:
+        return entry.func(x, axis=axis, mean=True, **options)
     except TypeError as exc:
         raise HostConfigError(f"method {method!r}: bad options {sorted(options)}: {exc}") from exc

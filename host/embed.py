@@ -53,6 +53,7 @@ from can.interfaces.virtual import VirtualBus
 
 from northfinder.driver.clock import VirtualClock
 from northfinder.driver.device import Device
+from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT, SERIAL_BAUD_DEFAULT
 from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
 from northfinder.firmware_sim.errors import SimError
@@ -72,6 +73,7 @@ __all__ = [
     "LINKS",
     "RELAXED_DEVICE_OPTIONS",
     "SimulatedInstrument",
+    "Truth",
 ]
 
 LINKS = ("virtual", "serial-pty", "slcan-pty")
@@ -141,6 +143,10 @@ class SimulatedInstrument:
     bitrate : int
         CAN bit rate (``virtual``, ``slcan-pty``) or serial baud rate (``serial-pty``) the firmware
         reports and budgets its sample rates for; default the protocol's.
+    log : str or Path, optional
+        Log every frame the simulator receives and sends to this CAN log, in python-can's format
+        for its ending (:class:`~northfinder.driver.framelog.FrameLog`; a serial session logs as
+        the CAN frames of the same messages). Closed by :meth:`close`.
 
     Attributes
     ----------
@@ -178,6 +184,7 @@ class SimulatedInstrument:
         clock: Clock | VirtualClock | str | None = None,
         control: str | None = None,
         bitrate: int | None = None,
+        log: str | Path | None = None,
     ) -> None:
         if link not in LINKS:
             raise HostConfigError(f"link={link!r}: choose one of {', '.join(LINKS)}")
@@ -205,6 +212,8 @@ class SimulatedInstrument:
             SERIAL_BAUD_DEFAULT if link == "serial-pty" else CAN_BITRATE_DEFAULT
         )
         self._control_request = control
+        self._log_path = log
+        self.log: FrameLog | None = None
         self.channel: str | None = None
         self.path: str | None = None
         self.control: ControlClient | None = None
@@ -230,19 +239,22 @@ class SimulatedInstrument:
         )
         with contextlib.ExitStack() as stack:
             wire: Link
+            if self._log_path is not None:
+                self.log = stack.enter_context(FrameLog(self._log_path))
+            tap = self.log
             if self.link == "virtual":
                 self.channel = f"northfinder-sim-{uuid.uuid4().hex}"
                 bus = _DeviceEndBus(channel=self.channel)
                 stack.callback(bus.shutdown)
-                wire = CanLink(bus, firmware, self.node_id)
+                wire = CanLink(bus, firmware, self.node_id, tap=tap)
             else:
                 pty = PseudoTerminal()
                 stack.callback(pty.close)
                 self.path = pty.path
                 if self.link == "serial-pty":
-                    wire = SerialLink(pty.stream, firmware)
+                    wire = SerialLink(pty.stream, firmware, tap=tap, node_id=self.node_id)
                 else:
-                    wire = CanLink(SlcanAdapter(pty.stream), firmware, self.node_id)
+                    wire = CanLink(SlcanAdapter(pty.stream), firmware, self.node_id, tap=tap)
             runner = Runner(firmware, wire, self.clock)
             if self.virtual:
                 runner.attach()

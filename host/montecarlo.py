@@ -12,18 +12,34 @@ application layer wires in the simulated instrument (``northfinder.host.cli.simu
 host library never imports it. A generator is a module-level, picklable callable (a frozen
 dataclass instance, say), so that studies can run in other processes.
 
-Results for a seed depend only on the generator, the plan, the settings and the chunk size
-(through the order of the random draws).
+Chunks and seeds
+----------------
+The runs of a study are cut into chunks of a fixed number of runs (:func:`chunk_runs`: a
+function of the plan and the sample rate only, so that a chunk's arrays fit in a processor's
+cache), and chunk ``k`` draws from its own generator, seeded with child ``k`` of
+``numpy.random.SeedSequence(seed)`` (``SeedSequence(seed).spawn(...)[k]``). A chunk is
+therefore the same wherever and whenever it runs: results for a seed are identical whether
+the chunks run one after the other, on a pool of local threads (:func:`local_executor`) or on
+a cluster (any :class:`concurrent.futures.Executor`, such as a Dask client's, see
+:mod:`northfinder.host.distributed`), and the whole chunks of a shorter study are the first
+chunks of a longer one. They depend on the generator, the plan, the settings and
+:data:`CHUNK_SAMPLES`.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from dataclasses import asdict, dataclass, replace
+import os
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from threadpoolctl import ThreadpoolController
 
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, bound_deg, predict
 from northfinder.host.errors import HostConfigError, check_choice
@@ -31,18 +47,26 @@ from northfinder.host.plan import Plan
 from northfinder.host.study import Summary, chunk_errors, summarize, summarize_columns
 
 __all__ = [
-    "CHUNK_VALUES",
+    "CHUNK_SAMPLES",
+    "ChunkTask",
     "RunRequest",
+    "Study",
     "StudySettings",
     "WindowBatch",
     "WindowGenerator",
+    "chunk_runs",
+    "chunk_tasks",
+    "local_executor",
     "monte_carlo",
+    "monte_carlo_many",
+    "run_chunk",
     "study_rows",
     "verify_plan",
 ]
 
-#: Samples (runs x positions x samples x 6 channels) generated at once.
-CHUNK_VALUES = 24_000_000
+#: Samples of one channel (runs x positions x samples) in one chunk, at most (a chunk holds at
+#: least one run): about 2 MiB per channel. Part of the definition of a study's random draws.
+CHUNK_SAMPLES = 2**18
 
 
 class WindowBatch(Protocol):
@@ -92,6 +116,9 @@ class RunRequest:
         Time from power-on to the first window, s.
     bias_step_dph : float
         One gyro bias step of this size per run at a random time, deg/h (0: none).
+    channels : tuple of int
+        The channels the engine uses (0, 1, 2: gyro x, y, z; 3, 4, 5: accelerometer x, y, z);
+        a generator may leave the others out (NaN).
     """
 
     plan: Plan
@@ -102,6 +129,7 @@ class RunRequest:
     sample_rate_hz: float
     warmup_s: float
     bias_step_dph: float
+    channels: tuple[int, ...] = field(default=(0, 1, 2, 3, 4, 5))
 
     @property
     def n_runs(self) -> int:
@@ -154,6 +182,105 @@ class StudySettings:
         check_choice(self.angles, ANGLE_SOURCES, "angles")
 
 
+def chunk_runs(plan: Plan, settings: StudySettings) -> int:
+    """Runs per chunk: :data:`CHUNK_SAMPLES` over the samples of one run's windows (at least 1)."""
+    n = max(1, round(plan.window_s * settings.sample_rate_hz))
+    return max(1, CHUNK_SAMPLES // (len(plan.positions_deg) * n))
+
+
+@dataclass(frozen=True)
+class ChunkTask:
+    """One chunk of a study: everything a worker needs to draw and solve it (picklable).
+
+    Attributes
+    ----------
+    generator : WindowGenerator
+    plan : Plan
+    settings : StudySettings
+    seed : int
+        The study's seed.
+    index : int
+        The chunk's number: it draws from child ``index`` of ``SeedSequence(seed)``.
+    runs : int
+        Runs in this chunk.
+    """
+
+    generator: WindowGenerator
+    plan: Plan
+    settings: StudySettings
+    seed: int
+    index: int
+    runs: int
+
+
+def chunk_tasks(
+    generator: WindowGenerator, plan: Plan, settings: StudySettings, runs: int, seed: int
+) -> list[ChunkTask]:
+    """The chunks of a study of ``runs`` runs, in order (see the module doc)."""
+    if isinstance(runs, bool) or int(runs) != runs or runs < 2:
+        raise HostConfigError(f"runs: need at least 2 runs for statistics, got {runs}")
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise HostConfigError(f"seed: must be a non-negative integer, got {seed!r}")
+    size = chunk_runs(plan, settings)
+    return [
+        ChunkTask(generator, plan, settings, int(seed), k, min(size, runs - start))
+        for k, start in enumerate(range(0, int(runs), size))
+    ]
+
+
+@functools.cache
+def _blas() -> ThreadpoolController:
+    return ThreadpoolController()  # looks up the loaded BLAS libraries once
+
+
+def _one_blas_thread() -> Any:
+    """A context in which BLAS runs on the calling thread alone (results then do not depend on
+    how many threads BLAS would use: large products split their sums differently)."""
+    return _blas().limit(limits=1, user_api="blas")
+
+
+def _channels(settings: StudySettings) -> tuple[int, ...]:
+    """The channels the solvers read: gyro x and y, and accelerometer x and y unless level."""
+    return (0, 1) if settings.tilt == "level" else (0, 1, 3, 4)
+
+
+def run_chunk(task: ChunkTask) -> NDArray[np.float64]:
+    """Azimuth errors of one chunk, deg: shape (runs,), or (runs, P - 1) pairwise."""
+    plan, settings = task.plan, task.settings
+    seq = np.random.SeedSequence(task.seed, spawn_key=(task.index,))
+    rng = np.random.default_rng(seq)
+    if settings.azimuth_deg is None:
+        az = rng.uniform(0.0, 360.0, task.runs)
+    else:
+        az = np.full(task.runs, settings.azimuth_deg)
+    request = RunRequest(
+        plan,
+        az,
+        settings.latitude_deg,
+        settings.pitch_deg,
+        settings.roll_deg,
+        settings.sample_rate_hz,
+        settings.warmup_s,
+        settings.bias_step_dph,
+        _channels(settings),
+    )
+    # The products inside are small: BLAS threads would only contend with the other workers.
+    with _one_blas_thread():
+        batch = task.generator(request, rng)
+        angles = batch.table_deg if settings.angles == "encoder" else batch.commanded_deg
+        return chunk_errors(
+            batch.gyro_rps,
+            None if settings.tilt == "level" else batch.accel_mps2,
+            angles,
+            batch.azimuth_deg,
+            settings.latitude_deg,
+            solver=plan.method,
+            denoise_method=plan.denoise,
+            denoise_options=dict(plan.denoise_options),
+            denoise_accel=settings.denoise_accel,
+        )
+
+
 def monte_carlo(
     generator: WindowGenerator,
     plan: Plan,
@@ -161,71 +288,75 @@ def monte_carlo(
     runs: int,
     seed: int,
     *,
-    chunk_values: int = CHUNK_VALUES,
+    executor: Executor | None = None,
 ) -> NDArray[np.float64]:
     """Azimuth errors of ``runs`` seeded runs, deg: shape (runs,), or (runs, P - 1) pairwise.
 
-    Runs are drawn in chunks so that at most about ``chunk_values`` samples exist at once; the
-    result depends on the chunk size only through the order of the random draws. A run without
-    a solution (tilt beyond the solvers' limit) has a NaN error.
+    The runs are drawn and solved chunk by chunk (see the module doc): one after the other in
+    this thread, or on ``executor``; the result is the same. A run without a solution (tilt
+    beyond the solvers' limit) has a NaN error.
 
     Parameters
     ----------
     generator : WindowGenerator
-        Where the samples come from.
+        Where the samples come from (picklable, to run in other processes).
     plan : Plan
         Positions, window, settle, denoising and solver.
     settings : StudySettings
     runs : int
         Number of runs (at least 2).
     seed : int
-        Seed of the one generator all draws come from.
-    chunk_values : int
-        Samples per chunk, at most about.
+        The study's seed (non-negative).
+    executor : concurrent.futures.Executor, optional
+        Where the chunks run: :func:`local_executor`, a Dask client's executor, any other.
     """
-    if runs < 2:
-        raise HostConfigError(f"runs: need at least 2 runs for statistics, got {runs}")
-    rng = np.random.default_rng(seed)
-    p = len(plan.positions_deg)
-    # Samples per window, for the memory budget only (the generator decides the exact count).
-    n = round(plan.window_s * settings.sample_rate_hz)
-    chunk = max(1, min(runs, chunk_values // max(1, p * n * 6)))
-    out = []
-    done = 0
-    while done < runs:
-        m = min(chunk, runs - done)
-        if settings.azimuth_deg is None:
-            az = rng.uniform(0.0, 360.0, m)
+    return monte_carlo_many([(generator, plan, settings, runs, seed)], executor=executor)[0]
+
+
+#: One study of :func:`monte_carlo_many`: generator, plan, settings, runs, seed.
+Study = tuple[WindowGenerator, Plan, StudySettings, int, int]
+
+
+def monte_carlo_many(
+    studies: Sequence[Study], *, executor: Executor | None = None
+) -> list[NDArray[np.float64]]:
+    """:func:`monte_carlo` of several studies, their chunks all handed out at once.
+
+    A sweep keeps every worker busy to its end this way; each study's errors are those
+    :func:`monte_carlo` gives it alone.
+    """
+    tasks = [chunk_tasks(*study) for study in studies]
+    flat = [t for ts in tasks for t in ts]
+    # Small products inside: BLAS threads would only contend with the study's own workers (and
+    # make results depend on them).
+    with _one_blas_thread():
+        if executor is None:
+            done = [run_chunk(t) for t in flat]
         else:
-            az = np.full(m, settings.azimuth_deg)
-        request = RunRequest(
-            plan,
-            az,
-            settings.latitude_deg,
-            settings.pitch_deg,
-            settings.roll_deg,
-            settings.sample_rate_hz,
-            settings.warmup_s,
-            settings.bias_step_dph,
-        )
-        batch = generator(request, rng)
-        angles = batch.table_deg if settings.angles == "encoder" else batch.commanded_deg
-        out.append(
-            chunk_errors(
-                batch.gyro_rps,
-                None if settings.tilt == "level" else batch.accel_mps2,
-                angles,
-                batch.azimuth_deg,
-                settings.latitude_deg,
-                solver=plan.method,
-                denoise_method=plan.denoise,
-                denoise_options=dict(plan.denoise_options),
-                denoise_accel=settings.denoise_accel,
-            )
-        )
-        done += m
-        del batch
-    return np.concatenate(out)
+            done = list(executor.map(run_chunk, flat))
+    out, k = [], 0
+    for ts in tasks:
+        out.append(np.concatenate(done[k : k + len(ts)]))
+        k += len(ts)
+    return out
+
+
+@contextmanager
+def local_executor(workers: int | None = None) -> Iterator[Executor]:
+    """A pool of ``workers`` threads in this process (default: one per core).
+
+    Threads suffice: numpy draws its random numbers and does its array arithmetic without
+    holding the interpreter lock, so chunks run on all cores, with no worker start-up and
+    nothing to copy between processes.
+    """
+    count = (os.cpu_count() or 1) if workers is None else workers
+    if isinstance(count, bool) or int(count) != count or count < 1:
+        raise HostConfigError(f"workers: must be a positive integer, got {workers!r}")
+    pool = ThreadPoolExecutor(int(count), thread_name_prefix="northfinder-study")
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def study_rows(
@@ -278,6 +409,8 @@ def verify_plan(
     seed: int,
     target_deg: float | None = None,
     max_rounds: int = 4,
+    *,
+    executor: Executor | None = None,
 ) -> tuple[Plan, dict[str, Any]]:
     """Monte Carlo of a plan; with a target, lengthen the window until the simulated RMSE meets it.
 
@@ -286,7 +419,7 @@ def verify_plan(
     """
     row: dict[str, Any] = {}
     for _ in range(max_rounds):
-        errors = monte_carlo(generator, plan, settings, runs, seed)
+        errors = monte_carlo(generator, plan, settings, runs, seed, executor=executor)
         row = study_rows(model, plan, settings, errors)[0]
         if target_deg is None or row["rmse_deg"] <= target_deg:
             row["meets_target"] = True

@@ -312,6 +312,38 @@ def base_attitude(
     return (-math.degrees(alpha)) % 360.0, math.degrees(pitch), math.degrees(roll)
 
 
+@dataclass(frozen=True)
+class PairSolution:
+    """The heading from one pair of consecutive windows (``first`` and ``first + 1``, 0-based)."""
+
+    first: int
+    azimuth_deg: float
+    sigma_deg: float | None
+
+
+def pairwise_solutions(
+    windows: Sequence[PositionWindow], latitude_deg: float
+) -> list[PairSolution]:
+    """The two-position heading of every pair of consecutive windows whose table angles differ
+    by at least :data:`~northfinder.host.heading.MIN_MU_SEPARATION_DEG`, with its 1-sigma from the
+    windows' own noise (the spread of these shows what one pair can tell)."""
+    out = []
+    for i in range(len(windows) - 1):
+        a, b = windows[i], windows[i + 1]
+        d = (b.encoder_deg - a.encoder_deg) % 360.0
+        if not MIN_MU_SEPARATION_DEG <= d <= 360.0 - MIN_MU_SEPARATION_DEG:
+            continue
+        g_sem = np.maximum(np.array([a.gyro_sem_dph, b.gyro_sem_dph])[:, :2], 1e-9)
+        a_sem = np.maximum(np.array([a.accel_sem_mps2, b.accel_sem_mps2])[:, :2], 1e-12)
+        s = solve_two_position(
+            a.gyro_dph, b.gyro_dph, d, accel0=a.accel_mps2, accel1=b.accel_mps2,
+            latitude_deg=latitude_deg, rate_unit="deg/h", gyro_noise=g_sem, accel_noise=a_sem,
+        )  # fmt: skip
+        azimuth = base_attitude(s.azimuth_deg, s.pitch_deg, s.roll_deg, a.encoder_deg)[0]
+        out.append(PairSolution(i, azimuth, s.sigma_deg))
+    return out
+
+
 def solve_windows(
     windows: Sequence[PositionWindow], latitude_deg: float, plan: Plan
 ) -> tuple[float, float | None, float, float, tuple[float, ...]]:
@@ -326,15 +358,7 @@ def solve_windows(
     # Floors far below any sensor's noise keep noise-free (simulated ideal) windows well posed.
     g_sem = np.maximum(np.array([w.gyro_sem_dph for w in windows])[:, :2], 1e-9)
     a_sem = np.maximum(np.array([w.accel_sem_mps2 for w in windows])[:, :2], 1e-12)
-    pairwise: list[float] = []
-    for i in range(len(windows) - 1):
-        d = (mu[i + 1] - mu[i]) % 360.0
-        if MIN_MU_SEPARATION_DEG <= d <= 360.0 - MIN_MU_SEPARATION_DEG:
-            s = solve_two_position(
-                gyro[i], gyro[i + 1], d, accel0=accel[i], accel1=accel[i + 1],
-                latitude_deg=latitude_deg, rate_unit="deg/h",
-            )  # fmt: skip
-            pairwise.append(base_attitude(s.azimuth_deg, s.pitch_deg, s.roll_deg, float(mu[i]))[0])
+    pairwise = [p.azimuth_deg for p in pairwise_solutions(windows, latitude_deg)]
     if plan.solver == "two-position":
         d = float((mu[1] - mu[0]) % 360.0)
         s = solve_two_position(

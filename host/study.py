@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.host.denoise import METHODS, denoise
+from northfinder.host.denoise import METHODS, denoised_mean
 from northfinder.host.errors import GeometryError, InputError, check_choice
 from northfinder.host.kernels import (
     MAX_TILT_DEG,
@@ -69,7 +69,7 @@ def window_means(
     check_choice(method, METHODS, "denoise", "method")
     if method == "none":
         return np.mean(np.asarray(samples, dtype=float), axis=axis)
-    return np.mean(denoise(samples, method, axis=axis, **dict(options or {})), axis=axis)
+    return denoised_mean(samples, method, axis=axis, **dict(options or {}))
 
 
 def azimuth_errors(estimate_deg: ArrayLike, truth_deg: ArrayLike) -> NDArray[np.float64]:
@@ -125,15 +125,22 @@ def chunk_errors(
         solver = "two-position" if p == 2 else "least-squares"
     if solver == "two-position" and p != 2:
         raise GeometryError(f"solver two-position needs exactly 2 positions, got {p}")
-    # Samples last: the views the simulator returns are then contiguous per channel.
-    gm = window_means(np.moveaxis(gyro[..., :2], 2, -1), denoise_method, options=denoise_options)
+    # Channels first and samples last, (2, R, P, n): the simulator's channel-major memory is then
+    # read in order. Means come back as (R, P, 2).
+    gm = np.moveaxis(
+        window_means(gyro[..., :2].transpose(3, 0, 1, 2), denoise_method, options=denoise_options),
+        0,
+        -1,
+    )
     am = None
     if accel is not None:
-        a = np.moveaxis(accel[..., :2], 2, -1)
-        am = (
+        a = accel[..., :2].transpose(3, 0, 1, 2)
+        am = np.moveaxis(
             window_means(a, denoise_method, options=denoise_options)
             if denoise_accel
-            else a.mean(axis=-1)
+            else a.mean(axis=-1),
+            0,
+            -1,
         )
     ang = np.broadcast_to(np.asarray(angles_deg, dtype=float), gm.shape[:2])
     truth = np.asarray(truth_azimuth_deg, dtype=float)

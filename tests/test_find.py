@@ -13,7 +13,7 @@ import pytest
 
 from northfinder.driver.protocol.constants import Validity
 from northfinder.host.cli import main
-from northfinder.host.cli.measure import ProgressLine
+from northfinder.host.cli.measure import ProgressBar
 from northfinder.host.errors import HostConfigError
 from northfinder.host.procedure import Plan, Progress, QualityError, summarise_window
 from northfinder.host.recording import Recording
@@ -93,7 +93,12 @@ def test_the_same_seed_gives_the_same_result_whatever_the_load(capsys):
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     second = json.loads(done.stdout)
-    assert second == first  # every figure to the last bit: azimuth, sigma, window means, truth
+    # every figure to the last bit (azimuth, sigma, window means, truth); only the calendar time
+    # at which each run began differs
+    assert {k for k in first.keys() | second.keys() if first.get(k) != second.get(k)} <= {
+        "created_utc"
+    }
+    assert len(first) > 10 and first["azimuth_deg"] == second["azimuth_deg"]
     assert first["truth"]["speed"] is None  # virtual time, not a speed
     other = find_json(capsys, "--seed", "22", *args[2:])
     assert other["azimuth_deg"] != first["azimuth_deg"]
@@ -214,13 +219,19 @@ def test_plan_validation_and_progress_line():
             return True
 
     out = Tty()
-    line = ProgressLine(out)
-    line(Progress("acquire", 1, 2, 12.5, 42.0))
-    line(Progress("done", 2, 2, 180.0, 0.0))
+    bar = ProgressBar(stream=out)
+    bar(Progress("acquire", 1, 2, 12.5, 40.0))
+    bar(Progress("solve", 2, 2, 180.0, 10.0))
+    assert bar._bar.n == pytest.approx(30.0) and bar._bar.total == pytest.approx(40.0)
+    bar(Progress("done", 2, 2, 180.0, 0.0))
     text = out.getvalue()
-    assert "acquire  position 1/2  table   12.5000 deg  ~   42 s left" in text and text.endswith(
-        "\n"
-    )
+    # tqdm draws it: the phase, position and table angle, and wall-clock elapsed and remaining.
+    assert "acquire  position 1/2 table 12.500 deg" in text
+    assert "solve    position 2/2 table 180.000 deg  75%" in text
+    assert " elapsed, ~" in text and " left" in text
     silent = io.StringIO()
-    ProgressLine(silent)(Progress("rotate", 1, 2, None, None))
+    ProgressBar(stream=silent)(Progress("rotate", 1, 2, None, None))
     assert silent.getvalue() == ""
+    off = Tty()
+    ProgressBar(stream=off, enabled=False)(Progress("rotate", 1, 2, None, None))
+    assert off.getvalue() == ""

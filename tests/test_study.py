@@ -28,7 +28,7 @@ from northfinder.host.heading import (
 )
 from northfinder.host.kernels import solve_least_squares_batch, solve_two_position_batch
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
-from northfinder.host.plan import PAPER_SWEEP, Plan, TableModel, plan_time_s, window_starts_s
+from northfinder.host.plan import Plan, TableModel, plan_time_s, window_starts_s
 from northfinder.host.planner import search_plans, shortest_plan
 from northfinder.host.study import summarize
 
@@ -281,50 +281,6 @@ def test_paper_rlg_study_follows_the_prediction():
 # ----------------------------------------------------------------------------------------------
 # The engine: results for a seed, excessive tilt, picklable pieces
 # ----------------------------------------------------------------------------------------------
-
-#: Azimuth errors (deg) of seeded studies computed before the engine moved out of the command-line
-#: module into northfinder.host.montecarlo (sensor, plan, settings, runs, seed, samples per chunk,
-#: errors of the first run for pairwise or of every run otherwise). The engine must still give them.
-PRE_MOVE = {
-    "two-position": (
-        "paper-rlg", Plan((0.0, 180.0), 10.0), StudySettings(), 8, 3, None,
-        [-0.14778607381526854, 0.08012759697544425, 0.053633202061178054, -0.033003928699287144,
-         0.054097905476965025, -0.018413926410261183, -0.025123486960268337, -0.15117833851903129],
-    ),
-    "least-squares, tilted": (
-        "paper-rlg", Plan((0.0, 90.0, 180.0, 270.0), 5.0),
-        StudySettings(azimuth_deg=37.0, pitch_deg=2.0, roll_deg=-3.0), 6, 4, None,
-        [0.0007576785446588019, 0.08111874104105254, 0.05584094987531785, -0.13535248812968348,
-         0.09955777214088357, -0.008678719598833595],
-    ),
-    "pairwise": (
-        "paper-rlg", Plan(PAPER_SWEEP.positions_deg, 5.0, method="pairwise"), StudySettings(), 4,
-        5, None,
-        [-0.5269207217853022, 0.022202593390375114, -0.0046171482528052366, -0.07316857902020502,
-         0.023646767320997242, 0.12855164347945447, 0.1495502956217365],
-    ),
-    # Since the move, the repeated position 180 keeps the indexing error of its stop (it was
-    # reset to none): the values changed with that fix of the simulator, not with the engine.
-    "denoised, level, commanded angles, bias step": (
-        "fog-0.08", Plan((0.0, 180.0, 180.0, 0.0), 5.0, 3.0, denoise="wavelet-soft"),
-        StudySettings(tilt="level", angles="commanded", bias_step_dph=0.1), 6, 6, None,
-        [0.15858304643845145, 0.10661242816604499, 0.19864579189905385, 0.01929495244198165,
-         0.8190823419931235, -0.16365587349929456],
-    ),
-    "chunks of 3 runs": (
-        "paper-rlg", Plan((0.0, 180.0), 10.0), StudySettings(), 10, 7, 2 * 2000 * 6 * 3,
-        [0.23760578781568142, -0.11171378767153328, -0.16479981165201707],
-    ),
-}  # fmt: skip
-
-
-@pytest.mark.parametrize("case", list(PRE_MOVE))
-def test_engine_gives_the_results_it_gave_before_the_move(case):
-    sensor, plan, settings, runs, seed, chunk, expected = PRE_MOVE[case]
-    extra = {} if chunk is None else {"chunk_values": chunk}
-    errors = monte_carlo(SimulatedWindows(load_spec(sensor)), plan, settings, runs, seed, **extra)
-    got = errors[0] if errors.ndim == 2 else errors[: len(expected)]
-    assert_allclose(got, expected, rtol=0.0, atol=1e-12)
 
 
 def _tilted_runs(pitches):

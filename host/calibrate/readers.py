@@ -2,8 +2,12 @@
 
 A reader turns one file into a :class:`RecordedRun`: the windows of one power-on in time order,
 each the project's :class:`~northfinder.host.recording.RecordedWindow` (gyro in deg/h,
-accelerometer in m/s^2, device times, table angles, validity bits). :data:`READERS` maps a file name's ending to its reader; a new format (a CAN log,
-say) plugs in with :func:`register_reader` and nothing else changes.
+accelerometer in m/s^2, device times, table angles, validity bits). :data:`READERS` maps a file
+name's ending to its reader; a new format plugs in with :func:`register_reader` and nothing else
+changes. Read today: northfinder recordings (``.csv``, ``.npz``) and CAN logs in python-can's
+formats (``.log``, ``.asc``, ``.blf``, ``.db``, ``.trc``, ``.mf4``, python-can's ``.csv`` told
+from a recording by its header, and ``.gz`` of the text formats), whose windows
+:func:`northfinder.host.canlog.read_can_log` rebuilds from the frame stream.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from northfinder.host.canlog import is_can_log, read_can_log
 from northfinder.host.errors import RecordingError
 from northfinder.host.procedure import BAD_BITS
 from northfinder.host.recording import RecordedWindow, Recording
@@ -94,8 +99,30 @@ def _read_northfinder(path: Path) -> RecordedRun:
     return RecordedRun(str(path), float(rate), tuple(windows[i] for i in order), latitude, rec.meta)
 
 
-register_reader(".csv", _read_northfinder)
+def _read_can_log(path: Path) -> RecordedRun:
+    session = read_can_log(path, min_windows=1)
+    gaps = [n for n in session.notes if "missing" in n]
+    meta: dict[str, Any] = {"notes": list(session.notes), "gaps": gaps}
+    if session.identity is not None:
+        meta["device"] = session.recording().meta.get("device")
+    return RecordedRun(str(path), session.sample_rate_hz, session.windows, None, meta)
+
+
+def _read_csv(path: Path) -> RecordedRun:
+    return _read_can_log(path) if is_can_log(path) else _read_northfinder(path)
+
+
+def _read_gz(path: Path) -> RecordedRun:
+    if not is_can_log(path):
+        raise RecordingError(f"{path}: a .gz file is read as a compressed CAN log (run.log.gz)")
+    return _read_can_log(path)
+
+
+register_reader(".csv", _read_csv)
 register_reader(".npz", _read_northfinder)
+for _suffix in (".log", ".asc", ".blf", ".db", ".trc", ".mf4"):
+    register_reader(_suffix, _read_can_log)
+register_reader(".gz", _read_gz)
 
 
 def read_runs(paths: Sequence[str | Path]) -> list[RecordedRun]:

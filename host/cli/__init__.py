@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from northfinder.driver.errors import DriverError
 from northfinder.firmware_sim.errors import SimError
@@ -26,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "simctl": "northfinder.host.cli.simctl",
     "conformance": "northfinder.host.cli.conformance",
     "study": "northfinder.host.cli.study",
+    "sweep": "northfinder.host.cli.sweep",
     "solve": "northfinder.host.cli.solve",
     "find": "northfinder.host.cli.find",
     "record": "northfinder.host.cli.record",
@@ -39,7 +42,8 @@ SUMMARIES: dict[str, str] = {
     "simctl": "control a running simulator",
     "conformance": "check a unit on a link against protocol.md",
     "study": "Monte Carlo accuracy of a plan against the physical bound; plan search",
-    "solve": "solve a recording offline",
+    "sweep": "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
+    "solve": "solve a recording or CAN log offline",
     "find": "find true north",
     "record": "record raw windows to CSV or NPZ",
     "calibrate": "fit sensor terms to recordings and write a sensor TOML",
@@ -50,13 +54,60 @@ SUMMARIES: dict[str, str] = {
 ROOT_ERRORS: tuple[type[Exception], ...] = (HostError, SimError, DriverError)
 
 
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+
+
+def _log_level(text: str) -> str:
+    name = text.upper()
+    if name not in LOG_LEVELS:
+        raise argparse.ArgumentTypeError(f"choose one of {', '.join(LOG_LEVELS)}, got {text!r}")
+    return name
+
+
+def add_global_options(parser: argparse.ArgumentParser, *, sub: bool = False) -> None:
+    """``--debug``, ``-v`` and ``--log-level``, before or after the subcommand. On a
+    subcommand their defaults are left out, so that an option given before it stays."""
+    default: dict[str, Any] = {"default": argparse.SUPPRESS} if sub else {}
+    g = parser.add_argument_group("output") if sub else parser
+    g.add_argument(
+        "--debug", action="store_true", help="show tracebacks on errors", **default
+    )  # fmt: skip
+    g.add_argument(
+        "-v", "--verbose", action="count", dest="verbose",
+        help="log more on stderr: -v info, -vv debug", **({"default": 0} if not sub else default),
+    )  # fmt: skip
+    g.add_argument(
+        "--log-level", type=_log_level, metavar="LEVEL", dest="log_level",
+        help=f"log level on stderr: {', '.join(LOG_LEVELS)} (default WARNING; sim: INFO)",
+        **({"default": None} if not sub else default),
+    )  # fmt: skip
+
+
+def _configure_logging(args: argparse.Namespace) -> None:
+    """Set the log level when one was asked for (a subcommand may set its own default)."""
+    level = args.log_level
+    if level is None and args.verbose:
+        level = "INFO" if args.verbose == 1 else "DEBUG"
+    if level is None:
+        return
+    logging.basicConfig(
+        level=getattr(logging, level),
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+        stream=sys.stderr,
+    )
+    logging.getLogger().setLevel(getattr(logging, level))
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The command line. With ``only`` a command's name, only that command's module is imported
     (the others are listed by name and summary); otherwise every command's."""
+    from northfinder.host.results import package_version
+
     parser = argparse.ArgumentParser(
         prog="northfinder", description="Workbench for gyro north finders."
     )
-    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"northfinder {package_version()}")
+    add_global_options(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module_name in COMMANDS.items():
         if only is not None and name != only:
@@ -64,14 +115,20 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
             continue
         module = importlib.import_module(module_name)
         p = module.add_parser(sub)
+        add_global_options(p, sub=True)
         p.set_defaults(_run=module.run)
     return parser
 
 
 def _command_of(argv: Sequence[str]) -> str:
     """The command named on the command line ("" if none: then no command module is needed)."""
+    takes_value = False
     for arg in argv:
-        if not arg.startswith("-"):
+        if takes_value:
+            takes_value = False
+        elif arg == "--log-level":
+            takes_value = True  # its value is no command
+        elif not arg.startswith("-"):
             return arg if arg in COMMANDS else ""
     return ""
 
@@ -80,6 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(only=_command_of(argv))
     args = parser.parse_args(argv)
+    _configure_logging(args)
     try:
         return int(args._run(args) or 0)
     except ROOT_ERRORS as exc:

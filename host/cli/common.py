@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
+import os
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Executor
 
 from northfinder.driver.protocol.constants import (
     NODE_ID_DEFAULT,
@@ -126,3 +130,87 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
     g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
     g.add_argument("--seed", type=int, default=None, help="random seed (default: fresh each run)")
+
+
+def add_solver_argument(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, choices: Sequence[str]
+) -> None:
+    """``--solver`` as ``find``, ``record``, ``solve`` and ``study`` spell it (``--method``, the
+    old spelling of ``find`` and ``solve``, is kept as a hidden alias)."""
+    parser.add_argument(
+        "--solver", choices=list(choices), default="auto", help="heading solver (default auto)"
+    )
+    parser.add_argument("--method", dest="solver", choices=list(choices), help=argparse.SUPPRESS)
+
+
+def can_log_path(text: str) -> str:
+    """argparse type: a CAN log file name whose ending names one of python-can's formats."""
+    from northfinder.driver.errors import ArgumentError
+    from northfinder.driver.framelog import log_suffix
+
+    try:
+        log_suffix(text)
+    except ArgumentError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
+    return value
+
+
+def _dask_address(text: str) -> str:
+    from northfinder.host.distributed import parse_dask_address
+    from northfinder.host.errors import HostConfigError
+
+    try:
+        parse_dask_address(text)
+    except HostConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("dask: ")) from None
+    return text
+
+
+def add_execution_arguments(parser: argparse.ArgumentParser) -> None:
+    """Where a Monte Carlo study runs: threads on this machine, or a Dask cluster."""
+    g = parser.add_argument_group("execution (results for a seed are the same everywhere)")
+    x = g.add_mutually_exclusive_group()
+    x.add_argument(
+        "--workers",
+        type=_workers,
+        default=None,
+        metavar="N",
+        help="threads on this machine (default: one per core)",
+    )
+    x.add_argument(
+        "--dask",
+        type=_dask_address,
+        default=None,
+        metavar="ADDRESS",
+        help="run on the Dask cluster whose scheduler is at tcp://HOST:PORT, or on local:N "
+        "(a local cluster of N worker processes); needs the dask extra",
+    )
+
+
+@contextlib.contextmanager
+def study_executor(args: argparse.Namespace) -> Iterator[Executor | None]:
+    """The executor of :func:`add_execution_arguments`' choice (None: run in this thread)."""
+    from northfinder.host.montecarlo import local_executor
+
+    if args.dask is not None:
+        from northfinder.host.distributed import dask_executor
+
+        with dask_executor(args.dask) as ex:
+            yield ex
+        return
+    workers = args.workers or os.cpu_count() or 1
+    if workers == 1:
+        yield None
+        return
+    with local_executor(workers) as ex:
+        yield ex

@@ -10,7 +10,8 @@ Links (choose one):
                     of the suite, and a check of the simulator itself)
 
 The report (one row per check: result, measured figures, message) goes to stdout as the checks
-run; ``--junit FILE`` also writes JUnit XML. Exit status: 0 all checks passed (skips allowed),
+run (``--json``: the documented JSON result at the end instead); ``--junit FILE`` also writes
+JUnit XML. Exit status: 0 all checks passed (skips allowed),
 1 a check failed, 2 bad arguments.
 
 Timing is judged in the unit's time: for a simulator running at ``--speed S`` give
@@ -21,6 +22,8 @@ With ``--sim`` the unit's time is the virtual clock's (no time scale).
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -41,6 +44,7 @@ from northfinder.driver.conformance import (
     select_checks,
     write_junit,
 )
+from northfinder.driver.conformance.core import Report
 from northfinder.driver.conformance.errors import SuiteConfigError
 from northfinder.host.cli.common import (
     add_link_arguments,
@@ -51,6 +55,7 @@ from northfinder.host.cli.common import (
     positive_float,
 )
 from northfinder.host.errors import HostConfigError
+from northfinder.host.results import SIMULATOR_MODEL, envelope
 
 _DEFAULTS = SuiteOptions()
 
@@ -105,7 +110,48 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("--list", action="store_true", help="list the checks and exit")
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML to FILE")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (no report)")
     return p
+
+
+def _identity(report: Report) -> dict[str, Any] | None:
+    """The unit's identity from the identify check's figures (None if it did not run or pass)."""
+    try:
+        r = report.result("identify")
+    except KeyError:
+        return None
+    f = r.figures
+    if r.outcome != "pass" or not {"model", "serial", "firmware", "protocol"} <= set(f):
+        return None
+    return {
+        "model": f["model"],
+        "serial_number": int(f["serial"]) if f["serial"].isdigit() else None,
+        "firmware_version": f["firmware"],
+        "protocol_version": f["protocol"],
+        "simulated": f["model"] == SIMULATOR_MODEL,
+    }
+
+
+def as_json(report: Report) -> str:
+    """The report as the documented JSON result (:mod:`northfinder.host.results`)."""
+    body = {
+        "link": report.link,
+        "passed": report.passed,
+        "counts": {k: report.count(k) for k in ("pass", "fail", "skip")},
+        "duration_s": report.duration_s,
+        "options": dataclasses.asdict(report.options),
+        "checks": [
+            {
+                "name": r.name,
+                "outcome": r.outcome,
+                "message": r.message,
+                "figures": dict(r.figures),
+                "duration_s": r.duration_s,
+            }
+            for r in report.results
+        ],
+    }
+    return json.dumps(envelope("conformance", _identity(report), body), indent=2)
 
 
 def _options(args: argparse.Namespace) -> SuiteOptions:
@@ -151,15 +197,23 @@ def run(args: argparse.Namespace) -> int:
                 raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
             closers.append(bus.shutdown)
             link = CanRawLink(bus, args.node_id)
-        print(format_header(link.kind, options), flush=True)
-        report = run_suite(link, options, progress=lambda r: print(format_result(r), flush=True))
+        if not args.json:
+            print(format_header(link.kind, options), flush=True)
+        report = run_suite(
+            link,
+            options,
+            progress=None if args.json else lambda r: print(format_result(r), flush=True),
+        )
     finally:
         for close in reversed(closers):
             try:
                 close()
             except (can.CanError, serial.SerialException, OSError):
                 pass  # the link is already gone; the report says what failed
-    print(f"\n{format_summary(report)}", flush=True)
+    if args.json:
+        print(as_json(report), flush=True)
+    else:
+        print(f"\n{format_summary(report)}", flush=True)
     if args.junit:
         write_junit(report, args.junit)
     return 0 if report.passed else 1

@@ -8,16 +8,37 @@ result.
 
 The plan: ``--positions`` any table angles (default 0,180), ``--window`` seconds per position,
 ``--settle`` extra seconds after the device reports READY, ``--denoise`` a method of northfinder.host.denoise,
-``--method`` the solver. A progress line shows on a terminal; ``--json`` prints a machine-readable
-result; ``--plot FILE`` draws the windows and per-pair azimuths (needs matplotlib).
+``--solver`` the heading solver. A progress bar (wall-clock seconds) shows on a terminal;
+``--json`` prints the documented JSON result; ``--plot FILE`` draws the windows and per-pair
+azimuths (needs matplotlib); ``--can-log FILE`` logs every frame; ``--record FILE`` writes the
+raw windows.
+
+NMEA 0183: ``--nmea TARGET`` (``-`` for stdout, a file, a serial port or pty path) sends
+``$HEHDT`` and the proprietary ``$PNFDH`` (heading, sigma, status; README "NMEA 0183 output")
+once the heading is found, ``--nmea-count`` times (0: until interrupted) at ``--nmea-rate`` Hz.
+With ``--nmea -`` the result goes to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
+import time
 
 from northfinder.host.cli import report
-from northfinder.host.cli.measure import add_arguments, run_plan, save_recording
+from northfinder.host.cli.common import baud_rate, positive_float
+from northfinder.host.cli.measure import Measured, add_arguments, run_plan, save_recording
+from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -33,14 +54,63 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--plot", metavar="FILE", help="plot the windows and per-pair azimuths (needs matplotlib)"
     )
     p.add_argument("--record", metavar="FILE", help="also write the raw windows (.csv or .npz)")
+    g = p.add_argument_group("NMEA 0183 output")
+    g.add_argument(
+        "--nmea", metavar="TARGET", help="send $HEHDT and $PNFDH to - (stdout), a file or a port"
+    )
+    g.add_argument(
+        "--nmea-rate", type=positive_float, default=1.0, metavar="HZ",
+        help="sentences per second (default 1)",
+    )  # fmt: skip
+    g.add_argument(
+        "--nmea-count", type=_count, default=1, metavar="N",
+        help="how many times to send them (default 1; 0: until interrupted)",
+    )  # fmt: skip
+    g.add_argument(
+        "--nmea-baud", type=baud_rate, default=NMEA_BAUD,
+        help=f"baud rate of a serial TARGET (default {NMEA_BAUD})",
+    )  # fmt: skip
+    g.add_argument(
+        "--nmea-max-sigma", type=positive_float, default=1.0, metavar="DEG",
+        help="above this 1-sigma the heading is sent as not valid (status V; default 1 deg)",
+    )  # fmt: skip
     return p
 
 
+def send_nmea(args: argparse.Namespace, m: Measured) -> int:
+    """Send the heading ``--nmea-count`` times at ``--nmea-rate``; return how many were sent."""
+    r = m.result
+    fix = HeadingFix(
+        r.azimuth_deg, r.sigma_deg, r.pitch_deg, r.roll_deg, len(r.windows), args.nmea_max_sigma
+    )
+    lines = (hdt_sentence(fix), nfdh_sentence(fix))
+    period = 1.0 / args.nmea_rate
+    with NmeaOutput(args.nmea, baudrate=args.nmea_baud) as out:
+        n = 0
+        next_at = time.monotonic()
+        while args.nmea_count == 0 or n < args.nmea_count:
+            out.send(*lines)
+            n += 1
+            if args.nmea_count and n >= args.nmea_count:
+                break
+            next_at += period
+            time.sleep(max(0.0, next_at - time.monotonic()))
+    return n
+
+
 def run(args: argparse.Namespace) -> int:
-    m = run_plan(args)
+    to_stdout = args.nmea == "-"
+    m = run_plan(args, progress=not (args.json or to_stdout))
     if args.record:
         save_recording(args.record, m)
     if args.plot:
-        report.plot(args.plot, m.result, m.windows, m.plan.denoise)
-    print(report.as_json(m.result, m.truth) if args.json else report.text(m.result, m.truth))
+        report.plot(args.plot, m.result, m.windows, m.plan.denoise, m.truth)
+    text = (
+        report.as_json("find", m.result, m.truth, m.device)
+        if args.json
+        else report.text(m.result, m.truth)
+    )
+    print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
+    if args.nmea:
+        send_nmea(args, m)
     return 0

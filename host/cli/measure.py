@@ -17,12 +17,15 @@ import can.cli
 import numpy as np
 
 from northfinder.driver.device import Device
+from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.host.cli.common import (
     add_link_arguments,
     add_sensor_argument,
+    add_solver_argument,
     add_truth_arguments,
     angle_list,
     bus_given,
+    can_log_path,
     finite_float,
     positive_float,
     sim_latitude,
@@ -31,6 +34,7 @@ from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
 from northfinder.host.procedure import METHOD_CHOICES, FindResult, Plan, Progress, find_north
 from northfinder.host.recording import RecordedWindow, Recording
+from northfinder.host.results import device_identity, utc_now
 
 
 def add_device_arguments(p: argparse.ArgumentParser) -> None:
@@ -53,6 +57,14 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="use the embedded simulated instrument (in virtual time: as fast as the CPU allows, "
         "the same result for a --seed whatever the machine's load)",
+    )
+    g.add_argument(
+        "--can-log",
+        type=can_log_path,
+        metavar="FILE",
+        help="log every frame the driver sends and receives to a CAN log; the ending picks "
+        f"python-can's format ({', '.join(LOG_SUFFIXES)}); a serial link logs the CAN frames "
+        "of its messages; `northfinder solve FILE` solves it again",
     )
     g.add_argument(
         "--speed",
@@ -92,7 +104,7 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--denoise", default="none", choices=list(METHODS), help="denoising method (default none)"
     )
-    g.add_argument("--method", default="auto", choices=METHOD_CHOICES, help="solver (default auto)")
+    add_solver_argument(g, METHOD_CHOICES)
     g.add_argument(
         "--timeout", type=positive_float, default=600.0, help="warm-up timeout, s (default 600)"
     )
@@ -105,7 +117,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def plan_from_args(args: argparse.Namespace) -> Plan:
-    return Plan(tuple(args.positions), args.window, args.settle, args.denoise, args.method)
+    return Plan(tuple(args.positions), args.window, args.settle, args.denoise, args.solver)
 
 
 @contextlib.contextmanager
@@ -116,13 +128,21 @@ def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, An
         raise HostConfigError(
             "choose exactly one device: -i/-c (python-can), --serial PORT, or --sim"
         )
-    if args.sim:
-        with embedded_simulator(args) as (device, truth):
-            yield device, truth
-        return
-    if args.speed is not None:
-        raise HostConfigError("--speed: only with --sim (a real unit runs at its own pace)")
-    options = device_options(args)
+    with contextlib.ExitStack() as stack:
+        tap = stack.enter_context(FrameLog(args.can_log)) if args.can_log else None
+        if args.sim:
+            with embedded_simulator(args, tap) as (device, truth):
+                yield device, truth
+            return
+        if args.speed is not None:
+            raise HostConfigError("--speed: only with --sim (a real unit runs at its own pace)")
+        with _open_unit(args, tap) as device:
+            yield device, None
+
+
+@contextlib.contextmanager
+def _open_unit(args: argparse.Namespace, tap: FrameLog | None) -> Iterator[Device]:
+    options: dict[str, Any] = {"tap": tap, **device_options(args)}
     if args.serial:
         device = Device.open_serial(args.serial, baudrate=args.baud, **options)
     else:
@@ -132,7 +152,7 @@ def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, An
             raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
         device = Device.from_bus(bus, node_id=args.node_id, own_bus=True, **options)
     with device:
-        yield device, None
+        yield device
 
 
 def device_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -146,7 +166,9 @@ def device_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
-def embedded_simulator(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, Any]]]:
+def embedded_simulator(
+    args: argparse.Namespace, tap: FrameLog | None = None
+) -> Iterator[tuple[Device, dict[str, Any]]]:
     """A device on the simulated instrument in this process (virtual CAN), and its truth.
 
     Virtual time by default; paced (``--speed S``) on a thread, with the driver's relaxed
@@ -171,32 +193,50 @@ def embedded_simulator(args: argparse.Namespace) -> Iterator[tuple[Device, dict[
         node_id=args.node_id,
     )
     options = {**(RELAXED_DEVICE_OPTIONS if paced else {}), **device_options(args)}
-    with sim, sim.open_device(**options) as device:
+    with sim, sim.open_device(tap=tap, **options) as device:
         yield device, sim.describe()
 
 
-class ProgressLine:
-    """One updating line on a terminal: phase, position, table angle, seconds left."""
+class ProgressBar:
+    """Progress of a plan on stderr, drawn by tqdm in wall-clock seconds: the bar counts the
+    plan's device seconds done, so elapsed and remaining are what the user waits (an embedded
+    simulator at ``--speed 100`` finishes 100 times sooner than the plan's device time).
 
-    def __init__(self, stream: Any = sys.stderr) -> None:
-        self.stream = stream
-        self.enabled = bool(getattr(stream, "isatty", lambda: False)())
+    Off when stderr is not a terminal or ``enabled`` is False (``--json``, ``--nmea -``).
+    """
+
+    def __init__(self, *, enabled: bool = True, stream: Any = None) -> None:
+        self.stream = sys.stderr if stream is None else stream
+        self.enabled = enabled and bool(getattr(self.stream, "isatty", lambda: False)())
+        self._bar: Any = None
 
     def __call__(self, p: Progress) -> None:
         if not self.enabled:
             return
-        angle = "   ---   " if p.table_deg is None else f"{p.table_deg:9.4f}"
-        left = (
-            ""
-            if p.seconds_left is None or not math.isfinite(p.seconds_left)
-            else f"  ~{p.seconds_left:5.0f} s left"
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=None, file=self.stream, leave=False, dynamic_ncols=True,
+                bar_format="{desc} {percentage:3.0f}%|{bar}| {elapsed} elapsed, ~{remaining} left",
+            )  # fmt: skip
+        bar = self._bar
+        angle = "---" if p.table_deg is None else f"{p.table_deg:.3f}"
+        bar.set_description_str(
+            f"{p.phase:<8} position {p.position}/{p.positions} table {angle} deg"
         )
-        self.stream.write(
-            f"\r{p.phase:<8} position {p.position}/{p.positions}  table {angle} deg{left}   "
-        )
-        self.stream.flush()
+        if p.seconds_left is not None and math.isfinite(p.seconds_left):
+            if bar.total is None:
+                bar.total = max(p.seconds_left, 1e-9)
+            bar.n = max(0.0, min(bar.total, bar.total - p.seconds_left))
+        bar.refresh()
         if p.phase == "done":
-            self.stream.write("\n")
+            self.close()
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -210,36 +250,53 @@ class Measured:
     latitude_deg: float
     sample_rate_hz: float
     truth: dict[str, Any] | None
+    device: dict[str, Any] | None = None
+    created_utc: str = ""
 
 
-def run_plan(args: argparse.Namespace) -> Measured:
-    """Open the device, run the plan and solve."""
+def run_plan(args: argparse.Namespace, *, progress: bool = True) -> Measured:
+    """Open the device, run the plan and solve (``progress``: draw the progress bar)."""
     plan = plan_from_args(args)
+    created = utc_now()
     with open_device(args) as (device, truth):
         latitude = sim_latitude(args) if args.sim else args.latitude
         if latitude is None:
             raise HostConfigError(
                 "--latitude: give the site's latitude in degrees (north positive)"
             )
-        clock = device.clock
-        result, windows = find_north(
-            device,
-            plan,
-            latitude,
-            warmup_timeout_s=args.timeout,
-            progress=ProgressLine(),
-            sleep=clock.sleep,
-            clock=clock.now,
+        identity = device_identity(
+            device.identity,
+            simulated=bool(args.sim),
+            sensor=None if truth is None else truth.get("sensor"),
         )
-        return Measured(result, windows, plan, latitude, device.sample_rate_hz, truth)
+        bar = ProgressBar(enabled=progress)
+        try:
+            clock = device.clock
+            result, windows = find_north(
+                device,
+                plan,
+                latitude,
+                warmup_timeout_s=args.timeout,
+                progress=bar,
+                sleep=clock.sleep,
+                clock=clock.now,
+            )
+        finally:
+            bar.close()
+        return Measured(
+            result, windows, plan, latitude, device.sample_rate_hz, truth, identity, created
+        )
 
 
 def save_recording(path: str, measured: Measured) -> Recording:
-    """Write the raw windows of a run with what is needed to solve them again."""
+    """Write the raw windows of a run with what is needed to solve them again, the device's
+    identity and the UTC time the run began."""
     meta: dict[str, Any] = {
         "latitude_deg": measured.latitude_deg,
         "sample_rate_hz": measured.sample_rate_hz,
         "plan": dataclasses.asdict(measured.plan),
+        "created_utc": measured.created_utc or utc_now(),
+        "device": measured.device,
     }
     if measured.truth is not None:
         meta["truth"] = measured.truth

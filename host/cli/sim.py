@@ -18,12 +18,14 @@ import logging
 import signal
 import sys
 import threading
+from collections.abc import Callable
 
 import can
 import can.cli
 import numpy as np
 import serial
 
+from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT
 from northfinder.firmware_sim.control import Controller, ControlServer, parse_address
 from northfinder.firmware_sim.errors import SimConfigError
@@ -43,6 +45,7 @@ from northfinder.host.cli.common import (
     add_sensor_argument,
     add_truth_arguments,
     bus_given,
+    can_log_path,
     finite_float,
     positive_float,
     sim_latitude,
@@ -95,6 +98,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--duration", type=positive_float, default=None, help="stop after this many wall seconds"
     )
+    p.add_argument(
+        "--log",
+        type=can_log_path,
+        metavar="FILE",
+        help="log every frame received and sent to a CAN log; the ending picks python-can's "
+        f"format ({', '.join(LOG_SUFFIXES)}); a serial link logs the CAN frames of its messages",
+    )
     return p
 
 
@@ -116,7 +126,11 @@ def run(args: argparse.Namespace) -> int:
     azimuth = float(rng.uniform(0.0, 360.0)) if args.azimuth is None else args.azimuth
     truth = Truth(azimuth, sim_latitude(args), args.pitch, args.roll)
     spec = load_spec(args.sensor)
-    closers = []
+    closers: list[Callable[[], None]] = []
+    frame_log = None
+    if args.log:
+        frame_log = FrameLog(args.log)
+        closers.append(frame_log.close)
     pty = None
     if args.pty or args.slcan_pty:
         pty = PseudoTerminal()
@@ -135,13 +149,13 @@ def run(args: argparse.Namespace) -> int:
     firmware = Firmware(spec, truth, rng, warmup_s=args.warmup, node_id=args.node_id, link=info)
     link: Link
     if args.serial:
-        link = SerialLink(SerialStream(port), firmware)
+        link = SerialLink(SerialStream(port), firmware, tap=frame_log, node_id=args.node_id)
     elif pty is not None:
         stream = pty.stream
         link = (
-            SerialLink(stream, firmware)
+            SerialLink(stream, firmware, tap=frame_log, node_id=args.node_id)
             if args.pty
-            else CanLink(SlcanAdapter(stream), firmware, args.node_id)
+            else CanLink(SlcanAdapter(stream), firmware, args.node_id, tap=frame_log)
         )
     else:
         try:
@@ -149,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
         except (argparse.ArgumentError, can.CanError, OSError, ValueError) as exc:
             raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
         closers.append(bus.shutdown)
-        link = CanLink(bus, firmware, args.node_id)
+        link = CanLink(bus, firmware, args.node_id, tap=frame_log)
     runner = Runner(firmware, link, RealTimeClock(args.speed))
     server = None
     if args.control:

@@ -16,6 +16,7 @@ in worker processes).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,7 +29,26 @@ from northfinder.host.accuracy import ErrorModel
 from northfinder.host.montecarlo import RunRequest
 from northfinder.host.plan import TableModel
 
-__all__ = ["SimulatedWindows", "SpecDrift", "error_model"]
+__all__ = ["SimulatedWindows", "SpecDrift", "error_model", "simulator_identity"]
+
+
+def simulator_identity(sensor: str | None = None) -> dict[str, Any]:
+    """The simulated instrument's identity as results state it (``simulated`` true; the serial
+    number is null: a study draws runs of the sensor model, not of one unit)."""
+    from northfinder.driver.protocol.constants import PROTOCOL_VERSION_MAJOR, PROTOCOL_VERSION_MINOR
+    from northfinder.firmware_sim.firmware import Firmware
+
+    out: dict[str, Any] = {
+        "model": Firmware.MODEL,
+        "serial_number": None,
+        "hardware_revision": None,
+        "firmware_version": ".".join(map(str, Firmware.FIRMWARE_VERSION)),
+        "protocol_version": f"{PROTOCOL_VERSION_MAJOR}.{PROTOCOL_VERSION_MINOR}",
+        "simulated": True,
+    }
+    if sensor is not None:
+        out["sensor"] = sensor
+    return out
 
 
 @dataclass(frozen=True)
@@ -54,6 +74,7 @@ class SimulatedWindows:
             sample_rate_hz=request.sample_rate_hz,
             warmup_s=request.warmup_s,
             bias_step_dph=request.bias_step_dph,
+            channels=request.channels,
         )
 
 

@@ -1,17 +1,28 @@
-"""``northfinder solve FILE``: solve a recording written by ``northfinder record`` offline.
+"""``northfinder solve FILE``: solve a recording or a CAN log offline.
 
-The recording carries its latitude; ``--latitude`` overrides it. ``--denoise`` and ``--method``
-are the same as for ``find``, so a recording can be solved again with other settings.
+FILE is a recording of ``northfinder record`` (``.csv``, ``.npz``) or a CAN log in any format
+python-can reads (``.log`` candump, ``.asc``, ``.blf``, ``.csv``, ``.db``, ``.trc``; written by
+``northfinder sim --log``, ``find/record --can-log``, python-can's logger or candump). From a log
+the windows are rebuilt from the frame stream: one per STREAM_START, at the angle of the last
+rotation command, in the scales of the log's IDENTIFY; ``--window SECONDS`` keeps the first
+seconds of each, as ``find``'s acquisition did (default: every sample streamed at the position).
+Missing ticks are reported and stop the solution.
+
+A recording carries its latitude; a log does not: give ``--latitude``. ``--denoise`` and
+``--solver`` are those of ``find``, so a session can be solved again with other settings.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+from typing import Any
 
+from northfinder.host.canlog import is_can_log, read_can_log
 from northfinder.host.cli import report
-from northfinder.host.cli.common import finite_float
+from northfinder.host.cli.common import add_solver_argument, finite_float, node_id, positive_float
 from northfinder.host.denoise import METHODS
-from northfinder.host.errors import HostConfigError
+from northfinder.host.errors import HostConfigError, QualityError
 from northfinder.host.procedure import (
     METHOD_CHOICES,
     FindResult,
@@ -23,15 +34,29 @@ from northfinder.host.recording import Recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser("solve", help="solve a recording offline", description=__doc__)
-    p.add_argument("file", help="recording (.csv or .npz)")
+    p = sub.add_parser(
+        "solve",
+        help="solve a recording or CAN log offline",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("file", help="recording (.csv, .npz) or CAN log (.log, .asc, .blf, ...)")
     p.add_argument(
         "--latitude", type=finite_float, default=None, help="deg (default: from the recording)"
     )
     p.add_argument(
         "--denoise", default="none", choices=list(METHODS), help="denoising method (default none)"
     )
-    p.add_argument("--method", default="auto", choices=METHOD_CHOICES, help="solver (default auto)")
+    add_solver_argument(p, METHOD_CHOICES)
+    g = p.add_argument_group("CAN logs")
+    g.add_argument(
+        "--window", type=positive_float, default=None, metavar="SECONDS",
+        help="keep the first SECONDS of each window (default: all samples at the position)",
+    )  # fmt: skip
+    g.add_argument(
+        "--node-id", type=node_id, default=None,
+        help="the device's node id (default: the only node in the log)",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument(
         "--plot", metavar="FILE", help="plot the windows and per-pair azimuths (needs matplotlib)"
@@ -61,11 +86,38 @@ def solve_recording(
     )  # fmt: skip
 
 
+def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
+    """The recording named by the arguments (read from a CAN log if it is one) and where it
+    came from."""
+    path = Path(args.file)
+    if is_can_log(path):
+        session = read_can_log(path, node_id=args.node_id, window_s=args.window)
+        source = {
+            "file": str(path), "format": "can-log", "node_id": session.node_id,
+            "frames": session.frames, "sample_rate_hz": session.sample_rate_hz,
+            "window_s": args.window, "notes": list(session.notes),
+        }  # fmt: skip
+        gaps = [n for n in session.notes if "missing" in n or "ends the window" in n]
+        if gaps:
+            raise QualityError(f"{path}: " + "; ".join(gaps))
+        return session.recording(), source
+    if args.window is not None or args.node_id is not None:
+        raise HostConfigError("--window and --node-id apply to CAN logs only")
+    rec = Recording.load(path)
+    return rec, {"file": str(path), "format": f"recording{path.suffix}"}
+
+
 def run(args: argparse.Namespace) -> int:
-    rec = Recording.load(args.file)
-    result = solve_recording(rec, args.latitude, args.denoise, args.method)
+    rec, source = load(args)
+    result = solve_recording(rec, args.latitude, args.denoise, args.solver)
     truth = rec.meta.get("truth")
     if args.plot:
-        report.plot(args.plot, result, list(rec.windows), args.denoise)
-    print(report.as_json(result, truth) if args.json else report.text(result, truth))
+        report.plot(args.plot, result, list(rec.windows), args.denoise, truth)
+    device = rec.meta.get("device")
+    if args.json:
+        print(report.as_json("solve", result, truth, device, source=source))
+    else:
+        print(report.text(result, truth))
+        for note in source.get("notes", []):
+            print(f"note: {note}")
     return 0

@@ -15,6 +15,10 @@ counted; the total time including it is reported too).
 
 A run whose tilt, as the accelerometers measure it, exceeds the solvers' limit (15 deg) has no
 solution; such runs are counted in ``rejected`` and left out of the statistics, never clipped.
+
+The runs use every core (``--workers N`` threads) or a Dask cluster (``--dask tcp://HOST:PORT``
+or ``--dask local:N``); the results for a seed are the same wherever they run. ``northfinder
+sweep`` runs many studies at once.
 """
 
 from __future__ import annotations
@@ -22,24 +26,35 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from concurrent.futures import Executor
 from dataclasses import replace
 from typing import Any
 
 from northfinder.firmware_sim.sensors import SensorSpec, load_spec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.cli.common import (
+    add_execution_arguments,
     add_sensor_argument,
+    add_solver_argument,
     angle_list,
     finite_float,
     positive_float,
+    study_executor,
 )
-from northfinder.host.cli.simulated import SimulatedWindows, error_model
+from northfinder.host.cli.simulated import SimulatedWindows, error_model, simulator_identity
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
-from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows, verify_plan
+from northfinder.host.montecarlo import (
+    StudySettings,
+    monte_carlo,
+    monte_carlo_many,
+    study_rows,
+    verify_plan,
+)
 from northfinder.host.plan import PLANS, SOLVERS, Plan, plan_time_s, settle_time_s
 from northfinder.host.planner import PlanCandidate, search_plans, shortest_plan
+from northfinder.host.results import envelope
 
 
 def _non_negative_float(text: str) -> float:
@@ -56,6 +71,16 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
     return value
 
 
@@ -144,14 +169,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     g.add_argument(
         "--denoise-accel", action="store_true", help="denoise the accelerometer windows too"
     )
-    g.add_argument("--solver", choices=list(SOLVERS), default="auto", help="heading solver")
+    add_solver_argument(g, list(SOLVERS))
     g.add_argument("--tilt", choices=list(TILT_SOURCES), default="accel", help="tilt source")
     g.add_argument(
         "--angles", choices=list(ANGLE_SOURCES), default="encoder", help="table angles used"
     )
     g = p.add_argument_group("Monte Carlo")
     g.add_argument("--runs", type=int, default=1000, help="seeded runs (default: 1000)")
-    g.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    g.add_argument("--seed", type=_seed, default=0, help="random seed (default: 0)")
     g.add_argument(
         "--bias-step",
         type=_non_negative_float,
@@ -175,6 +200,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="find the shortest plan whose predicted (and, with --runs, simulated) RMSE meets DEG",
     )
     g.add_argument("--top", type=_positive_int, default=5, help="plans listed (default: 5)")
+    add_execution_arguments(p)
     g = p.add_argument_group("output")
     g.add_argument("--json", action="store_true", help="print JSON")
     g.add_argument(
@@ -288,7 +314,11 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         "tilt": args.tilt,
         "angles": args.angles,
     }
-    report: dict[str, Any] = {"sensor": spec.name, "latitude_deg": args.latitude}
+    report: dict[str, Any] = {
+        "kind": "plan-search",
+        "sensor": spec.name,
+        "latitude_deg": args.latitude,
+    }
     best_plan: Plan | None = None
     if args.plan_budget is not None:
         cands = search_plans(model, args.latitude, args.plan_budget, **common)
@@ -302,15 +332,17 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         best_plan = None if cand is None else cand.plan
     if best_plan is not None and args.runs > 0:
         t0 = time.perf_counter()
-        plan, row = verify_plan(
-            SimulatedWindows(spec),
-            model,
-            _processing(args, best_plan),
-            settings,
-            args.runs,
-            args.seed,
-            args.plan_target,
-        )
+        with study_executor(args) as executor:
+            plan, row = verify_plan(
+                SimulatedWindows(spec),
+                model,
+                _processing(args, best_plan),
+                settings,
+                args.runs,
+                args.seed,
+                args.plan_target,
+                executor=executor,
+            )
         report["verified"] = {
             **_plan_json(plan, model, args.warmup),
             **row,
@@ -318,7 +350,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
             "wall_time_s": time.perf_counter() - t0,
         }
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json.dumps(envelope("study", simulator_identity(spec.name), report), indent=2))
         return 0
     what = (
         f"plan time <= {args.plan_budget:g} s"
@@ -358,13 +390,17 @@ def _sweep(
     windows: list[float],
     runs: int,
     seed: int,
+    executor: Executor | None,
 ) -> list[dict[str, Any]]:
     model = error_model(spec)
     generator = SimulatedWindows(spec)
+    subs = [replace(plan, window_s=w) for w in windows]
+    errors = monte_carlo_many(
+        [(generator, sub, settings, runs, seed) for sub in subs], executor=executor
+    )
     out = []
-    for w in windows:
-        sub = replace(plan, window_s=w)
-        rows = study_rows(model, sub, settings, monte_carlo(generator, sub, settings, runs, seed))
+    for w, sub, e in zip(windows, subs, errors, strict=True):
+        rows = study_rows(model, sub, settings, e)
         out.append({"window_s": w, **_plan_json(sub, model, settings.warmup_s), **rows[0]})
     return out
 
@@ -413,11 +449,21 @@ def run(args: argparse.Namespace) -> int:
         return _run_planner(args, spec, settings)
     plan = _plan(args)
     model = error_model(spec)
-    t0 = time.perf_counter()
-    errors = monte_carlo(SimulatedWindows(spec), plan, settings, args.runs, args.seed)
-    wall = time.perf_counter() - t0
+    with study_executor(args) as executor:
+        t0 = time.perf_counter()
+        errors = monte_carlo(
+            SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor
+        )
+        wall = time.perf_counter() - t0
+        sweep = None
+        if args.plot:
+            windows = args.sweep or [plan.window_s * f for f in (0.25, 0.5, 1.0, 2.0, 4.0)]
+            if any(w <= 0 for w in windows):
+                raise HostConfigError(f"--sweep: windows must be positive, got {windows}")
+            sweep = _sweep(spec, plan, settings, windows, args.runs, args.seed, executor)
     rows = study_rows(model, plan, settings, errors)
     report: dict[str, Any] = {
+        "kind": "monte-carlo",
         "sensor": spec.name,
         "latitude_deg": args.latitude,
         "plan": _plan_json(plan, model, args.warmup),
@@ -431,11 +477,8 @@ def run(args: argparse.Namespace) -> int:
         "results": rows,
         "wall_time_s": wall,
     }
-    if args.plot:
-        windows = args.sweep or [plan.window_s * f for f in (0.25, 0.5, 1.0, 2.0, 4.0)]
-        if any(w <= 0 for w in windows):
-            raise HostConfigError(f"--sweep: windows must be positive, got {windows}")
-        report["sweep"] = _sweep(spec, plan, settings, windows, args.runs, args.seed)
+    if sweep is not None:
+        report["sweep"] = sweep
         _plot(
             args.plot,
             report["sweep"],
@@ -443,7 +486,7 @@ def run(args: argparse.Namespace) -> int:
         )
         report["plot"] = args.plot
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json.dumps(envelope("study", simulator_identity(spec.name), report), indent=2))
         return 0
     p = report["plan"]
     print(

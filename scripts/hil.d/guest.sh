@@ -40,6 +40,9 @@ load_uml_can_modules() {
     done
 }
 
+# Loopback: the simulator's control channel listens on 127.0.0.1 (a fresh guest has lo down).
+ip link set up lo 2>/dev/null || true
+
 # CAN interface
 if ip link show "$HIL_CAN_IF" >/dev/null 2>&1; then
     echo "guest: $HIL_CAN_IF present"

@@ -122,6 +122,11 @@ def main(out: str) -> int:
                 f"; 2e6-iteration loop {r.get('python_loop_2e6_s')} s, time.monotonic "
                 f"{r.get('monotonic_call_us')} us, SocketCAN send {r.get('socketcan_send_ms')} ms"
             )
+        if s["name"] == "driver" and r:
+            line += (
+                f"; driver tests on SocketCAN: {r.get('tests')} run, {r.get('failures')} failed, "
+                f"{r.get('errors')} errors, {r.get('skipped')} skipped"
+            )
         if s["name"] == "rehearsal" and r:
             err, sigma = r.get("azimuth_error_deg"), r.get("sigma_deg")
             if err is not None and sigma is not None:
@@ -138,6 +143,11 @@ def main(out: str) -> int:
             if r.get("machine_cpu_busy_percent") is not None:
                 line += f"; guest CPU {r['machine_cpu_busy_percent']} % busy"
         print(line)
+        if s["rc"] != 0:
+            # A failed or timed-out step: its last words, so a CI log says what happened.
+            tail = (read(os.path.join(out, "steps", s["name"], "log")) or "").splitlines()[-25:]
+            for text in tail:
+                print(f"hil:   | {text[:300]}")
         for name, item in (
             (r.get("report_only") or {}) if s["name"] == "rehearsal" else {}
         ).items():

@@ -1,0 +1,238 @@
+"""``northfinder sweep``: Monte Carlo studies over sensor presets, latitudes, plans and windows.
+
+Every combination of ``--sensors``, ``--latitudes``, plans (each ``--positions`` and ``--plan``)
+and ``--windows`` is one study of ``--runs`` runs with the same ``--seed``; its row is what
+``northfinder study`` prints for the same sensor, latitude, plan, window and seed. The chunks of
+all studies are handed out at once, to the threads of this machine (``--workers``) or to a Dask
+cluster (``--dask tcp://HOST:PORT``), so that a long sweep keeps every worker busy to its end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import time
+from dataclasses import replace
+from typing import Any
+
+from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
+from northfinder.host.cli.common import (
+    add_execution_arguments,
+    angle_list,
+    finite_float,
+    positive_float,
+    study_executor,
+)
+from northfinder.host.cli.simulated import SimulatedWindows, error_model
+from northfinder.host.cli.study import (
+    _key_value,
+    _non_negative_float,
+    _plan_json,
+    _seed,
+)
+from northfinder.host.denoise import METHODS
+from northfinder.host.errors import HostConfigError
+from northfinder.host.montecarlo import StudySettings, monte_carlo_many, study_rows
+from northfinder.host.plan import PLANS, SOLVERS, Plan
+
+
+def _names(text: str) -> list[str]:
+    names = [t.strip() for t in text.split(",")]
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"expected NAME,NAME,..., got {text!r}")
+    return names
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [finite_float(t) for t in text.split(",")]
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
+
+
+def _windows(text: str) -> list[float]:
+    try:
+        return [positive_float(t) for t in text.split(",")]
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "sweep",
+        help="Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    g = p.add_argument_group("what to sweep (every combination is one study)")
+    g.add_argument(
+        "--sensors",
+        type=_names,
+        default=["paper-rlg"],
+        metavar="PRESET|FILE,...",
+        help="sensor presets or TOML files (default: paper-rlg)",
+    )
+    g.add_argument(
+        "--latitudes", type=_floats, default=[34.0], metavar="DEG,...", help="(default: 34)"
+    )
+    g.add_argument(
+        "--positions",
+        type=angle_list,
+        action="append",
+        default=[],
+        metavar="DEG,DEG,...",
+        help="table angles of one plan (repeatable; default 0,180 when no --plan is given)",
+    )
+    g.add_argument(
+        "--plan",
+        dest="named_plans",
+        choices=sorted(PLANS),
+        action="append",
+        default=[],
+        help="a named plan (repeatable)",
+    )
+    g.add_argument(
+        "--windows",
+        type=_windows,
+        default=None,
+        metavar="S,...",
+        help="s per position (default: 10, or the named plan's)",
+    )
+    g = p.add_argument_group("every study")
+    g.add_argument(
+        "--set",
+        dest="overrides",
+        type=_key_value,
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="override a field of every sensor, e.g. gyro.arw_dpsh=0.002 (repeatable)",
+    )
+    g.add_argument("--azimuth", type=finite_float, default=None, help="deg (default: random)")
+    g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
+    g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
+    g.add_argument("--settle", type=_non_negative_float, default=None, help="s after a move")
+    g.add_argument("--warmup", type=_non_negative_float, default=120.0, help="s (default: 120)")
+    g.add_argument("--rate", type=positive_float, default=200.0, help="sample rate, Hz (200)")
+    g.add_argument("--denoise", choices=list(METHODS), default="none", help="(default: none)")
+    g.add_argument(
+        "--denoise-option",
+        dest="denoise_options",
+        type=_key_value,
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+    )
+    g.add_argument("--denoise-accel", action="store_true")
+    g.add_argument("--solver", choices=list(SOLVERS), default="auto")
+    g.add_argument("--tilt", choices=list(TILT_SOURCES), default="accel")
+    g.add_argument("--angles", choices=list(ANGLE_SOURCES), default="encoder")
+    g.add_argument("--bias-step", type=_non_negative_float, default=0.0, metavar="DPH")
+    g.add_argument("--runs", type=int, default=1000, help="runs per study (default: 1000)")
+    g.add_argument("--seed", type=_seed, default=0, help="seed of every study (default: 0)")
+    add_execution_arguments(p)
+    p.add_argument("--json", action="store_true", help="print JSON")
+    return p
+
+
+def _plans(args: argparse.Namespace) -> list[Plan]:
+    base: list[Plan] = [Plan(tuple(pos), 10.0) for pos in args.positions]
+    base += [PLANS[name] for name in args.named_plans]
+    if not base:
+        base = [Plan((0.0, 180.0), 10.0)]
+    windows = args.windows
+    plans = []
+    for plan in base:
+        for w in windows or [plan.window_s]:
+            plans.append(
+                replace(
+                    plan,
+                    window_s=w,
+                    settle_s=args.settle,
+                    denoise=args.denoise,
+                    method=args.solver if plan.method == "auto" else plan.method,
+                    denoise_options=tuple(args.denoise_options),
+                )
+            )
+    return plans
+
+
+def run(args: argparse.Namespace) -> int:
+    from northfinder.firmware_sim.sensors import load_spec
+
+    if args.runs < 2:
+        raise HostConfigError(f"--runs: need at least 2 runs for statistics, got {args.runs}")
+    specs = []
+    for name in args.sensors:
+        spec = load_spec(name)
+        specs.append(spec.with_values(dict(args.overrides)) if args.overrides else spec)
+    plans = _plans(args)
+    combos = list(itertools.product(specs, args.latitudes, plans))
+    settings = {
+        lat: StudySettings(
+            latitude_deg=lat,
+            azimuth_deg=args.azimuth,
+            pitch_deg=args.pitch,
+            roll_deg=args.roll,
+            warmup_s=args.warmup,
+            sample_rate_hz=args.rate,
+            denoise_accel=args.denoise_accel,
+            tilt=args.tilt,
+            angles=args.angles,
+            bias_step_dph=args.bias_step,
+        )
+        for lat in args.latitudes
+    }
+    with study_executor(args) as executor:
+        t0 = time.perf_counter()
+        errors = monte_carlo_many(
+            [
+                (SimulatedWindows(spec), plan, settings[lat], args.runs, args.seed)
+                for spec, lat, plan in combos
+            ],
+            executor=executor,
+        )
+        wall = time.perf_counter() - t0
+    studies: list[dict[str, Any]] = []
+    for (spec, lat, plan), e in zip(combos, errors, strict=True):
+        model = error_model(spec)
+        studies.append(
+            {
+                "sensor": spec.name,
+                "latitude_deg": lat,
+                "plan": _plan_json(plan, model, args.warmup),
+                "results": study_rows(model, plan, settings[lat], e),
+            }
+        )
+    report = {
+        "runs": args.runs,
+        "seed": args.seed,
+        "denoise": args.denoise,
+        "studies": studies,
+        "wall_time_s": wall,
+    }
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(
+        f"{len(studies)} studies of {args.runs} runs (seed {args.seed}), denoise {args.denoise}: "
+        f"Monte Carlo {wall:.2f} s"
+    )
+    print(
+        f"{'sensor':>14} {'lat deg':>8} {'positions':>22} {'window s':>9} {'plan s':>8} "
+        f"{'RMSE deg':>10} {'+-':>6} {'bound deg':>10} {'RMSE/bound':>10} {'predicted':>10}"
+    )
+    for s in studies:
+        for r in s["results"]:
+            pos = ",".join(f"{a:g}" for a in r["positions_deg"])
+            print(
+                f"{s['sensor']:>14} {s['latitude_deg']:8g} {pos:>22} "
+                f"{s['plan']['window_s']:9g} {s['plan']['plan_time_s']:8.1f} "
+                f"{r['rmse_deg']:10.4f} {100 * r['rmse_rel_se']:5.1f}% {r['bound_deg']:10.4f} "
+                f"{r['ratio']:10.3f} {r['predicted_deg']:10.4f}"
+            )
+    rejected = sum(max(r["rejected"] for r in s["results"]) for s in studies)
+    if rejected:
+        print(f"{rejected} runs had no solution (tilt beyond the limit); left out of their rows")
+    return 0
