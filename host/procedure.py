@@ -390,8 +390,8 @@ def find_north(
     *,
     warmup_timeout_s: float = 600.0,
     progress: Callable[[Progress], None] | None = None,
-    sleep: Callable[[float], None] = time.sleep,
-    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] | None = None,
+    clock: Callable[[], float] | None = None,
 ) -> tuple[FindResult, list[Any]]:
     """Run the plan on ``device`` and solve; return the result and the raw windows.
 
@@ -409,7 +409,9 @@ def find_north(
     progress : callable, optional
         Called with a :class:`Progress` at every phase.
     sleep, clock : callable
-        How to wait and what time it is, s (default: the wall clock).
+        How to wait and what time it is, s (default: the device's own clock, ``device.clock``,
+        where it has one, so that a device in virtual time is waited for in virtual time; else
+        the wall clock).
 
     Raises
     ------
@@ -436,6 +438,11 @@ def find_north(
             left += extra + plan.window_s
         return left
 
+    device_clock = getattr(device, "clock", None)
+    if sleep is None:
+        sleep = device_clock.sleep if device_clock is not None else time.sleep
+    if clock is None:
+        clock = device_clock.now if device_clock is not None else time.monotonic
     deadline = clock() + warmup_timeout_s
     while True:
         status = device.status()

@@ -5,8 +5,13 @@ depends on northfinder has it without a conftest: ask for the fixture by name.
 
 ``northfinder_sim``
     A started :class:`~northfinder.host.embed.SimulatedInstrument` (python-can ``virtual`` bus,
-    the ``paper-rlg`` sensor, level at azimuth 0 deg and 34 deg N, seed 0, no warm-up, 50 times
-    real time, a control channel on a free loopback port). It gives what a host needs:
+    the ``paper-rlg`` sensor, level at azimuth 0 deg and 34 deg N, seed 0, no warm-up, a control
+    channel on a free loopback port). On the ``virtual`` bus it runs in virtual time unless the
+    test asks for a ``speed``: the instrument and a :class:`~northfinder.driver.device.Device`
+    from ``open_device()`` share its clock, which jumps to the next event whenever both wait, so
+    the test runs as fast as the CPU allows and gives the same result on a busy machine. A host
+    that sends on ``open_bus()`` itself calls ``northfinder_sim.clock.notify()`` after sending.
+    On a pty (another process's host) it is paced, at ``speed`` times real time (default 1). It gives what a host needs:
     ``open_bus()`` / ``open_device()`` (``virtual`` and ``slcan-pty``), ``path`` (the pty of
     ``serial-pty`` and ``slcan-pty``, for a host in another process), ``truth``, ``control``
     (fault injection), ``check()``. It is closed after the test.
@@ -48,12 +53,12 @@ __all__ = ["DEFAULTS", "northfinder_device", "northfinder_sim", "simulator_optio
 DEFAULTS: dict[str, Any] = {
     "sensor": "paper-rlg",
     "seed": 0,
-    "speed": 50.0,
     "warmup_s": 0.0,
     "link": "virtual",
     "control": "127.0.0.1:0",
 }
-"""What ``northfinder_sim`` starts when the test asks for nothing else."""
+"""What ``northfinder_sim`` starts when the test asks for nothing else (and: virtual time on the
+``virtual`` link, real time on a pty, unless ``speed`` or ``clock`` is given)."""
 
 _TRUTH_KEYS = ("azimuth_deg", "latitude_deg", "pitch_deg", "roll_deg")
 
@@ -62,8 +67,8 @@ def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
         "northfinder_sim(**options): the simulated instrument of the northfinder_sim fixture "
-        "(sensor, truth or azimuth_deg/latitude_deg/pitch_deg/roll_deg, seed, speed, warmup_s, "
-        "link, node_id, control, log)",
+        "(sensor, truth or azimuth_deg/latitude_deg/pitch_deg/roll_deg, seed, speed or clock, "
+        "warmup_s, link, node_id, control, log)",
     )
 
 
@@ -80,6 +85,11 @@ def simulator_options(request: pytest.FixtureRequest) -> dict[str, Any]:
                 f"northfinder_sim: an indirect parameter must be a dict of options, got {param!r}"
             )
         options.update(param)
+    if "speed" not in options and "clock" not in options:
+        if options["link"] == "virtual":
+            options["clock"] = "virtual"
+        else:
+            options["speed"] = 1.0
     truth_fields = {k: options.pop(k) for k in _TRUTH_KEYS if k in options}
     if truth_fields:
         if "truth" in options:

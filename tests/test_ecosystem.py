@@ -1,8 +1,9 @@
 """The paths users expect: CAN logs in and out, cantools on the DBC, NMEA 0183, the pytest plugin,
 the JSON schema, the figure, a C host on the pty.
 
-Everything runs against the embedded simulator at high speed (or a ``northfinder sim``
-subprocess where another process is the point); nothing asserts on wall-clock time.
+Everything runs against the embedded simulator in virtual time; where another process is the
+point (a ``northfinder sim`` subprocess on a pty, the conformance command on its own bus) the
+simulator is paced and the test is marked ``realtime``. Nothing asserts on wall-clock time.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DBC = ROOT / "protocol.dbc"
 FORMATS = (".log", ".asc", ".blf", ".csv", ".db", ".trc")
 """Every CAN log format python-can both writes and reads without an extra library."""
-FAST = ["--sim", "--warmup", "0", "--speed", "200", "--window", "2", "--seed", "7"]
+FAST = ["--sim", "--warmup", "0", "--window", "2", "--seed", "7"]  # virtual time
 FAST += ["--azimuth", "42.5"]
 
 
@@ -147,7 +148,7 @@ def test_python_can_player_replays_a_log_onto_a_bus(logged_runs, monkeypatch):
                 if isinstance(m, Sample)
             ]
     logged = [s for w in read_can_log(path).windows for s in w.counter]
-    assert len(replayed) >= len(logged) > 800
+    assert len(replayed) >= len(logged) >= 800  # two 2 s windows at 200 Hz
     assert [s.counter for s in replayed][-len(logged[-10:]) :] == [int(c) for c in logged[-10:]]
 
 
@@ -164,7 +165,7 @@ def test_the_embedded_simulator_logs_what_it_sends_and_receives(tmp_path):
 
     log = tmp_path / "sim.asc"
     with SimulatedInstrument(
-        "ideal", Truth(azimuth_deg=10.0), speed=200, warmup_s=0, log=log
+        "ideal", Truth(azimuth_deg=10.0), clock="virtual", warmup_s=0, log=log
     ) as sim:
         with sim.open_device(**RELAXED_DEVICE_OPTIONS) as dev:
             result, _ = find_north(dev, Plan((0.0, 180.0), 1.0), 34.0)
@@ -182,6 +183,7 @@ def test_the_embedded_simulator_logs_what_it_sends_and_receives(tmp_path):
 
 
 @pytest.mark.subprocess
+@pytest.mark.realtime
 def test_sim_log_on_a_serial_pty_logs_the_can_frames_of_its_messages(tmp_path, validator):
     """``northfinder sim --pty --log``: the serial session logged as CAN frames, solved again."""
     log = tmp_path / "serial.blf"
@@ -368,6 +370,7 @@ def test_study_json_validates_in_both_kinds(validator):
     assert ps["kind"] == "plan-search" and ps["plans"]
 
 
+@pytest.mark.realtime
 def test_conformance_json_validates_with_the_units_identity(validator):
     from northfinder.host.embed import SimulatedInstrument
 
@@ -456,7 +459,7 @@ import pytest
 from northfinder.host.procedure import Plan, find_north
 
 
-@pytest.mark.northfinder_sim(sensor="ideal", azimuth_deg=42.0, speed=200)
+@pytest.mark.northfinder_sim(sensor="ideal", azimuth_deg=42.0)
 def test_my_host_finds_north(northfinder_sim, northfinder_device):
     result, _ = find_north(northfinder_device, Plan((0.0, 180.0), 1.0), latitude_deg=34.0)
     assert abs(result.azimuth_deg - northfinder_sim.truth.azimuth_deg) < 1e-4
@@ -490,6 +493,7 @@ def test_a_users_own_test_runs_on_the_installed_plugin(tmp_path):
 
 # -- a C host on the pseudo-terminal ----------------------------------------------------------
 @pytest.mark.subprocess
+@pytest.mark.realtime
 def test_the_c_host_example_reaches_the_simulator_on_a_pty(tmp_path):
     gcc = shutil.which("gcc") or shutil.which("cc")
     if gcc is None:
