@@ -43,6 +43,9 @@ __all__ = [
 
 #: Samples (runs x positions x samples x 6 channels) generated at once.
 CHUNK_VALUES = 24_000_000
+#: Most sample values (samples x 6 channels) of one run: a study never holds more than about
+#: 300 MB of samples (with the generator's temporaries), whatever the plan asks.
+MAX_RUN_VALUES = 24_000_000
 
 
 class WindowBatch(Protocol):
@@ -189,6 +192,12 @@ def monte_carlo(
     p = len(plan.positions_deg)
     # Samples per window, for the memory budget only (the generator decides the exact count).
     n = round(plan.window_s * settings.sample_rate_hz)
+    if p * n * 6 > MAX_RUN_VALUES:
+        raise HostConfigError(
+            f"a run of {p} windows of {n} samples ({p * n * 6:.3g} values: positions x window x "
+            f"rate x 6 channels) exceeds the {MAX_RUN_VALUES:.3g} a study holds at once; "
+            "shorten the windows or lower the rate"
+        )
     chunk = max(1, min(runs, chunk_values // max(1, p * n * 6)))
     out = []
     done = 0

@@ -1,8 +1,9 @@
 """The ``northfinder`` command line: one module per subcommand, each with ``add_parser`` and ``run``.
 
 Every subcommand's errors derive from the packages' root exceptions (``HostError``, ``DriverError``,
-``SimError``); they are printed as one line naming what is wrong and the exit status is 2 for bad
-arguments, 1 for anything else. ``--debug`` shows the traceback instead.
+``SimError``); they are printed as one line naming what is wrong, with the exit status of
+:mod:`northfinder.host.cli.common` (2: the request is wrong, 1: the work failed). ``--debug``
+shows the traceback instead.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from collections.abc import Sequence
 
 from northfinder.driver.errors import DriverError
 from northfinder.firmware_sim.errors import SimError
+from northfinder.host.cli.common import EXIT_INTERRUPTED, EXIT_USAGE, report_error
 from northfinder.host.errors import HostError
 
 #: Subcommand name -> module in this package. Modules are imported lazily so that a broken optional
@@ -31,7 +33,7 @@ COMMANDS: dict[str, str] = {
 }
 
 
-#: The packages' root exceptions: one line on stderr and exit status 1 (``--debug``: traceback).
+#: The packages' root exceptions (``common.EXIT_STATUS`` gives each kind its exit status).
 ROOT_ERRORS: tuple[type[Exception], ...] = (HostError, SimError, DriverError)
 
 
@@ -50,16 +52,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2, its line printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     try:
         return int(args._run(args) or 0)
-    except ROOT_ERRORS as exc:
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # one line and a stated status for every error (common.py)
         if args.debug:
             raise
-        print(f"northfinder {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
+        return report_error(args.command, exc)
 
 
 if __name__ == "__main__":  # pragma: no cover

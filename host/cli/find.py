@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 
 from northfinder.host.cli import report
+from northfinder.host.cli.common import check_output_path
 from northfinder.host.cli.measure import add_arguments, run_plan, save_recording
 
 
@@ -35,6 +36,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.record:
+        check_output_path(args.record, "--record", (".csv", ".npz"))
+    if args.plot:
+        check_output_path(args.plot, "--plot")
+        report.require_matplotlib()
     m = run_plan(args)
     if args.record:
         save_recording(args.record, m)

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from northfinder.host.errors import HostConfigError
+from northfinder.host.errors import HostConfigError, OutputError
 from northfinder.host.procedure import FindResult
 
 
@@ -22,8 +22,9 @@ def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
     lines = [
         f"azimuth {result.azimuth_deg:.4f} deg{sigma} (1 sigma), clockwise from true north",
         f"pitch {result.pitch_deg:.4f} deg, roll {result.roll_deg:.4f} deg",
-        f"method {result.method}, denoise {result.denoise}, latitude {result.latitude_deg:g} deg, "
-        f"positions {', '.join(f'{w.encoder_deg:.4f}' for w in result.windows)} deg (encoder)",
+        f"method {result.method}, denoise {result.denoise}, latitude {result.latitude_deg:g} deg"
+        + (f" from {result.latitude_source}" if result.latitude_source else "")
+        + f", positions {', '.join(f'{w.encoder_deg:.4f}' for w in result.windows)} deg (encoder)",
     ]
     if result.pairwise_deg:
         lines.append(
@@ -46,6 +47,14 @@ def as_json(result: FindResult, truth: dict[str, float] | None = None, **extra: 
         out["error_deg"] = angle_error(result.azimuth_deg, truth["azimuth_deg"])
     out.update(extra)
     return json.dumps(out, indent=2)
+
+
+def require_matplotlib() -> None:
+    """Refuse ``--plot`` before any work when matplotlib is not installed."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError as exc:
+        raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
 
 
 def plot(path: str | Path, result: FindResult, windows: list[Any], denoise_method: str) -> None:
@@ -85,6 +94,6 @@ def plot(path: str | Path, result: FindResult, windows: list[Any], denoise_metho
     try:
         fig.savefig(path, dpi=110)
     except OSError as exc:
-        raise HostConfigError(f"--plot {path}: cannot write ({exc.strerror})") from exc
+        raise OutputError(f"--plot {path}: cannot write ({exc.strerror})") from exc
     finally:
         plt.close(fig)
