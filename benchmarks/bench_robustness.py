@@ -41,6 +41,7 @@ import itertools
 import json
 import math
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -448,6 +449,118 @@ def listen_checks() -> dict[str, tuple[bool, str]]:
         control[0] if control else (err[0] if err else f"exit {res.returncode}"),
     )
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# The wire codec
+# ----------------------------------------------------------------------------------------------
+
+
+def _sample_frames(rng: random.Random, count: int, seq0: int = 0) -> list[bytes]:
+    from northfinder.driver.protocol.serial import SerialEncoder
+
+    enc = SerialEncoder(seq0)
+
+    def i32() -> int:
+        return rng.randrange(-(2**31), 2**31)
+
+    return [
+        enc.encode(
+            Sample(rng.randrange(2**32), (i32(), i32(), i32()), (i32(), i32(), i32()),
+                   rng.randrange(2**32), rng.randrange(-(2**15), 2**15), rng.randrange(256))
+        )
+        for _ in range(count)
+    ]
+
+
+def codec_fuzz(args: argparse.Namespace) -> dict[str, Any]:
+    """Random and mutated input into every decoder; what is not a typed error, and what
+    resynchronisation loses."""
+    from northfinder.driver.errors import ProtocolError
+    from northfinder.driver.protocol import (
+        Command,
+        Identify,
+        IdentifyPage,
+        Reply,
+        SampleAux,
+        SampleX,
+        Status,
+        StatusCounters,
+        StatusMain,
+    )  # fmt: skip
+    from northfinder.driver.protocol.can import CanReceiver, decode_can
+    from northfinder.driver.protocol.serial import Deframer
+
+    rng = random.Random(args.seed)
+    n = args.fuzz_inputs
+    untyped: dict[str, int] = {}
+    counts: dict[str, int] = {}
+
+    def guard(name: str, call: Callable[[], Any]) -> None:
+        counts[name] = counts.get(name, 0) + 1
+        try:
+            call()
+        except ProtocolError:
+            pass
+        except Exception:
+            untyped[name] = untyped.get(name, 0) + 1
+
+    types = [Command, Reply, Sample, SampleX, SampleAux, Status, StatusMain, StatusCounters,
+             Identify, IdentifyPage]  # fmt: skip
+    for _ in range(n):
+        kind = types[rng.randrange(len(types))]
+        data = rng.randbytes(rng.randrange(0, 80))
+        guard("payload decoders", partial(kind.decode, data))
+    receiver = CanReceiver(node_id=1)
+    for _ in range(n):
+        ident = rng.choice([rng.randrange(0x800), 0x100 + rng.randrange(0x100)])
+        data = rng.randbytes(rng.randrange(0, 9))
+        guard("CAN frames (decode_can)", partial(decode_can, ident, data))
+        guard("CAN frames (CanReceiver)", partial(receiver.feed, ident, data))
+    deframer = Deframer()
+    chunks = 0
+    for _ in range(n // 10):
+        data = rng.randbytes(rng.randrange(1, 200))
+        guard("serial bytes (Deframer)", partial(deframer.feed_messages, data))
+        chunks += 1
+    # Resynchronisation: three frames, the middle one mutated; the other two must come through.
+    mutations = ("delete a byte", "flip a byte", "insert a byte", "truncate", "last byte lost (0xA5)")
+    lost = {m: 0 for m in mutations}
+    trials = {m: 0 for m in mutations}
+    # The case the CRC cannot see: a frame whose CRC high byte is A5 loses it, and the next
+    # frame's first sync byte completes it (one frame in 256 has such a CRC).
+    a5_pool = [f for f in _sample_frames(rng, 256 * 64) if f[-1] == 0xA5]
+    for t in range(args.fuzz_frames):
+        how = mutations[t % len(mutations)]
+        if how == "last byte lost (0xA5)":
+            frames = _sample_frames(rng, 3, rng.randrange(256))
+            frames[1] = a5_pool[rng.randrange(len(a5_pool))]
+            middle = frames[1][:-1]
+        else:
+            frames = _sample_frames(rng, 3, rng.randrange(256))
+            b = bytearray(frames[1])
+            k = rng.randrange(len(b))
+            if how == "delete a byte":
+                del b[k]
+            elif how == "flip a byte":
+                b[k] ^= 1 << rng.randrange(8)
+            elif how == "insert a byte":
+                b.insert(k, rng.randrange(256))
+            else:
+                del b[k:]
+            middle = bytes(b)
+        d = Deframer()
+        got = [f.payload for f in d.feed(frames[0] + middle + frames[2])]
+        want = [frames[0][5:-2], frames[2][5:-2]]
+        trials[how] += 1
+        lost[how] += sum(1 for w in want if w not in got)
+    print(f"codec fuzz (seed {args.seed}): inputs and exceptions other than ProtocolError")
+    for name, count in counts.items():
+        print(f"  {name:<28} {count:>9} inputs   {untyped.get(name, 0)} untyped exceptions")
+    print("resynchronisation: frame, mutated frame, frame; good frames lost")
+    for how in mutations:
+        print(f"  {how:<28} {trials[how]:>9} trials   {lost[how]} good frames lost")
+    return {"inputs": counts, "untyped": untyped, "resync_trials": trials, "resync_lost": lost}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -982,6 +1095,7 @@ def cli_sweep(args: argparse.Namespace) -> dict[str, Any]:
 
 #: Section name -> function(args) that prints its table and returns a summary.
 SECTIONS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
+    "codec": codec_fuzz,
     "control": control_abuse,
     "cli": cli_sweep,
 }
@@ -991,6 +1105,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sections", default=",".join(SECTIONS), help="comma-separated")
     parser.add_argument("--seconds-per-case", type=float, default=0.3)
+    parser.add_argument("--seed", type=int, default=1, help="codec: random seed")
+    parser.add_argument("--fuzz-inputs", type=int, default=200_000, help="codec: per decoder")
+    parser.add_argument("--fuzz-frames", type=int, default=300_000, help="codec: mutated frames")
     parser.add_argument("--case-timeout", type=float, default=60.0, help="cli: s per case")
     parser.add_argument("--jobs", type=int, default=2, help="cli: cases run at once")
     parser.add_argument("--only-cli", default="", help="cli: only cases whose argv contains this")

@@ -70,12 +70,17 @@ def test_least_squares_over_four_positions_recovers_the_truth(tmp_path, capsys):
     )  # fmt: skip
     assert out["method"] == "least-squares" and len(out["pairwise_azimuth_deg"]) == 3
     assert abs(out["error_deg"]) < 1e-4
+    # noise-free windows pass the check: their rounding is below its noise floor
+    assert out["consistent"] is True and out["check"]["dof"] == 5
 
 
 def test_noisy_gyro_result_is_consistent_with_its_sigma_and_the_bound(capsys):
-    out = find_json(capsys, "--sensor", "paper-rlg", "--seed", "5", "--speed", "200")
+    out = find_json(
+        capsys, "--sensor", "paper-rlg", "--seed", "5", "--speed", "200", "--positions", "0,180"
+    )
     # paper RLG, 2 x 10 s at 34 deg N, mu = 180: the bound is 0.093 deg
     assert 0.06 < out["sigma_deg"] < 0.13
+    assert out["consistent"] is None and "not checked" in out["check"]["summary"]
     assert abs(out["error_deg"]) < 5 * out["sigma_deg"]
 
 
