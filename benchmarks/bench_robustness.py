@@ -564,6 +564,106 @@ def codec_fuzz(args: argparse.Namespace) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------------------------
+# Faults injected during find
+# ----------------------------------------------------------------------------------------------
+
+#: Control-channel faults injected during a run of ``find`` (each with the request that clears it
+#: a moment later, or None when it stays).
+FIND_FAULTS: list[tuple[str, dict[str, Any], dict[str, Any] | None]] = [
+    ("drop 5 frames", {"op": "drop", "count": 5}, None),
+    ("drop 200 frames", {"op": "drop", "count": 200}, None),
+    ("corrupt 5 frames", {"op": "corrupt", "count": 5}, None),
+    ("corrupt 200 frames", {"op": "corrupt", "count": 200}, None),
+    ("skip the counter by 3", {"op": "skip_counter", "count": 3}, None),
+    ("delay replies 0.3 s", {"op": "delay_replies", "seconds": 0.3}, {"op": "delay_replies", "seconds": 0}),
+    ("delay replies 5 s", {"op": "delay_replies", "seconds": 5}, None),
+    ("wrong result once", {"op": "wrong_result", "code": 7}, None),
+    ("silent", {"op": "silent"}, None),
+    ("silent 0.2 s", {"op": "silent"}, {"op": "silent", "on": False}),
+    ("pause 0.2 s", {"op": "pause"}, {"op": "resume"}),
+    ("stall the table", {"op": "stall"}, None),
+    ("reset", {"op": "reset"}, None),
+    ("bias step 0.05 deg/h x", {"op": "bias_step", "gyro_dph": [0.05, 0, 0]}, None),
+    ("bias step 0.5 deg/h x", {"op": "bias_step", "gyro_dph": [0.5, 0, 0]}, None),
+    ("bias step 5 deg/h y", {"op": "bias_step", "gyro_dph": [0, 5.0, 0]}, None),
+    ("bias step 100 ug x", {"op": "bias_step", "accel_ug": [100.0, 0, 0]}, None),
+    ("10 impulses of 50 deg/h", {"op": "impulses", "count": 10, "interval_s": 0.2}, None),
+    ("vibration 35 Hz 5 deg/h", {"op": "vibration", "on": True}, None),
+    ("base turned 1 deg", {"op": "set_truth", "azimuth_deg": None}, None),
+    ("ARW x10", {"op": "set_sensor", "values": {"gyro.arw_dpsh": 0.015}}, None),
+    ("speed x0.5", {"op": "speed", "value": 50.0}, None),
+]
+#: When a fault is injected: as the window of position 2 begins, or as the table leaves for it.
+FIND_MOMENTS = ("acquire", "rotate")
+
+
+def _find_with_fault(label: str, request: dict[str, Any], clear: dict[str, Any] | None,
+                     moment: str, seed: int) -> dict[str, Any]:  # fmt: skip
+    from northfinder.driver.errors import DriverError
+    from northfinder.firmware_sim.imu import Truth
+    from northfinder.host.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
+    from northfinder.host.errors import HostError
+    from northfinder.host.procedure import Plan, find_north
+
+    truth = Truth(azimuth_deg=(37.0 * seed) % 360.0)
+    plan = Plan((0.0, 180.0, 180.0, 0.0), 4.0)
+    op = dict(request)
+    if op["op"] == "set_truth":
+        op["azimuth_deg"] = (truth.azimuth_deg + 1.0) % 360.0
+    with SimulatedInstrument("paper-rlg", truth, seed=seed, speed=100, warmup_s=0,
+                             control="127.0.0.1:0") as sim:  # fmt: skip
+        try:
+            with sim.open_device(**RELAXED_DEVICE_OPTIONS) as dev:
+                fired: list[float] = []
+
+                def progress(p: Any) -> None:
+                    if p.phase == moment and p.position == 2 and not fired:
+                        fired.append(time.monotonic())
+                        name = op.pop("op")
+                        sim.control.call(name, **op)
+                        if clear is not None:
+                            threading.Timer(0.2, lambda: sim.control.call(**clear)).start()
+
+                result, _ = find_north(dev, plan, truth.latitude_deg, progress=progress)
+        except (DriverError, HostError) as exc:
+            return {"fault": label, "moment": moment, "outcome": "error",
+                    "detail": f"{type(exc).__name__}: {str(exc)[:90]}"}  # fmt: skip
+        sim.check()
+    err = (result.azimuth_deg - truth.azimuth_deg + 180.0) % 360.0 - 180.0
+    z = abs(err) / result.sigma_deg if result.sigma_deg else math.inf
+    warned = result.consistent is False or any("impulsive" in n for n in result.notes)
+    if warned:
+        outcome = "warning"
+    elif z <= 3.0:
+        outcome = "right"
+    else:
+        outcome = "SILENTLY WRONG"
+    return {"fault": label, "moment": moment, "outcome": outcome, "error_deg": err,
+            "sigma_deg": result.sigma_deg, "z": z,
+            "detail": next((n for n in result.notes if "CONSISTENCY" in n or "impulsive" in n), "")}  # fmt: skip
+
+
+def find_faults(args: argparse.Namespace) -> dict[str, Any]:
+    """Every control-channel fault injected during ``find`` (0,180,180,0, 4 s windows,
+    paper-rlg, embedded simulator at 100x): a named error, a stated warning, or a heading within
+    3 sigma; never a wrong heading without a word."""
+    rows = []
+    for i, (label, request, clear) in enumerate(FIND_FAULTS):
+        for moment in FIND_MOMENTS:
+            rows.append(_find_with_fault(label, request, clear, moment, seed=100 + i))
+    print("faults injected during find (0,180,180,0, 4 s windows, paper-rlg, 100x), at the start "
+          "of window 2 (acquire) or of the move to it (rotate)")  # fmt: skip
+    print(f"{'fault':<26} {'moment':<8} {'outcome':<15} {'error deg':>10} {'z':>6}  detail")
+    for r in rows:
+        e = f"{r['error_deg']:+10.4f}" if "error_deg" in r else f"{'-':>10}"
+        z = f"{r['z']:6.1f}" if "z" in r else f"{'-':>6}"
+        print(f"{r['fault']:<26} {r['moment']:<8} {r['outcome']:<15} {e} {z}  {r['detail'][:110]}")
+    tally = {k: sum(r["outcome"] == k for r in rows) for k in ("error", "warning", "right", "SILENTLY WRONG")}
+    print(f"runs {len(rows)}: {tally}")
+    return {"rows": rows, "tally": tally}
+
+
+# ----------------------------------------------------------------------------------------------
 # Bad input on the command line
 # ----------------------------------------------------------------------------------------------
 
@@ -747,7 +847,7 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
             ([*QUICK, "--timeout", "1e300"], 2, "timeout"),
             ([*QUICK, "--latitude", "91"], 2, "latitude"),
             ([*QUICK, "--latitude", "89.99"], 2, "latitude"),
-            ([*QUICK, "--pitch", "40"], 2, "pitch"),
+            ([*QUICK, "--pitch", "40"], 1, "pitch"),
             ([*QUICK, "--azimuth", "inf"], 2, "--azimuth"),
             ([*QUICK, "--seed", "-1"], 2, "--seed"),
             ([*QUICK, "--seed", "1.5"], 2, "--seed"),
@@ -806,7 +906,7 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
     }  # fmt: skip
     for name, names in bad_recordings.items():
         add("solve", [f[name]], 2, names)
-    add("solve", [f["validity-clear.csv"]], 1, "flagged")
+    add("solve", [f["validity-clear.csv"]], 1, "unusable")
     add("solve", [os.path.join(tmp, "absent.csv")], 2, "absent.csv")
     add("solve", [os.path.join(tmp, "run.txt")], 2, "run.txt")
     add("solve", [tmp + "/x.csv"], 2, "x.csv")
@@ -830,7 +930,8 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         (["--denoise", "moving-average", "--denoise-option", "window=abc"], 2, "window"),
         (["--denoise", "moving-average", "--denoise-option", "window=0"], 2, "window"),
         (["--denoise", "moving-average", "--denoise-option", "window=1e9"], 2, "window"),
-        (["--denoise", "moving-average", "--denoise-option", "nope=1"], 2, "nope"),
+        (["--denoise", "moving-average", "--denoise-option", "window=5", "--denoise-option",
+          "nope=1"], 2, "nope"),
         (["--denoise", "wavelet-2p", "--denoise-option", "level=99"], 2, "level"),
         (["--denoise-option", "window=5"], 2, "window"),
         (["--runs", "0"], 2, "--runs"),
@@ -850,8 +951,8 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         (["--seed", "-1"], 2, "--seed"),
         (["--bias-step", "1e300"], 2, "--bias-step"),
         (["--plan-budget", "1e300"], 2, "--plan-budget"),
-        (["--plan-budget", "0.001"], 2, "budget"),
-        (["--plan-target", "1e-9", "--runs", "0"], 2, "target"),
+        (["--plan-budget", "0.001"], 0, ""),  # an answer: no plan fits
+        (["--plan-target", "1e-9", "--runs", "0"], 0, ""),
         (["--top", "0"], 2, "--top"),
         (["--top", "100000000"], 2, "--top"),
         (["--sweep", "0,-1", "--plot", os.path.join(tmp, "s.png")], 2, "--sweep"),
@@ -904,8 +1005,8 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         (["--pty", "--control", "8.8.8.8:7700"], 2, "loopback"),
         (["--pty", "--control", "127.0.0.1:99999"], 2, "port"),
         (["--pty", "--control", "nonsense"], 2, "control"),
-        (["--pty", "--control", f"unix:{f['good.csv']}"], 1, "good.csv"),
-        (["--pty", "--control", "unix:" + os.path.join(missing_dir, "s")], 1, "s"),
+        (["--pty", "--control", f"unix:{f['good.csv']}"], 2, "not a socket"),
+        (["--pty", "--control", "unix:" + os.path.join(missing_dir, "s")], 2, "cannot listen"),
         (["--serial", os.path.join(tmp, "no-port")], 1, "no-port"),
         (["-i", "no-such-interface", "-c", "x"], 2, "interface"),
     ]:
@@ -933,7 +1034,7 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         (["8.8.8.8:7700", "status"], 2, "loopback"),
         (["127.0.0.1:1", "status"], 1, "127.0.0.1:1"),
         (["unix:" + os.path.join(tmp, "absent.sock"), "status"], 1, "absent.sock"),
-        ([silent, "status"], 1, "reply"),
+        ([silent, "status"], 1, "no reply"),
     ]:
         add("simctl", argv, exit, names)
 
@@ -969,7 +1070,7 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         ([f["good.csv"], "-o", os.path.join(missing_dir, "x.toml")], 2, "--output"),
         ([f["good.csv"], "--report", os.path.join(missing_dir, "r.txt")], 2, "--report"),
         ([f["good.csv"], "--between", "nowhere"], 2, "--between"),
-        ([f["validity-clear.csv"]], 1, "good"),
+        ([f["validity-clear.csv"]], 1, "good samples"),
     ]:
         add("calibrate", argv, exit, names)
     return c
@@ -1098,6 +1199,7 @@ SECTIONS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "codec": codec_fuzz,
     "control": control_abuse,
     "cli": cli_sweep,
+    "find": find_faults,
 }
 
 

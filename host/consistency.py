@@ -25,7 +25,7 @@ When it fails
 The residuals are compared with the patterns the usual causes leave (each a few extra columns of
 the fit, tested by the drop in chi-square they give): a linear drift of the gyro biases, a bias
 step between two consecutive windows, and a table angle error at one window. Every pattern that
-leaves a consistent remainder is listed, the one that explains most first, with the azimuth the
+leaves a remainder passing at a tenth of the false-alarm rate is listed, the one that explains most first, with the azimuth the
 fit would give if it were the cause. With few windows several patterns often explain the same
 residuals: the list says which are possible, not which one happened. The sigma of an
 inconsistent result is scaled by the Birge ratio ``sqrt(T / dof)``, so that it reflects the
@@ -58,6 +58,9 @@ __all__ = [
 
 #: False-alarm rate of the test under white noise.
 FALSE_ALARM = 0.01
+#: A cause explains the residuals when what is left passes at this level (a tenth of the
+#: false-alarm rate: the remainder is noise, which alone fails the 1 % test once in 100 runs).
+EXPLAINED = FALSE_ALARM / 10
 #: Smallest noise of a window mean the test assumes, deg/h: the resolution of the window means
 #: and encoder angles (1e-6 deg of 12 deg/h is 2e-7 deg/h), so noise-free simulated windows are not
 #: failed for their rounding. Any real gyro's window noise is far above it (paper-prototype:
@@ -80,7 +83,8 @@ class Explanation:
     chi2_removed : float
         How much of the chi-square it accounts for.
     p_value : float
-        p-value of what is left once it is fitted (consistent when >= the false-alarm rate).
+        p-value of what is left once it is fitted (it explains the residuals when this is at
+        least a tenth of the false-alarm rate, :data:`EXPLAINED`).
     azimuth_shift_deg : float
         Change of the azimuth if it is fitted too, deg (linearised).
     """
@@ -251,7 +255,7 @@ def check_windows(
         left = float(np.sum((r - full @ coef) ** 2))
         dof_left = dof - rank
         p_left = 1.0 if dof_left < 1 else float(stats.f.sf(left / dof_left, dof_left, noise_dof))
-        if p_left >= false_alarm:
+        if p_left >= false_alarm * (EXPLAINED / FALSE_ALARM):
             explanations.append(
                 Explanation(kind, label, chi2 - left, p_left, -math.degrees(float(coef[0])))
             )

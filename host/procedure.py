@@ -321,13 +321,12 @@ def summarise_window(
     )
 
 
-def _output_step(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Smallest step between distinct values of each column (0 for a constant column)."""
-    out = np.zeros(x.shape[1])
-    for k in range(x.shape[1]):
-        steps = np.diff(np.unique(x[:, k]))
-        out[k] = float(steps.min()) if steps.size else 0.0
-    return out
+def _output_step(x: NDArray[np.float64]) -> float:
+    """The output's step: the smallest step between distinct values of any column (the axes
+    share one count), 0 when every column is constant."""
+    steps = [np.diff(np.unique(x[:, k])) for k in range(x.shape[1])]
+    positive = [float(s.min()) for s in steps if s.size]
+    return min(positive) if positive else 0.0
 
 
 def _mid_time(window: Any) -> float | None:

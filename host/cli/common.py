@@ -33,6 +33,7 @@ from northfinder.driver.protocol.constants import (
     NODE_ID_MIN,
     SERIAL_BAUD_DEFAULT,
 )
+from northfinder.firmware_sim.control import ControlRefused
 from northfinder.firmware_sim.errors import SimConfigError, SimError
 from northfinder.host.errors import (
     DenoiseError,
@@ -56,6 +57,7 @@ EXIT_STATUS: Mapping[type[BaseException], int] = {
     DenoiseError: EXIT_USAGE,
     RecordingError: EXIT_USAGE,
     SimConfigError: EXIT_USAGE,
+    ControlRefused: EXIT_USAGE,
     ArgumentError: EXIT_USAGE,
     SuiteConfigError: EXIT_USAGE,
     HostError: EXIT_RUNTIME,

@@ -226,8 +226,8 @@ def embedded_simulator(args: argparse.Namespace) -> Iterator[tuple[Device, dict[
 class ProgressLine:
     """One updating line on a terminal: phase, position, table angle, seconds left."""
 
-    def __init__(self, stream: Any = sys.stderr) -> None:
-        self.stream = stream
+    def __init__(self, stream: Any = None) -> None:
+        self.stream = sys.stderr if stream is None else stream  # the stderr of now, not of import
         self.enabled = bool(getattr(stream, "isatty", lambda: False)())
 
     def __call__(self, p: Progress) -> None:

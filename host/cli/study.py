@@ -95,8 +95,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default=None,
         help="true azimuth, deg (default: uniform random per run)",
     )
-    g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
-    g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
+    tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")
+    g.add_argument("--pitch", type=tilt, default=0.0, help="deg (default: 0)")
+    g.add_argument("--roll", type=tilt, default=0.0, help="deg (default: 0)")
     g = p.add_argument_group("plan")
     g.add_argument(
         "--positions",
