@@ -523,9 +523,11 @@ def codec_fuzz(args: argparse.Namespace) -> dict[str, Any]:
         data = rng.randbytes(rng.randrange(1, 200))
         guard("serial bytes (Deframer)", partial(deframer.feed_messages, data))
         chunks += 1
-    # Resynchronisation: three frames, the middle one mutated; the other two must come through.
+    # Resynchronisation: a frame, a mutated frame, then the stream goes on; the frame before
+    # and the two after the mutated one must come through.
     mutations = ("delete a byte", "flip a byte", "insert a byte", "truncate", "last byte lost (0xA5)")
     lost = {m: 0 for m in mutations}
+    false = {m: 0 for m in mutations}  # damaged frames that passed the CRC
     trials = {m: 0 for m in mutations}
     # The case the CRC cannot see: a frame whose CRC high byte is A5 loses it, and the next
     # frame's first sync byte completes it (one frame in 256 has such a CRC).
@@ -533,11 +535,11 @@ def codec_fuzz(args: argparse.Namespace) -> dict[str, Any]:
     for t in range(args.fuzz_frames):
         how = mutations[t % len(mutations)]
         if how == "last byte lost (0xA5)":
-            frames = _sample_frames(rng, 3, rng.randrange(256))
+            frames = _sample_frames(rng, 5, rng.randrange(256))
             frames[1] = a5_pool[rng.randrange(len(a5_pool))]
             middle = frames[1][:-1]
         else:
-            frames = _sample_frames(rng, 3, rng.randrange(256))
+            frames = _sample_frames(rng, 5, rng.randrange(256))
             b = bytearray(frames[1])
             k = rng.randrange(len(b))
             if how == "delete a byte":
@@ -550,17 +552,22 @@ def codec_fuzz(args: argparse.Namespace) -> dict[str, Any]:
                 del b[k:]
             middle = bytes(b)
         d = Deframer()
-        got = [f.payload for f in d.feed(frames[0] + middle + frames[2])]
-        want = [frames[0][5:-2], frames[2][5:-2]]
+        # two more frames after them, as a stream goes on (a false candidate may wait for them)
+        got = [f.payload for f in d.feed(frames[0] + middle + b"".join(frames[2:]))]
+        want = [frames[0][5:-2], frames[2][5:-2], frames[3][5:-2]]
         trials[how] += 1
         lost[how] += sum(1 for w in want if w not in got)
+        false[how] += sum(1 for g in got if g not in (*want, frames[1][5:-2], frames[4][5:-2]))
     print(f"codec fuzz (seed {args.seed}): inputs and exceptions other than ProtocolError")
     for name, count in counts.items():
         print(f"  {name:<28} {count:>9} inputs   {untyped.get(name, 0)} untyped exceptions")
-    print("resynchronisation: frame, mutated frame, frame; good frames lost")
+    print("resynchronisation: frame, mutated frame, frames; good frames lost, damaged frames "
+          "delivered (passed the CRC)")  # fmt: skip
     for how in mutations:
-        print(f"  {how:<28} {trials[how]:>9} trials   {lost[how]} good frames lost")
-    return {"inputs": counts, "untyped": untyped, "resync_trials": trials, "resync_lost": lost}
+        print(f"  {how:<28} {trials[how]:>9} trials   {lost[how]} good frames lost   "
+              f"{false[how]} damaged frames delivered")  # fmt: skip
+    return {"inputs": counts, "untyped": untyped, "resync_trials": trials, "resync_lost": lost,
+            "damaged_delivered": false}  # fmt: skip
 
 
 # ----------------------------------------------------------------------------------------------
@@ -629,7 +636,10 @@ def _find_with_fault(label: str, request: dict[str, Any], clear: dict[str, Any] 
             return {"fault": label, "moment": moment, "outcome": "error",
                     "detail": f"{type(exc).__name__}: {str(exc)[:90]}"}  # fmt: skip
         sim.check()
-    err = (result.azimuth_deg - truth.azimuth_deg + 180.0) % 360.0 - 180.0
+        # The heading is judged against where the instrument stands when the result is given
+        # (a base turned during the run stands at its new heading).
+        final = float(sim.control.call("get_truth")["truth"]["azimuth_deg"])
+    err = (result.azimuth_deg - final + 180.0) % 360.0 - 180.0
     z = abs(err) / result.sigma_deg if result.sigma_deg else math.inf
     warned = result.consistent is False or any("impulsive" in n for n in result.notes)
     if warned:
@@ -646,7 +656,7 @@ def _find_with_fault(label: str, request: dict[str, Any], clear: dict[str, Any] 
 def find_faults(args: argparse.Namespace) -> dict[str, Any]:
     """Every control-channel fault injected during ``find`` (0,180,180,0, 4 s windows,
     paper-rlg, embedded simulator at 100x): a named error, a stated warning, or a heading within
-    3 sigma; never a wrong heading without a word."""
+    3 sigma of where the instrument stands at the end; never a wrong heading without a word."""
     rows = []
     for i, (label, request, clear) in enumerate(FIND_FAULTS):
         for moment in FIND_MOMENTS:
@@ -1070,7 +1080,7 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         ([f["good.csv"], "-o", os.path.join(missing_dir, "x.toml")], 2, "--output"),
         ([f["good.csv"], "--report", os.path.join(missing_dir, "r.txt")], 2, "--report"),
         ([f["good.csv"], "--between", "nowhere"], 2, "--between"),
-        ([f["validity-clear.csv"]], 1, "good samples"),
+        ([f["validity-clear.csv"]], 1, "good samples"),  # a valid file whose data are unusable
     ]:
         add("calibrate", argv, exit, names)
     return c
