@@ -330,7 +330,9 @@ def test_calibrate_refuses_bad_input_with_one_clear_error(tmp_path):
     (short,) = write_recordings(load_spec("ideal"), [0.0], 2.0, 1, 1, tmp_path / "c")
     with pytest.raises(QualityError, match="no stretch of 64 or more consecutive good samples"):
         calibrate(read_runs([short]))
-    assert cli(["calibrate", str(tmp_path / "nothing.xyz")]) == 1
+    assert (
+        cli(["calibrate", str(tmp_path / "nothing.xyz")]) == 2
+    )  # a file named on the command line that is no recording: the request is wrong
     with pytest.raises(InputError, match="design: unknown 'same'"):
         fit_between_positions(table1_runs(), design="same")
     with pytest.raises(InputError, match="fixed: unknown component 'drift'"):
