@@ -56,6 +56,7 @@ from typing import Any
 
 import serial
 
+from northfinder.driver.protocol.constants import Validity
 from northfinder.driver.protocol.messages import Sample, StreamStart
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder
 from northfinder.firmware_sim.control import ControlClient, ControlError
@@ -467,7 +468,7 @@ def _sample_frames(rng: random.Random, count: int, seq0: int = 0) -> list[bytes]
     return [
         enc.encode(
             Sample(rng.randrange(2**32), (i32(), i32(), i32()), (i32(), i32(), i32()),
-                   rng.randrange(2**32), rng.randrange(-(2**15), 2**15), rng.randrange(256))
+                   rng.randrange(2**32), rng.randrange(-(2**15), 2**15), Validity(rng.randrange(256)))
         )
         for _ in range(count)
     ]
@@ -505,7 +506,7 @@ def codec_fuzz(args: argparse.Namespace) -> dict[str, Any]:
         except Exception:
             untyped[name] = untyped.get(name, 0) + 1
 
-    types = [Command, Reply, Sample, SampleX, SampleAux, Status, StatusMain, StatusCounters,
+    types: list[Any] = [Command, Reply, Sample, SampleX, SampleAux, Status, StatusMain, StatusCounters,
              Identify, IdentifyPage]  # fmt: skip
     for _ in range(n):
         kind = types[rng.randrange(len(types))]
@@ -619,6 +620,8 @@ def _find_with_fault(label: str, request: dict[str, Any], clear: dict[str, Any] 
         op["azimuth_deg"] = (truth.azimuth_deg + 1.0) % 360.0
     with SimulatedInstrument("paper-rlg", truth, seed=seed, speed=100, warmup_s=0,
                              control="127.0.0.1:0") as sim:  # fmt: skip
+        control = sim.control
+        assert control is not None
         try:
             with sim.open_device(**RELAXED_DEVICE_OPTIONS) as dev:
                 fired: list[float] = []
@@ -627,9 +630,9 @@ def _find_with_fault(label: str, request: dict[str, Any], clear: dict[str, Any] 
                     if p.phase == moment and p.position == 2 and not fired:
                         fired.append(time.monotonic())
                         name = op.pop("op")
-                        sim.control.call(name, **op)
+                        control.call(name, **op)
                         if clear is not None:
-                            threading.Timer(0.2, lambda: sim.control.call(**clear)).start()
+                            threading.Timer(0.2, lambda: control.call(**clear)).start()
 
                 result, _ = find_north(dev, plan, truth.latitude_deg, progress=progress)
         except (DriverError, HostError) as exc:
@@ -638,7 +641,7 @@ def _find_with_fault(label: str, request: dict[str, Any], clear: dict[str, Any] 
         sim.check()
         # The heading is judged against where the instrument stands when the result is given
         # (a base turned during the run stands at its new heading).
-        final = float(sim.control.call("get_truth")["truth"]["azimuth_deg"])
+        final = float(control.call("get_truth")["truth"]["azimuth_deg"])
     err = (result.azimuth_deg - final + 180.0) % 360.0 - 180.0
     z = abs(err) / result.sigma_deg if result.sigma_deg else math.inf
     warned = result.consistent is False or any("impulsive" in n for n in result.notes)

@@ -1084,7 +1084,7 @@ class Device:
         """
         if on_gap not in ("raise", "report"):
             raise ArgumentError(f"on_gap={on_gap!r}: choose one of 'raise', 'report'")
-        seconds = _window_seconds("seconds", seconds, allow_none=False)
+        seconds = _window_seconds("seconds", seconds, allow_none=False) or 0.0
         timeout = _timeout_seconds("timeout", timeout)
         with self._acquire_lock:
             self._check_open()

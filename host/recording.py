@@ -33,7 +33,7 @@ import math
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from numpy.typing import NDArray
@@ -198,7 +198,7 @@ SAMPLE_LIMITS = {"gyro_dph": 1e9, "accel_mps2": 1e4, "table_deg": 720.0}
 TRUTH_FIELDS = ("azimuth_deg", "pitch_deg", "roll_deg")
 
 
-def _number(value: Any) -> bool:
+def _number(value: Any) -> TypeGuard[float]:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 

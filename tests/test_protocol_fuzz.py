@@ -25,6 +25,7 @@ from northfinder.driver.protocol import (
     StatusMain,
 )
 from northfinder.driver.protocol.can import CanDecoded, CanReceiver, decode_can, encode_can
+from northfinder.driver.protocol.constants import Validity
 from northfinder.driver.protocol.serial import (
     MAX_FRAME_SIZE,
     Deframer,
@@ -202,7 +203,7 @@ def test_tick_assembler_reports_every_missing_frame(batch, data):
 
 def _frame_with_crc_high_a5(seq: int) -> bytes:
     for counter in range(100_000):
-        frame = SerialEncoder(seq).encode(Sample(counter, (1, 2, 3), (4, 5, 6), 7, 8, 3))
+        frame = SerialEncoder(seq).encode(Sample(counter, (1, 2, 3), (4, 5, 6), 7, 8, Validity(3)))
         if frame[-1] == 0xA5:
             return frame
     raise AssertionError("no frame with a CRC high byte of 0xA5")
@@ -212,10 +213,10 @@ def _frame_with_crc_high_a5(seq: int) -> bytes:
 def test_a_frame_that_lost_its_last_byte_a5_does_not_take_the_next_frame_with_it(chunk):
     """The lost byte 0xA5 is completed by the next frame's first sync byte (a valid CRC): the
     next frame must still be found, beginning inside the frame just delivered."""
-    first = SerialEncoder(0).encode(Sample(9, (1, 1, 1), (1, 1, 1), 1, 1, 3))
+    first = SerialEncoder(0).encode(Sample(9, (1, 1, 1), (1, 1, 1), 1, 1, Validity(3)))
     hit = _frame_with_crc_high_a5(1)
     after = [
-        SerialEncoder(2 + k).encode(Sample(100 + k, (0, 0, 0), (0, 0, 0), 0, 0, 3))
+        SerialEncoder(2 + k).encode(Sample(100 + k, (0, 0, 0), (0, 0, 0), 0, 0, Validity(3)))
         for k in range(2)
     ]
     stream = first + hit[:-1] + b"".join(after)
