@@ -38,6 +38,7 @@ from typing import Any, Concatenate, ParamSpec, TypeVar
 import can
 import serial
 
+from northfinder.driver.arguments import finite_number, seconds, whole_number
 from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.errors import (
     ArgumentError,
@@ -57,6 +58,7 @@ from northfinder.driver.protocol.can import TickLoss
 from northfinder.driver.protocol.constants import (
     HEARTBEAT_PERIOD_DEFAULT_MS,
     PROTOCOL_VERSION_MAJOR,
+    ROTATE_BY_LIMIT,
     ConfigKey,
     DeviceState,
     Direction,
@@ -130,6 +132,8 @@ RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
 _CONFIG_NAMES = ", ".join(k.name.lower() for k in ConfigKey)
+# acquire()'s own argument is named ``seconds``: the checker under another name.
+_window_seconds = _timeout_seconds = seconds
 _DIRECTIONS = {"shortest": Direction.SHORTEST, "positive": Direction.POSITIVE}
 _DIRECTIONS["negative"] = Direction.NEGATIVE
 T = TypeVar("T")
@@ -888,9 +892,10 @@ class Device:
             BUSY for table keys while the table moves.
         """
         k = self._key(key)
+        value = whole_number("value", value)
         if k == ConfigKey.STREAMING and value and not self._streaming:
             self._prepare_stream_start()
-        return self._config_request(SetConfig, k, int(value))
+        return self._config_request(SetConfig, k, value)
 
     def _config_request(
         self, command: type[GetConfig | SetConfig], k: ConfigKey, *value: int
@@ -999,6 +1004,7 @@ class Device:
         DeviceFault, DeviceReset, MoveTimeout, LinkLost
             While waiting.
         """
+        angle_deg = finite_number("angle_deg", angle_deg, "degrees")
         d = self._direction(direction)
         scale = self._scales.angle_deg
         turn = round(360.0 / scale)
@@ -1016,7 +1022,13 @@ class Device:
     ) -> DeviceStatus | None:
         """Turn the table by ``delta_deg`` (positive counter-clockwise; the device accepts
         +-720 deg). See :meth:`rotate_to` for ``wait``, ``timeout`` and errors."""
+        delta_deg = finite_number("delta_deg", delta_deg, "degrees")
         counts = round(delta_deg / self._scales.angle_deg)
+        if abs(counts) > ROTATE_BY_LIMIT:
+            raise ArgumentError(
+                f"delta_deg={delta_deg!r}: the device turns at most "
+                f"+-{ROTATE_BY_LIMIT * self._scales.angle_deg:g} deg in one ROTATE_BY"
+            )
         return self._move(RotateBy, (counts,), abs(delta_deg), wait, timeout)
 
     @_on_clock
@@ -1031,6 +1043,7 @@ class Device:
 
         With ``wait`` return the status once the table has settled (READY).
         """
+        timeout = seconds("timeout", timeout)
         with self._lock:
             n0, epoch = self._status_count, self._boot_epoch
         t0 = self._clock.now()
@@ -1052,6 +1065,7 @@ class Device:
         DriverTimeout
             Not READY within ``timeout`` s.
         """
+        timeout = float(seconds("timeout", timeout, allow_none=False) or 0.0)
         t0 = self._clock.now()
 
         def check() -> DeviceStatus | None:
@@ -1093,6 +1107,7 @@ class Device:
         wait: bool,
         timeout: float | None,
     ) -> DeviceStatus | None:
+        timeout = seconds("timeout", timeout)
         self._refresh_config_if_stale()
         expected = self.move_duration_s(distance_deg)
         with self._lock:
@@ -1144,6 +1159,7 @@ class Device:
         DriverTimeout
             The device did not leave BOOT within ``timeout`` s (protocol: at most 1 s).
         """
+        timeout = float(seconds("timeout", timeout, allow_none=False) or 0.0)
         with self._lock:
             epoch = self._boot_epoch
         t0 = self._clock.now()
@@ -1209,8 +1225,8 @@ class Device:
         """
         if on_gap not in ("raise", "report"):
             raise ArgumentError(f"on_gap={on_gap!r}: choose one of 'raise', 'report'")
-        if not (isinstance(seconds, int | float) and math.isfinite(seconds) and seconds > 0):
-            raise ArgumentError(f"seconds={seconds!r}: must be a positive number")
+        seconds = _window_seconds("seconds", seconds, allow_none=False) or 0.0
+        timeout = _timeout_seconds("timeout", timeout)
         with self._acquire_lock:
             self._check_open()
             if not self._link_alive():

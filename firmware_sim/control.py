@@ -42,6 +42,11 @@ class ControlError(SimError):
     """A control request that cannot be carried out (bad op or argument, or no answer)."""
 
 
+class ControlRefused(ControlError):
+    """The simulator answered a request with ``ok: false`` (a bad op, key or value); the
+    message is the simulator's."""
+
+
 def _num(x: float) -> str:
     """A bound as people write it: 100000, 0.01, 1e+20."""
     return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
@@ -552,8 +557,10 @@ class ControlClient:
 
     Raises
     ------
+    ControlRefused
+        The simulator answered ``ok: false`` (its message is kept).
     ControlError
-        The simulator answered ``ok: false`` (its message is kept), or did not answer in time.
+        The channel cannot be reached or did not answer in time.
     """
 
     def __init__(self, address: str, timeout: float = 5.0) -> None:
@@ -569,12 +576,17 @@ class ControlClient:
                 f"cannot reach the simulator's control channel at {address}: {exc}"
             ) from exc
         self._file = self._sock.makefile("rwb")
+        self._address, self._timeout = address, timeout
 
     def call(self, op: str, **args: Any) -> dict[str, Any]:
         try:
             self._file.write(json.dumps({"op": op, **args}).encode() + b"\n")
             self._file.flush()
             line = self._file.readline(4 * MAX_LINE_BYTES)
+        except TimeoutError as exc:
+            raise ControlError(
+                f"no reply from the control channel at {self._address} within {self._timeout:g} s"
+            ) from exc
         except OSError as exc:
             raise ControlError(f"control channel: {exc}") from exc
         if not line:
@@ -585,7 +597,7 @@ class ControlClient:
             raise ControlError(f"control channel: the reply is not a JSON line ({exc})") from exc
         if not isinstance(reply, dict) or not reply.get("ok"):
             error = reply.get("error") if isinstance(reply, dict) else None
-            raise ControlError(error or "request refused")
+            raise ControlRefused(error or "request refused")
         return reply
 
     def close(self) -> None:

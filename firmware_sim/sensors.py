@@ -197,12 +197,23 @@ def _check_value(where: str, check: str, value: Any) -> float | tuple[float, flo
     return _check_number(where, check, value)
 
 
+#: Largest magnitude of any figure in its datasheet unit. Beyond any instrument (a gyro range of
+#: 200 deg/s is 7.2e5 deg/h), and far enough below the float range that the physics never
+#: overflows (squares and sums of samples stay finite).
+MAX_FIGURE = 1e9
+
+
 def _check_number(where: str, check: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise SimConfigError(f"{where}: expected a number, got {value!r}")
-    x = float(value)
+    try:
+        x = float(value)
+    except OverflowError:
+        x = math.inf
     if not math.isfinite(x):
         raise SimConfigError(f"{where}: must be finite, got {value!r}")
+    if abs(x) > MAX_FIGURE:
+        raise SimConfigError(f"{where}: {x:g} exceeds the largest figure allowed, {MAX_FIGURE:g}")
     if check == _NONNEG and x < 0:
         raise SimConfigError(f"{where}: must not be negative, got {x}")
     if check == _POSITIVE and x <= 0:

@@ -123,7 +123,13 @@ def _signal(
 
 
 def _positive_int(value: int, name: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or int(value) != value or int(value) < minimum:
+    whole = (
+        not isinstance(value, bool)
+        and isinstance(value, int | float | np.integer | np.floating)
+        and math.isfinite(value)
+        and int(value) == value
+    )
+    if not whole or int(value) < minimum:
         raise HostConfigError(f"{name}: must be an integer >= {minimum}, got {value!r}")
     return int(value)
 
@@ -765,6 +771,23 @@ METHODS: Mapping[str, DenoiseMethod] = {
         DenoiseMethod("hampel", hampel, "Hampel outlier replacement (21 samples, 3 sigma)"),
     )
 }
+
+
+def check_denoise(
+    method: str, options: Mapping[str, Any], n_samples: int, name: str = "denoise options"
+) -> None:
+    """Refuse, before any measurement, a method or options that cannot run on windows of
+    ``n_samples`` (a bad option name or value, a window or level the samples cannot hold).
+
+    Raises
+    ------
+    HostConfigError, DenoiseError
+        The message names the option; ``name`` (e.g. ``--denoise-option``) leads it.
+    """
+    try:
+        denoise(np.zeros((max(int(n_samples), 1), 1)), method, axis=0, **dict(options))
+    except (HostConfigError, DenoiseError) as exc:
+        raise type(exc)(f"{name}: {exc}") from exc
 
 
 def denoise(x: ArrayLike, method: str, *, axis: int = -1, **options: Any) -> NDArray[np.float64]:

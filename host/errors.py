@@ -43,7 +43,11 @@ class QualityError(HostError):
 
 
 class RecordingError(HostError):
-    """A recording cannot be read or written; the message names the file and what is wrong."""
+    """A recording cannot be read or is not valid; the message names the file and what is wrong."""
+
+
+class OutputError(HostError):
+    """A file the command writes (recording, plot, report) cannot be written."""
 
 
 def check_choice(

@@ -67,6 +67,9 @@ __all__ = [
 #: Samples of one channel (runs x positions x samples) in one chunk, at most (a chunk holds at
 #: least one run): about 2 MiB per channel. Part of the definition of a study's random draws.
 CHUNK_SAMPLES = 2**18
+#: Most sample values (samples x 6 channels) of one run: a study never holds more than about
+#: 300 MB of samples (with the generator's temporaries), whatever the plan asks.
+MAX_RUN_VALUES = 24_000_000
 
 
 class WindowBatch(Protocol):
@@ -221,6 +224,14 @@ def chunk_tasks(
         raise HostConfigError(f"runs: need at least 2 runs for statistics, got {runs}")
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:
         raise HostConfigError(f"seed: must be a non-negative integer, got {seed!r}")
+    # Samples per window, for the memory budget only (the generator decides the exact count).
+    p, n = len(plan.positions_deg), round(plan.window_s * settings.sample_rate_hz)
+    if p * n * 6 > MAX_RUN_VALUES:
+        raise HostConfigError(
+            f"a run of {p} windows of {n} samples ({p * n * 6:.3g} values: positions x window x "
+            f"rate x 6 channels) exceeds the {MAX_RUN_VALUES:.3g} a study holds at once; "
+            "shorten the windows or lower the rate"
+        )
     size = chunk_runs(plan, settings)
     return [
         ChunkTask(generator, plan, settings, int(seed), k, min(size, runs - start))

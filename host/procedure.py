@@ -22,9 +22,16 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.driver.protocol.constants import VALIDITY_UNFIT, ConfigKey, DeviceState, Validity
+from northfinder.driver.protocol.constants import (
+    VALIDITY_GOOD,
+    VALIDITY_UNFIT,
+    ConfigKey,
+    DeviceState,
+    Validity,
+)
 from northfinder.driver.protocol.motion import shortest_delta_deg
-from northfinder.host.denoise import denoise
+from northfinder.host.consistency import ConsistencyCheck, check_windows, pooled_sem
+from northfinder.host.denoise import check_denoise, denoise
 from northfinder.host.errors import HostConfigError, HostError, QualityError
 from northfinder.host.heading import (
     MIN_MU_SEPARATION_DEG,
@@ -50,16 +57,22 @@ __all__ = [
     "check_plan_for_device",
     "extra_settle_s",
     "find_north",
+    "result_from_windows",
     "solve_windows",
     "summarise_window",
+    "unfit_samples",
 ]
 
 #: Largest span of the encoder during a window before the window counts as moved, deg.
 MAX_ENCODER_SPAN_DEG = 0.01
 #: Batches used to estimate the standard error of a window mean (robust to correlated noise).
 N_BATCHES = 20
-#: Validity bits that make a sample unusable for north finding (protocol.md 4.5).
+#: Validity bits that make a sample unusable for north finding (protocol.md 4.5); a sample is
+#: also unusable without both GYRO_VALID and ACCEL_VALID (:func:`unfit_samples`).
 BAD_BITS = VALIDITY_UNFIT
+#: Impulsive samples: farther from the window median than this many robust sigmas (MAD x 1.4826,
+#: at least one output step).
+OUTLIER_SIGMAS = 8.0
 #: Solvers the procedure offers (a plan's ``pairwise`` is for studies: it gives no one heading).
 METHOD_CHOICES = ("auto", "two-position", "least-squares")
 #: Window and settle-time limits of a run on a device, s.
@@ -94,6 +107,14 @@ class DeviceLike(Protocol):
         self, seconds: float, *, on_gap: Literal["raise", "report"] = "raise"
     ) -> WindowLike: ...
     def stop_streaming(self) -> None: ...
+
+
+def unfit_samples(validity: Any) -> NDArray[np.bool_]:
+    """True for every sample north finding must not use (protocol.md 4.5): GYRO_VALID or
+    ACCEL_VALID clear, or any of bits 2..7 set."""
+    v = np.asarray(validity).astype(np.int64)
+    good = int(VALIDITY_GOOD)
+    return ((v & good) != good) | ((v & int(BAD_BITS)) != 0)
 
 
 def check_plan_for_device(plan: Plan) -> None:
@@ -140,6 +161,7 @@ class PositionWindow:
     accel_sem_mps2: tuple[float, float, float]
     outliers: int
     notes: tuple[str, ...] = ()
+    time_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -160,6 +182,13 @@ class FindResult:
     windows: tuple[PositionWindow, ...]
     pairwise_deg: tuple[float, ...] = ()
     notes: tuple[str, ...] = field(default=())
+    latitude_source: str = ""
+    check: ConsistencyCheck | None = None
+
+    @property
+    def consistent(self) -> bool | None:
+        """True or False when the windows were checked against their noise, None when not."""
+        return None if self.check is None else self.check.consistent
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -170,6 +199,9 @@ class FindResult:
             "method": self.method,
             "denoise": self.denoise,
             "latitude_deg": self.latitude_deg,
+            "latitude_source": self.latitude_source,
+            "consistent": self.consistent,
+            "check": None if self.check is None else self.check.to_dict(),
             "positions": [w.encoder_deg for w in self.windows],
             "windows": [
                 {
@@ -181,6 +213,7 @@ class FindResult:
                     "gyro_sem_dph": list(w.gyro_sem_dph),
                     "accel_mean_mps2": list(w.accel_mps2),
                     "outliers": w.outliers,
+                    "time_s": w.time_s,
                     "notes": list(w.notes),
                 }
                 for w in self.windows
@@ -237,11 +270,16 @@ def summarise_window(
         raise QualityError(f"window at {commanded_deg:g} deg has only {n} samples")
     if window.missing:
         raise QualityError(f"window at {commanded_deg:g} deg is missing {window.missing} samples")
-    bad = (np.asarray(window.validity, dtype=np.uint8) & int(BAD_BITS)) != 0
+    bad = unfit_samples(window.validity)
     if bad.any():
-        flags = Validity(int(np.bitwise_or.reduce(np.asarray(window.validity)[bad])))
+        v = np.asarray(window.validity).astype(np.int64)[bad]
+        flags = Validity(int(np.bitwise_or.reduce(v)) & int(BAD_BITS))
+        cleared = Validity(int(VALIDITY_GOOD) & ~int(np.bitwise_and.reduce(v)))
+        what = " and ".join(
+            f"{name} {f!r}" for name, f in (("flagged", flags), ("without", cleared)) if f
+        )
         raise QualityError(
-            f"window at {commanded_deg:g} deg: {int(bad.sum())} of {n} samples flagged {flags!r}"
+            f"window at {commanded_deg:g} deg: {int(bad.sum())} of {n} samples unusable ({what})"
         )
     enc = np.asarray(window.table_deg, dtype=float)
     unwrapped = np.degrees(np.unwrap(np.radians(enc)))
@@ -257,8 +295,12 @@ def summarise_window(
     clean_g = denoise(gyro, denoise_method, axis=0, **opts) if denoise_method != "none" else gyro
     clean_a = denoise(accel, denoise_method, axis=0, **opts) if denoise_method != "none" else accel
     med = np.median(gyro, axis=0)
-    mad = 1.4826 * np.median(np.abs(gyro - med), axis=0)
-    outliers = int(np.sum(np.any(np.abs(gyro - med) > 8.0 * np.maximum(mad, 1e-12), axis=1)))
+    # A quantised, nearly noise-free output (the simulated ideal sensor) has a MAD of zero while
+    # it toggles between neighbouring steps: the spread is at least one output step.
+    spread = np.maximum(1.4826 * np.median(np.abs(gyro - med), axis=0), _output_step(gyro))
+    outliers = int(
+        np.sum(np.any(np.abs(gyro - med) > OUTLIER_SIGMAS * np.maximum(spread, 1e-12), axis=1))
+    )
     notes = []
     if outliers > 0.005 * n:
         notes.append(
@@ -275,7 +317,23 @@ def summarise_window(
         accel_sem_mps2=_triad(batch_sem(clean_a)),
         outliers=outliers,
         notes=tuple(notes),
+        time_s=_mid_time(window),
     )
+
+
+def _output_step(x: NDArray[np.float64]) -> float:
+    """The output's step: the smallest step between distinct values of any column (the axes
+    share one count), 0 when every column is constant."""
+    steps = [np.diff(np.unique(x[:, k])) for k in range(x.shape[1])]
+    positive = [float(s.min()) for s in steps if s.size]
+    return min(positive) if positive else 0.0
+
+
+def _mid_time(window: Any) -> float | None:
+    t = getattr(window, "time_s", None)
+    if t is None or len(t) == 0:
+        return None
+    return float((t[0] + t[-1]) / 2.0)
 
 
 def _mat_nb(alpha: float, theta: float, gamma: float) -> NDArray[np.float64]:
@@ -355,9 +413,15 @@ def solve_windows(
     mu = np.array([w.encoder_deg for w in windows])
     gyro = np.array([w.gyro_dph for w in windows])
     accel = np.array([w.accel_mps2 for w in windows])
-    # Floors far below any sensor's noise keep noise-free (simulated ideal) windows well posed.
-    g_sem = np.maximum(np.array([w.gyro_sem_dph for w in windows])[:, :2], 1e-9)
-    a_sem = np.maximum(np.array([w.accel_sem_mps2 for w in windows])[:, :2], 1e-12)
+    # Weights from each axis's noise pooled over the windows (consistency.pooled_sem); floors
+    # far below any sensor's noise keep noise-free (simulated ideal) windows well posed.
+    samples = [w.samples for w in windows]
+    g_sem = np.maximum(
+        pooled_sem(np.array([w.gyro_sem_dph for w in windows])[:, :2], samples), 1e-9
+    )
+    a_sem = np.maximum(
+        pooled_sem(np.array([w.accel_sem_mps2 for w in windows])[:, :2], samples), 1e-12
+    )
     pairwise = [p.azimuth_deg for p in pairwise_solutions(windows, latitude_deg)]
     if plan.solver == "two-position":
         d = float((mu[1] - mu[0]) % 360.0)
@@ -372,6 +436,51 @@ def solve_windows(
         gyro_noise=g_sem, accel_noise=a_sem,
     )  # fmt: skip
     return m.azimuth_deg % 360.0, m.sigma_deg, m.pitch_deg, m.roll_deg, tuple(pairwise)
+
+
+def result_from_windows(
+    windows: Sequence[PositionWindow],
+    latitude_deg: float,
+    plan: Plan,
+    *,
+    latitude_source: str = "",
+) -> FindResult:
+    """Solve summarised windows and check them against their noise (the one way ``find`` and
+    ``solve`` reach a result).
+
+    With redundant windows (:mod:`northfinder.host.consistency`) a failed check scales the
+    sigma by its Birge ratio and adds the warning to the notes; a plan without redundancy says
+    in the notes that it was not checked.
+    """
+    azimuth, sigma, pitch, roll, pairwise = solve_windows(windows, latitude_deg, plan)
+    check = check_windows(
+        [w.encoder_deg for w in windows],
+        np.array([w.gyro_dph for w in windows]),
+        np.array([w.gyro_sem_dph for w in windows]),
+        [w.samples for w in windows],
+        latitude_deg,
+        accel_mps2=np.array([w.accel_mps2 for w in windows]),
+        accel_sem_mps2=np.array([w.accel_sem_mps2 for w in windows]),
+        time_s=[w.time_s for w in windows],
+    )
+    notes = [f"position {i + 1}: {n}" for i, w in enumerate(windows) for n in w.notes]
+    notes.append(check.summary())
+    if sigma is not None and check.consistent is False:
+        sigma *= check.sigma_scale
+    return FindResult(
+        azimuth_deg=azimuth,
+        sigma_deg=sigma,
+        pitch_deg=pitch,
+        roll_deg=roll,
+        method=plan.solver,
+        denoise=plan.denoise,
+        latitude_deg=latitude_deg,
+        windows=tuple(windows),
+        pairwise_deg=pairwise if len(windows) > 2 else (),
+        notes=tuple(notes),
+        latitude_source=latitude_source,
+        check=check,
+    )
 
 
 def _state_name(status: Any) -> str:
@@ -392,6 +501,7 @@ def find_north(
     progress: Callable[[Progress], None] | None = None,
     sleep: Callable[[float], None] | None = None,
     clock: Callable[[], float] | None = None,
+    latitude_source: str = "",
 ) -> tuple[FindResult, list[Any]]:
     """Run the plan on ``device`` and solve; return the result and the raw windows.
 
@@ -412,6 +522,8 @@ def find_north(
         How to wait and what time it is, s (default: the device's own clock, ``device.clock``,
         where it has one, so that a device in virtual time is waited for in virtual time; else
         the wall clock).
+    latitude_source : str
+        Where the latitude came from, stated in the result.
 
     Raises
     ------
@@ -426,6 +538,9 @@ def find_north(
     n = len(plan.positions_deg)
     rate_dps = device.get_config(ConfigKey.TABLE_MAX_RATE_MDPS) / 1000.0
     settle_dev = device.get_config(ConfigKey.SETTLE_TIME_MS) / 1000.0
+    # A denoising method the windows cannot take is refused now, not after the measurement.
+    n_samples = round(plan.window_s * device.get_config(ConfigKey.SAMPLE_RATE_HZ))
+    check_denoise(plan.denoise, dict(plan.denoise_options), n_samples, "denoise")
     extra = extra_settle_s(plan, settle_dev)
 
     def seconds_left(i: int, here: float | None) -> float:
@@ -461,7 +576,6 @@ def find_north(
         sleep(WARMUP_POLL_S)
     windows: list[PositionWindow] = []
     raw: list[Any] = []
-    notes: list[str] = []
     here = _angle(device.status())
     options = dict(plan.denoise_options)
     for i, target in enumerate(plan.positions_deg):
@@ -478,23 +592,10 @@ def find_north(
         raw.append(window)
         summary = summarise_window(window, target, plan.denoise, options)
         windows.append(summary)
-        notes += [f"position {i + 1}: {note}" for note in summary.notes]
         here = summary.encoder_deg
     report(Progress("solve", n, n, here, 0.0))
-    azimuth, sigma, pitch, roll, pairwise = solve_windows(windows, latitude_deg, plan)
+    result = result_from_windows(windows, latitude_deg, plan, latitude_source=latitude_source)
     report(Progress("done", n, n, here, 0.0))
-    result = FindResult(
-        azimuth_deg=azimuth,
-        sigma_deg=sigma,
-        pitch_deg=pitch,
-        roll_deg=roll,
-        method=plan.solver,
-        denoise=plan.denoise,
-        latitude_deg=latitude_deg,
-        windows=tuple(windows),
-        pairwise_deg=pairwise if n > 2 else (),
-        notes=tuple(notes),
-    )
     return result, raw
 
 

@@ -33,12 +33,12 @@ import math
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.host.errors import RecordingError
+from northfinder.host.errors import OutputError, RecordingError
 
 __all__ = [
     "COLUMNS",
@@ -154,7 +154,7 @@ class Recording:
             else:
                 raise RecordingError(f"{p}: the file name must end in .csv or .npz")
         except OSError as exc:
-            raise RecordingError(f"{p}: cannot write ({exc.strerror})") from exc
+            raise OutputError(f"{p}: cannot write ({exc.strerror})") from exc
 
     @staticmethod
     def load(path: str | Path, *, min_windows: int = 2) -> Recording:
@@ -172,6 +172,11 @@ class Recording:
                 arrays, meta = _read_csv(p)
         except OSError as exc:
             raise RecordingError(f"{p}: cannot read ({exc.strerror or exc})") from exc
+        if not isinstance(meta, dict):
+            raise RecordingError(
+                f"{p}: the metadata (meta_json) must be a table of key = value, got "
+                f"{type(meta).__name__}"
+            )
         if meta.get("format") != FORMAT:
             raise RecordingError(
                 f"{p}: not a northfinder recording (format = {meta.get('format')!r})"
@@ -180,7 +185,76 @@ class Recording:
             raise RecordingError(
                 f"{p}: recording version {meta.get('version')!r}; this reader knows {VERSION}"
             )
+        check_meta(meta, p)
         return Recording(_split(arrays, p, min_windows), meta)
+
+
+#: Highest sample rate a recording may state, Hz.
+MAX_SAMPLE_RATE_HZ = 100_000.0
+#: Largest magnitude of a gyro sample, deg/h (over 270 000 deg/s), of a specific force, m/s^2
+#: (about 1000 g), of an encoder angle, deg: beyond them a recording holds no measurement.
+SAMPLE_LIMITS = {"gyro_dph": 1e9, "accel_mps2": 1e4, "table_deg": 720.0}
+#: Truth fields a recording of a simulated run carries (deg).
+TRUTH_FIELDS = ("azimuth_deg", "pitch_deg", "roll_deg")
+
+
+def _number(value: Any) -> TypeGuard[float]:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_meta(meta: dict[str, Any], p: Path | str) -> None:
+    """Refuse metadata a solver would misread; the message names the key.
+
+    ``sample_rate_hz`` must be a positive number (at most :data:`MAX_SAMPLE_RATE_HZ`);
+    ``latitude_deg``, when present, a number in [-90, 90]; ``truth``, when present, a table of
+    finite numbers with at least :data:`TRUTH_FIELDS`; ``plan``, when present, a table.
+
+    Raises
+    ------
+    RecordingError
+    """
+    rate = meta.get("sample_rate_hz")
+    if not (_number(rate) and 0 < rate <= MAX_SAMPLE_RATE_HZ):
+        shown = "missing" if rate is None else f"got {rate!r}"
+        raise RecordingError(
+            f"{p}: sample_rate_hz must be a number of Hz, more than 0 and at most "
+            f"{MAX_SAMPLE_RATE_HZ:g} ({shown})"
+        )
+    if "latitude_deg" in meta:
+        lat = meta["latitude_deg"]
+        if not (_number(lat) and -90.0 <= lat <= 90.0):
+            raise RecordingError(
+                f"{p}: latitude_deg must be a number of deg in [-90, 90], got {lat!r}"
+            )
+    if "truth" in meta:
+        truth = meta["truth"]
+        if not isinstance(truth, dict):
+            raise RecordingError(f"{p}: truth must be a table of key = value, got {truth!r}")
+        for key in TRUTH_FIELDS:
+            if not _number(truth.get(key)):
+                raise RecordingError(
+                    f"{p}: truth {key} must be a finite number of deg, got {truth.get(key)!r}"
+                )
+    if "plan" in meta and not isinstance(meta["plan"], dict):
+        raise RecordingError(f"{p}: plan must be a table of key = value, got {meta['plan']!r}")
+
+
+def _whole(name: str, values: NDArray[Any], p: Path, lo: float, hi: float) -> NDArray[np.int64]:
+    """A column of whole numbers in [lo, hi] as int64, or a RecordingError naming it."""
+    v = np.asarray(values)
+    if v.dtype.kind in "iu":
+        bad = (v < lo) | (v > hi)
+    else:
+        f = v.astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(f) | (f != np.round(f)) | (f < lo) | (f > hi)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise RecordingError(
+            f"{p}: {name} of sample {i} is {v.flat[i]!r}; it must be a whole number from "
+            f"{lo:g} to {hi:g}"
+        )
+    return v.astype(np.int64)
 
 
 def _concat(windows: tuple[RecordedWindow, ...]) -> dict[str, NDArray[Any]]:
@@ -260,16 +334,16 @@ def _read_csv(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
     if not rows:
         raise RecordingError(f"{p}: no samples")
     a = np.array(rows)
-    arrays = {
-        "window": a[:, 0].astype(np.int64),
+    arrays = {  # whole-number columns stay floats here: _split checks and converts them
+        "window": a[:, 0],
         "commanded_deg": a[:, 1],
-        "counter": a[:, 2].astype(np.int64),
+        "counter": a[:, 2],
         "time_s": a[:, 3],
         "gyro_dph": a[:, 4:7],
         "accel_mps2": a[:, 7:10],
         "table_deg": a[:, 10],
         "temperature_c": a[:, 11],
-        "validity": a[:, 12].astype(np.uint8),
+        "validity": a[:, 12],
     }
     return arrays, meta
 
@@ -296,16 +370,32 @@ def _split(
             raise RecordingError(
                 f"{p}: array {name!r} has shape {arrays[name].shape}, expected {shape}"
             )
+        if arrays[name].dtype.kind not in "iuf":
+            raise RecordingError(f"{p}: array {name!r} must hold numbers, got {arrays[name].dtype}")
         if arrays[name].dtype.kind == "f" and not np.all(np.isfinite(arrays[name])):
             raise RecordingError(f"{p}: array {name!r} holds NaN or infinite values")
+        limit = SAMPLE_LIMITS.get(name)
+        if limit is not None and np.any(np.abs(arrays[name]) > limit):
+            raise RecordingError(
+                f"{p}: array {name!r} holds values beyond +-{limit:g}, which no instrument reads"
+            )
+    # Whole-number columns: checked, never truncated (a NaN counter is no counter).
+    window_index = _whole("window", arrays["window"], p, 0, 1e6)
+    counter = _whole("counter", arrays["counter"], p, 0, 2.0**53)
+    validity = _whole("validity", arrays["validity"], p, 0, 255).astype(np.uint8)
     windows = []
-    for w in np.unique(arrays["window"]):
-        sel = arrays["window"] == w
+    for w in np.unique(window_index):
+        sel = window_index == w
         commanded = arrays["commanded_deg"][sel]
         if not math.isfinite(float(commanded[0])) or np.ptp(commanded) != 0:
             raise RecordingError(f"{p}: window {int(w)} has more than one commanded angle")
         fields = {name: arrays[name][sel] for name in SAMPLE_ARRAYS}
-        fields["validity"] = fields["validity"].astype(np.uint8)
+        fields["counter"] = counter[sel]
+        fields["validity"] = validity[sel]
+        if np.any(np.diff(fields["counter"]) <= 0):
+            raise RecordingError(
+                f"{p}: window {int(w)}: the counter does not increase sample by sample"
+            )
         windows.append(RecordedWindow(float(commanded[0]), **fields))
     if len(windows) < min_windows:
         need = (

@@ -31,7 +31,7 @@ from northfinder.host.calibrate import (
     register_reader,
 )
 from northfinder.host.cli import main as cli
-from northfinder.host.errors import HostConfigError, InputError, RecordingError
+from northfinder.host.errors import HostConfigError, InputError, QualityError, RecordingError
 from northfinder.host.recording import RecordedWindow, Recording
 
 DATA = Path(__file__).parent / "data" / "prototype_tables.toml"
@@ -330,9 +330,11 @@ def test_calibrate_refuses_bad_input_with_one_clear_error(tmp_path):
         calibrate(read_runs([a, b]))
     (tmp_path / "c").mkdir()
     (short,) = write_recordings(load_spec("ideal"), [0.0], 2.0, 1, 1, tmp_path / "c")
-    with pytest.raises(InputError, match="no stretch of 64 or more consecutive good samples"):
+    with pytest.raises(QualityError, match="no stretch of 64 or more consecutive good samples"):
         calibrate(read_runs([short]))
-    assert cli(["calibrate", str(tmp_path / "nothing.xyz")]) == 1
+    assert (
+        cli(["calibrate", str(tmp_path / "nothing.xyz")]) == 2
+    )  # a file named on the command line that is no recording: the request is wrong
     with pytest.raises(InputError, match="design: unknown 'same'"):
         fit_between_positions(table1_runs(), design="same")
     with pytest.raises(InputError, match="fixed: unknown component 'drift'"):

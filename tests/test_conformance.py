@@ -337,10 +337,8 @@ def test_cli_lists_checks_and_refuses_bad_arguments(capsys):
     err = capsys.readouterr().err
     assert "no check matches 'nosuch.*'" in err and err.count("\n") == 1
     assert main(["conformance", "--serial", "/dev/null", "--jitter-margin-ms", "-1"]) == 2
-    assert "jitter_margin_ms" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as exc:
-        main(["conformance", "--serial", "/dev/null", "--time-scale", "-1"])
-    assert exc.value.code == 2
+    assert "--jitter-margin-ms" in capsys.readouterr().err
+    assert main(["conformance", "--serial", "/dev/null", "--time-scale", "-1"]) == 2
 
 
 class ScriptedSession:

@@ -144,7 +144,8 @@ ABUSE = [
     ({"op": "status", "verbose": True}, "takes no keys"),
     ({"op": "set_sensor", "values": [1]}, "object of sensor fields"),
     ({"op": "set_sensor", "values": {"gyro.arw_dpsh": NAN}}, "gyro.arw_dpsh"),
-    ({"op": "set_sensor", "values": {"table.max_rate_dps": 1e300}}, "TABLE_MAX_RATE_MDPS"),
+    ({"op": "set_sensor", "values": {"table.max_rate_dps": 1e300}}, "largest figure"),
+    ({"op": "set_sensor", "values": {"table.max_rate_dps": 1e5}}, "TABLE_MAX_RATE_MDPS"),
     ({"op": "set_sensor", "values": {"table.max_rate_dps": 1e-300}}, "0.001 to 50"),
     ({"op": "set_sensor", "values": {"table.settle_s": 1e9}}, "SETTLE_TIME_MS"),
     ({"op": "set_sensor", "values": {"disturbance.impulse_rate_hz": 1e9}}, "400 impulses"),
@@ -238,8 +239,8 @@ def test_a_value_that_is_not_a_number_in_the_physics_is_sent_as_saturated():
 
 
 def test_a_specification_the_device_cannot_run_is_refused_at_construction():
-    spec = load_spec("ideal").with_values({"table.max_rate_dps": 1e300})
-    with pytest.raises(SimConfigError, match=r"table.max_rate_dps: 1e\+300 .*TABLE_MAX_RATE_MDPS"):
+    spec = load_spec("ideal").with_values({"table.max_rate_dps": 1e5})
+    with pytest.raises(SimConfigError, match=r"table.max_rate_dps: 100000 .*TABLE_MAX_RATE_MDPS"):
         Firmware(spec, Truth(), np.random.default_rng(0))
 
 
@@ -368,16 +369,14 @@ def test_a_unix_socket_path_is_taken_only_when_free_or_stale(tmp_path):
 
 
 def test_simctl_names_the_right_key(served, capsys):
-    assert main(["simctl", served.address, "speed", "speed=2"]) == 1
+    assert main(["simctl", served.address, "speed", "speed=2"]) == 2  # refused: a wrong request
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "unknown key 'speed'; keys are value" in err
     assert main(["simctl", served.address, "speed", "value=2"]) == 0
 
 
 def test_simctl_help_lists_every_operation_and_key(capsys):
-    with pytest.raises(SystemExit) as exit_:
-        main(["simctl", "--help"])
-    assert exit_.value.code == 0
+    assert main(["simctl", "--help"]) == 0
     text = capsys.readouterr().out
     for name, op in OPS.items():
         assert f"  {name}: {op.help.split()[0]}" in text
@@ -387,17 +386,13 @@ def test_simctl_help_lists_every_operation_and_key(capsys):
 
 @pytest.mark.parametrize("baud", ["0", "-9600", "12.5", "fast"])
 def test_sim_refuses_a_bad_baud_rate_at_parse_time(baud, capsys):
-    with pytest.raises(SystemExit) as exit_:
-        main(["sim", "--pty", f"--baud={baud}"])
-    assert exit_.value.code == 2
+    assert main(["sim", "--pty", f"--baud={baud}"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("northfinder sim: error: argument --baud:"), err
 
 
 def test_sim_refuses_a_bad_control_address_at_parse_time(capsys):
-    with pytest.raises(SystemExit) as exit_:
-        main(["sim", "--pty", "--control", "10.1.2.3:5"])
-    assert exit_.value.code == 2
+    assert main(["sim", "--pty", "--control", "10.1.2.3:5"]) == 2
     assert "only loopback addresses" in capsys.readouterr().err
 
 

@@ -30,9 +30,11 @@ class StandIn:
         return SimpleNamespace(state=DeviceState.READY, angle_deg=self.angle)
 
     def get_config(self, key: ConfigKey) -> int:
-        return {ConfigKey.TABLE_MAX_RATE_MDPS: 10_000, ConfigKey.SETTLE_TIME_MS: self.settle_ms}[
-            key
-        ]
+        return {
+            ConfigKey.TABLE_MAX_RATE_MDPS: 10_000,
+            ConfigKey.SETTLE_TIME_MS: self.settle_ms,
+            ConfigKey.SAMPLE_RATE_HZ: 200,
+        }[key]
 
     def rotate_to(self, angle_deg: float, *, wait: bool = True, timeout: float | None = None):
         self.calls.append(f"rotate {angle_deg:g}")
@@ -47,7 +49,7 @@ class StandIn:
             gyro_dph=ones * (c @ omega_b / DPH),
             accel_mps2=ones * (c @ f_b),
             table_deg=np.full(SAMPLES, self.angle),
-            validity=np.zeros(SAMPLES, dtype=np.uint8),
+            validity=np.full(SAMPLES, 3, dtype=np.uint8),  # GYRO_VALID | ACCEL_VALID
             counter=np.arange(SAMPLES, dtype=np.int64),
             missing=0,
         )

@@ -25,6 +25,7 @@ from northfinder.driver.protocol import (
     StatusMain,
 )
 from northfinder.driver.protocol.can import CanDecoded, CanReceiver, decode_can, encode_can
+from northfinder.driver.protocol.constants import Validity
 from northfinder.driver.protocol.serial import (
     MAX_FRAME_SIZE,
     Deframer,
@@ -198,3 +199,39 @@ def test_tick_assembler_reports_every_missing_frame(batch, data):
     assert ticks.complete + ticks.incomplete + ticks.lost == last_seen + 1 - min(
         i // 4 for i in range(len(frames)) if i not in dropped
     )
+
+
+def _frame_with_crc_high_a5(seq: int) -> bytes:
+    for counter in range(100_000):
+        frame = SerialEncoder(seq).encode(Sample(counter, (1, 2, 3), (4, 5, 6), 7, 8, Validity(3)))
+        if frame[-1] == 0xA5:
+            return frame
+    raise AssertionError("no frame with a CRC high byte of 0xA5")
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 7, 1000])
+def test_a_frame_that_lost_its_last_byte_a5_does_not_take_the_next_frame_with_it(chunk):
+    """The lost byte 0xA5 is completed by the next frame's first sync byte (a valid CRC): the
+    next frame must still be found, beginning inside the frame just delivered."""
+    first = SerialEncoder(0).encode(Sample(9, (1, 1, 1), (1, 1, 1), 1, 1, Validity(3)))
+    hit = _frame_with_crc_high_a5(1)
+    after = [
+        SerialEncoder(2 + k).encode(Sample(100 + k, (0, 0, 0), (0, 0, 0), 0, 0, Validity(3)))
+        for k in range(2)
+    ]
+    stream = first + hit[:-1] + b"".join(after)
+    deframer = Deframer()
+    got = []
+    for i in range(0, len(stream), chunk):
+        got += deframer.feed(stream[i : i + chunk])
+    assert [f.payload for f in got] == [first[5:-2], hit[5:-2], after[0][5:-2], after[1][5:-2]]
+    assert deframer.lost_frames == 0 and deframer.crc_errors == 0 and deframer.length_errors == 0
+    assert deframer.buffered == 0
+
+
+def test_a_clean_stream_of_frames_ending_in_a5_counts_nothing():
+    frames = [_frame_with_crc_high_a5(k) for k in range(3)]
+    deframer = Deframer()
+    got = [f for b in b"".join(frames) for f in deframer.feed(bytes([b]))]
+    assert len(got) == 3 and deframer.discarded_bytes == deframer.crc_errors == 0
+    assert deframer.length_errors == 0 and deframer.buffered == 0

@@ -239,6 +239,7 @@ class Deframer:
 
     def __init__(self) -> None:
         self._buf = bytearray()
+        self._tail = 0  # leading bytes of _buf that end the last delivered frame
         self._last_seq: int | None = None
         self.frames = 0
         self.crc_errors = 0
@@ -250,55 +251,86 @@ class Deframer:
 
     @property
     def buffered(self) -> int:
-        """Bytes held waiting for the rest of a frame (always below 71)."""
-        return len(self._buf)
+        """Bytes held waiting for the rest of a frame (below 71; besides them up to two final
+        bytes of the last frame delivered are kept while a next frame may begin in them)."""
+        return len(self._buf) - self._tail
 
     def reset(self) -> None:
         """Drop buffered bytes and forget the sequence counter (keep the statistics)."""
         self._buf.clear()
+        self._tail = 0
         self._last_seq = None
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[SerialFrame]:
-        """Add received bytes; return the frames completed by them, in order."""
+        """Add received bytes; return the frames completed by them, in order.
+
+        A frame may begin in the last two bytes of the frame delivered before it (protocol.md
+        2.2): when a frame lost its last byte and the next frame's first sync byte completed it
+        with a valid CRC (the lost byte was 0xA5), the next frame still starts there. A candidate
+        found there that fails is not counted as an error: those bytes were a good frame's.
+        """
         buf = self._buf
         buf += data
         n = len(buf)
         out: list[SerialFrame] = []
-        pos = 0
+        pos = self._tail  # bytes before pos are accounted for (delivered or discarded)
+        scan = 0
+        last_end = self._tail if self._tail else None
+        cut = None
         crc = binascii.crc_hqx
         while True:
-            i = buf.find(SYNC, pos)
+            i = buf.find(SYNC, scan)
             if i < 0:
                 # A trailing first sync byte may be completed by the next chunk.
-                keep = n - 1 if n > pos and buf[n - 1] == _SYNC0 else n
-                self.discarded_bytes += keep - pos
-                pos = keep
+                keep = n - 1 if n > pos and buf[n - 1] == _SYNC0 else max(n, pos)
+                self.discarded_bytes += max(keep - pos, 0)
+                pos = max(pos, keep)
+                cut = keep
                 break
-            self.discarded_bytes += i - pos
-            pos = i
-            if n - pos < 3:
+            in_tail = i < pos  # inside the last two bytes of the frame just delivered
+            if not in_tail:
+                self.discarded_bytes += i - pos
+                pos = i
+            if n - i < 3:
+                cut = i
                 break
-            length = buf[pos + 2]
+            length = buf[i + 2]
             if length > MAX_PAYLOAD:
-                self.length_errors += 1
-                self.discarded_bytes += 1
-                pos += 1
+                if not in_tail:
+                    self.length_errors += 1
+                    self.discarded_bytes += 1
+                    pos = i + 1
+                scan = i + 1
                 continue
-            end = pos + HEADER_SIZE + length + CRC_SIZE
+            end = i + HEADER_SIZE + length + CRC_SIZE
             if end > n:
+                cut = i
                 break
-            if crc(buf[pos + 2 : end - 2], CRC_INIT) != buf[end - 2] | (buf[end - 1] << 8):
-                self.crc_errors += 1
-                self.discarded_bytes += 1
-                pos += 1
+            if crc(buf[i + 2 : end - 2], CRC_INIT) != buf[end - 2] | (buf[end - 1] << 8):
+                if not in_tail:
+                    self.crc_errors += 1
+                    self.discarded_bytes += 1
+                    pos = i + 1
+                scan = i + 1
                 continue
-            seq = buf[pos + 4]
+            seq = buf[i + 4]
             if self._last_seq is not None:
                 self.lost_frames += (seq - self._last_seq - 1) & 0xFF
             self._last_seq = seq
-            out.append(SerialFrame(buf[pos + 3], seq, bytes(buf[pos + 5 : end - 2])))
-            pos = end
-        del buf[:pos]
+            out.append(SerialFrame(buf[i + 3], seq, bytes(buf[i + 5 : end - 2])))
+            pos = last_end = end
+            scan = end - 2
+        # While nothing after the last delivered frame has come, keep its final bytes if the
+        # next frame may begin there (they end in A5, or are A5 5A).
+        if last_end is not None and n <= last_end:
+            final = bytes(buf[max(0, last_end - 2) : last_end])
+            if final == SYNC:
+                cut = min(cut, last_end - 2)
+            elif final.endswith(SYNC[:1]):
+                cut = min(cut, last_end - 1)
+        cut = max(0, min(cut, n))
+        self._tail = max(0, pos - cut) if last_end is not None and cut < pos else 0
+        del buf[:cut]
         self.frames += len(out)
         return out
 

@@ -47,7 +47,7 @@ from northfinder.host.calibrate.between import (
     fit_between_positions,
 )
 from northfinder.host.calibrate.readers import RecordedRun, good_stretches
-from northfinder.host.errors import HostConfigError, InputError
+from northfinder.host.errors import HostConfigError, InputError, QualityError
 
 __all__ = ["AXES", "Calibration", "IndexingFit", "calibrate"]
 
@@ -513,7 +513,7 @@ def calibrate(
         for j, w in enumerate(run.windows):
             pieces += [(i, j, s) for s in good_stretches(w, MIN_PIECE_SAMPLES)]
     if not pieces:
-        raise InputError(
+        raise QualityError(
             f"no stretch of {MIN_PIECE_SAMPLES} or more consecutive good samples in the recordings"
         )
     curves: dict[str, AllanCurve] = {}

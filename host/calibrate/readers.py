@@ -22,7 +22,7 @@ import numpy as np
 
 from northfinder.host.canlog import is_can_log, read_can_log
 from northfinder.host.errors import RecordingError
-from northfinder.host.procedure import BAD_BITS
+from northfinder.host.procedure import unfit_samples
 from northfinder.host.recording import RecordedWindow, Recording
 
 __all__ = [
@@ -35,9 +35,10 @@ __all__ = [
 
 
 def good_stretches(window: RecordedWindow, min_samples: int = 1) -> list[slice]:
-    """Runs of consecutive good samples of a window (none of the procedure's bad validity bits,
-    no counter gap) of at least ``min_samples``, as slices."""
-    good = (np.asarray(window.validity, dtype=np.int64) & int(BAD_BITS)) == 0
+    """Runs of consecutive good samples of a window (usable for north finding by the
+    procedure's rule, :func:`~northfinder.host.procedure.unfit_samples`; no counter gap) of at
+    least ``min_samples``, as slices."""
+    good = ~unfit_samples(window.validity)
     breaks = np.flatnonzero(np.diff(window.counter) != 1) + 1
     out = []
     for seg in np.split(np.arange(len(window.counter)), breaks):

@@ -1,8 +1,9 @@
 """The ``northfinder`` command line: one module per subcommand, each with ``add_parser`` and ``run``.
 
 Every subcommand's errors derive from the packages' root exceptions (``HostError``, ``DriverError``,
-``SimError``); they are printed as one line naming what is wrong and the exit status is 2 for bad
-arguments, 1 for anything else. ``--debug`` shows the traceback instead.
+``SimError``); they are printed as one line naming what is wrong, with the exit status of
+:mod:`northfinder.host.cli.common` (2: the request is wrong, 1: the work failed). ``--debug``
+shows the traceback instead.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 
 from northfinder.driver.errors import DriverError
 from northfinder.firmware_sim.errors import SimError
+from northfinder.host.cli.common import EXIT_INTERRUPTED, EXIT_USAGE, report_error
 from northfinder.host.errors import HostError
 
 #: Subcommand name -> module in this package. A command's module (and what it imports: scipy,
@@ -50,7 +52,7 @@ SUMMARIES: dict[str, str] = {
 }
 
 
-#: The packages' root exceptions: one line on stderr and exit status 1 (``--debug``: traceback).
+#: The packages' root exceptions (``common.EXIT_STATUS`` gives each kind its exit status).
 ROOT_ERRORS: tuple[type[Exception], ...] = (HostError, SimError, DriverError)
 
 
@@ -136,17 +138,19 @@ def _command_of(argv: Sequence[str]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(only=_command_of(argv))
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2, its line printed)
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     _configure_logging(args)
     try:
         return int(args._run(args) or 0)
-    except ROOT_ERRORS as exc:
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # one line and a stated status for every error (common.py)
         if args.debug:
             raise
-        print(f"northfinder {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
+        return report_error(args.command, exc)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -15,16 +15,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import tomllib
 from pathlib import Path
 from typing import Any
 
-from northfinder.firmware_sim.sensors import load_spec, spec_from_dict
+from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
 from northfinder.host.calibrate.readers import READERS
-from northfinder.host.cli.common import positive_float
-from northfinder.host.errors import HostConfigError
+from northfinder.host.cli.common import bounded_float, check_output_path, load_sensor
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -47,11 +45,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the fitted terms as JSON")
     g = p.add_argument_group("between-position assumptions")
     g.add_argument(
-        "--move-tau", type=positive_float, default=10.0, metavar="SECONDS",
+        "--move-tau", type=bounded_float(0.0, 86_400.0, "s", open_lo=True), default=10.0,
+        metavar="SECONDS",
         help="time constant of the bias transient a move starts (default 10)",
     )  # fmt: skip
     g.add_argument(
-        "--heat-tau", type=float, default=0.0, metavar="SECONDS",
+        "--heat-tau", type=bounded_float(0.0, 86_400.0, "s"), default=0.0, metavar="SECONDS",
         help="time constant of the drive's heat that sizes move disturbances (default 0: none)",
     )  # fmt: skip
     g.add_argument(
@@ -63,12 +62,17 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.heat_tau < 0 or not math.isfinite(args.heat_tau):
-        raise HostConfigError(f"--heat-tau: must be a finite number >= 0, got {args.heat_tau}")
+    for option, path in (
+        ("--output", args.output),
+        ("--report", args.report),
+        ("--plot", args.plot),
+    ):
+        if path:
+            check_output_path(path, option)
+    base: dict[str, Any] | None = load_sensor(args.base).to_dict() if args.base else None
     runs = read_runs(args.recordings)
     cal = calibrate(runs, tau_s=args.move_tau, heat_tau_s=args.heat_tau, design=args.between)
     name = args.name or (Path(args.output).stem if args.output else "calibrated")
-    base: dict[str, Any] | None = load_spec(args.base).to_dict() if args.base else None
     text = cal.to_toml(name, base)
     # The simulator must take what is written: load it as --sensor FILE would.
     spec_from_dict(tomllib.loads(text), source=args.output or "<calibrated>")

@@ -1,4 +1,21 @@
-"""Argument helpers shared by the subcommands, so every command spells an option the same way."""
+"""What the subcommands share: argument helpers (so every command spells an option the same way)
+and the error policy (one line per error and a stated exit status).
+
+Exit status
+-----------
+- 0: done.
+- 1 (:data:`EXIT_RUNTIME`): the work failed: the device or link (refusals, timeouts, a lost link,
+  gaps, faults), measured data unusable (quality, tilt), a file that cannot be written.
+- 2 (:data:`EXIT_USAGE`): the request is wrong: a command-line argument or option, a combination of
+  them, or the content of a file named on the command line (a sensor TOML, a recording). Fix the
+  command and run it again. argparse's own errors exit 2 as well.
+- 130: interrupted (Ctrl-C).
+
+:func:`exit_status` maps an exception to its status by :data:`EXIT_STATUS` (the most specific
+class of the error's MRO decides); :func:`report_error` prints the one line. An exception of no
+listed class is a bug of the program: it is reported as an internal error (exit 1) in one line
+that names its type, and ``--debug`` shows its traceback.
+"""
 
 from __future__ import annotations
 
@@ -6,15 +23,80 @@ import argparse
 import contextlib
 import math
 import os
-from collections.abc import Iterator, Sequence
+import sys
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import Executor
+from typing import Any, TextIO
 
+from northfinder.driver.conformance.errors import SuiteConfigError
+from northfinder.driver.errors import ArgumentError, DriverError, LinkError
 from northfinder.driver.protocol.constants import (
     NODE_ID_DEFAULT,
     NODE_ID_MAX,
     NODE_ID_MIN,
     SERIAL_BAUD_DEFAULT,
 )
+from northfinder.firmware_sim.control import ControlRefused
+from northfinder.firmware_sim.errors import SimConfigError, SimError
+from northfinder.host.errors import (
+    DenoiseError,
+    GeometryError,
+    HostConfigError,
+    HostError,
+    LatitudeError,
+    RecordingError,
+)
+
+EXIT_RUNTIME = 1
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+#: Exception class -> exit status. The first class of an error's MRO found here decides, so a
+#: subclass listed overrides its base (a HostConfigError is a HostError, and exits 2).
+EXIT_STATUS: Mapping[type[BaseException], int] = {
+    HostConfigError: EXIT_USAGE,
+    LatitudeError: EXIT_USAGE,
+    GeometryError: EXIT_USAGE,
+    DenoiseError: EXIT_USAGE,
+    RecordingError: EXIT_USAGE,
+    SimConfigError: EXIT_USAGE,
+    ControlRefused: EXIT_USAGE,
+    ArgumentError: EXIT_USAGE,
+    SuiteConfigError: EXIT_USAGE,
+    HostError: EXIT_RUNTIME,
+    SimError: EXIT_RUNTIME,
+    DriverError: EXIT_RUNTIME,
+    OSError: EXIT_RUNTIME,
+}
+
+
+def exit_status(exc: BaseException) -> int | None:
+    """The exit status of an error of a known kind (:data:`EXIT_STATUS`), None for a bug."""
+    for cls in type(exc).__mro__:
+        if cls in EXIT_STATUS:
+            return EXIT_STATUS[cls]
+    return None
+
+
+def error_line(command: str, exc: BaseException) -> str:
+    """``northfinder COMMAND: error: MESSAGE`` on one line (a multi-line message is joined)."""
+    text = "; ".join(part.strip() for part in str(exc).splitlines() if part.strip())
+    if isinstance(exc, OSError) and not isinstance(exc, DriverError | HostError | SimError):
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        text = f"{where}{exc.strerror or text or type(exc).__name__}"
+    if exit_status(exc) is None:
+        return (
+            f"northfinder {command}: internal error ({type(exc).__name__}: {text or 'no message'}); "
+            "run with --debug for the traceback and report it"
+        )
+    return f"northfinder {command}: error: {text or type(exc).__name__}"
+
+
+def report_error(command: str, exc: BaseException, stream: TextIO | None = None) -> int:
+    """Print the one line for ``exc`` and return the exit status (internal errors: 1)."""
+    print(error_line(command, exc), file=stream or sys.stderr)
+    status = exit_status(exc)
+    return EXIT_RUNTIME if status is None else status
 
 
 def finite_float(text: str) -> float:
@@ -33,6 +115,45 @@ def positive_float(text: str) -> float:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be positive: {text!r}")
     return value
+
+
+def bounded_float(lo: float, hi: float, unit: str = "", *, open_lo: bool = False) -> Any:
+    """argparse type: a finite float in [lo, hi] (``(lo, hi]`` with ``open_lo``); the error
+    states the bounds."""
+    span = f"more than {lo:g} and at most {hi:g}" if open_lo else f"{lo:g} to {hi:g}"
+
+    def parse(text: str) -> float:
+        value = finite_float(text)
+        if value > hi or value < lo or (open_lo and value == lo):
+            raise argparse.ArgumentTypeError(
+                f"must be {span}{' ' + unit if unit else ''}, got {text!r}"
+            )
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+def bounded_int(lo: int, hi: int) -> Any:
+    """argparse type: a whole number in [lo, hi]; the error states the bounds."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be {lo} to {hi}, got {value}")
+        return value
+
+    parse.__name__ = "whole number"
+    return parse
+
+
+#: Largest random seed accepted (numpy takes any non-negative integer; 2**63 - 1 is plenty).
+MAX_SEED = 2**63 - 1
+seed_value = bounded_int(0, MAX_SEED)
+"""argparse type: a random seed, a whole number 0 .. 2**63 - 1."""
 
 
 def node_id(text: str) -> int:
@@ -85,16 +206,67 @@ def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse.
     return group
 
 
+def open_can_bus(args: argparse.Namespace) -> Any:
+    """The python-can bus of the ``-i/-c/-b`` options.
+
+    Raises
+    ------
+    HostConfigError
+        An interface python-can does not know, or options it refuses (exit status 2).
+    LinkError
+        The bus exists but cannot be opened (exit status 1).
+    """
+    import can
+    import can.cli
+
+    try:
+        return can.cli.create_bus_from_namespace(args)
+    except (can.CanInterfaceNotImplementedError, argparse.ArgumentError, ValueError,
+            TypeError) as exc:  # fmt: skip
+        raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+    except (can.CanError, OSError) as exc:
+        raise LinkError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+
+
+def open_serial_port(path: str, baud: int) -> Any:
+    """A pyserial port (non-blocking) for ``--serial PATH``.
+
+    Raises
+    ------
+    HostConfigError
+        A URL or setting pyserial refuses (exit status 2).
+    LinkError
+        The port cannot be opened (missing, busy, not a serial device: exit status 1).
+    """
+    import serial
+
+    try:
+        return serial.serial_for_url(path, baudrate=baud, timeout=0)
+    except serial.SerialException as exc:
+        raise LinkError(f"--serial {path}: cannot open the port: {exc}") from exc
+    except ValueError as exc:
+        raise HostConfigError(f"--serial {path}: {exc}") from exc
+
+
 def bus_given(args: argparse.Namespace) -> bool:
     """Whether python-can bus options were given."""
     return any(getattr(args, k, None) is not None for k in ("interface", "channel"))
 
 
+#: Most table positions a plan may hold (and angles a list may hold).
+MAX_POSITIONS = 64
+
+
 def angle_list(text: str) -> list[float]:
-    """argparse type: comma-separated angles in degrees, e.g. ``0,60`` or ``0,90,180,270``."""
+    """argparse type: comma-separated angles in degrees, e.g. ``0,60`` or ``0,90,180,270``
+    (at most :data:`MAX_POSITIONS`)."""
     parts = [p.strip() for p in text.split(",") if p.strip()]
     if not parts:
         raise argparse.ArgumentTypeError("expected comma-separated angles in degrees, e.g. 0,180")
+    if len(parts) > MAX_POSITIONS:
+        raise argparse.ArgumentTypeError(
+            f"{len(parts)} angles: at most {MAX_POSITIONS} positions are allowed"
+        )
     return [finite_float(p) for p in parts]
 
 
@@ -104,6 +276,57 @@ DEFAULT_LATITUDE_DEG = 34.0
 
 def sim_latitude(args: argparse.Namespace) -> float:
     return DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
+
+
+def sim_truth(args: argparse.Namespace, rng: Any) -> Any:
+    """The simulated truth of :func:`add_truth_arguments` (azimuth drawn from ``rng`` when not
+    given); SimConfigError names a field the simulated base cannot take."""
+    from northfinder.firmware_sim.imu import Truth
+
+    azimuth = float(rng.uniform(0.0, 360.0)) if args.azimuth is None else args.azimuth
+    return Truth(azimuth, sim_latitude(args), args.pitch or 0.0, args.roll or 0.0)
+
+
+def latitude_source(args: argparse.Namespace, simulated: bool) -> str:
+    """Where the latitude of a run comes from, as the result states it."""
+    if args.latitude is not None:
+        return "--latitude"
+    return f"the simulated truth (default, {DEFAULT_LATITUDE_DEG:g} deg)" if simulated else ""
+
+
+def load_sensor(name_or_path: str, overrides: Mapping[str, Any] | None = None) -> Any:
+    """A sensor preset or TOML file, with ``SECTION.FIELD`` overrides, that the simulated
+    device can run (table limits it reports, impulses it can compute: ``check_device_spec``).
+
+    Raises
+    ------
+    SimConfigError
+        Naming the field, its value and the bound (exit status 2).
+    """
+    from northfinder.firmware_sim.firmware import check_device_spec
+    from northfinder.firmware_sim.sensors import load_spec
+
+    spec = load_spec(name_or_path)
+    if overrides:
+        spec = spec.with_values(dict(overrides))
+    return check_device_spec(spec)
+
+
+def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) -> str:
+    """Refuse, before any work, an output file that cannot be written: a missing folder, a
+    folder in its place, or (with ``suffixes``) a name of another kind."""
+    import os
+
+    if suffixes and not path.endswith(suffixes):
+        raise HostConfigError(f"{option} {path}: the file name must end in {' or '.join(suffixes)}")
+    if os.path.isdir(path):
+        raise HostConfigError(f"{option} {path}: is a folder; give a file name")
+    folder = os.path.dirname(path) or "."
+    if not os.path.isdir(folder):
+        raise HostConfigError(f"{option} {path}: the folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise HostConfigError(f"{option} {path}: the folder {folder} is not writable")
+    return path
 
 
 def add_sensor_argument(parser: argparse.ArgumentParser) -> None:
@@ -125,7 +348,15 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         help="deg clockwise from north (default: random)",
     )
     g.add_argument(
-        "--latitude", type=finite_float, default=34.0, help="deg, north positive (default: 34)"
+        "--latitude",
+        type=bounded_float(-90.0, 90.0, "deg"),
+        default=None,
+        help="deg, north positive (simulated: default 34; required for a real device)",
+    )
+    g.add_argument("--pitch", type=finite_float, default=None, help="deg (default: 0)")
+    g.add_argument("--roll", type=finite_float, default=None, help="deg (default: 0)")
+    g.add_argument(
+        "--seed", type=seed_value, default=None, help="random seed (default: fresh each run)"
     )
     g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
     g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")

@@ -50,9 +50,11 @@ from northfinder.host.cli.common import (
     add_link_arguments,
     add_sensor_argument,
     angle_list,
+    bounded_float,
     bus_given,
-    finite_float,
-    positive_float,
+    check_output_path,
+    open_can_bus,
+    open_serial_port,
 )
 from northfinder.host.errors import HostConfigError
 from northfinder.host.results import SIMULATOR_MODEL, envelope
@@ -61,24 +63,24 @@ _DEFAULTS = SuiteOptions()
 
 #: The suite's options as flags: (flag, :class:`SuiteOptions` field, type, metavar, help).
 _FLAGS: tuple[tuple[str, str, Callable[[str], Any], str | None, str], ...] = (
-    ("--time-scale", "time_scale", positive_float, "S",
+    ("--time-scale", "time_scale", bounded_float(0.0, 10_000.0, open_lo=True), "S",
      "the unit's seconds per wall second (a simulator's --speed; default 1)"),
-    ("--stream-seconds", "stream_seconds", positive_float, None,
+    ("--stream-seconds", "stream_seconds", bounded_float(0.0, 3600.0, "s", open_lo=True), None,
      "length of the stream and heartbeat observation, unit seconds (default 30)"),
     ("--angles", "angles_deg", angle_list, "DEG,DEG,...",
      "rotation targets of rotation.accuracy (default 37.5,181.25,300)"),
-    ("--accuracy", "accuracy_deg", positive_float, "DEG",
+    ("--accuracy", "accuracy_deg", bounded_float(0.0, 180.0, "deg", open_lo=True), "DEG",
      "largest |encoder - target| after a move (default 0.05 deg)"),
-    ("--reply-limit-ms", "reply_limit_ms", positive_float, None,
+    ("--reply-limit-ms", "reply_limit_ms", bounded_float(0.0, 60_000.0, "ms", open_lo=True), None,
      "largest reply latency measured on the host, unit ms (default 100, the host timeout of "
      "protocol.md 6; replies over the unit's 20 ms deadline are counted in the report)"),
-    ("--jitter-margin-ms", "jitter_margin_ms", finite_float, None,
+    ("--jitter-margin-ms", "jitter_margin_ms", bounded_float(0.0, 60_000.0, "ms"), None,
      "host timestamp margin added to the 10 %% heartbeat jitter bound, wall ms (default 5)"),
-    ("--rate-tolerance", "rate_tolerance", positive_float, None,
+    ("--rate-tolerance", "rate_tolerance", bounded_float(0.0, 1.0, open_lo=True), None,
      "relative tolerance of the sample rate and mean heartbeat period (default 0.01)"),
-    ("--settle-margin", "settle_margin_s", finite_float, "SECONDS",
+    ("--settle-margin", "settle_margin_s", bounded_float(0.0, 3600.0, "s"), "SECONDS",
      "added (with 10 %%) to profile + settle time before a move is late (default 0.5)"),
-    ("--ready-timeout", "ready_timeout_s", positive_float, "SECONDS",
+    ("--ready-timeout", "ready_timeout_s", bounded_float(0.0, 86_400.0, "s", open_lo=True), "SECONDS",
      "longest wait for READY after boot or reset, unit seconds (default 180)"),
 )  # fmt: skip
 
@@ -176,6 +178,8 @@ def run(args: argparse.Namespace) -> int:
             )
         if args.sim and options.time_scale != 1.0:
             raise HostConfigError("--time-scale: not with --sim (the unit runs in virtual time)")
+        if args.junit:
+            check_output_path(args.junit, "--junit")
     except (HostConfigError, SuiteConfigError) as exc:
         print(f"northfinder conformance: error: {exc}", file=sys.stderr)
         return 2
@@ -184,17 +188,11 @@ def run(args: argparse.Namespace) -> int:
     closers = []
     try:
         if args.serial:
-            try:
-                port = serial.serial_for_url(args.serial, baudrate=args.baud, timeout=0)
-            except (serial.SerialException, ValueError) as exc:
-                raise HostConfigError(f"--serial {args.serial}: {exc}") from exc
+            port = open_serial_port(args.serial, args.baud)
             closers.append(port.close)
             link: CanRawLink | SerialRawLink = SerialRawLink(port)
         else:
-            try:
-                bus = can.cli.create_bus_from_namespace(args)
-            except (argparse.ArgumentError, can.CanError, OSError, ValueError) as exc:
-                raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+            bus = open_can_bus(args)
             closers.append(bus.shutdown)
             link = CanRawLink(bus, args.node_id)
         if not args.json:

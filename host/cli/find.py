@@ -26,7 +26,7 @@ import sys
 import time
 
 from northfinder.host.cli import report
-from northfinder.host.cli.common import baud_rate, positive_float
+from northfinder.host.cli.common import baud_rate, check_output_path, positive_float
 from northfinder.host.cli.measure import Measured, add_arguments, run_plan, save_recording
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
 
@@ -99,6 +99,11 @@ def send_nmea(args: argparse.Namespace, m: Measured) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.record:
+        check_output_path(args.record, "--record", (".csv", ".npz"))
+    if args.plot:
+        check_output_path(args.plot, "--plot")
+        report.require_matplotlib()
     to_stdout = args.nmea == "-"
     m = run_plan(args, progress=not (args.json or to_stdout))
     if args.record:

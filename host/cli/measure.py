@@ -24,39 +24,60 @@ from northfinder.host.cli.common import (
     add_solver_argument,
     add_truth_arguments,
     angle_list,
+    bounded_float,
     bus_given,
     can_log_path,
-    finite_float,
-    positive_float,
+    latitude_source,
     sim_latitude,
+    sim_truth,
 )
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
-from northfinder.host.procedure import METHOD_CHOICES, FindResult, Plan, Progress, find_north
+from northfinder.host.procedure import (
+    MAX_SETTLE_S,
+    METHOD_CHOICES,
+    WINDOW_RANGE_S,
+    FindResult,
+    Plan,
+    Progress,
+    find_north,
+)
 from northfinder.host.recording import RecordedWindow, Recording
 from northfinder.host.results import device_identity, utc_now
+
+#: Default warm-up of the embedded simulator, s (the paper's 2 min).
+SIM_WARMUP_S = 120.0
+#: The default plan: each position twice, in the symmetric order 0, 180, 180, 0. Opposite
+#: positions give the most heading per second (notes 4); the symmetric order cancels a linear
+#: drift; and the two redundant windows let the solver test the windows against their noise, so
+#: a bias step or drift between windows is flagged instead of giving a silently wrong heading
+#: (a two-position plan cannot check itself). README, "Finding north", says more.
+DEFAULT_POSITIONS_DEG = (0.0, 180.0, 180.0, 0.0)
+#: Longest wait of a run, wall s (warm-up timeout, --link-timeout), and longest simulated warm-up.
+MAX_WAIT_S = 86_400.0
+#: Reply deadline per attempt the driver accepts, s (below 0.1 s a retry would outrun a reply).
+REPLY_TIMEOUT_RANGE_S = (0.1, 60.0)
+#: Options that only the embedded simulator uses (refused with a real device, not ignored).
+SIM_ONLY = ("speed", "warmup", "sensor", "azimuth", "pitch", "roll", "seed")
 
 
 def add_device_arguments(p: argparse.ArgumentParser) -> None:
     g = add_link_arguments(p, "serial link and simulation")
     g.add_argument(
-        "--link-timeout", type=positive_float, default=None, metavar="SECONDS",
+        "--link-timeout", type=bounded_float(0.0, MAX_WAIT_S, "s", open_lo=True), default=None,
+        metavar="SECONDS",
         help="seconds without a status before the link counts as lost (default: 3 heartbeat periods, "
-        "0.3 s, as protocol.md says; raise it on a slow or busy host)",
+        "0.3 s, as protocol.md says; raise it on a slow or busy host; with --sim too)",
     )  # fmt: skip
     g.add_argument(
         "--reply-timeout",
-        type=positive_float,
+        type=bounded_float(*REPLY_TIMEOUT_RANGE_S, "s"),
         default=None,
         metavar="SECONDS",
-        help="seconds to wait for each reply before resending a safe command (default 0.25; "
-        "safe commands are sent 3 times in all)",
-    )
-    g.add_argument(
-        "--sim",
-        action="store_true",
-        help="use the embedded simulated instrument (in virtual time: as fast as the CPU allows, "
-        "the same result for a --seed whatever the machine's load)",
+        help="seconds to wait for each reply before resending a safe command, "
+        f"{REPLY_TIMEOUT_RANGE_S[0]:g} to {REPLY_TIMEOUT_RANGE_S[1]:g} (default: the driver's "
+        "0.25, safe commands sent 3 times in all; with a paced --sim --speed 2, for a simulator "
+        "sharing this process; given, it applies to --sim too)",
     )
     g.add_argument(
         "--can-log",
@@ -66,19 +87,27 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         f"python-can's format ({', '.join(LOG_SUFFIXES)}); a serial link logs the CAN frames "
         "of its messages; `northfinder solve FILE` solves it again",
     )
+    g = p.add_argument_group("embedded simulator (--sim only)")
+    g.add_argument(
+        "--sim",
+        action="store_true",
+        help="use the embedded simulated instrument (in virtual time: as fast as the CPU allows, "
+        "the same result for a --seed whatever the machine's load)",
+    )
     g.add_argument(
         "--speed",
-        type=positive_float,
+        type=bounded_float(0.0, 10_000.0, open_lo=True),
         default=None,
         metavar="S",
-        help="--sim paced instead, S simulated seconds per wall second (1 = real time), to watch it",
+        help="--sim paced instead, S simulated seconds per wall second (1 = real time, up to "
+        "10000), to watch it",
     )
     g.add_argument(
         "--warmup",
-        type=finite_float,
-        default=120.0,
+        type=bounded_float(0.0, MAX_WAIT_S, "s"),
+        default=None,
         metavar="SECONDS",
-        help="--sim warm-up time (default 120)",
+        help=f"--sim warm-up time (default {SIM_WARMUP_S:g})",
     )
     add_sensor_argument(p)
     add_truth_arguments(p)
@@ -89,24 +118,32 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--positions",
         type=angle_list,
-        default=[0.0, 180.0],
-        help="table angles, deg (default 0,180)",
+        default=list(DEFAULT_POSITIONS_DEG),
+        help="table angles, deg (default 0,180,180,0: redundant, so the result is checked; "
+        "0,180 is the shortest plan, unchecked)",
     )
     g.add_argument(
-        "--window", type=positive_float, default=10.0, help="seconds per position (default 10)"
+        "--window",
+        type=bounded_float(*WINDOW_RANGE_S, "s"),
+        default=10.0,
+        help=f"seconds per position, {WINDOW_RANGE_S[0]:g} to {WINDOW_RANGE_S[1]:g} (default 10)",
     )
     g.add_argument(
         "--settle",
-        type=finite_float,
+        type=bounded_float(0.0, MAX_SETTLE_S, "s"),
         default=0.0,
-        help="extra settle seconds after READY (default 0)",
+        help=f"settle seconds from the end of a move to the window, up to {MAX_SETTLE_S:g} "
+        "(default 0: the device's own)",
     )
     g.add_argument(
         "--denoise", default="none", choices=list(METHODS), help="denoising method (default none)"
     )
     add_solver_argument(g, METHOD_CHOICES)
     g.add_argument(
-        "--timeout", type=positive_float, default=600.0, help="warm-up timeout, s (default 600)"
+        "--timeout",
+        type=bounded_float(0.0, MAX_WAIT_S, "s", open_lo=True),
+        default=600.0,
+        help="warm-up timeout, wall s (default 600)",
     )
 
 
@@ -120,22 +157,44 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
     return Plan(tuple(args.positions), args.window, args.settle, args.denoise, args.solver)
 
 
-@contextlib.contextmanager
-def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, Any] | None]]:
-    """The device named by the arguments, and the simulated truth when it is simulated."""
+def check_arguments(args: argparse.Namespace) -> None:
+    """Everything about the arguments that can be checked before a device is opened.
+
+    Raises
+    ------
+    HostConfigError
+        Not exactly one device; an embedded-simulator option with a real device (it would be
+        ignored); no ``--latitude`` for a real device (never assumed: a wrong latitude gives a
+        wrong heading without a word).
+    """
     links = sum((bus_given(args), bool(args.serial), bool(args.sim)))
     if links != 1:
         raise HostConfigError(
             "choose exactly one device: -i/-c (python-can), --serial PORT, or --sim"
         )
+    if not args.sim:
+        given = [name for name in SIM_ONLY if getattr(args, name, None) is not None]
+        if given:
+            raise HostConfigError(
+                f"--{given[0]}: applies to the embedded simulator only (--sim), not to a device"
+            )
+        if args.latitude is None:
+            raise HostConfigError(
+                "--latitude: give the site's latitude in degrees (north positive); a real "
+                "device's latitude is never assumed"
+            )
+
+
+@contextlib.contextmanager
+def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, Any] | None]]:
+    """The device named by the arguments, and the simulated truth when it is simulated."""
+    check_arguments(args)
     with contextlib.ExitStack() as stack:
         tap = stack.enter_context(FrameLog(args.can_log)) if args.can_log else None
         if args.sim:
             with embedded_simulator(args, tap) as (device, truth):
                 yield device, truth
             return
-        if args.speed is not None:
-            raise HostConfigError("--speed: only with --sim (a real unit runs at its own pace)")
         with _open_unit(args, tap) as device:
             yield device, None
 
@@ -158,9 +217,9 @@ def _open_unit(args: argparse.Namespace, tap: FrameLog | None) -> Iterator[Devic
 def device_options(args: argparse.Namespace) -> dict[str, Any]:
     """Driver options from ``--link-timeout`` and ``--reply-timeout``."""
     options: dict[str, Any] = {}
-    if args.link_timeout:
+    if args.link_timeout is not None:
         options["min_supervision_s"] = args.link_timeout
-    if args.reply_timeout:
+    if args.reply_timeout is not None:
         options["reply_timeout"] = args.reply_timeout
     return options
 
@@ -174,14 +233,10 @@ def embedded_simulator(
     Virtual time by default; paced (``--speed S``) on a thread, with the driver's relaxed
     deadlines since the simulator shares this interpreter.
     """
-    from northfinder.firmware_sim.imu import Truth
     from northfinder.host.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 
-    if args.warmup < 0:
-        raise HostConfigError(f"--warmup: must be >= 0 seconds, got {args.warmup}")
     rng = np.random.default_rng(args.seed)
-    azimuth = float(rng.uniform(0.0, 360.0)) if args.azimuth is None else args.azimuth
-    truth = Truth(azimuth, sim_latitude(args), args.pitch, args.roll)
+    truth = sim_truth(args, rng)
     paced = args.speed is not None
     sim = SimulatedInstrument(
         args.sensor,
@@ -189,7 +244,7 @@ def embedded_simulator(
         seed=rng,
         speed=args.speed,
         clock=None if paced else "virtual",
-        warmup_s=args.warmup,
+        warmup_s=SIM_WARMUP_S if args.warmup is None else args.warmup,
         node_id=args.node_id,
     )
     options = {**(RELAXED_DEVICE_OPTIONS if paced else {}), **device_options(args)}
@@ -257,13 +312,10 @@ class Measured:
 def run_plan(args: argparse.Namespace, *, progress: bool = True) -> Measured:
     """Open the device, run the plan and solve (``progress``: draw the progress bar)."""
     plan = plan_from_args(args)
+    check_arguments(args)
+    latitude = sim_latitude(args) if args.sim else float(args.latitude)
     created = utc_now()
     with open_device(args) as (device, truth):
-        latitude = sim_latitude(args) if args.sim else args.latitude
-        if latitude is None:
-            raise HostConfigError(
-                "--latitude: give the site's latitude in degrees (north positive)"
-            )
         identity = device_identity(
             device.identity,
             simulated=bool(args.sim),
@@ -280,6 +332,7 @@ def run_plan(args: argparse.Namespace, *, progress: bool = True) -> Measured:
                 progress=bar,
                 sleep=clock.sleep,
                 clock=clock.now,
+                latitude_source=latitude_source(args, args.sim),
             )
         finally:
             bar.close()
@@ -293,6 +346,7 @@ def save_recording(path: str, measured: Measured) -> Recording:
     identity and the UTC time the run began."""
     meta: dict[str, Any] = {
         "latitude_deg": measured.latitude_deg,
+        "latitude_source": measured.result.latitude_source,
         "sample_rate_hz": measured.sample_rate_hz,
         "plan": dataclasses.asdict(measured.plan),
         "created_utc": measured.created_utc or utc_now(),

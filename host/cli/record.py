@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from northfinder.host.cli.common import check_output_path
 from northfinder.host.cli.measure import add_arguments, run_plan, save_recording
-from northfinder.host.errors import HostConfigError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -23,8 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.file.endswith((".csv", ".npz")):
-        raise HostConfigError(f"{args.file}: the file name must end in .csv or .npz")
+    check_output_path(args.file, "file", (".csv", ".npz"))
     recording = save_recording(args.file, run_plan(args))
     samples = sum(len(w.counter) for w in recording.windows)
     print(f"wrote {len(recording.windows)} windows ({samples} samples) to {args.file}")

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from northfinder.host.errors import HostConfigError
+from northfinder.host.errors import HostConfigError, OutputError
 from northfinder.host.procedure import FindResult, pairwise_solutions
 from northfinder.host.results import envelope
 
@@ -24,8 +24,9 @@ def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
     lines = [
         f"azimuth {result.azimuth_deg:.4f} deg{sigma} (1 sigma), clockwise from true north",
         f"pitch {result.pitch_deg:.4f} deg, roll {result.roll_deg:.4f} deg",
-        f"method {result.method}, denoise {result.denoise}, latitude {result.latitude_deg:g} deg, "
-        f"positions {', '.join(f'{w.encoder_deg:.4f}' for w in result.windows)} deg (encoder)",
+        f"method {result.method}, denoise {result.denoise}, latitude {result.latitude_deg:g} deg"
+        + (f" from {result.latitude_source}" if result.latitude_source else "")
+        + f", positions {', '.join(f'{w.encoder_deg:.4f}' for w in result.windows)} deg (encoder)",
     ]
     if result.pairwise_deg:
         lines.append(
@@ -57,6 +58,14 @@ def as_json(
         body["error_deg"] = angle_error(result.azimuth_deg, truth["azimuth_deg"])
     body.update(extra)
     return json.dumps(envelope(command, device, body), indent=2)
+
+
+def require_matplotlib() -> None:
+    """Refuse ``--plot`` before any work when matplotlib is not installed."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError as exc:
+        raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
 
 
 def _title(result: FindResult, truth: dict[str, Any] | None) -> str:
@@ -180,6 +189,6 @@ def plot(
     try:
         fig.savefig(path, dpi=110)
     except OSError as exc:
-        raise HostConfigError(f"--plot {path}: cannot write ({exc.strerror})") from exc
+        raise OutputError(f"--plot {path}: cannot write ({exc.strerror})") from exc
     finally:
         plt.close(fig)

@@ -20,17 +20,13 @@ import sys
 import threading
 from collections.abc import Callable
 
-import can
-import can.cli
 import numpy as np
-import serial
 
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT
 from northfinder.firmware_sim.control import Controller, ControlServer, parse_address
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.firmware import Firmware, LinkInfo
-from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.links import (
     CanLink,
     PseudoTerminal,
@@ -39,18 +35,23 @@ from northfinder.firmware_sim.links import (
     SlcanAdapter,
 )
 from northfinder.firmware_sim.runner import Link, RealTimeClock, Runner
-from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.cli.common import (
     add_link_arguments,
     add_sensor_argument,
     add_truth_arguments,
+    bounded_float,
     bus_given,
     can_log_path,
-    finite_float,
-    positive_float,
-    sim_latitude,
+    load_sensor,
+    open_can_bus,
+    open_serial_port,
+    sim_truth,
 )
 from northfinder.host.errors import HostConfigError
+
+#: Longest ``--warmup``, s, and ``--duration``, wall s.
+MAX_WAIT_S = 86_400.0
+MAX_DURATION_S = 365 * 86_400.0
 
 
 def control_address(text: str) -> str:
@@ -78,16 +79,16 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     add_truth_arguments(p)
     p.add_argument(
         "--warmup",
-        type=finite_float,
+        type=bounded_float(0.0, MAX_WAIT_S, "s"),
         default=120.0,
         metavar="SECONDS",
-        help="warm-up time (default 120; 0 allowed)",
+        help=f"warm-up time, 0 to {MAX_WAIT_S:g} (default 120)",
     )
     p.add_argument(
         "--speed",
-        type=positive_float,
+        type=bounded_float(0.0, 10_000.0, open_lo=True),
         default=1.0,
-        help="simulated seconds per wall second (default 1)",
+        help="simulated seconds per wall second, up to 10000 (default 1)",
     )
     p.add_argument(
         "--control",
@@ -96,7 +97,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="control channel: 127.0.0.1:PORT or [::1]:PORT (0 = any free port) or unix:PATH",
     )
     p.add_argument(
-        "--duration", type=positive_float, default=None, help="stop after this many wall seconds"
+        "--duration",
+        type=bounded_float(0.0, MAX_DURATION_S, "s", open_lo=True),
+        default=None,
+        help=f"stop after this many wall seconds (at most {MAX_DURATION_S:g}: a year)",
     )
     p.add_argument(
         "--log",
@@ -117,15 +121,12 @@ def run(args: argparse.Namespace) -> int:
         raise HostConfigError(
             "choose exactly one link: -i/-c (python-can), --serial PORT, --pty or --slcan-pty"
         )
-    if args.warmup < 0:
-        raise HostConfigError(f"--warmup: must be >= 0 seconds, got {args.warmup}")
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr
     )
     rng = np.random.default_rng(args.seed)
-    azimuth = float(rng.uniform(0.0, 360.0)) if args.azimuth is None else args.azimuth
-    truth = Truth(azimuth, sim_latitude(args), args.pitch, args.roll)
-    spec = load_spec(args.sensor)
+    truth = sim_truth(args, rng)
+    spec = load_sensor(args.sensor)
     closers: list[Callable[[], None]] = []
     frame_log = None
     if args.log:
@@ -136,10 +137,7 @@ def run(args: argparse.Namespace) -> int:
         pty = PseudoTerminal()
         closers.append(pty.close)
     if args.serial:
-        try:
-            port = serial.serial_for_url(args.serial, baudrate=args.baud, timeout=0)
-        except (serial.SerialException, ValueError) as exc:
-            raise HostConfigError(f"--serial {args.serial}: {exc}") from exc
+        port = open_serial_port(args.serial, args.baud)
         closers.append(port.close)
         info = LinkInfo("serial", args.baud)
     elif args.pty:
@@ -158,10 +156,7 @@ def run(args: argparse.Namespace) -> int:
             else CanLink(SlcanAdapter(stream), firmware, args.node_id, tap=frame_log)
         )
     else:
-        try:
-            bus = can.cli.create_bus_from_namespace(args)
-        except (argparse.ArgumentError, can.CanError, OSError, ValueError) as exc:
-            raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+        bus = open_can_bus(args)
         closers.append(bus.shutdown)
         link = CanLink(bus, firmware, args.node_id, tap=frame_log)
     runner = Runner(firmware, link, RealTimeClock(args.speed))
@@ -173,7 +168,10 @@ def run(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     if args.duration:
-        threading.Timer(args.duration, stop.set).start()
+        timer = threading.Timer(args.duration, stop.set)
+        timer.daemon = True  # a SIGINT before the duration ends the process at once
+        timer.start()
+        closers.append(timer.cancel)
     if pty is not None:
         print(f"pty {pty.path}", flush=True)
     if server is not None:

@@ -14,14 +14,14 @@ import numpy as np
 
 from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
-from northfinder.firmware_sim.imu import Instrument, Truth, body_rates
-from northfinder.firmware_sim.sensors import load_spec
+from northfinder.firmware_sim.imu import Instrument, body_rates
 from northfinder.host.cli.common import (
     add_sensor_argument,
     add_truth_arguments,
     angle_list,
-    positive_float,
-    sim_latitude,
+    bounded_float,
+    load_sensor,
+    sim_truth,
 )
 
 
@@ -41,20 +41,31 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="table angles, deg (default: 0,180)",
     )
     p.add_argument(
-        "--window", type=positive_float, default=10.0, help="window length, s (default: 10)"
+        "--window",
+        type=bounded_float(0.0, MAX_WINDOW_S, "s", open_lo=True),
+        default=10.0,
+        help=f"window length, s, up to {MAX_WINDOW_S:g} (default: 10)",
     )
     p.add_argument(
-        "--rate", type=positive_float, default=200.0, help="sample rate, Hz (default: 200)"
+        "--rate",
+        type=bounded_float(0.0, MAX_RATE_HZ, "Hz", open_lo=True),
+        default=200.0,
+        help=f"sample rate, Hz, up to {MAX_RATE_HZ:g} (default: 200)",
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     return p
 
 
+#: Longest window, s, and highest sample rate, Hz: a window holds at most 3.6 million samples
+#: (about 200 MB with its temporaries).
+MAX_WINDOW_S = 3600.0
+MAX_RATE_HZ = 1000.0
+
+
 def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
-    azimuth = float(rng.uniform(0, 360)) if args.azimuth is None else args.azimuth
-    truth = Truth(azimuth, sim_latitude(args), args.pitch, args.roll)
-    spec = load_spec(args.sensor)
+    truth = sim_truth(args, rng)
+    spec = load_sensor(args.sensor)
     ins = Instrument(spec, truth, rng, sample_rate_hz=args.rate)
     omega_b, f_b = body_rates(
         truth.azimuth_deg, truth.pitch_deg, truth.roll_deg, truth.latitude_deg

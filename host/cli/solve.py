@@ -20,14 +20,20 @@ from typing import Any
 
 from northfinder.host.canlog import is_can_log, read_can_log
 from northfinder.host.cli import report
-from northfinder.host.cli.common import add_solver_argument, finite_float, node_id, positive_float
+from northfinder.host.cli.common import (
+    add_solver_argument,
+    bounded_float,
+    check_output_path,
+    node_id,
+    positive_float,
+)
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError, QualityError
 from northfinder.host.procedure import (
     METHOD_CHOICES,
     FindResult,
     Plan,
-    solve_windows,
+    result_from_windows,
     summarise_window,
 )
 from northfinder.host.recording import Recording
@@ -42,7 +48,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("file", help="recording (.csv, .npz) or CAN log (.log, .asc, .blf, ...)")
     p.add_argument(
-        "--latitude", type=finite_float, default=None, help="deg (default: from the recording)"
+        "--latitude",
+        type=bounded_float(-90.0, 90.0, "deg"),
+        default=None,
+        help="deg (default: from the recording)",
     )
     p.add_argument(
         "--denoise", default="none", choices=list(METHODS), help="denoising method (default none)"
@@ -67,23 +76,22 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def solve_recording(
     rec: Recording, latitude: float | None, denoise: str, method: str
 ) -> FindResult:
-    lat = rec.meta.get("latitude_deg") if latitude is None else latitude
-    if not isinstance(lat, int | float):
-        raise HostConfigError("the recording has no latitude_deg; give --latitude")
+    if latitude is None and "latitude_deg" not in rec.meta:
+        raise HostConfigError("--latitude: the recording has no latitude_deg; give --latitude")
+    lat = float(rec.meta["latitude_deg"] if latitude is None else latitude)
+    recorded = rec.meta.get("latitude_source")
+    if latitude is not None:
+        source = "--latitude"
+    else:
+        source = f"the recording (from {recorded})" if recorded else "the recording"
     plan = Plan(
         positions_deg=tuple(w.commanded_deg for w in rec.windows),
-        window_s=max(len(w.counter) for w in rec.windows)
-        / float(rec.meta.get("sample_rate_hz", 200)),
+        window_s=max(len(w.counter) for w in rec.windows) / float(rec.meta["sample_rate_hz"]),
         denoise=denoise,
         method=method,
     )
     windows = [summarise_window(w, w.commanded_deg, denoise) for w in rec.windows]
-    azimuth, sigma, pitch, roll, pairwise = solve_windows(windows, float(lat), plan)
-    return FindResult(
-        azimuth, sigma, pitch, roll, plan.solver, denoise, float(lat), tuple(windows),
-        pairwise if len(windows) > 2 else (),
-        tuple(f"position {i + 1}: {n}" for i, w in enumerate(windows) for n in w.notes),
-    )  # fmt: skip
+    return result_from_windows(windows, lat, plan, latitude_source=source)
 
 
 def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
@@ -108,6 +116,9 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        check_output_path(args.plot, "--plot")
+        report.require_matplotlib()
     rec, source = load(args)
     result = solve_recording(rec, args.latitude, args.denoise, args.solver)
     truth = rec.meta.get("truth")

@@ -30,19 +30,23 @@ from concurrent.futures import Executor
 from dataclasses import replace
 from typing import Any
 
-from northfinder.firmware_sim.sensors import SensorSpec, load_spec
+from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.cli.common import (
     add_execution_arguments,
     add_sensor_argument,
     add_solver_argument,
     angle_list,
+    bounded_float,
+    bounded_int,
+    check_output_path,
     finite_float,
-    positive_float,
+    load_sensor,
+    seed_value,
     study_executor,
 )
 from northfinder.host.cli.simulated import SimulatedWindows, error_model, simulator_identity
-from northfinder.host.denoise import METHODS
+from northfinder.host.denoise import METHODS, check_denoise
 from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
 from northfinder.host.montecarlo import (
@@ -56,32 +60,15 @@ from northfinder.host.plan import PLANS, SOLVERS, Plan, plan_time_s, settle_time
 from northfinder.host.planner import PlanCandidate, search_plans, shortest_plan
 from northfinder.host.results import envelope
 
-
-def _non_negative_float(text: str) -> float:
-    value = finite_float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
-    return value
+#: Bounds of what a study may ask for: runs, seconds (window, settle, warm-up, budget), Hz, deg/h.
+MAX_RUNS = 1_000_000
+MAX_WINDOW_S = 3600.0
+MAX_SETTLE_S = 3600.0
+MAX_WARMUP_S = 86_400.0
+MAX_BUDGET_S = 86_400.0
+MAX_RATE_HZ = 1000.0
+MAX_BIAS_STEP_DPH = 1e6
+MAX_TOP = 1000
 
 
 def _key_value(text: str) -> tuple[str, Any]:
@@ -113,15 +100,19 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="override a sensor field, e.g. gyro.arw_dpsh=0.002 (repeatable)",
     )
     g = p.add_argument_group("site")
-    g.add_argument("--latitude", type=finite_float, default=34.0, help="deg (default: 34)")
+    g.add_argument(
+        "--latitude", type=bounded_float(-90.0, 90.0, "deg"), default=34.0,
+        help="deg (default: 34)",
+    )  # fmt: skip
     g.add_argument(
         "--azimuth",
         type=finite_float,
         default=None,
         help="true azimuth, deg (default: uniform random per run)",
     )
-    g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
-    g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
+    tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")
+    g.add_argument("--pitch", type=tilt, default=0.0, help="deg (default: 0)")
+    g.add_argument("--roll", type=tilt, default=0.0, help="deg (default: 0)")
     g = p.add_argument_group("plan")
     g.add_argument(
         "--positions",
@@ -136,20 +127,26 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default=None,
         help="a named plan (positions and window) instead of --positions",
     )
-    g.add_argument("--window", type=positive_float, default=None, help="s per position (10)")
+    g.add_argument(
+        "--window", type=bounded_float(0.0, MAX_WINDOW_S, "s", open_lo=True), default=None,
+        help=f"s per position, up to {MAX_WINDOW_S:g} (10)",
+    )  # fmt: skip
     g.add_argument(
         "--settle",
-        type=_non_negative_float,
+        type=bounded_float(0.0, MAX_SETTLE_S, "s"),
         default=None,
         help="s from the end of a move to the next window (default: the preset's table settle)",
     )
     g.add_argument(
         "--warmup",
-        type=_non_negative_float,
+        type=bounded_float(0.0, MAX_WARMUP_S, "s"),
         default=120.0,
         help="s from power-on to the first window, not counted in the plan time (default: 120)",
     )
-    g.add_argument("--rate", type=positive_float, default=200.0, help="sample rate, Hz (200)")
+    g.add_argument(
+        "--rate", type=bounded_float(0.0, MAX_RATE_HZ, "Hz", open_lo=True), default=200.0,
+        help=f"sample rate, Hz, up to {MAX_RATE_HZ:g} (200)",
+    )  # fmt: skip
     g = p.add_argument_group("processing")
     g.add_argument(
         "--denoise",
@@ -175,11 +172,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--angles", choices=list(ANGLE_SOURCES), default="encoder", help="table angles used"
     )
     g = p.add_argument_group("Monte Carlo")
-    g.add_argument("--runs", type=int, default=1000, help="seeded runs (default: 1000)")
-    g.add_argument("--seed", type=_seed, default=0, help="random seed (default: 0)")
+    g.add_argument(
+        "--runs", type=bounded_int(0, MAX_RUNS), default=1000,
+        help=f"seeded runs, up to {MAX_RUNS} (default: 1000)",
+    )  # fmt: skip
+    g.add_argument("--seed", type=seed_value, default=0, help="random seed (default: 0)")
     g.add_argument(
         "--bias-step",
-        type=_non_negative_float,
+        type=bounded_float(0.0, MAX_BIAS_STEP_DPH, "deg/h"),
         default=0.0,
         metavar="DPH",
         help="one gyro bias step of this size per run at a random time, deg/h",
@@ -187,19 +187,21 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     g = p.add_argument_group("planning")
     g.add_argument(
         "--plan-budget",
-        type=positive_float,
+        type=bounded_float(0.0, MAX_BUDGET_S, "s", open_lo=True),
         default=None,
         metavar="SECONDS",
         help="list the plans with the smallest predicted error within this plan time",
     )
     g.add_argument(
         "--plan-target",
-        type=positive_float,
+        type=bounded_float(0.0, 180.0, "deg", open_lo=True),
         default=None,
         metavar="DEG",
         help="find the shortest plan whose predicted (and, with --runs, simulated) RMSE meets DEG",
     )
-    g.add_argument("--top", type=_positive_int, default=5, help="plans listed (default: 5)")
+    g.add_argument(
+        "--top", type=bounded_int(1, MAX_TOP), default=5, help="plans listed (default: 5)"
+    )
     add_execution_arguments(p)
     g = p.add_argument_group("output")
     g.add_argument("--json", action="store_true", help="print JSON")
@@ -225,9 +227,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _load(args: argparse.Namespace) -> SensorSpec:
-    spec = load_spec(args.sensor)
-    if args.overrides:
-        spec = spec.with_values(dict(args.overrides))
+    spec: SensorSpec = load_sensor(args.sensor, dict(args.overrides))
     return spec
 
 
@@ -438,7 +438,27 @@ def _plot(path: str, sweep: list[dict[str, Any]], title: str) -> None:
     plt.close(fig)
 
 
+def _check_early(args: argparse.Namespace) -> None:
+    """What can be refused before any simulation: output paths, the sweep, denoise options."""
+    if args.plot:
+        check_output_path(args.plot, "--plot")
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError as exc:
+            raise HostConfigError(
+                "--plot needs matplotlib: install the plot extra (pip install 'northfinder[plot]')"
+            ) from exc
+    for w in args.sweep or ():
+        if not 0 < w <= MAX_WINDOW_S:
+            raise HostConfigError(f"--sweep: windows must be 0 to {MAX_WINDOW_S:g} s, got {w:g}")
+    options = dict(args.denoise_options)
+    if options or args.denoise != "none":
+        n = max(2, round((args.window or 10.0) * args.rate))
+        check_denoise(args.denoise, options, n, "--denoise-option")
+
+
 def run(args: argparse.Namespace) -> int:
+    _check_early(args)
     spec = _load(args)
     settings = _settings(args)
     if args.plan_budget is not None and args.plan_target is not None:

@@ -20,16 +20,22 @@ from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
 from northfinder.host.cli.common import (
     add_execution_arguments,
     angle_list,
+    bounded_float,
+    bounded_int,
     finite_float,
-    positive_float,
+    seed_value,
     study_executor,
 )
 from northfinder.host.cli.simulated import SimulatedWindows, error_model
 from northfinder.host.cli.study import (
+    MAX_BIAS_STEP_DPH,
+    MAX_RATE_HZ,
+    MAX_RUNS,
+    MAX_SETTLE_S,
+    MAX_WARMUP_S,
+    MAX_WINDOW_S,
     _key_value,
-    _non_negative_float,
     _plan_json,
-    _seed,
 )
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
@@ -44,16 +50,20 @@ def _names(text: str) -> list[str]:
     return names
 
 
+_LATITUDE = bounded_float(-90.0, 90.0, "deg")
+_WINDOW = bounded_float(0.0, MAX_WINDOW_S, "s", open_lo=True)
+
+
 def _floats(text: str) -> list[float]:
     try:
-        return [finite_float(t) for t in text.split(",")]
+        return [_LATITUDE(t) for t in text.split(",")]
     except argparse.ArgumentTypeError as exc:
         raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
 
 
 def _windows(text: str) -> list[float]:
     try:
-        return [positive_float(t) for t in text.split(",")]
+        return [_WINDOW(t) for t in text.split(",")]
     except argparse.ArgumentTypeError as exc:
         raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
 
@@ -112,9 +122,17 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     g.add_argument("--azimuth", type=finite_float, default=None, help="deg (default: random)")
     g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
     g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
-    g.add_argument("--settle", type=_non_negative_float, default=None, help="s after a move")
-    g.add_argument("--warmup", type=_non_negative_float, default=120.0, help="s (default: 120)")
-    g.add_argument("--rate", type=positive_float, default=200.0, help="sample rate, Hz (200)")
+    g.add_argument(
+        "--settle", type=bounded_float(0.0, MAX_SETTLE_S, "s"), default=None, help="s after a move"
+    )
+    g.add_argument(
+        "--warmup", type=bounded_float(0.0, MAX_WARMUP_S, "s"), default=120.0,
+        help="s (default: 120)",
+    )  # fmt: skip
+    g.add_argument(
+        "--rate", type=bounded_float(0.0, MAX_RATE_HZ, "Hz", open_lo=True), default=200.0,
+        help="sample rate, Hz (200)",
+    )  # fmt: skip
     g.add_argument("--denoise", choices=list(METHODS), default="none", help="(default: none)")
     g.add_argument(
         "--denoise-option",
@@ -128,9 +146,15 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     g.add_argument("--solver", choices=list(SOLVERS), default="auto")
     g.add_argument("--tilt", choices=list(TILT_SOURCES), default="accel")
     g.add_argument("--angles", choices=list(ANGLE_SOURCES), default="encoder")
-    g.add_argument("--bias-step", type=_non_negative_float, default=0.0, metavar="DPH")
-    g.add_argument("--runs", type=int, default=1000, help="runs per study (default: 1000)")
-    g.add_argument("--seed", type=_seed, default=0, help="seed of every study (default: 0)")
+    g.add_argument(
+        "--bias-step", type=bounded_float(0.0, MAX_BIAS_STEP_DPH, "deg/h"), default=0.0,
+        metavar="DPH",
+    )  # fmt: skip
+    g.add_argument(
+        "--runs", type=bounded_int(2, MAX_RUNS), default=1000,
+        help=f"runs per study, 2 to {MAX_RUNS} (default: 1000)",
+    )  # fmt: skip
+    g.add_argument("--seed", type=seed_value, default=0, help="seed of every study (default: 0)")
     add_execution_arguments(p)
     p.add_argument("--json", action="store_true", help="print JSON")
     return p
