@@ -26,7 +26,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from northfinder.firmware_sim.errors import SimConfigError, SimError
+from northfinder.firmware_sim.errors import ControlError, ControlRefused, SimConfigError, SimError
 from northfinder.firmware_sim.firmware import BASE_RATE_HZ
 from northfinder.firmware_sim.runner import Runner
 
@@ -36,15 +36,6 @@ log = logging.getLogger("northfinder.sim.control")
 MAX_LINE_BYTES = 65536
 #: Longest burst of impulses one request may order (count x interval), s.
 MAX_BURST_S = 86_400.0
-
-
-class ControlError(SimError):
-    """A control request that cannot be carried out (bad op or argument, or no answer)."""
-
-
-class ControlRefused(ControlError):
-    """The simulator answered a request with ``ok: false`` (a bad op, key or value); the
-    message is the simulator's."""
 
 
 def _num(x: float) -> str:

@@ -7,7 +7,7 @@ the driver package, so a caller of the suite catches everything the driver raise
 
 from __future__ import annotations
 
-from northfinder.driver.errors import DriverError
+from northfinder.driver.errors import ArgumentError, DriverError
 
 __all__ = ["ConformanceError", "LinkFault", "Skipped", "SuiteConfigError"]
 
@@ -16,8 +16,9 @@ class ConformanceError(DriverError):
     """Root of the errors of :mod:`northfinder.driver.conformance`."""
 
 
-class SuiteConfigError(ConformanceError, ValueError):
-    """An option of the suite is invalid, or a check pattern matches nothing (the message names it)."""
+class SuiteConfigError(ConformanceError, ArgumentError):
+    """An option of the suite is invalid, or a check pattern matches nothing (the message names it;
+    an :class:`~northfinder.driver.errors.ArgumentError`, so a command line exits 2 for it)."""
 
 
 class LinkFault(ConformanceError):

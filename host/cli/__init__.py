@@ -17,7 +17,7 @@ from typing import Any
 
 from northfinder.driver.errors import DriverError
 from northfinder.firmware_sim.errors import SimError
-from northfinder.host.cli.common import EXIT_INTERRUPTED, EXIT_USAGE, report_error
+from northfinder.host.cli.common import EXIT_INTERRUPTED, EXIT_RUNTIME, EXIT_USAGE, report_error
 from northfinder.host.errors import HostError
 
 #: Subcommand name -> module in this package. A command's module (and what it imports: scipy,
@@ -147,6 +147,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader of stdout went away (``northfinder find --json | head``): nothing left to
+        # say to it. Further writes to the closed pipe would fail again at exit.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_RUNTIME
     except Exception as exc:  # one line and a stated status for every error (common.py)
         if args.debug:
             raise

@@ -28,7 +28,6 @@ from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import Executor
 from typing import Any, TextIO
 
-from northfinder.driver.conformance.errors import SuiteConfigError
 from northfinder.driver.errors import ArgumentError, DriverError, LinkError
 from northfinder.driver.protocol.constants import (
     NODE_ID_DEFAULT,
@@ -36,8 +35,7 @@ from northfinder.driver.protocol.constants import (
     NODE_ID_MIN,
     SERIAL_BAUD_DEFAULT,
 )
-from northfinder.firmware_sim.control import ControlRefused
-from northfinder.firmware_sim.errors import SimConfigError, SimError
+from northfinder.firmware_sim.errors import ControlRefused, SimConfigError, SimError
 from northfinder.host.errors import (
     DenoiseError,
     GeometryError,
@@ -62,7 +60,6 @@ EXIT_STATUS: Mapping[type[BaseException], int] = {
     SimConfigError: EXIT_USAGE,
     ControlRefused: EXIT_USAGE,
     ArgumentError: EXIT_USAGE,
-    SuiteConfigError: EXIT_USAGE,
     HostError: EXIT_RUNTIME,
     SimError: EXIT_RUNTIME,
     DriverError: EXIT_RUNTIME,
@@ -358,9 +355,6 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--seed", type=seed_value, default=None, help="random seed (default: fresh each run)"
     )
-    g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
-    g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
-    g.add_argument("--seed", type=int, default=None, help="random seed (default: fresh each run)")
 
 
 def add_solver_argument(

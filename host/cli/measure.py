@@ -20,7 +20,6 @@ from northfinder.driver.device import Device
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.host.cli.common import (
     add_link_arguments,
-    add_sensor_argument,
     add_solver_argument,
     add_truth_arguments,
     angle_list,
@@ -28,6 +27,7 @@ from northfinder.host.cli.common import (
     bus_given,
     can_log_path,
     latitude_source,
+    load_sensor,
     sim_latitude,
     sim_truth,
 )
@@ -109,7 +109,12 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help=f"--sim warm-up time (default {SIM_WARMUP_S:g})",
     )
-    add_sensor_argument(p)
+    p.add_argument(
+        "--sensor",
+        default=None,
+        metavar="PRESET|FILE",
+        help="sensor preset name or TOML file of the simulated instrument (default: paper-rlg)",
+    )
     add_truth_arguments(p)
 
 
@@ -239,7 +244,7 @@ def embedded_simulator(
     truth = sim_truth(args, rng)
     paced = args.speed is not None
     sim = SimulatedInstrument(
-        args.sensor,
+        load_sensor(args.sensor or "paper-rlg"),
         truth,
         seed=rng,
         speed=args.speed,
