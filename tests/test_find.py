@@ -108,8 +108,8 @@ def test_the_same_seed_gives_the_same_result_whatever_the_load(capsys):
 
 
 def test_speed_runs_paced_and_only_with_sim(capsys):
-    assert main(["find", "--serial", "/dev/null", "--speed", "5", "--latitude", "34"]) == 1
-    assert "--speed: only with --sim" in capsys.readouterr().err
+    assert main(["find", "--serial", "/dev/null", "--speed", "5", "--latitude", "34"]) == 2
+    assert "--speed: applies to the embedded simulator only (--sim)" in capsys.readouterr().err
 
 
 def test_record_then_solve_reproduces_find(tmp_path, capsys):
