@@ -96,6 +96,29 @@ def report_error(command: str, exc: BaseException, stream: TextIO | None = None)
     return EXIT_RUNTIME if status is None else status
 
 
+def command_parser(
+    sub: argparse._SubParsersAction, name: str, summary: str, doc: str | None, **options: Any
+) -> argparse.ArgumentParser:
+    """A subcommand's parser: ``summary`` is its line in the command list, the module docstring
+    ``doc`` its description, printed as written (paragraphs and lists kept)."""
+    parser: argparse.ArgumentParser = sub.add_parser(
+        name,
+        help=summary,
+        description=doc,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        **options,
+    )
+    return parser
+
+
+def whole_number(text: str) -> int:
+    """argparse type: a whole number, with an error that quotes the bad text."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+
+
 def finite_float(text: str) -> float:
     """argparse type: a finite float, with an error that quotes the bad text."""
     try:
@@ -135,10 +158,7 @@ def bounded_int(lo: int, hi: int) -> Any:
     """argparse type: a whole number in [lo, hi]; the error states the bounds."""
 
     def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+        value = whole_number(text)
         if not lo <= value <= hi:
             raise argparse.ArgumentTypeError(f"must be {lo} to {hi}, got {value}")
         return value
@@ -155,10 +175,7 @@ seed_value = bounded_int(0, MAX_SEED)
 
 def node_id(text: str) -> int:
     """argparse type: a CAN node id, 1..15 (protocol.md 2.1)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    value = whole_number(text)
     if not NODE_ID_MIN <= value <= NODE_ID_MAX:
         raise argparse.ArgumentTypeError(f"must be {NODE_ID_MIN}..{NODE_ID_MAX}, got {value}")
     return value
@@ -170,10 +187,7 @@ MAX_BAUD = 100_000_000
 
 def baud_rate(text: str) -> int:
     """argparse type: a serial baud rate, a whole number of bit/s from 1 to :data:`MAX_BAUD`."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    value = whole_number(text)
     if not 1 <= value <= MAX_BAUD:
         raise argparse.ArgumentTypeError(f"must be 1..{MAX_BAUD} bit/s, got {value}")
     return value
@@ -381,10 +395,7 @@ def can_log_path(text: str) -> str:
 
 
 def _workers(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    value = whole_number(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
     return value

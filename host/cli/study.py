@@ -40,6 +40,7 @@ from northfinder.host.cli.common import (
     bounded_float,
     bounded_int,
     check_output_path,
+    command_parser,
     finite_float,
     load_sensor,
     seed_value,
@@ -83,11 +84,11 @@ def _key_value(text: str) -> tuple[str, Any]:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
+    p = command_parser(
+        sub,
         "study",
-        help="Monte Carlo accuracy of a plan against the physical bound; plan search",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        "Monte Carlo accuracy of a plan against the physical bound; plan search",
+        __doc__,
     )
     add_sensor_argument(p)
     p.add_argument(
@@ -252,9 +253,10 @@ def _plan(args: argparse.Namespace) -> Plan:
     return _processing(args, plan)
 
 
-def _settings(args: argparse.Namespace) -> StudySettings:
+def _settings(args: argparse.Namespace, latitude_deg: float) -> StudySettings:
+    """The study settings of the arguments (``study`` and ``sweep`` spell them alike)."""
     return StudySettings(
-        latitude_deg=args.latitude,
+        latitude_deg=latitude_deg,
         azimuth_deg=args.azimuth,
         pitch_deg=args.pitch,
         roll_deg=args.roll,
@@ -460,7 +462,7 @@ def _check_early(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     _check_early(args)
     spec = _load(args)
-    settings = _settings(args)
+    settings = _settings(args, args.latitude)
     if args.plan_budget is not None and args.plan_target is not None:
         raise HostConfigError("give either --plan-budget or --plan-target, not both")
     if args.runs < 0 or (args.runs < 2 and args.plan_budget is None and args.plan_target is None):

@@ -22,6 +22,7 @@ from northfinder.host.cli.common import (
     angle_list,
     bounded_float,
     bounded_int,
+    command_parser,
     finite_float,
     seed_value,
     study_executor,
@@ -36,10 +37,11 @@ from northfinder.host.cli.study import (
     MAX_WINDOW_S,
     _key_value,
     _plan_json,
+    _settings,
 )
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
-from northfinder.host.montecarlo import StudySettings, monte_carlo_many, study_rows
+from northfinder.host.montecarlo import monte_carlo_many, study_rows
 from northfinder.host.plan import PLANS, SOLVERS, Plan
 
 
@@ -69,11 +71,11 @@ def _windows(text: str) -> list[float]:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
+    p = command_parser(
+        sub,
         "sweep",
-        help="Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
+        __doc__,
     )
     g = p.add_argument_group("what to sweep (every combination is one study)")
     g.add_argument(
@@ -193,21 +195,7 @@ def run(args: argparse.Namespace) -> int:
         specs.append(spec.with_values(dict(args.overrides)) if args.overrides else spec)
     plans = _plans(args)
     combos = list(itertools.product(specs, args.latitudes, plans))
-    settings = {
-        lat: StudySettings(
-            latitude_deg=lat,
-            azimuth_deg=args.azimuth,
-            pitch_deg=args.pitch,
-            roll_deg=args.roll,
-            warmup_s=args.warmup,
-            sample_rate_hz=args.rate,
-            denoise_accel=args.denoise_accel,
-            tilt=args.tilt,
-            angles=args.angles,
-            bias_step_dph=args.bias_step,
-        )
-        for lat in args.latitudes
-    }
+    settings = {lat: _settings(args, lat) for lat in args.latitudes}
     with study_executor(args) as executor:
         t0 = time.perf_counter()
         errors = monte_carlo_many(
