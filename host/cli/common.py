@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import math
 import os
 import sys
@@ -338,6 +339,31 @@ def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) ->
     if not os.access(folder, os.W_OK):
         raise HostConfigError(f"{option} {path}: the folder {folder} is not writable")
     return path
+
+
+def key_value(text: str) -> tuple[str, Any]:
+    """argparse type: ``KEY=VALUE``, the value read as JSON when it parses, else as a string."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw
+    return key.strip(), value
+
+
+def add_key_values(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    flag: str,
+    dest: str,
+    metavar: str,
+    help: str | None = None,
+) -> None:
+    """A repeatable ``FLAG KEY=VALUE`` option collected as a list of (key, value) pairs."""
+    parser.add_argument(
+        flag, dest=dest, type=key_value, action="append", default=[], metavar=metavar, help=help
+    )
 
 
 def add_sensor_argument(parser: argparse.ArgumentParser) -> None:

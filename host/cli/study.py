@@ -34,6 +34,7 @@ from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.cli.common import (
     add_execution_arguments,
+    add_key_values,
     add_sensor_argument,
     add_solver_argument,
     angle_list,
@@ -72,17 +73,6 @@ MAX_BIAS_STEP_DPH = 1e6
 MAX_TOP = 1000
 
 
-def _key_value(text: str) -> tuple[str, Any]:
-    key, sep, raw = text.partition("=")
-    if not sep or not key.strip():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    try:
-        value = json.loads(raw)
-    except json.JSONDecodeError:
-        value = raw
-    return key.strip(), value
-
-
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(
         sub,
@@ -91,14 +81,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         __doc__,
     )
     add_sensor_argument(p)
-    p.add_argument(
+    add_key_values(
+        p,
         "--set",
-        dest="overrides",
-        type=_key_value,
-        action="append",
-        default=[],
-        metavar="SECTION.FIELD=VALUE",
-        help="override a sensor field, e.g. gyro.arw_dpsh=0.002 (repeatable)",
+        "overrides",
+        "SECTION.FIELD=VALUE",
+        "override a sensor field, e.g. gyro.arw_dpsh=0.002 (repeatable)",
     )
     g = p.add_argument_group("site")
     g.add_argument(
@@ -155,14 +143,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default="none",
         help="denoising of every gyro window before its mean (default: none)",
     )
-    g.add_argument(
+    add_key_values(
+        g,
         "--denoise-option",
-        dest="denoise_options",
-        type=_key_value,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="option of the denoising method, e.g. window=6 for moving-average",
+        "denoise_options",
+        "KEY=VALUE",
+        "option of the denoising method, e.g. window=6 for moving-average",
     )
     g.add_argument(
         "--denoise-accel", action="store_true", help="denoise the accelerometer windows too"

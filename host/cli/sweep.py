@@ -19,6 +19,7 @@ from typing import Any
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
 from northfinder.host.cli.common import (
     add_execution_arguments,
+    add_key_values,
     angle_list,
     bounded_float,
     bounded_int,
@@ -35,7 +36,6 @@ from northfinder.host.cli.study import (
     MAX_SETTLE_S,
     MAX_WARMUP_S,
     MAX_WINDOW_S,
-    _key_value,
     _plan_json,
     _settings,
 )
@@ -112,14 +112,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="s per position (default: 10, or the named plan's)",
     )
     g = p.add_argument_group("every study")
-    g.add_argument(
+    add_key_values(
+        g,
         "--set",
-        dest="overrides",
-        type=_key_value,
-        action="append",
-        default=[],
-        metavar="SECTION.FIELD=VALUE",
-        help="override a field of every sensor, e.g. gyro.arw_dpsh=0.002 (repeatable)",
+        "overrides",
+        "SECTION.FIELD=VALUE",
+        "override a field of every sensor, e.g. gyro.arw_dpsh=0.002 (repeatable)",
     )
     g.add_argument("--azimuth", type=finite_float, default=None, help="deg (default: random)")
     g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
@@ -136,14 +134,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="sample rate, Hz (200)",
     )  # fmt: skip
     g.add_argument("--denoise", choices=list(METHODS), default="none", help="(default: none)")
-    g.add_argument(
-        "--denoise-option",
-        dest="denoise_options",
-        type=_key_value,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-    )
+    add_key_values(g, "--denoise-option", "denoise_options", "KEY=VALUE")
     g.add_argument("--denoise-accel", action="store_true")
     g.add_argument("--solver", choices=list(SOLVERS), default="auto")
     g.add_argument("--tilt", choices=list(TILT_SOURCES), default="accel")
