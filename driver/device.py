@@ -85,7 +85,6 @@ from northfinder.driver.protocol.motion import TableLimits
 from northfinder.driver.transport import (
     CanTransport,
     SerialTransport,
-    Transport,
     open_serial_port,
 )
 from northfinder.driver.window import OnGap, Window, WindowCollector
@@ -154,29 +153,6 @@ class Device(DeviceLink):
     ProtocolError
         The device speaks another major protocol version.
     """
-
-    def __init__(
-        self,
-        transport: Transport,
-        *,
-        reply_timeout: float = REPLY_TIMEOUT_S,
-        retries: int = RETRIES,
-        min_supervision_s: float = 0.0,
-        clock: Clock | None = None,
-    ) -> None:
-        super().__init__(
-            transport,
-            reply_timeout=reply_timeout,
-            retries=retries,
-            min_supervision_s=min_supervision_s,
-            clock=clock,
-        )
-        try:
-            with self._clock.participant():
-                self._connect()
-        except BaseException:
-            self.close()
-            raise
 
     # -- constructors -------------------------------------------------------------------------
     @classmethod

@@ -181,7 +181,7 @@ class DeviceLink:
     """The transport of one device, the reader that sorts what arrives, and requests.
 
     Parameters as :class:`~northfinder.driver.device.Device`, which documents them. The reader
-    starts here; ``Device`` reads the device's identify, status and configuration on opening.
+    starts here, then :meth:`_connect` runs (``Device`` reads identify, status and configuration).
     """
 
     def __init__(
@@ -242,6 +242,16 @@ class DeviceLink:
                 target=self._read_loop, name=f"northfinder-{transport.kind}-reader", daemon=True
             )
             self._reader.start()
+        try:
+            with self._clock.participant():
+                self._connect()
+        except BaseException:
+            self.close()
+            raise
+
+    def _connect(self) -> None:
+        """What to read from the device once the reader runs (``Device``: identify, status and
+        configuration); an error closes the link again."""
 
     def close(self) -> None:
         """Stop the stream if this driver started it, stop the reader, release the bus or port.
