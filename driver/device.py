@@ -27,25 +27,19 @@ or an adapter that reads slowly does not take a late status for a lost link.
 from __future__ import annotations
 
 import functools
-import logging
-import math
-import threading
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, Concatenate, ParamSpec, TypeVar
 
 import can
 import serial
 
 from northfinder.driver.arguments import finite_number, seconds, whole_number
-from northfinder.driver.clock import Clock, WallClock
+from northfinder.driver.clock import Clock
 from northfinder.driver.errors import (
     ArgumentError,
     DeviceFault,
-    DeviceRefused,
     DeviceReset,
-    DriverError,
     DriverTimeout,
     LinkError,
     LinkLost,
@@ -54,18 +48,22 @@ from northfinder.driver.errors import (
     ReplyTimeout,
     StreamTimeout,
 )
-from northfinder.driver.protocol.can import TickLoss
+from northfinder.driver.link import (
+    HEARTBEATS_UNTIL_LOST,
+    REPLY_TIMEOUT_S,
+    RETRIES,
+    RETRYABLE,
+    DeviceLink,
+    DeviceStatus,
+    LinkStats,
+)
 from northfinder.driver.protocol.constants import (
-    HEARTBEAT_PERIOD_DEFAULT_MS,
     PROTOCOL_VERSION_MAJOR,
     ROTATE_BY_LIMIT,
     ConfigKey,
     DeviceState,
     Direction,
-    Fault,
     Opcode,
-    Result,
-    result_meaning,
 )
 from northfinder.driver.protocol.messages import (
     Command,
@@ -73,31 +71,26 @@ from northfinder.driver.protocol.messages import (
     GetStatus,
     Home,
     Identify,
-    Reply,
     RequestIdentify,
     Reset,
     RotateBy,
     RotateTo,
-    Sample,
     SelfTest,
     SetConfig,
-    Status,
     Stop,
     StreamStart,
     StreamStop,
 )
 from northfinder.driver.protocol.motion import TableLimits
 from northfinder.driver.transport import (
-    READ_POLL_S,
     CanTransport,
-    Received,
     SerialTransport,
-    Transport,
     open_serial_port,
 )
-from northfinder.driver.window import CountScales, OnGap, Window, WindowCollector
+from northfinder.driver.window import OnGap, Window, WindowCollector
 
 __all__ = [
+    "HEARTBEATS_UNTIL_LOST",
     "RETRYABLE",
     "Device",
     "DeviceStatus",
@@ -106,31 +99,6 @@ __all__ = [
     "Window",
 ]
 
-log = logging.getLogger("northfinder.driver")
-
-RETRYABLE = frozenset(
-    {
-        Opcode.IDENTIFY,
-        Opcode.GET_STATUS,
-        Opcode.GET_CONFIG,
-        Opcode.SET_CONFIG,
-        Opcode.STREAM_START,
-        Opcode.STREAM_STOP,
-        Opcode.STOP,
-    }
-)
-"""Commands sent again (with a new sequence number) when their reply does not come.
-
-Queries change nothing; STREAM_START/STOP and STOP leave the same state however often they
-arrive; SET_CONFIG writes an absolute value, so applying it twice equals applying it once (its
-reply echoes the value in effect). ROTATE_TO/BY and HOME are not repeated (a second copy arriving
-during the move is refused BUSY, and ROTATE_BY would add up), nor RESET and SELF_TEST.
-"""
-
-REPLY_TIMEOUT_S = 0.25
-RETRIES = 2
-HEARTBEATS_UNTIL_LOST = 3
-"""protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
 _CONFIG_NAMES = ", ".join(k.name.lower() for k in ConfigKey)
 # acquire()'s own argument is named ``seconds``: the checker under another name.
 _window_seconds = _timeout_seconds = seconds
@@ -152,96 +120,7 @@ def _on_clock(method: Callable[Concatenate[Device, P], T]) -> Callable[Concatena
     return call
 
 
-@dataclass(frozen=True, slots=True)
-class DeviceStatus:
-    """The device's status message in physical units.
-
-    Attributes
-    ----------
-    state : DeviceState
-    angle_deg : float
-        Table angle from the encoder, deg in [0, 360).
-    temperature_c : float
-        Sensor temperature, degC (NaN: no reading).
-    faults : Fault
-        Fault flags (any set flag means state FAULT).
-    sample_counter : int
-        Counter of the device's most recent sample tick.
-    rx_malformed, tx_dropped, cmd_rejected : int
-        The device's wrapping counters (protocol.md 4.6).
-    received_at : float
-        The device clock's time (``time.monotonic()`` on the wall clock) when the status arrived.
-    """
-
-    state: DeviceState
-    angle_deg: float
-    temperature_c: float
-    faults: Fault
-    sample_counter: int
-    rx_malformed: int
-    tx_dropped: int
-    cmd_rejected: int
-    received_at: float
-
-
-@dataclass(frozen=True, slots=True)
-class LinkStats:
-    """What the driver received and what it could not use, since the device object was created.
-
-    Attributes
-    ----------
-    frames_received : int
-        CAN frames, or serial frames that passed the CRC check.
-    frames_rejected : int
-        Frames dropped as corrupt: bad CRC or length (serial), or a protocol frame that did not
-        decode (wrong length, undefined code).
-    frames_foreign : int
-        CAN frames of other nodes or other equipment (normal on a shared bus).
-    frames_lost : int
-        Serial only: frames missing from the device's sequence counter (dropped or rejected;
-        a device restart also shows as a jump).
-    ticks_lost, ticks_incomplete : int
-        Sample ticks of which no frame / only some CAN frames arrived (while streaming).
-    samples_received : int
-        Whole samples delivered.
-    stray_replies : int
-        Replies nobody waited for (late replies to timed-out commands).
-    retries : int
-        Commands sent again after a reply timeout.
-    reply_timeouts : int
-        Commands that failed with :class:`~northfinder.driver.errors.ReplyTimeout`.
-    resets_detected : int
-        Device restarts noticed (BOOT status, unrequested IDENTIFY).
-    """
-
-    frames_received: int
-    frames_rejected: int
-    frames_foreign: int
-    frames_lost: int
-    ticks_lost: int
-    ticks_incomplete: int
-    samples_received: int
-    stray_replies: int
-    retries: int
-    reply_timeouts: int
-    resets_detected: int
-
-
-@dataclass
-class _Waiter:
-    opcode: Opcode
-    reply: Reply | None = None
-    error: DriverError | None = None
-
-    @property
-    def done(self) -> bool:
-        return self.reply is not None or self.error is not None
-
-    def is_done(self) -> bool:
-        return self.done
-
-
-class Device:
+class Device(DeviceLink):
     """A north finder on a CAN bus or a serial line.
 
     Open it with :meth:`open_can`, :meth:`from_bus` or :meth:`open_serial`, preferably as a
@@ -274,71 +153,6 @@ class Device:
     ProtocolError
         The device speaks another major protocol version.
     """
-
-    def __init__(
-        self,
-        transport: Transport,
-        *,
-        reply_timeout: float = REPLY_TIMEOUT_S,
-        retries: int = RETRIES,
-        min_supervision_s: float = 0.0,
-        clock: Clock | None = None,
-    ) -> None:
-        if not reply_timeout >= 0.1:
-            raise ArgumentError(f"reply_timeout={reply_timeout!r}: must be at least 0.1 s")
-        if retries < 0:
-            raise ArgumentError(f"retries={retries!r}: must be >= 0")
-        self._transport = transport
-        self.reply_timeout = float(reply_timeout)
-        self.retries = int(retries)
-        if not (math.isfinite(min_supervision_s) and min_supervision_s >= 0):
-            raise ArgumentError(f"min_supervision_s={min_supervision_s!r}: must be >= 0 s")
-        self.min_supervision_s = float(min_supervision_s)
-        self._clock: Clock = WallClock() if clock is None else clock
-        self._lock = threading.RLock()
-        self._acquire_lock = threading.Lock()
-        self._waiters: dict[int, _Waiter] = {}
-        self._events = 0  # counts everything the reader delivered: waiters look again on a change
-        # Whether the reader's latest read found nothing: supervision judges the time since the
-        # last status only once the host has read everything that arrived (a busy host or a slow
-        # adapter delivers statuses late behind the stream, while the link is plainly up).
-        self._link_idle = True
-        self._seq = 0
-        self._opened_at = self._clock.now()
-        self._status: DeviceStatus | None = None
-        self._status_count = 0
-        self._motion_count = 0  # _status_count of the latest ROTATING or SETTLING status
-        self._identify: Identify | None = None
-        self._identify_count = 0
-        self._identify_expected_until = 0.0
-        self._scales = CountScales()
-        self._boot_epoch = 0
-        self._reset_reason = ""
-        # What the reader hands to an acquire() in progress: (kind, item, clock time, wall time)
-        # for samples, losses, resets and a lost link.
-        self._inbox: deque[tuple[str, Any, float, float]] | None = None
-        self._inbox_since = 0.0  # clock time the inbox was registered
-        self._config: dict[ConfigKey, int] = {}
-        self._config_stale = True
-        self._streaming = False
-        self._dead: DriverError | None = None
-        self._closed = False
-        self._stop = threading.Event()
-        self._counts = {"samples": 0, "stray": 0, "retries": 0, "timeouts": 0, "resets": 0}
-        self._reader: threading.Thread | None = None
-        if self._clock.virtual:
-            self._clock.add_poller(self._pump)
-        else:
-            self._reader = threading.Thread(
-                target=self._read_loop, name=f"northfinder-{transport.kind}-reader", daemon=True
-            )
-            self._reader.start()
-        try:
-            with self._clock.participant():
-                self._connect()
-        except BaseException:
-            self.close()
-            raise
 
     # -- constructors -------------------------------------------------------------------------
     @classmethod
@@ -453,48 +267,6 @@ class Device:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def close(self) -> None:
-        """Stop the stream if this driver started it, stop the reader, release the bus or port.
-
-        Idempotent; never raises for a device that stopped answering.
-        """
-        if self._closed:
-            return
-        reading = self._reader.is_alive() if self._reader is not None else True
-        if self._streaming and self._dead is None and reading:
-            try:
-                with self._clock.participant():
-                    self._request(StreamStop, attempts=1)
-            except DriverError as exc:
-                log.info("stream not stopped on close: %s", exc)
-        self._closed = True
-        self._stop.set()
-        if self._reader is None:
-            self._clock.remove_poller(self._pump)
-        elif self._reader is not threading.current_thread():
-            self._reader.join(2.0)
-        self._transport.close()
-        with self._lock:
-            for waiter in self._waiters.values():
-                waiter.error = LinkError("the device was closed")
-            self._events += 1
-        self._clock.notify()
-
-    @property
-    def clock(self) -> Clock:
-        """The clock every timeout and wait of this device reads."""
-        return self._clock
-
-    @property
-    def closed(self) -> bool:
-        """True after :meth:`close`."""
-        return self._closed
-
-    @property
-    def link_kind(self) -> str:
-        """``"can"`` or ``"serial"``."""
-        return self._transport.kind
-
     def _connect(self) -> None:
         ident = self.identify()
         if ident.protocol_version[0] != PROTOCOL_VERSION_MAJOR:
@@ -504,264 +276,6 @@ class Device:
             )
         self.status()
         self._refresh_config()
-
-    # -- the reader thread --------------------------------------------------------------------
-    def _read_loop(self) -> None:
-        try:
-            while not self._stop.is_set():
-                items = self._transport.recv(READ_POLL_S)
-                if items:
-                    self._link_idle = False
-                    self._dispatch(items, self._clock.now(), self._clock.wall())
-                elif not self._link_idle:
-                    self._went_idle()
-        except DriverError as exc:
-            if not self._stop.is_set():
-                self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
-        except Exception as exc:  # a bug must not leave callers waiting forever
-            if not self._stop.is_set():
-                self._fail(LinkLost(f"the driver's reader thread failed: {exc!r}"), exc)
-                raise
-
-    def _pump(self) -> bool:
-        """On a virtual clock: receive what has arrived, without blocking (the clock calls this
-        at every instant); True if anything came."""
-        if self._closed or self._dead is not None:
-            return False
-        try:
-            items = self._transport.recv(0.0)
-        except DriverError as exc:
-            self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
-            return True
-        if not items:
-            if not self._link_idle:
-                self._went_idle()
-            return False
-        self._link_idle = False
-        self._dispatch(items, self._clock.now(), self._clock.wall())
-        return True
-
-    def _went_idle(self) -> None:
-        with self._lock:
-            self._link_idle = True
-            self._events += 1
-        if self._reader is not None:
-            self._clock.notify()
-
-    def _fail(self, error: DriverError, cause: BaseException) -> None:
-        error.__cause__ = cause
-        log.error("link lost: %s", error)
-        with self._lock:
-            self._dead = error
-            for waiter in self._waiters.values():
-                waiter.error = error
-            if self._inbox is not None:
-                now = self._clock.now()
-                self._inbox.append(("lost", error, now, self._clock.wall()))
-            self._events += 1
-        self._clock.notify()
-
-    def _dispatch(self, items: list[Received], mono: float, wall: float) -> None:
-        with self._lock:
-            for item in items:
-                if isinstance(item, Sample | TickLoss):
-                    if isinstance(item, Sample):
-                        self._counts["samples"] += 1
-                    # Only what was received after acquire() was called belongs to its window.
-                    if self._inbox is not None and mono >= self._inbox_since:
-                        kind = "sample" if isinstance(item, Sample) else "loss"
-                        self._inbox.append((kind, item, mono, wall))
-                elif isinstance(item, Reply):
-                    self._on_reply(item)
-                elif isinstance(item, Status):
-                    self._on_status(item, mono)
-                elif isinstance(item, Identify):
-                    self._on_identify(item, mono)
-            self._events += 1
-        if self._reader is not None:
-            self._clock.notify()  # a virtual clock looks at its waiters after every poll anyway
-
-    def _on_reply(self, reply: Reply) -> None:
-        waiter = self._waiters.get(reply.seq)
-        if waiter is None or waiter.opcode != reply.opcode or waiter.done:
-            self._counts["stray"] += 1
-            log.debug("stray reply %s", reply)
-            return
-        waiter.reply = reply
-
-    def _on_status(self, status: Status, mono: float) -> None:
-        sc = self._scales
-        previous = self._status
-        self._status = DeviceStatus(
-            state=status.state,
-            angle_deg=status.angle * sc.angle_deg,
-            temperature_c=sc.temperature(status.temperature),
-            faults=status.faults,
-            sample_counter=status.sample_counter,
-            rx_malformed=status.rx_malformed,
-            tx_dropped=status.tx_dropped,
-            cmd_rejected=status.cmd_rejected,
-            received_at=mono,
-        )
-        self._status_count += 1
-        if status.state in (DeviceState.ROTATING, DeviceState.SETTLING):
-            self._motion_count = self._status_count
-        if status.state == DeviceState.BOOT and previous is not None:
-            if previous.state != DeviceState.BOOT:
-                self._note_reset("the device reports state BOOT")
-
-    def _on_identify(self, ident: Identify, mono: float) -> None:
-        self._identify = ident
-        self._identify_count += 1
-        self._scales = CountScales.of(ident)
-        booting = self._status is not None and self._status.state == DeviceState.BOOT
-        if mono > self._identify_expected_until and self._status is not None and not booting:
-            # protocol.md 5: a device announces itself in BOOT; nobody asked, so it restarted.
-            self._note_reset("the device sent IDENTIFY unrequested, as it does after a restart")
-
-    def _note_reset(self, reason: str) -> None:
-        """Called with the lock held, in the reader thread."""
-        self._boot_epoch += 1
-        self._counts["resets"] += 1
-        self._reset_reason = reason
-        self._streaming = False
-        self._config_stale = True
-        self._transport.restart_stream()
-        log.warning("device restart detected: %s", reason)
-        if self._inbox is not None:
-            self._inbox.append(("reset", reason, self._clock.now(), self._clock.wall()))
-
-    # -- requests -----------------------------------------------------------------------------
-    def _check_open(self) -> None:
-        if self._closed:
-            raise LinkError("the device is closed")
-        if self._dead is not None:
-            raise LinkLost(f"the link is lost: {self._dead}") from self._dead
-
-    def _heartbeat_period_s(self) -> float:
-        return self._config.get(ConfigKey.HEARTBEAT_PERIOD_MS, HEARTBEAT_PERIOD_DEFAULT_MS) / 1000.0
-
-    def _last_status_at(self) -> float:
-        return self._status.received_at if self._status is not None else self._opened_at
-
-    def _status_age_s(self) -> float:
-        """Seconds since the latest status (or since opening, if none came yet)."""
-        return self._clock.now() - self._last_status_at()
-
-    def _supervision_s(self) -> float:
-        """Seconds without a status before the link counts as lost (protocol.md 6: three
-        heartbeat periods; never less than ``min_supervision_s``)."""
-        return max(HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s(), self.min_supervision_s)
-
-    def _link_deadline(self) -> float:
-        """Clock time at which supervision is to be judged again: when the link counts as lost if
-        no status comes before, or (past that, while frames still arrive) a moment later."""
-        deadline = self._last_status_at() + self._supervision_s()
-        if deadline > self._clock.now():
-            return deadline
-        return self._clock.now() + READ_POLL_S
-
-    def _link_alive(self) -> bool:
-        """A status within the supervision time, or frames still being read (protocol.md 6: the
-        time without a status counts once the host has read all that arrived)."""
-        return self._status_age_s() < self._supervision_s() or not self._link_idle
-
-    def _wait_change(self, seen: int, until: float) -> None:
-        """Wait until the reader delivered something after ``seen`` (:attr:`_events`) or the
-        clock reaches ``until``."""
-        self._clock.wait_until(lambda: self._events != seen, until)
-
-    def _link_lost_error(self) -> LinkLost:
-        return LinkLost(
-            f"no status from the device for {self._status_age_s():.2f} s "
-            f"(limit {self._supervision_s():.2f} s, {HEARTBEATS_UNTIL_LOST} heartbeat periods): "
-            "the device is silent, off or restarting, or the link is down"
-        )
-
-    def _request(
-        self,
-        command: type[Command],
-        *args: Any,
-        timeout: float | None = None,
-        attempts: int | None = None,
-    ) -> Reply:
-        """Send a command and return its OK reply; retry only commands in :data:`RETRYABLE`."""
-        opcode = command.OPCODE
-        per = self.reply_timeout if timeout is None else timeout
-        if attempts is None:
-            attempts = 1 + self.retries if opcode in RETRYABLE else 1
-        for attempt in range(attempts):
-            self._check_open()
-            waiter = _Waiter(opcode)
-            with self._lock:
-                seq = self._next_seq()
-                self._waiters[seq] = waiter
-                if opcode == Opcode.IDENTIFY:
-                    self._identify_expected_until = self._clock.now() + per + 1.0
-            try:
-                self._transport.send(command(seq, *args))
-                if self._reader is None:
-                    self._clock.notify()  # the virtual clock: the device takes it now
-                answered = self._clock.wait_until(waiter.is_done, self._clock.now() + per)
-            finally:
-                with self._lock:
-                    self._waiters.pop(seq, None)
-            if waiter.error is not None:
-                raise type(waiter.error)(str(waiter.error)) from waiter.error
-            if answered and waiter.reply is not None:
-                reply = waiter.reply
-                if reply.result != Result.OK:
-                    raise DeviceRefused(opcode, reply.result, result_meaning(reply.result))
-                return reply
-            if attempt + 1 < attempts:
-                self._counts["retries"] += 1
-                log.info("no reply to %s (seq %d) in %.3f s; sending again", opcode.name, seq, per)
-        self._counts["timeouts"] += 1
-        deadline = attempts * per
-        alive = self._link_alive()
-        text = f"no reply to {opcode.name} within {deadline:.2f} s ({attempts} attempt(s) of {per:.2f} s)"
-        if alive:
-            text += "; the device's heartbeat still arrives: the command or its reply was lost"
-        else:
-            text += (
-                f"; no status for {self._status_age_s():.2f} s either: the device is silent or "
-                "off, or the link is down (check power, cable, bus termination, port)"
-            )
-        if opcode in (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME, Opcode.RESET):
-            text += f"; {opcode.name} may have been carried out: read status() before repeating it"
-        raise ReplyTimeout(text, deadline, opcode, attempts, alive)
-
-    def _next_seq(self) -> int:
-        for _ in range(256):
-            self._seq = (self._seq + 1) & 0xFF
-            if self._seq not in self._waiters:
-                return self._seq
-        raise DriverError("256 commands are waiting for replies")  # pragma: no cover
-
-    def _wait_for(
-        self,
-        check: Callable[[], T | None],
-        deadline: float,
-        on_timeout: Callable[[], DriverError],
-        *,
-        supervise: bool = True,
-    ) -> T:
-        """Wait until ``check`` (called with the lock held) returns a value; it may raise."""
-        while True:
-            seen = self._events
-            self._check_open()
-            with self._lock:
-                result = check()
-            if result is not None:
-                return result
-            if self._clock.now() >= deadline:
-                raise on_timeout()
-            until = deadline
-            if supervise:
-                if not self._link_alive():
-                    raise self._link_lost_error()
-                until = min(until, self._link_deadline())
-            self._wait_change(seen, until)
 
     # -- queries ------------------------------------------------------------------------------
     @_on_clock
@@ -829,29 +343,6 @@ class Device:
                 False,
             ),
             supervise=False,
-        )
-
-    @property
-    def last_status(self) -> DeviceStatus | None:
-        """The most recent status received (heartbeat or requested), without asking."""
-        return self._status
-
-    def stats(self) -> LinkStats:
-        """Counters of what arrived and what was lost or rejected (see :class:`LinkStats`)."""
-        t = self._transport.counters()
-        c = self._counts
-        return LinkStats(
-            frames_received=t["frames_received"],
-            frames_rejected=t["frames_rejected"],
-            frames_foreign=t["frames_foreign"],
-            frames_lost=t["frames_lost"],
-            ticks_lost=t["ticks_lost"],
-            ticks_incomplete=t["ticks_incomplete"],
-            samples_received=c["samples"],
-            stray_replies=c["stray"],
-            retries=c["retries"],
-            reply_timeouts=c["timeouts"],
-            resets_detected=c["resets"],
         )
 
     @_on_clock

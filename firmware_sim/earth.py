@@ -10,7 +10,12 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.driver.protocol.units import OMEGA_IE, normal_gravity
+from northfinder.driver.protocol.units import (
+    MAX_LATITUDE_DEG,
+    OMEGA_IE,
+    check_latitude_deg,
+    normal_gravity,
+)
 from northfinder.firmware_sim.errors import SimConfigError
 
 __all__ = [
@@ -29,30 +34,16 @@ __all__ = [
 #: Normal gravity (Somigliana, WGS84) of latitude in rad, m/s^2; the units module defines it.
 gravity = normal_gravity
 
-#: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
-MAX_LATITUDE_DEG = 89.0
-
-
 def check_latitude(latitude_deg: float, field: str = "latitude_deg") -> float:
     """Return ``latitude_deg`` as float if north finding is defined there, else raise.
 
     Raises
     ------
     SimConfigError
-        NaN, outside [-90, 90], or within ``90 - MAX_LATITUDE_DEG`` degrees of a pole.
+        Not a finite number, outside [-90, 90], or within ``90 - MAX_LATITUDE_DEG`` degrees of a
+        pole (:func:`~northfinder.driver.protocol.units.check_latitude_deg`).
     """
-    lat = float(latitude_deg)
-    if not math.isfinite(lat):
-        raise SimConfigError(f"{field}: must be a finite number, got {latitude_deg!r}")
-    if abs(lat) > 90.0:
-        raise SimConfigError(f"{field}: must lie in [-90, 90] degrees, got {lat}")
-    if abs(lat) > MAX_LATITUDE_DEG:
-        raise SimConfigError(
-            f"{field}: {lat} deg is too close to a pole (limit +-{MAX_LATITUDE_DEG} deg): the horizontal "
-            f"Earth rate Omega*cos(lat) = {OMEGA_IE * math.cos(math.radians(lat)):.3e} rad/s vanishes "
-            "there, so north is undefined"
-        )
-    return lat
+    return check_latitude_deg(latitude_deg, SimConfigError, field)
 
 
 def earth_rate_n(latitude: ArrayLike) -> NDArray[np.float64]:

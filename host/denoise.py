@@ -300,12 +300,36 @@ def wavelet_denoise(
     ndarray
         Denoised signal, shape of ``x``.
     """
+    arr, ax, wav, level = _wavelet_signal(x, mode, wavelet, level, axis, extension)
+    return _thresholded(arr, ax, wav, level, extension, mode, value, alpha, beta, mu)
+
+
+def _wavelet_signal(
+    x: ArrayLike, mode: str, wavelet: str, level: int, axis: int, extension: str
+) -> tuple[NDArray[np.float64], int, pywt.Wavelet, int]:
+    """The checked arguments of :func:`wavelet_denoise`: the signal (not copied: wavedec writes
+    only to new arrays), its sample axis, the wavelet and the level."""
     check_choice(mode, THRESHOLD_MODES, "mode")
     check_choice(extension, EXTENSIONS, "extension")
-    arr, ax = _signal(x, axis, copy=False)  # wavedec writes only to new arrays
-    n = arr.shape[ax]
+    arr, ax = _signal(x, axis, copy=False)
     wav = _wavelet_named(wavelet)
-    level = _check_level(n, wav, level)
+    return arr, ax, wav, _check_level(arr.shape[ax], wav, level)
+
+
+def _thresholded(
+    arr: NDArray[np.float64],
+    ax: int,
+    wav: pywt.Wavelet,
+    level: int,
+    extension: str,
+    mode: str,
+    value: ArrayLike | None,
+    alpha: float,
+    beta: float,
+    mu: float,
+) -> NDArray[np.float64]:
+    """Decompose, threshold every detail band, reconstruct (the work of :func:`wavelet_denoise`)."""
+    n = arr.shape[ax]
     coeffs = _pywt().wavedec(arr, wav, mode=extension, level=level, axis=ax)
     if value is None:
         lam = universal_threshold(_mad_sigma(coeffs[-1], ax), n)
@@ -347,25 +371,9 @@ def wavelet_denoise_mean(
     thresholded and reconstructed. The arguments are checked alike either way. Parameters as
     :func:`wavelet_denoise`; ``axis`` is reduced.
     """
-    check_choice(mode, THRESHOLD_MODES, "mode")
-    check_choice(extension, EXTENSIONS, "extension")
-    arr, ax = _signal(x, axis, copy=False)
-    n = arr.shape[ax]
-    wav = _wavelet_named(wavelet)
-    level = _check_level(n, wav, level)
-    if not _keeps_mean(n, wav, level, extension):
-        denoised = wavelet_denoise(
-            arr,
-            mode,
-            wavelet=wavelet,
-            level=level,
-            axis=ax,
-            value=value,
-            alpha=alpha,
-            beta=beta,
-            mu=mu,
-            extension=extension,
-        )
+    arr, ax, wav, level = _wavelet_signal(x, mode, wavelet, level, axis, extension)
+    if not _keeps_mean(arr.shape[ax], wav, level, extension):
+        denoised = _thresholded(arr, ax, wav, level, extension, mode, value, alpha, beta, mu)
         return np.mean(denoised, axis=ax)
     # The options must still be valid: check them on one coefficient.
     threshold(np.ones(1), 0.0 if value is None else value, mode, alpha=alpha, beta=beta, mu=mu)

@@ -23,7 +23,12 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.driver.protocol.units import OMEGA_IE, normal_gravity
+from northfinder.driver.protocol.units import (
+    MAX_LATITUDE_DEG,
+    OMEGA_IE,
+    check_latitude_deg,
+    normal_gravity,
+)
 from northfinder.host.errors import LatitudeError
 
 __all__ = [
@@ -46,8 +51,6 @@ __all__ = [
     "tilt_within_limit",
 ]
 
-#: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
-MAX_LATITUDE_DEG = 89.0
 #: The table angle must differ from 0 (mod 360) by at least this much. The Earth-rate difference
 #: between the positions is 2 Omega_H sin(mu/2): at 5 deg it is 23 times smaller than at 180 deg.
 MIN_MU_SEPARATION_DEG = 5.0
@@ -70,20 +73,7 @@ def latitude_rad(latitude_deg: float | None, purpose: str) -> float:
     """
     if latitude_deg is None:
         raise LatitudeError(f"latitude_deg is required for {purpose}")
-    try:
-        lat = float(latitude_deg)
-    except (TypeError, ValueError) as exc:
-        raise LatitudeError(f"latitude_deg: must be a number, got {latitude_deg!r}") from exc
-    if not math.isfinite(lat):
-        raise LatitudeError(f"latitude_deg: must be finite, got {lat}")
-    if abs(lat) > 90.0:
-        raise LatitudeError(f"latitude_deg: must lie in [-90, 90] deg, got {lat}")
-    if abs(lat) > MAX_LATITUDE_DEG:
-        raise LatitudeError(
-            f"latitude_deg: {lat} deg is too close to a pole (limit +-{MAX_LATITUDE_DEG} deg): "
-            "the horizontal Earth rate Omega*cos(lat) vanishes there, so north is undefined"
-        )
-    return math.radians(lat)
+    return math.radians(check_latitude_deg(latitude_deg, LatitudeError))
 
 
 def table_rotation(mu_rad: ArrayLike) -> Array:

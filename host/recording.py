@@ -38,6 +38,8 @@ from typing import Any, TypeGuard
 import numpy as np
 from numpy.typing import NDArray
 
+from northfinder.driver.protocol.constants import Validity
+from northfinder.driver.protocol.units import DPH
 from northfinder.host.errors import OutputError, RecordingError
 
 __all__ = [
@@ -116,6 +118,33 @@ class RecordedWindow:
 class Recording:
     windows: tuple[RecordedWindow, ...]
     meta: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_batch(
+        cls, batch: Any, run: int, latitude_deg: float, *, temperature_c: float = 20.0
+    ) -> Recording:
+        """Run ``run`` of a many-runs batch (anything with the arrays of the simulator's
+        ``BatchWindows``) as the recorder writes it: consecutive counters from each window's
+        start, the encoder angle and ``temperature_c`` held over the window, every sample
+        valid (gyro and accelerometer)."""
+        fs = float(batch.sample_rate_hz)
+        n = batch.gyro_rps.shape[2]
+        windows = []
+        for p, angle in enumerate(batch.commanded_deg):
+            counter = round(batch.window_start_s[p] * fs) + np.arange(n)
+            windows.append(
+                RecordedWindow(
+                    float(angle),
+                    counter,
+                    (counter + 1) / fs,
+                    batch.gyro_rps[run, p] / DPH,
+                    np.array(batch.accel_mps2[run, p]),
+                    np.full(n, batch.table_deg[run, p]),
+                    np.full(n, temperature_c),
+                    np.full(n, Validity.GYRO_VALID | Validity.ACCEL_VALID, dtype=np.uint8),
+                )
+            )
+        return cls(tuple(windows), {"latitude_deg": latitude_deg, "sample_rate_hz": fs})
 
     def save(self, path: str | Path) -> None:
         """Write as CSV or NPZ, chosen by the file name's ending."""

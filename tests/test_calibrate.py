@@ -52,26 +52,10 @@ def write_recordings(
         spec, TRUTH, positions, window_s, n_runs=runs, rng=np.random.default_rng(seed),
         sample_rate_hz=fs, warmup_s=120.0,
     )  # fmt: skip
-    n = batch.gyro_rps.shape[2]
     paths = []
     for r in range(runs):
-        windows = []
-        for p, angle in enumerate(positions):
-            counter = round(batch.window_start_s[p] * fs) + np.arange(n)
-            windows.append(
-                RecordedWindow(
-                    angle,
-                    counter,
-                    (counter + 1) / fs,
-                    batch.gyro_rps[r, p] / DPH,
-                    np.array(batch.accel_mps2[r, p]),
-                    np.full(n, batch.table_deg[r, p]),
-                    np.full(n, 20.0),
-                    np.full(n, 3, dtype=np.uint8),
-                )
-            )
         path = folder / f"run{seed}-{r}.npz"
-        Recording(tuple(windows), {"latitude_deg": 34.0, "sample_rate_hz": fs}).save(path)
+        Recording.from_batch(batch, r, 34.0).save(path)
         paths.append(str(path))
     return paths
 

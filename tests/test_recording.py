@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 
+from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.cli.solve import solve_recording
@@ -83,6 +84,28 @@ def test_solve_cli_prints_json(tmp_path):
     )  # fmt: skip
     data = json.loads(out.stdout)
     assert abs(data["error_deg"]) < 1e-6 and len(data["windows"]) == 2
+
+
+def test_a_run_of_the_batch_generator_saves_as_a_recording(tmp_path):
+    """What calibration studies write: one power-on of the many-runs generator as a file."""
+    positions = [0.0, 90.0, 180.0]
+    batch = simulate_windows(
+        load_spec("ideal"), TRUTH, positions, 2.0, n_runs=2, rng=np.random.default_rng(1),
+        sample_rate_hz=50.0, warmup_s=0.0,
+    )  # fmt: skip
+    path = tmp_path / "run.npz"
+    Recording.from_batch(batch, 1, TRUTH.latitude_deg).save(path)
+    back = Recording.load(path)
+    assert back.meta["sample_rate_hz"] == 50.0 and back.meta["latitude_deg"] == 34.0
+    assert [w.commanded_deg for w in back.windows] == positions
+    for p, w in enumerate(back.windows):
+        first = round(batch.window_start_s[p] * 50.0)
+        np.testing.assert_array_equal(w.counter, np.arange(first, first + 100))
+        np.testing.assert_allclose(w.gyro_dph * DPH, batch.gyro_rps[1, p], rtol=1e-15, atol=0)
+        assert w.missing == 0 and set(w.validity) == {3}
+    result = solve_recording(back, None, "none", "auto")
+    assert result.azimuth_deg == pytest.approx(batch.azimuth_deg[1], abs=1e-6)
+    assert result.pitch_deg == pytest.approx(TRUTH.pitch_deg, abs=1e-6)
 
 
 def test_a_gap_in_a_recording_is_reported(tmp_path):

@@ -12,6 +12,8 @@ firmware, the driver and the host all may import (see the README's "Architecture
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -46,3 +48,36 @@ def normal_gravity(latitude_rad: ArrayLike) -> NDArray[np.float64] | float:
     s2 = np.sin(np.asarray(latitude_rad, dtype=float)) ** 2
     g = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / np.sqrt(1.0 - 6.69437999013e-3 * s2)
     return float(g) if np.ndim(g) == 0 else g
+
+
+#: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
+MAX_LATITUDE_DEG = 89.0
+
+
+def check_latitude_deg(
+    latitude_deg: Any, error: Callable[[str], Exception], field: str = "latitude_deg"
+) -> float:
+    """``latitude_deg`` as a float if north finding is defined there, else raise ``error``
+    (each package passes its own error class) with a message that starts with ``field``.
+
+    Raises
+    ------
+    error
+        Not a number, not finite, outside [-90, 90] deg, or beyond +-:data:`MAX_LATITUDE_DEG`
+        (the horizontal Earth rate Omega*cos(lat) vanishes towards a pole).
+    """
+    try:
+        lat = float(latitude_deg)
+    except (TypeError, ValueError) as exc:
+        raise error(f"{field}: must be a number, got {latitude_deg!r}") from exc
+    if not math.isfinite(lat):
+        raise error(f"{field}: must be a finite number, got {latitude_deg!r}")
+    if abs(lat) > 90.0:
+        raise error(f"{field}: must lie in [-90, 90] deg, got {lat}")
+    if abs(lat) > MAX_LATITUDE_DEG:
+        raise error(
+            f"{field}: {lat} deg is too close to a pole (limit +-{MAX_LATITUDE_DEG} deg): the "
+            f"horizontal Earth rate Omega*cos(lat) = {OMEGA_IE * math.cos(math.radians(lat)):.3e} "
+            "rad/s vanishes there, so north is undefined"
+        )
+    return lat

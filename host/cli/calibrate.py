@@ -22,14 +22,18 @@ from typing import Any
 from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
 from northfinder.host.calibrate.readers import READERS
-from northfinder.host.cli.common import bounded_float, check_output_path, load_sensor
+from northfinder.host.cli.common import (
+    bounded_float,
+    check_output_path,
+    command_parser,
+    load_sensor,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "calibrate", help="fit sensor terms to recordings and write a sensor TOML",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-    )  # fmt: skip
+    p = command_parser(
+        sub, "calibrate", "fit sensor terms to recordings and write a sensor TOML", __doc__
+    )
     p.add_argument(
         "recordings", nargs="+", metavar="RECORDING",
         help=f"recordings, one per power-on ({', '.join(sorted(READERS))})",

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import math
 import os
 import sys
@@ -96,6 +97,29 @@ def report_error(command: str, exc: BaseException, stream: TextIO | None = None)
     return EXIT_RUNTIME if status is None else status
 
 
+def command_parser(
+    sub: argparse._SubParsersAction, name: str, summary: str, doc: str | None, **options: Any
+) -> argparse.ArgumentParser:
+    """A subcommand's parser: ``summary`` is its line in the command list, the module docstring
+    ``doc`` its description, printed as written (paragraphs and lists kept)."""
+    parser: argparse.ArgumentParser = sub.add_parser(
+        name,
+        help=summary,
+        description=doc,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        **options,
+    )
+    return parser
+
+
+def whole_number(text: str) -> int:
+    """argparse type: a whole number, with an error that quotes the bad text."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+
+
 def finite_float(text: str) -> float:
     """argparse type: a finite float, with an error that quotes the bad text."""
     try:
@@ -135,10 +159,7 @@ def bounded_int(lo: int, hi: int) -> Any:
     """argparse type: a whole number in [lo, hi]; the error states the bounds."""
 
     def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+        value = whole_number(text)
         if not lo <= value <= hi:
             raise argparse.ArgumentTypeError(f"must be {lo} to {hi}, got {value}")
         return value
@@ -155,10 +176,7 @@ seed_value = bounded_int(0, MAX_SEED)
 
 def node_id(text: str) -> int:
     """argparse type: a CAN node id, 1..15 (protocol.md 2.1)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    value = whole_number(text)
     if not NODE_ID_MIN <= value <= NODE_ID_MAX:
         raise argparse.ArgumentTypeError(f"must be {NODE_ID_MIN}..{NODE_ID_MAX}, got {value}")
     return value
@@ -170,10 +188,7 @@ MAX_BAUD = 100_000_000
 
 def baud_rate(text: str) -> int:
     """argparse type: a serial baud rate, a whole number of bit/s from 1 to :data:`MAX_BAUD`."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    value = whole_number(text)
     if not 1 <= value <= MAX_BAUD:
         raise argparse.ArgumentTypeError(f"must be 1..{MAX_BAUD} bit/s, got {value}")
     return value
@@ -326,6 +341,31 @@ def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) ->
     return path
 
 
+def key_value(text: str) -> tuple[str, Any]:
+    """argparse type: ``KEY=VALUE``, the value read as JSON when it parses, else as a string."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw
+    return key.strip(), value
+
+
+def add_key_values(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    flag: str,
+    dest: str,
+    metavar: str,
+    help: str | None = None,
+) -> None:
+    """A repeatable ``FLAG KEY=VALUE`` option collected as a list of (key, value) pairs."""
+    parser.add_argument(
+        flag, dest=dest, type=key_value, action="append", default=[], metavar=metavar, help=help
+    )
+
+
 def add_sensor_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--sensor",
@@ -381,10 +421,7 @@ def can_log_path(text: str) -> str:
 
 
 def _workers(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    value = whole_number(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1: {text!r}")
     return value

@@ -53,6 +53,7 @@ from northfinder.host.cli.common import (
     bounded_float,
     bus_given,
     check_output_path,
+    command_parser,
     open_can_bus,
     open_serial_port,
 )
@@ -86,12 +87,7 @@ _FLAGS: tuple[tuple[str, str, Callable[[str], Any], str | None, str], ...] = (
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "conformance",
-        help="check a unit on a link against protocol.md",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = command_parser(sub, "conformance", "check a unit on a link against protocol.md", __doc__)
     group = add_link_arguments(p, "serial link and simulation")
     group.add_argument(
         "--sim",

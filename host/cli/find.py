@@ -26,28 +26,26 @@ import sys
 import time
 
 from northfinder.host.cli import report
-from northfinder.host.cli.common import baud_rate, check_output_path, positive_float
+from northfinder.host.cli.common import (
+    baud_rate,
+    check_output_path,
+    command_parser,
+    positive_float,
+    whole_number,
+)
 from northfinder.host.cli.measure import Measured, add_arguments, run_plan, save_recording
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
 
 
 def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    value = whole_number(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "find",
-        help="find true north",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = command_parser(sub, "find", "find true north", __doc__)
     add_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument(

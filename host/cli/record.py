@@ -8,15 +8,12 @@ from __future__ import annotations
 
 import argparse
 
-from northfinder.host.cli.common import check_output_path
+from northfinder.host.cli.common import check_output_path, command_parser
 from northfinder.host.cli.measure import add_arguments, run_plan, save_recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "record", help="record raw windows to CSV or NPZ", description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )  # fmt: skip
+    p = command_parser(sub, "record", "record raw windows to CSV or NPZ", __doc__)
     p.add_argument("file", help="output file, .csv or .npz")
     add_arguments(p)
     return p

@@ -42,6 +42,7 @@ from northfinder.host.cli.common import (
     bounded_float,
     bus_given,
     can_log_path,
+    command_parser,
     load_sensor,
     open_can_bus,
     open_serial_port,
@@ -64,12 +65,7 @@ def control_address(text: str) -> str:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "sim",
-        help="run the simulated instrument on a link",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = command_parser(sub, "sim", "run the simulated instrument on a link", __doc__)
     link = add_link_arguments(p, "serial and pseudo-terminal links")
     link.add_argument("--pty", action="store_true", help="serial frames on a new pseudo-terminal")
     link.add_argument(

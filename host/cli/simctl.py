@@ -15,6 +15,7 @@ import json
 import textwrap
 
 from northfinder.firmware_sim.control import OPS, ControlClient
+from northfinder.host.cli.common import command_parser
 from northfinder.host.errors import HostConfigError
 
 
@@ -33,12 +34,8 @@ def operations_help(width: int = 100) -> str:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "simctl",
-        help="control a running simulator",
-        description=__doc__,
-        epilog=operations_help(),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+    p = command_parser(
+        sub, "simctl", "control a running simulator", __doc__, epilog=operations_help()
     )
     p.add_argument("address", help="control address printed by `northfinder sim --control`")
     p.add_argument("op", help="operation (listed below)")

@@ -20,18 +20,14 @@ from northfinder.host.cli.common import (
     add_truth_arguments,
     angle_list,
     bounded_float,
+    command_parser,
     load_sensor,
     sim_truth,
 )
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "simulate",
-        help="summarise simulated windows (physics only)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = command_parser(sub, "simulate", "summarise simulated windows (physics only)", __doc__)
     add_sensor_argument(p)
     add_truth_arguments(p)
     p.add_argument(

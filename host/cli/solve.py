@@ -24,6 +24,7 @@ from northfinder.host.cli.common import (
     add_solver_argument,
     bounded_float,
     check_output_path,
+    command_parser,
     node_id,
     positive_float,
 )
@@ -40,12 +41,7 @@ from northfinder.host.recording import Recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
-        "solve",
-        help="solve a recording or CAN log offline",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
+    p = command_parser(sub, "solve", "solve a recording or CAN log offline", __doc__)
     p.add_argument("file", help="recording (.csv, .npz) or CAN log (.log, .asc, .blf, ...)")
     p.add_argument(
         "--latitude",

@@ -34,12 +34,14 @@ from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.cli.common import (
     add_execution_arguments,
+    add_key_values,
     add_sensor_argument,
     add_solver_argument,
     angle_list,
     bounded_float,
     bounded_int,
     check_output_path,
+    command_parser,
     finite_float,
     load_sensor,
     seed_value,
@@ -71,33 +73,20 @@ MAX_BIAS_STEP_DPH = 1e6
 MAX_TOP = 1000
 
 
-def _key_value(text: str) -> tuple[str, Any]:
-    key, sep, raw = text.partition("=")
-    if not sep or not key.strip():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    try:
-        value = json.loads(raw)
-    except json.JSONDecodeError:
-        value = raw
-    return key.strip(), value
-
-
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
+    p = command_parser(
+        sub,
         "study",
-        help="Monte Carlo accuracy of a plan against the physical bound; plan search",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        "Monte Carlo accuracy of a plan against the physical bound; plan search",
+        __doc__,
     )
     add_sensor_argument(p)
-    p.add_argument(
+    add_key_values(
+        p,
         "--set",
-        dest="overrides",
-        type=_key_value,
-        action="append",
-        default=[],
-        metavar="SECTION.FIELD=VALUE",
-        help="override a sensor field, e.g. gyro.arw_dpsh=0.002 (repeatable)",
+        "overrides",
+        "SECTION.FIELD=VALUE",
+        "override a sensor field, e.g. gyro.arw_dpsh=0.002 (repeatable)",
     )
     g = p.add_argument_group("site")
     g.add_argument(
@@ -154,14 +143,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default="none",
         help="denoising of every gyro window before its mean (default: none)",
     )
-    g.add_argument(
+    add_key_values(
+        g,
         "--denoise-option",
-        dest="denoise_options",
-        type=_key_value,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="option of the denoising method, e.g. window=6 for moving-average",
+        "denoise_options",
+        "KEY=VALUE",
+        "option of the denoising method, e.g. window=6 for moving-average",
     )
     g.add_argument(
         "--denoise-accel", action="store_true", help="denoise the accelerometer windows too"
@@ -252,9 +239,10 @@ def _plan(args: argparse.Namespace) -> Plan:
     return _processing(args, plan)
 
 
-def _settings(args: argparse.Namespace) -> StudySettings:
+def _settings(args: argparse.Namespace, latitude_deg: float) -> StudySettings:
+    """The study settings of the arguments (``study`` and ``sweep`` spell them alike)."""
     return StudySettings(
-        latitude_deg=args.latitude,
+        latitude_deg=latitude_deg,
         azimuth_deg=args.azimuth,
         pitch_deg=args.pitch,
         roll_deg=args.roll,
@@ -460,7 +448,7 @@ def _check_early(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     _check_early(args)
     spec = _load(args)
-    settings = _settings(args)
+    settings = _settings(args, args.latitude)
     if args.plan_budget is not None and args.plan_target is not None:
         raise HostConfigError("give either --plan-budget or --plan-target, not both")
     if args.runs < 0 or (args.runs < 2 and args.plan_budget is None and args.plan_target is None):

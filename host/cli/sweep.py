@@ -19,9 +19,11 @@ from typing import Any
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
 from northfinder.host.cli.common import (
     add_execution_arguments,
+    add_key_values,
     angle_list,
     bounded_float,
     bounded_int,
+    command_parser,
     finite_float,
     seed_value,
     study_executor,
@@ -34,12 +36,12 @@ from northfinder.host.cli.study import (
     MAX_SETTLE_S,
     MAX_WARMUP_S,
     MAX_WINDOW_S,
-    _key_value,
     _plan_json,
+    _settings,
 )
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
-from northfinder.host.montecarlo import StudySettings, monte_carlo_many, study_rows
+from northfinder.host.montecarlo import monte_carlo_many, study_rows
 from northfinder.host.plan import PLANS, SOLVERS, Plan
 
 
@@ -69,11 +71,11 @@ def _windows(text: str) -> list[float]:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = sub.add_parser(
+    p = command_parser(
+        sub,
         "sweep",
-        help="Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
+        __doc__,
     )
     g = p.add_argument_group("what to sweep (every combination is one study)")
     g.add_argument(
@@ -110,14 +112,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="s per position (default: 10, or the named plan's)",
     )
     g = p.add_argument_group("every study")
-    g.add_argument(
+    add_key_values(
+        g,
         "--set",
-        dest="overrides",
-        type=_key_value,
-        action="append",
-        default=[],
-        metavar="SECTION.FIELD=VALUE",
-        help="override a field of every sensor, e.g. gyro.arw_dpsh=0.002 (repeatable)",
+        "overrides",
+        "SECTION.FIELD=VALUE",
+        "override a field of every sensor, e.g. gyro.arw_dpsh=0.002 (repeatable)",
     )
     g.add_argument("--azimuth", type=finite_float, default=None, help="deg (default: random)")
     g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
@@ -134,14 +134,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="sample rate, Hz (200)",
     )  # fmt: skip
     g.add_argument("--denoise", choices=list(METHODS), default="none", help="(default: none)")
-    g.add_argument(
-        "--denoise-option",
-        dest="denoise_options",
-        type=_key_value,
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-    )
+    add_key_values(g, "--denoise-option", "denoise_options", "KEY=VALUE")
     g.add_argument("--denoise-accel", action="store_true")
     g.add_argument("--solver", choices=list(SOLVERS), default="auto")
     g.add_argument("--tilt", choices=list(TILT_SOURCES), default="accel")
@@ -193,21 +186,7 @@ def run(args: argparse.Namespace) -> int:
         specs.append(spec.with_values(dict(args.overrides)) if args.overrides else spec)
     plans = _plans(args)
     combos = list(itertools.product(specs, args.latitudes, plans))
-    settings = {
-        lat: StudySettings(
-            latitude_deg=lat,
-            azimuth_deg=args.azimuth,
-            pitch_deg=args.pitch,
-            roll_deg=args.roll,
-            warmup_s=args.warmup,
-            sample_rate_hz=args.rate,
-            denoise_accel=args.denoise_accel,
-            tilt=args.tilt,
-            angles=args.angles,
-            bias_step_dph=args.bias_step,
-        )
-        for lat in args.latitudes
-    }
+    settings = {lat: _settings(args, lat) for lat in args.latitudes}
     with study_executor(args) as executor:
         t0 = time.perf_counter()
         errors = monte_carlo_many(
