@@ -41,6 +41,7 @@ from northfinder.host.cli.study import (
 )
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
+from northfinder.host.kernels import MAX_TILT_DEG
 from northfinder.host.montecarlo import monte_carlo_many, study_rows
 from northfinder.host.plan import PLANS, SOLVERS, Plan
 
@@ -120,8 +121,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "override a field of every sensor, e.g. gyro.arw_dpsh=0.002 (repeatable)",
     )
     g.add_argument("--azimuth", type=finite_float, default=None, help="deg (default: random)")
-    g.add_argument("--pitch", type=finite_float, default=0.0, help="deg (default: 0)")
-    g.add_argument("--roll", type=finite_float, default=0.0, help="deg (default: 0)")
+    tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")
+    g.add_argument("--pitch", type=tilt, default=0.0, help="deg (default: 0)")
+    g.add_argument("--roll", type=tilt, default=0.0, help="deg (default: 0)")
     g.add_argument(
         "--settle", type=bounded_float(0.0, MAX_SETTLE_S, "s"), default=None, help="s after a move"
     )
