@@ -7,6 +7,7 @@ import contextlib
 import io
 import json
 import math
+import re
 import tomllib
 from pathlib import Path
 
@@ -325,3 +326,18 @@ def test_calibrate_refuses_bad_input_with_one_clear_error(tmp_path):
         fit_between_positions(table1_runs(), fixed={"drift": 0.1})
     with pytest.raises(InputError, match=r"gyro_dph: expected shape \(2, 2\)"):
         RunWindows.regular(np.zeros((2, 3)), [0.0, 30.0], 10.0, 25.0)
+
+
+def test_calibrate_refuses_the_same_recording_given_twice(tmp_path, capsys):
+    """A repeated recording (the same file twice, or a copy) would count its noise twice: refused,
+    both files named, exit 2; two separate recordings of the same plan are still taken."""
+    a, other = write_recordings(load_spec("tactical-fog"), [0.0], 20.0, 2, 3, tmp_path)
+    copy = tmp_path / "copy.npz"
+    copy.write_bytes(Path(a).read_bytes())
+    with pytest.raises(RecordingError, match=rf"is the same file as {re.escape(a)}"):
+        read_runs([a, str(Path(a).parent / "." / Path(a).name)])
+    with pytest.raises(RecordingError, match=rf"{re.escape(str(copy))}: holds the same samples as {re.escape(a)}"):
+        read_runs([a, other, copy])
+    assert cli(["calibrate", a, str(copy)]) == 2
+    assert "holds the same samples as" in capsys.readouterr().err
+    assert len(read_runs([a, other])) == 2

@@ -12,6 +12,7 @@ from a recording by its header, and ``.gz`` of the text formats), whose windows
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -132,8 +133,11 @@ def read_runs(paths: Sequence[str | Path]) -> list[RecordedRun]:
     Raises
     ------
     RecordingError
-        No files, a format no reader knows (the message lists those known), or the reader's own
-        error naming the file and what is wrong.
+        No files, a format no reader knows (the message lists those known), the reader's own
+        error naming the file and what is wrong, or the same recording given twice (the same
+        file, a copy, or the same samples in another format): each recording must be an
+        independent power-on, and a repeated one would count its noise twice and overstate
+        the confidence of every term fitted.
     """
     if not paths:
         raise RecordingError("recordings: give at least one file")
@@ -146,4 +150,27 @@ def read_runs(paths: Sequence[str | Path]) -> list[RecordedRun]:
                 f"{', '.join(sorted(READERS))}"
             )
         runs.append(reader(p))
+    seen: dict[str, str] = {}
+    for p, run in zip(map(str, paths), runs, strict=True):
+        key = _fingerprint(run)
+        if key in seen:
+            same = "is the same file as" if Path(p).resolve() == Path(seen[key]).resolve() else (
+                "holds the same samples as"
+            )
+            raise RecordingError(
+                f"{p}: {same} {seen[key]}; each recording must be a separate power-on "
+                "(a repeated one would be counted as independent data)"
+            )
+        seen[key] = p
     return runs
+
+
+def _fingerprint(run: RecordedRun) -> str:
+    """A digest of a run's samples (not its file name or metadata): equal for copies."""
+    h = hashlib.sha256()
+    for w in run.windows:
+        for a in (w.counter, w.time_s, w.gyro_dph, w.accel_mps2, w.table_deg, w.validity):
+            arr = np.ascontiguousarray(a)
+            h.update(str(arr.shape).encode())
+            h.update(arr.astype(arr.dtype.newbyteorder("<"), copy=False).tobytes())
+    return h.hexdigest()
