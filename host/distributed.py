@@ -19,6 +19,7 @@ workers per machine as it has cores: a chunk keeps one core busy.
 from __future__ import annotations
 
 import logging
+import os
 import re
 from collections.abc import Iterator
 from concurrent.futures import Executor
@@ -39,19 +40,34 @@ class DistributedError(HostError):
     """The Dask cluster cannot be reached or started, or lost the study."""
 
 
+def max_local_workers() -> int:
+    """The most worker processes ``local:N`` starts: four per core of this machine.
+
+    Each is a Python process of its own (about 100 MB); more than a few per core only adds
+    start-up time and memory, and thousands would exhaust the machine.
+    """
+    return 4 * (os.cpu_count() or 1)
+
+
 def parse_dask_address(text: str) -> tuple[str, int | str]:
     """``("local", N)`` for ``local:N``, ``("remote", address)`` for ``tcp://HOST:PORT``.
 
     Raises
     ------
     HostConfigError
-        Anything else, with the forms that are accepted.
+        Anything else, with the forms that are accepted; ``local:N`` with N below 1 or above
+        :func:`max_local_workers`.
     """
-    m = _LOCAL.match(text)
+    m = _LOCAL.match(text.strip())
     if m:
         n = int(m.group(1))
-        if n < 1:
-            raise HostConfigError(f"dask: local:N needs at least one worker, got {text!r}")
+        limit = max_local_workers()
+        if not 1 <= n <= limit:
+            raise HostConfigError(
+                f"dask: local:N takes 1 to {limit} worker processes on this machine "
+                f"(4 per core), got {text!r}; for more, start a cluster and give its "
+                "scheduler's tcp://HOST:PORT"
+            )
         return "local", n
     m = _REMOTE.match(text)
     if m and 0 < int(m.group(3)) < 65536:

@@ -22,7 +22,12 @@ from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.cli import main
 from northfinder.host.cli.simulated import SimulatedWindows
 from northfinder.host.denoise import METHODS, denoise, denoised_mean, wavelet_denoise_mean
-from northfinder.host.distributed import DistributedError, dask_executor, parse_dask_address
+from northfinder.host.distributed import (
+    DistributedError,
+    dask_executor,
+    max_local_workers,
+    parse_dask_address,
+)
 from northfinder.host.errors import HostConfigError
 from northfinder.host.montecarlo import (
     RunRequest,
@@ -146,8 +151,13 @@ def test_dask_addresses_are_checked_and_an_absent_scheduler_is_one_error(monkeyp
     assert parse_dask_address("local:2") == ("local", 2)
     assert parse_dask_address("tcp://10.1.2.3:8786") == ("remote", "tcp://10.1.2.3:8786")
     assert parse_dask_address("tls://scheduler.lab:8786")[0] == "remote"
-    with pytest.raises(HostConfigError, match="at least one worker"):
-        parse_dask_address("local:0")
+    limit = max_local_workers()
+    assert parse_dask_address(f"local:{limit}") == ("local", limit)
+    for bad in ("local:0", f"local:{limit + 1}", "local:1000", "local:" + "9" * 40):
+        with pytest.raises(HostConfigError, match=rf"local:N takes 1 to {limit} worker processes"):
+            parse_dask_address(bad)
+    for bad in ("local:1000", "local:0", "local:-1", "local:junk"):
+        assert main(["study", "--dask", bad]) == 2
     for bad in ("local:x", "tcp://host", "tcp://host:99999", "http://h:1", "h:8786", ""):
         with pytest.raises(HostConfigError, match="tcp://HOST:PORT"):
             parse_dask_address(bad)
