@@ -18,6 +18,7 @@ the report show what was measured, and when only timing checks fail they run onc
 
 from __future__ import annotations
 
+import json
 import threading
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -226,6 +227,16 @@ def test_conformance_sim_runs_the_suite_in_virtual_time(capsys, tmp_path):
     assert "max deviation 0.00 ms" in out  # heartbeats exact in virtual time
     assert main(["conformance", "--sim", "--time-scale", "2"]) == 2
     assert "not with --sim" in capsys.readouterr().err
+
+
+def test_conformance_sim_json_prints_the_json_result_alone(capsys):
+    """``--sim --json``: stdout is one JSON document (no header, no progress lines)."""
+    status = main(["conformance", "--sim", "--seed", "2", "--only", "identify,state.ready", "--json"])
+    out = capsys.readouterr().out
+    assert status == 0, out
+    result = json.loads(out)
+    assert result["command"] == "conformance"
+    assert [c["name"] for c in result["checks"]] == ["identify", "state.ready"]
 
 
 @pytest.mark.realtime

@@ -191,19 +191,36 @@ def run(args: argparse.Namespace) -> int:
             bus = open_can_bus(args)
             closers.append(bus.shutdown)
             link = CanRawLink(bus, args.node_id)
-        if not args.json:
-            print(format_header(link.kind, options), flush=True)
-        report = run_suite(
-            link,
-            options,
-            progress=None if args.json else lambda r: print(format_result(r), flush=True),
-        )
+        report = _run(args, link, options)
     finally:
         for close in reversed(closers):
             try:
                 close()
             except (can.CanError, serial.SerialException, OSError):
                 pass  # the link is already gone; the report says what failed
+    return _finish(args, report)
+
+
+def _run(
+    args: argparse.Namespace,
+    link: CanRawLink | SerialRawLink,
+    options: SuiteOptions,
+    **kwargs: Any,
+) -> Report:
+    """Run the suite: the header and each result printed as it comes, or nothing with --json
+    (stdout then holds the JSON result alone)."""
+    if not args.json:
+        print(format_header(link.kind, options), flush=True)
+    return run_suite(
+        link,
+        options,
+        progress=None if args.json else lambda r: print(format_result(r), flush=True),
+        **kwargs,
+    )
+
+
+def _finish(args: argparse.Namespace, report: Report) -> int:
+    """Print the summary (or the JSON result), write --junit, give the exit status."""
     if args.json:
         print(as_json(report), flush=True)
     else:
@@ -225,12 +242,6 @@ def _run_simulated(args: argparse.Namespace, options: SuiteOptions) -> int:
     with sim, sim.open_bus() as bus:
         assert isinstance(sim.clock, VirtualClock)
         link = CanRawLink(bus, args.node_id)
-        print(format_header(link.kind, options), flush=True)
-        report = run_suite(
-            link, options, progress=lambda r: print(format_result(r), flush=True), clock=sim.clock
-        )
+        report = _run(args, link, options, clock=sim.clock)
         sim.check()
-    print(f"\n{format_summary(report)}", flush=True)
-    if args.junit:
-        write_junit(report, args.junit)
-    return 0 if report.passed else 1
+    return _finish(args, report)
