@@ -18,11 +18,18 @@ sent and received. :func:`read_can_log` decodes it with the protocol's own recei
 - Missing ticks are never papered over: a window keeps its counters (the gaps show in
   :attr:`~northfinder.host.recording.RecordedWindow.gaps`) and :attr:`CanLogSession.notes` names
   every gap, every window shorter than asked and every frame that did not decode.
+- A log cut short (a copy cut mid-file: a partial last line, a truncated BLF container) is read
+  up to its break, and the notes say so ("cut short"); so does a last window whose STREAM_STOP
+  is not in the log (the host stops every stream it starts). ``solve`` refuses such a log
+  (exit 1), as it refuses one with a gap: the missing part could change the heading.
 """
 
 from __future__ import annotations
 
 import math
+import sqlite3
+import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,6 +56,7 @@ from northfinder.driver.protocol.messages import (
     RotateTo,
     Sample,
     StreamStart,
+    StreamStop,
 )
 from northfinder.driver.window import CountScales, WindowCollector
 from northfinder.host.errors import RecordingError
@@ -136,23 +144,36 @@ class _Segment:
         self.collector = WindowCollector(requested, on_gap="report")
         self.requested = requested
         self.t = t
+        self.stopped = False
 
 
-def _messages(path: Path) -> Iterator[can.Message]:
+def _messages(path: Path, cut: list[str] | None = None) -> Iterator[can.Message]:
+    """The log's frames. A file that breaks off after some frames (a copy cut short: a partial
+    last line, a truncated BLF container) ends the frames there and says so in ``cut`` when it
+    is given; without ``cut``, or before any frame, it is an error."""
     try:
         reader = can.LogReader(str(path))
     except (OSError, ValueError, ImportError) as exc:
         raise RecordingError(f"{path}: cannot read as a CAN log ({exc})") from exc
+    n = 0
     try:
         with reader:
-            yield from reader
-    except (OSError, ValueError, EOFError, IndexError, KeyError) as exc:
-        raise RecordingError(f"{path}: unreadable CAN log ({type(exc).__name__}: {exc})") from exc
+            for msg in reader:
+                n += 1
+                yield msg
+    except (
+        OSError, ValueError, EOFError, IndexError, KeyError, zlib.error, struct.error,
+        sqlite3.Error,
+    ) as exc:  # fmt: skip
+        what = f"{type(exc).__name__}: {exc}"
+        if cut is None or n == 0:
+            raise RecordingError(f"{path}: unreadable CAN log ({what})") from exc
+        cut.append(f"the log breaks off after frame {n} ({what}): it is cut short")
 
 
 def _pick_node(path: Path) -> int:
     nodes: dict[int, int] = {}
-    for msg in _messages(path):
+    for msg in _messages(path, []):  # a log cut short is read to its break (read_can_log says so)
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             continue
         try:
@@ -217,7 +238,8 @@ def read_can_log(
     def requested() -> int:
         return _UNBOUNDED if window_s is None else max(1, round(window_s * rate))
 
-    for msg in _messages(p):
+    cut: list[str] = []
+    for msg in _messages(p, cut):
         frames += 1
         if t0 is None:
             t0 = msg.timestamp
@@ -260,6 +282,8 @@ def read_can_log(
                     commanded = (commanded + item.delta * scales.angle_deg) % 360.0
                 elif isinstance(item, Home):
                     commanded = 0.0
+                if isinstance(item, StreamStop) and current is not None:
+                    current.stopped = True
                 if isinstance(item, RotateTo | RotateBy | Home | Reset | StreamStart):
                     current = None
                 if isinstance(item, StreamStart):
@@ -269,7 +293,7 @@ def read_can_log(
                     current = _Segment(commanded, requested(), msg.timestamp)
                     segments.append(current)
     chosen = segments if saw_stream_start else free_segments
-    notes: list[str] = []
+    notes: list[str] = list(cut)
     if receiver.malformed:
         notes.append(
             f"{receiver.malformed} frame(s) of node {node} did not decode "
@@ -290,6 +314,14 @@ def read_can_log(
             notes.append(
                 f"window {i} ({seg.commanded_deg:g} deg): the log ends the window after "
                 f"{seg.collector.received + seg.collector.missing} of {seg.requested} ticks"
+            )
+        if seg is current and not seg.stopped and not seg.collector.done:
+            # The host stops every stream it starts: a last window without its STREAM_STOP
+            # is a log cut inside the window, whose samples fall short of what was measured.
+            notes.append(
+                f"window {i} ({seg.commanded_deg:g} deg): the log ends inside the window after "
+                f"{seg.collector.received + seg.collector.missing} ticks, before its STREAM_STOP: "
+                "the log is cut short"
             )
         windows.append(rec)
     if len(windows) < min_windows:

@@ -124,6 +124,30 @@ def test_a_log_with_lost_frames_reports_the_gap(logged_runs, tmp_path):
     assert "missing" in err and "window 1" in err
 
 
+@pytest.mark.parametrize("suffix", FORMATS)
+def test_a_log_cut_short_is_reported_and_not_solved(logged_runs, suffix, tmp_path):
+    """A copy cut inside the last window (``head -c`` of any format, a BLF's container cut in
+    two): the shortfall is named and solve refuses the heading (exit 1, as for a gap)."""
+    path, _ = logged_runs[suffix]
+    data = path.read_bytes()
+    cut = tmp_path / f"cut{suffix}"
+    # 80 % of the file: inside the second (last) window's stream, mid-line or mid-container.
+    cut.write_bytes(data[: len(data) * 8 // 10])
+    if suffix == ".db":
+        # SQLite keeps its pages in no time order: a cut database is unreadable as a whole.
+        code, out, err = run_cli("solve", str(cut), "--latitude", "34")
+        assert code == 2 and out == "" and f"{cut}: unreadable CAN log" in err
+        return
+    session = read_can_log(cut)
+    assert any("cut short" in n for n in session.notes), session.notes
+    code, out, err = run_cli("solve", str(cut), "--latitude", "34")
+    assert code == 1 and out == ""
+    assert "cut short" in err and str(cut) in err
+    assert "window 2" in err or "breaks off" in err
+    # The whole log still solves with no note.
+    assert read_can_log(path).notes == ()
+
+
 def test_python_can_player_replays_a_log_onto_a_bus(logged_runs, monkeypatch):
     """``python -m can.player`` (README): the replayed frames rebuild the same samples."""
     import uuid

@@ -101,7 +101,10 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
             "frames": session.frames, "sample_rate_hz": session.sample_rate_hz,
             "window_s": args.window, "notes": list(session.notes),
         }  # fmt: skip
-        gaps = [n for n in session.notes if "missing" in n or "ends the window" in n]
+        gaps = [
+            n for n in session.notes
+            if "missing" in n or "ends the window" in n or "cut short" in n
+        ]  # fmt: skip
         if gaps:
             raise QualityError(f"{path}: " + "; ".join(gaps))
         return session.recording(), source
