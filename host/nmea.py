@@ -10,9 +10,11 @@ Two sentences, each ``$...*hh`` with the NMEA checksum (XOR of the characters be
 
 ``$PNFDH,h.hhhh,s.ssss,S,p.ppp,r.rrr,N*hh`` (proprietary, manufacturer code ``NFD``, type ``H``)
     ``h`` heading deg true, four decimals; ``s`` its 1-sigma estimate, deg; ``S`` status: ``A``
-    valid (sigma known and at most the limit), ``V`` not valid (sigma unknown or above the
-    limit; the heading fields are then empty in HDT); ``p``, ``r`` pitch and roll of the base,
-    deg; ``N`` positions measured.
+    valid (sigma known and at most the limit, and the windows' consistency check did not fail),
+    ``V`` not valid (sigma unknown or above the limit, or the windows disagree beyond their
+    noise so the heading is not vouched for); when not valid the heading field is empty in both
+    sentences, so that no consumer can take a heading the instrument does not stand behind;
+    ``p``, ``r`` pitch and roll of the base, deg; ``N`` positions measured.
 
 pynmea2 parses both (``pynmea2.parse(line, check=True)``); importing this module registers
 :class:`NFDH` so that the proprietary sentence's fields have names (``heading``, ``sigma``,
@@ -73,12 +75,22 @@ class HeadingFix:
     roll_deg: float
     positions: int
     max_sigma_deg: float = 1.0
+    consistent: bool | None = None
+    """The windows' consistency check: False (they disagree beyond their noise) makes the fix
+    not valid; None (no check: too few windows) leaves it to sigma."""
 
     @property
     def valid(self) -> bool:
-        """Whether the heading may be used: sigma known and at most :attr:`max_sigma_deg`."""
+        """Whether the heading may be used: a finite heading, sigma known and at most
+        :attr:`max_sigma_deg`, and a consistency check that did not fail."""
         s = self.sigma_deg
-        return s is not None and math.isfinite(s) and s <= self.max_sigma_deg
+        return (
+            math.isfinite(self.azimuth_deg)
+            and s is not None
+            and math.isfinite(s)
+            and s <= self.max_sigma_deg
+            and self.consistent is not False
+        )
 
 
 def hdt_sentence(fix: HeadingFix) -> str:

@@ -340,6 +340,21 @@ def test_a_heading_that_is_not_good_enough_is_sent_as_not_valid():
     assert pynmea2.parse(nfdh_sentence(unknown)).status == "V"
 
 
+def test_a_heading_the_consistency_check_rejected_is_never_sent_as_valid():
+    """Windows that disagree beyond their noise: however small sigma, no heading in either
+    sentence and status V; a passed check (or none, with two windows) leaves it valid."""
+    rejected = HeadingFix(42.0, 0.01, 0.0, 0.0, 4, consistent=False)
+    hdt, nfdh = pynmea2.parse(hdt_sentence(rejected), check=True), pynmea2.parse(nfdh_sentence(rejected))
+    assert hdt.heading is None
+    assert nfdh.status == "V" and nfdh.data[1] == "" and nfdh.sigma == 0.01
+    for consistent in (True, None):
+        fix = HeadingFix(42.0, 0.01, 0.0, 0.0, 4, consistent=consistent)
+        assert pynmea2.parse(hdt_sentence(fix)).heading == 42.0
+        assert pynmea2.parse(nfdh_sentence(fix)).status == "A"
+    nan = HeadingFix(float("nan"), 0.01, 0.0, 0.0, 4, consistent=True)
+    assert pynmea2.parse(nfdh_sentence(nan)).status == "V"
+
+
 def _xor(body: str) -> int:
     c = 0
     for ch in body:

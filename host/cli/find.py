@@ -79,8 +79,9 @@ def send_nmea(args: argparse.Namespace, m: Measured) -> int:
     """Send the heading ``--nmea-count`` times at ``--nmea-rate``; return how many were sent."""
     r = m.result
     fix = HeadingFix(
-        r.azimuth_deg, r.sigma_deg, r.pitch_deg, r.roll_deg, len(r.windows), args.nmea_max_sigma
-    )
+        r.azimuth_deg, r.sigma_deg, r.pitch_deg, r.roll_deg, len(r.windows), args.nmea_max_sigma,
+        consistent=r.consistent,
+    )  # fmt: skip
     lines = (hdt_sentence(fix), nfdh_sentence(fix))
     period = 1.0 / args.nmea_rate
     with NmeaOutput(args.nmea, baudrate=args.nmea_baud) as out:
