@@ -176,6 +176,19 @@ def test_python_can_player_replays_a_log_onto_a_bus(logged_runs, monkeypatch):
     assert [s.counter for s in replayed][-len(logged[-10:]) :] == [int(c) for c in logged[-10:]]
 
 
+@pytest.mark.parametrize("command", ["find", "record", "conformance", "sim"])
+def test_an_interface_that_sends_off_the_machine_is_refused(command, tmp_path):
+    """``-i udp_multicast`` would send every frame as IP multicast: refused before anything opens
+    (exit 2), with the reason and the interfaces accepted."""
+    argv = [command, "-i", "udp_multicast", "-c", "239.74.163.2"]
+    if command == "record":
+        argv.append(str(tmp_path / "r.npz"))
+    code, out, err = run_cli(*argv)
+    assert code == 2 and out == ""
+    assert "'udp_multicast' is refused" in err and "IP multicast" in err
+    assert "accepted: " in err and "virtual" in err and "socketcan" in err
+
+
 def test_the_log_name_must_name_a_format(tmp_path):
     code, _, err = run_cli("find", *FAST, "--can-log", str(tmp_path / "run.xyz"))
     assert code == 2 and "--can-log" in err

@@ -194,6 +194,33 @@ def baud_rate(text: str) -> int:
     return value
 
 
+#: python-can interfaces the commands refuse, and why: their frames leave this machine as network
+#: traffic to addresses the user did not name (udp_multicast sends to a multicast group on every
+#: interface of the host, not to a bus).
+REFUSED_INTERFACES: Mapping[str, str] = {
+    "udp_multicast": "it sends every frame as IP multicast off this machine, not onto a CAN bus",
+}
+
+
+def _refuse_interfaces_off_the_machine(parser: argparse.ArgumentParser) -> None:
+    """Take the refused interfaces out of ``-i/--interface``'s choices, with a message that says
+    why and lists what is accepted."""
+    for action in parser._actions:
+        if "--interface" not in action.option_strings or not action.choices:
+            continue
+        accepted = sorted(c for c in action.choices if c not in REFUSED_INTERFACES)
+
+        def interface(text: str, accepted: list[str] = accepted) -> str:
+            if text in REFUSED_INTERFACES:
+                raise argparse.ArgumentTypeError(
+                    f"{text!r} is refused: {REFUSED_INTERFACES[text]}; accepted: {', '.join(accepted)}"
+                )
+            return text
+
+        action.type = interface
+        action.choices = accepted
+
+
 def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
     """The links every command speaks: python-can bus options (``-i/-c/-b``, as python-can's own
     tools spell them), ``--serial PORT``, ``--baud`` and ``--node-id``. Returns the serial group so
@@ -201,6 +228,7 @@ def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse.
     import can.cli
 
     can.cli.add_bus_arguments(parser)
+    _refuse_interfaces_off_the_machine(parser)
     group = parser.add_argument_group(title)
     group.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
     group.add_argument(
