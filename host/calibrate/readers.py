@@ -151,17 +151,20 @@ def read_runs(paths: Sequence[str | Path]) -> list[RecordedRun]:
             )
         runs.append(reader(p))
     seen: dict[str, str] = {}
-    for p, run in zip(map(str, paths), runs, strict=True):
+    for name, run in zip(map(str, paths), runs, strict=True):
         key = _fingerprint(run)
         if key in seen:
-            same = "is the same file as" if Path(p).resolve() == Path(seen[key]).resolve() else (
-                "holds the same samples as"
+            first = seen[key]
+            same = (
+                "is the same file as"
+                if Path(name).resolve() == Path(first).resolve()
+                else "holds the same samples as"
             )
             raise RecordingError(
-                f"{p}: {same} {seen[key]}; each recording must be a separate power-on "
+                f"{name}: {same} {first}; each recording must be a separate power-on "
                 "(a repeated one would be counted as independent data)"
             )
-        seen[key] = p
+        seen[key] = name
     return runs
 
 
