@@ -72,6 +72,10 @@ _MOVING = int(Validity.TABLE_MOVING | Validity.TABLE_SETTLING)
 _CSV_HEADER = "timestamp,arbitration_id,extended,remote,error,dlc,data"
 
 
+#: python-can's own errors for a file that is not of the format its ending names.
+_FORMAT_ERRORS: tuple[type[Exception], ...] = (can.io.blf.BLFParseError,)
+
+
 def is_can_log(path: str | Path) -> bool:
     """Whether the file is a CAN log by its name (and, for ``.csv``, by python-can's header line:
     a northfinder recording is CSV too)."""
@@ -153,7 +157,9 @@ def _messages(path: Path, cut: list[str] | None = None) -> Iterator[can.Message]
     is given; without ``cut``, or before any frame, it is an error."""
     try:
         reader = can.LogReader(str(path))
-    except (OSError, ValueError, ImportError) as exc:
+    except (OSError, ValueError, ImportError, NotImplementedError, *_FORMAT_ERRORS) as exc:
+        # NotImplementedError: python-can's reader for the format needs a package not installed
+        # (asammdf for .mf4); its message names it.
         raise RecordingError(f"{path}: cannot read as a CAN log ({exc})") from exc
     n = 0
     try:
@@ -163,7 +169,7 @@ def _messages(path: Path, cut: list[str] | None = None) -> Iterator[can.Message]
                 yield msg
     except (
         OSError, ValueError, EOFError, IndexError, KeyError, zlib.error, struct.error,
-        sqlite3.Error,
+        sqlite3.Error, *_FORMAT_ERRORS,
     ) as exc:  # fmt: skip
         what = f"{type(exc).__name__}: {exc}"
         if cut is None or n == 0:

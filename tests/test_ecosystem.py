@@ -189,6 +189,42 @@ def test_an_interface_that_sends_off_the_machine_is_refused(command, tmp_path):
     assert "accepted: " in err and "virtual" in err and "socketcan" in err
 
 
+@pytest.mark.parametrize(
+    ("name", "content", "why"),
+    [
+        ("garbage.blf", bytes(range(256)) * 8, "Unexpected file format"),
+        ("notes.db", b"VERSION \"\"\nBU_: NF\n", "not a database"),
+        ("empty.db", b"", "no such table"),
+    ],
+)
+def test_a_file_that_is_not_the_log_its_name_says_is_a_clear_error(tmp_path, name, content, why):
+    """Garbage BLF, a DBC-like text named .db: one line naming the file and what is wrong, exit 2
+    (never an internal error), for solve and calibrate alike."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    for argv in (["solve", str(path), "--latitude", "34"], ["calibrate", str(path)]):
+        code, out, err = run_cli(*argv)
+        assert code == 2 and out == "", err
+        assert str(path) in err and why in err and "internal error" not in err
+
+
+def test_an_mf4_log_without_asammdf_names_the_package(tmp_path, monkeypatch):
+    path = tmp_path / "run.mf4"
+    path.write_bytes(b"MDF     4.10    ")
+    monkeypatch.setitem(sys.modules, "asammdf", None)
+    code, _, err = run_cli("solve", str(path), "--latitude", "34")
+    assert code == 2 and str(path) in err and "asammdf" in err and "internal error" not in err
+
+
+@pytest.mark.parametrize("command", [["find", *FAST], ["study", "--runs", "5"], ["solve", "x.npz"]])
+def test_a_plot_name_of_no_format_is_refused_before_the_run(command, tmp_path):
+    pytest.importorskip("matplotlib")
+    for bad, why in ((tmp_path / "p.xyz", ".xyz is no plot format"), (tmp_path / "p", "no file ending")):
+        code, out, err = run_cli(*command, "--plot", str(bad))
+        assert code == 2 and out == "" and why in err and ".png" in err, err
+        assert not bad.exists()
+
+
 def test_the_log_name_must_name_a_format(tmp_path):
     code, _, err = run_cli("find", *FAST, "--can-log", str(tmp_path / "run.xyz"))
     assert code == 2 and "--can-log" in err

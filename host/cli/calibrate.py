@@ -27,6 +27,7 @@ from northfinder.host.calibrate.readers import READERS
 from northfinder.host.cli.common import (
     bounded_float,
     check_output_path,
+    check_plot_path,
     command_parser,
     load_sensor,
 )
@@ -71,10 +72,11 @@ def run(args: argparse.Namespace) -> int:
     for option, path in (
         ("--output", args.output),
         ("--report", args.report),
-        ("--plot", args.plot),
     ):
         if path:
             check_output_path(path, option)
+    if args.plot:
+        check_plot_path(args.plot)
     base: dict[str, Any] | None = load_sensor(args.base).to_dict() if args.base else None
     runs = read_runs(args.recordings)
     cal = calibrate(runs, tau_s=args.move_tau, heat_tau_s=args.heat_tau, design=args.between)

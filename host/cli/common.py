@@ -369,6 +369,28 @@ def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) ->
     return path
 
 
+def check_plot_path(path: str, option: str = "--plot") -> str:
+    """Refuse, before any work, a plot file that cannot be written: as
+    :func:`check_output_path`, matplotlib not installed, or a name whose ending is no format
+    matplotlib writes (the message lists those it does)."""
+    import os
+
+    check_output_path(path, option)
+    try:
+        from matplotlib.backend_bases import FigureCanvasBase
+    except ImportError as exc:
+        raise HostConfigError(f"{option} needs matplotlib: pip install 'northfinder[plot]'") from exc
+    formats = sorted(FigureCanvasBase.get_supported_filetypes())
+    suffix = os.path.splitext(path)[1].lower().lstrip(".")
+    if suffix not in formats:
+        raise HostConfigError(
+            f"{option} {path}: "
+            + (f".{suffix} is no plot format" if suffix else "the name has no file ending")
+            + f"; it must end in one of: {', '.join('.' + f for f in formats)}"
+        )
+    return path
+
+
 def key_value(text: str) -> tuple[str, Any]:
     """argparse type: ``KEY=VALUE``, the value read as JSON when it parses, else as a string."""
     key, sep, raw = text.partition("=")

@@ -29,6 +29,7 @@ from northfinder.host.cli import report
 from northfinder.host.cli.common import (
     baud_rate,
     check_output_path,
+    check_plot_path,
     command_parser,
     positive_float,
     whole_number,
@@ -101,8 +102,7 @@ def run(args: argparse.Namespace) -> int:
     if args.record:
         check_output_path(args.record, "--record", (".csv", ".npz"))
     if args.plot:
-        check_output_path(args.plot, "--plot")
-        report.require_matplotlib()
+        check_plot_path(args.plot)
     to_stdout = args.nmea == "-"
     m = run_plan(args, progress=not (args.json or to_stdout))
     if args.record:

@@ -23,7 +23,7 @@ from northfinder.host.cli import report
 from northfinder.host.cli.common import (
     add_solver_argument,
     bounded_float,
-    check_output_path,
+    check_plot_path,
     command_parser,
     node_id,
     positive_float,
@@ -116,8 +116,7 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
 
 def run(args: argparse.Namespace) -> int:
     if args.plot:
-        check_output_path(args.plot, "--plot")
-        report.require_matplotlib()
+        check_plot_path(args.plot)
     rec, source = load(args)
     result = solve_recording(rec, args.latitude, args.denoise, args.solver)
     truth = rec.meta.get("truth")

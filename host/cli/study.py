@@ -40,7 +40,7 @@ from northfinder.host.cli.common import (
     angle_list,
     bounded_float,
     bounded_int,
-    check_output_path,
+    check_plot_path,
     command_parser,
     finite_float,
     load_sensor,
@@ -429,13 +429,7 @@ def _plot(path: str, sweep: list[dict[str, Any]], title: str) -> None:
 def _check_early(args: argparse.Namespace) -> None:
     """What can be refused before any simulation: output paths, the sweep, denoise options."""
     if args.plot:
-        check_output_path(args.plot, "--plot")
-        try:
-            import matplotlib  # noqa: F401
-        except ImportError as exc:
-            raise HostConfigError(
-                "--plot needs matplotlib: install the plot extra (pip install 'northfinder[plot]')"
-            ) from exc
+        check_plot_path(args.plot)
     for w in args.sweep or ():
         if not 0 < w <= MAX_WINDOW_S:
             raise HostConfigError(f"--sweep: windows must be 0 to {MAX_WINDOW_S:g} s, got {w:g}")
