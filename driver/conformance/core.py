@@ -69,9 +69,6 @@ class SuiteOptions:
         How long to wait for READY after boot or reset (warm-up), unit s.
     only : tuple of str
         Glob patterns of check names to run (empty: all).
-    keep_going : bool
-        Run every check even when no unit answers the first requests (default: stop at once
-        with :class:`~northfinder.driver.conformance.errors.NoUnitAnswers`).
     """
 
     node_id: int = 1
@@ -85,7 +82,6 @@ class SuiteOptions:
     settle_margin_s: float = 0.5
     ready_timeout_s: float = 180.0
     only: tuple[str, ...] = ()
-    keep_going: bool = False
 
     def __post_init__(self) -> None:
         positive = {

@@ -27,8 +27,3 @@ class LinkFault(ConformanceError):
 
 class Skipped(Exception):
     """Raised by a check that cannot apply to this unit or link; the reason is its message."""
-
-
-class NoUnitAnswers(ConformanceError):
-    """No unit answered the suite's first requests: every check would only wait out its
-    timeouts."""

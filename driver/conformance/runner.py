@@ -12,12 +12,12 @@ import serial
 from northfinder.driver.clock import Clock
 from northfinder.driver.conformance.checks import select_checks
 from northfinder.driver.conformance.core import CheckResult, Ctx, Report, SuiteOptions
-from northfinder.driver.conformance.errors import LinkFault, NoUnitAnswers, Skipped
+from northfinder.driver.conformance.errors import LinkFault, Skipped
 from northfinder.driver.conformance.links import RawLink
 from northfinder.driver.conformance.session import Session
 from northfinder.driver.errors import DriverError
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState
-from northfinder.driver.protocol.messages import GetStatus, Reset, SetConfig, Stop
+from northfinder.driver.protocol.messages import Reset, SetConfig, Stop
 
 __all__ = ["restore", "run_suite"]
 
@@ -77,8 +77,6 @@ def _run(
     progress: Callable[[CheckResult], None] | None,
 ) -> Report:
     session.drain(0.2)
-    if not options.keep_going:
-        _require_an_answer(session, options)
     shared: dict[str, Any] = {}
     results: list[CheckResult] = []
     start = session.now()
@@ -119,23 +117,6 @@ def _run(
             if note.startswith(_NO_RECOVERY):
                 dead = f"the unit stopped answering after {chk.name}"
     return Report(results, session.link.kind, options, session.now() - start)
-
-
-#: GET_STATUS requests sent before the suite concludes that no unit answers.
-_PROBES = 3
-
-
-def _require_an_answer(session: Session, options: SuiteOptions) -> None:
-    """Stop before the checks when nothing answers GET_STATUS (a unit that is off, a wrong node
-    id, channel or port): the checks would otherwise wait out every timeout, minutes in all."""
-    for _ in range(_PROBES):
-        if session.request(GetStatus(0)).reply is not None:
-            return
-    raise NoUnitAnswers(
-        f"no unit answers on the {session.link.kind} link (node {options.node_id}): "
-        f"{_PROBES} GET_STATUS requests got no reply within {session.reply_wait_s:g} s each; "
-        "check power, cable, node id, channel or port (--keep-going runs the checks anyway)"
-    )
 
 
 def _where(exc: BaseException) -> str:

@@ -106,12 +106,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default="",
         help="comma-separated glob patterns of checks to run, e.g. 'stream.*,refusal.busy'",
     )
-    g.add_argument(
-        "--keep-going",
-        action="store_true",
-        help="run every check even when no unit answers the first requests (default: stop "
-        "with an error, exit 1)",
-    )
     p.add_argument("--list", action="store_true", help="list the checks and exit")
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML to FILE")
     p.add_argument("--json", action="store_true", help="print the result as JSON (no report)")
@@ -162,7 +156,7 @@ def _options(args: argparse.Namespace) -> SuiteOptions:
     values = {field: getattr(args, field) for _, field, _, _, _ in _FLAGS}
     values["angles_deg"] = tuple(values["angles_deg"])
     only = tuple(p.strip() for p in args.only.split(",") if p.strip())
-    return SuiteOptions(node_id=args.node_id, only=only, keep_going=args.keep_going, **values)
+    return SuiteOptions(node_id=args.node_id, only=only, **values)
 
 
 def run(args: argparse.Namespace) -> int:
