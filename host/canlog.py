@@ -74,6 +74,13 @@ _CSV_HEADER = "timestamp,arbitration_id,extended,remote,error,dlc,data"
 
 #: python-can's own errors for a file that is not of the format its ending names.
 _FORMAT_ERRORS: tuple[type[Exception], ...] = (can.io.blf.BLFParseError,)
+_OPEN_ERRORS: tuple[type[Exception], ...] = (
+    OSError, ValueError, ImportError, NotImplementedError, *_FORMAT_ERRORS,
+)  # fmt: skip
+_READ_ERRORS: tuple[type[Exception], ...] = (
+    OSError, ValueError, EOFError, IndexError, KeyError, zlib.error, struct.error, sqlite3.Error,
+    *_FORMAT_ERRORS,
+)  # fmt: skip
 
 
 def is_can_log(path: str | Path) -> bool:
@@ -157,7 +164,7 @@ def _messages(path: Path, cut: list[str] | None = None) -> Iterator[can.Message]
     is given; without ``cut``, or before any frame, it is an error."""
     try:
         reader = can.LogReader(str(path))
-    except (OSError, ValueError, ImportError, NotImplementedError, *_FORMAT_ERRORS) as exc:
+    except _OPEN_ERRORS as exc:
         # NotImplementedError: python-can's reader for the format needs a package not installed
         # (asammdf for .mf4); its message names it.
         raise RecordingError(f"{path}: cannot read as a CAN log ({exc})") from exc
@@ -167,10 +174,7 @@ def _messages(path: Path, cut: list[str] | None = None) -> Iterator[can.Message]
             for msg in reader:
                 n += 1
                 yield msg
-    except (
-        OSError, ValueError, EOFError, IndexError, KeyError, zlib.error, struct.error,
-        sqlite3.Error, *_FORMAT_ERRORS,
-    ) as exc:  # fmt: skip
+    except _READ_ERRORS as exc:
         what = f"{type(exc).__name__}: {exc}"
         if cut is None or n == 0:
             raise RecordingError(f"{path}: unreadable CAN log ({what})") from exc
