@@ -233,11 +233,16 @@ def open_can_bus(args: argparse.Namespace) -> Any:
 
     try:
         return can.cli.create_bus_from_namespace(args)
-    except (can.CanInterfaceNotImplementedError, argparse.ArgumentError, ValueError,
-            TypeError) as exc:  # fmt: skip
-        raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
-    except (can.CanError, OSError) as exc:
-        raise LinkError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+    except (can.CanError, OSError, argparse.ArgumentError, ValueError, TypeError) as exc:
+        # python-can wraps every failure in an argparse.ArgumentError: its cause says which
+        # it is, a bus that cannot be opened now (1) or options it refuses (2).
+        cause = exc.__cause__ if isinstance(exc, argparse.ArgumentError) and exc.__cause__ else exc
+        text = f"cannot open the CAN bus: {cause}"
+        if isinstance(cause, can.CanInterfaceNotImplementedError | ValueError | TypeError):
+            raise HostConfigError(text) from exc
+        if isinstance(cause, can.CanError | OSError):
+            raise LinkError(text) from exc
+        raise HostConfigError(text) from exc
 
 
 def open_serial_port(path: str, baud: int) -> Any:
@@ -265,6 +270,11 @@ def bus_given(args: argparse.Namespace) -> bool:
     return any(getattr(args, k, None) is not None for k in ("interface", "channel"))
 
 
+#: Largest magnitude of an angle given in degrees (an azimuth, a table position): one turn either
+#: way. Beyond it a value is a typo, and 1e20 deg has no meaningful remainder modulo 360.
+MAX_ANGLE_DEG = 360.0
+_table_angle = bounded_float(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg")
+
 #: Most table positions a plan may hold (and angles a list may hold).
 MAX_POSITIONS = 64
 
@@ -272,14 +282,18 @@ MAX_POSITIONS = 64
 def angle_list(text: str) -> list[float]:
     """argparse type: comma-separated angles in degrees, e.g. ``0,60`` or ``0,90,180,270``
     (at most :data:`MAX_POSITIONS`)."""
-    parts = [p.strip() for p in text.split(",") if p.strip()]
-    if not parts:
+    parts = [p.strip() for p in text.split(",")]
+    if not any(parts):
         raise argparse.ArgumentTypeError("expected comma-separated angles in degrees, e.g. 0,180")
+    if not all(parts):
+        raise argparse.ArgumentTypeError(
+            f"an empty angle in {text!r}: give comma-separated angles in degrees, e.g. 0,180"
+        )
     if len(parts) > MAX_POSITIONS:
         raise argparse.ArgumentTypeError(
             f"{len(parts)} angles: at most {MAX_POSITIONS} positions are allowed"
         )
-    return [finite_float(p) for p in parts]
+    return [_table_angle(p) for p in parts]
 
 
 #: Latitude of a simulation when none is given (the source paper's site is near 34 deg N).
@@ -380,9 +394,9 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("simulated truth")
     g.add_argument(
         "--azimuth",
-        type=finite_float,
+        type=bounded_float(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
         default=None,
-        help="deg clockwise from north (default: random)",
+        help="deg clockwise from north, -360 to 360 (default: random)",
     )
     g.add_argument(
         "--latitude",
@@ -390,8 +404,11 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="deg, north positive (simulated: default 34; required for a real device)",
     )
-    g.add_argument("--pitch", type=finite_float, default=None, help="deg (default: 0)")
-    g.add_argument("--roll", type=finite_float, default=None, help="deg (default: 0)")
+    from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
+
+    tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")
+    g.add_argument("--pitch", type=tilt, default=None, help="deg (default: 0)")
+    g.add_argument("--roll", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument(
         "--seed", type=seed_value, default=None, help="random seed (default: fresh each run)"
     )
