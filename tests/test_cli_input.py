@@ -12,7 +12,13 @@ import time
 import pytest
 
 from northfinder.host.cli import main
-from northfinder.host.cli.common import EXIT_INTERRUPTED, EXIT_RUNTIME, EXIT_USAGE
+from northfinder.host.cli.common import (
+    EXIT_INTERRUPTED,
+    EXIT_RUNTIME,
+    EXIT_USAGE,
+    dumps,
+    plain_numbers,
+)
 
 # A plan long enough that the run is still going when the signal comes, even on a fast machine.
 LONG_SIM = ["--sim", "--window", "3600", "--warmup", "80000", "--timeout", "86400", "--seed", "1"]
@@ -87,3 +93,47 @@ def test_bad_numbers_are_usage_errors_naming_the_option(argv, names, capsys):
     assert "Traceback" not in err
     for name in names:
         assert name in err
+
+
+def test_solver_and_method_must_agree(capsys):
+    status = main(["find", "--sim", "--solver", "least-squares", "--method", "two-position"])
+    err = capsys.readouterr().err
+    assert status == EXIT_USAGE
+    assert "--solver least-squares and --method two-position disagree" in err
+
+
+def test_solver_and_method_that_agree_are_taken(capsys):
+    status = main(
+        ["find", "--sim", "--seed", "1", "--warmup", "1", "--window", "1",
+         "--solver", "least-squares", "--method", "least-squares"]
+    )  # fmt: skip
+    assert status == 0
+    assert "method least-squares" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("path", ["{tmp}", "{tmp}/missing/run.asc"])
+def test_a_can_log_that_cannot_be_written_is_refused_before_the_run(path, tmp_path, capsys):
+    status = main(["find", "--sim", "--can-log", path.replace("{tmp}", str(tmp_path))])
+    err = capsys.readouterr().err
+    assert status == EXIT_USAGE
+    assert "--can-log" in err
+
+
+@pytest.mark.parametrize(
+    ("text", "plain"),
+    [
+        ("pitch -0.0000 deg, roll -0.0001 deg", "pitch 0.0000 deg, roll -0.0001 deg"),
+        ("error -0.000e+00 deg", "error 0.000e+00 deg"),
+        ("(-0)", "(0)"),
+        ("+- 0.2094", "+- 0.2094"),
+        ("-0.5 and 10-0.0", "-0.5 and 10-0.0"),
+    ],
+)
+def test_no_negative_zero_is_printed(text, plain):
+    assert plain_numbers(text) == plain
+
+
+def test_no_negative_zero_in_json():
+    assert dumps({"a": -0.0, "b": [-0.0, (-0.0, 2.5)]}, indent=None) == (
+        '{"a": 0.0, "b": [0.0, [0.0, 2.5]]}'
+    )

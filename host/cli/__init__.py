@@ -189,7 +189,11 @@ def _caused_by_interrupt(exc: BaseException) -> bool:
 def _interrupted(command: str) -> int:
     """The one line of Ctrl-C (SIGINT), and its status 130."""
     try:
-        print(f"northfinder{' ' + command if command else ''}: interrupted", file=sys.stderr, flush=True)
+        print(
+            f"northfinder{' ' + command if command else ''}: interrupted",
+            file=sys.stderr,
+            flush=True,
+        )
     except (OSError, ValueError):
         pass
     return EXIT_INTERRUPTED

@@ -14,7 +14,6 @@ Readable recordings: those of ``northfinder record`` and ``find --record`` (.csv
 from __future__ import annotations
 
 import argparse
-import json
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ from northfinder.host.cli.common import (
     bounded_float,
     check_output_path,
     command_parser,
+    dumps,
     load_sensor,
 )
 
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         Path(args.output).write_text(text)
     if args.json:
-        print(json.dumps(cal.to_json_dict(name), indent=2))
+        print(dumps(cal.to_json_dict(name)))
         return 0
     if not args.report:
         print(report)

@@ -24,6 +24,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import sys
 from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import Executor
@@ -95,6 +96,33 @@ def report_error(command: str, exc: BaseException, stream: TextIO | None = None)
     print(error_line(command, exc), file=stream or sys.stderr)
     status = exit_status(exc)
     return EXIT_RUNTIME if status is None else status
+
+
+#: A number that prints as a negative zero ("-0", "-0.000", "-0.0e+00"): a value that rounds to
+#: zero is shown as zero, without a sign that says nothing.
+_NEGATIVE_ZERO = re.compile(r"(?<![\w.])-(0(?:\.0*)?(?:[eE][-+]?\d+)?)(?![\d.])")
+
+
+def plain_numbers(text: str) -> str:
+    """``text`` with every printed negative zero written as zero (``-0.0000`` -> ``0.0000``,
+    ``+-0.0`` stays a plus-minus sign before ``0.0``)."""
+    return _NEGATIVE_ZERO.sub(r"\1", text)
+
+
+def _no_negative_zero(value: Any) -> Any:
+    if isinstance(value, float):
+        return 0.0 if value == 0.0 else value
+    if isinstance(value, Mapping):
+        return {k: _no_negative_zero(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_no_negative_zero(v) for v in value]
+    return value
+
+
+def dumps(value: Any, **options: Any) -> str:
+    """JSON of a command's result (indented by 2), with no negative zero (``-0.0`` is 0.0)."""
+    options.setdefault("indent", 2)
+    return json.dumps(_no_negative_zero(value), **options)
 
 
 def command_parser(
@@ -420,9 +448,32 @@ def add_solver_argument(
     """``--solver`` as ``find``, ``record``, ``solve`` and ``study`` spell it (``--method``, the
     old spelling of ``find`` and ``solve``, is kept as a hidden alias)."""
     parser.add_argument(
-        "--solver", choices=list(choices), default="auto", help="heading solver (default auto)"
-    )
-    parser.add_argument("--method", dest="solver", choices=list(choices), help=argparse.SUPPRESS)
+        "--solver", choices=list(choices), default="auto", action=_SolverAction,
+        help="heading solver (default auto; --method is the same option: both may be given "
+        "only with the same value)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--method", dest="solver", choices=list(choices), action=_SolverAction,
+        help=argparse.SUPPRESS,
+    )  # fmt: skip
+
+
+class _SolverAction(argparse.Action):
+    """``--solver`` and its alias ``--method``: given twice (either spelling) with different
+    values, the command is refused rather than one of them silently winning."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+        option_string: str | None = None,
+    ) -> None:  # fmt: skip
+        given = getattr(namespace, "_solver_given", None)
+        if given is not None and given[1] != values:
+            parser.error(
+                f"{given[0]} {given[1]} and {option_string} {values} disagree: "
+                "give the heading solver once"
+            )
+        namespace._solver_given = (option_string, values)
+        setattr(namespace, self.dest, values)
 
 
 def can_log_path(text: str) -> str:
@@ -432,8 +483,9 @@ def can_log_path(text: str) -> str:
 
     try:
         log_suffix(text)
-    except ArgumentError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+        check_output_path(text, "--can-log")
+    except (ArgumentError, HostConfigError) as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--can-log ")) from None
     return text
 
 

@@ -24,7 +24,6 @@ sweep`` runs many studies at once.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from concurrent.futures import Executor
 from dataclasses import replace
@@ -42,6 +41,7 @@ from northfinder.host.cli.common import (
     bounded_int,
     check_output_path,
     command_parser,
+    dumps,
     finite_float,
     load_sensor,
     seed_value,
@@ -338,7 +338,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
             "wall_time_s": time.perf_counter() - t0,
         }
     if args.json:
-        print(json.dumps(envelope("study", simulator_identity(spec.name), report), indent=2))
+        print(dumps(envelope("study", simulator_identity(spec.name), report)))
         return 0
     what = (
         f"plan time <= {args.plan_budget:g} s"
@@ -494,7 +494,7 @@ def run(args: argparse.Namespace) -> int:
         )
         report["plot"] = args.plot
     if args.json:
-        print(json.dumps(envelope("study", simulator_identity(spec.name), report), indent=2))
+        print(dumps(envelope("study", simulator_identity(spec.name), report)))
         return 0
     p = report["plan"]
     print(
