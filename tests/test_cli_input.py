@@ -137,3 +137,11 @@ def test_no_negative_zero_in_json():
     assert dumps({"a": -0.0, "b": [-0.0, (-0.0, 2.5)]}, indent=None) == (
         '{"a": 0.0, "b": [0.0, [0.0, 2.5]]}'
     )
+
+
+@pytest.mark.parametrize("json_flag", [[], ["--json"]], ids=["text", "json"])
+def test_a_plan_search_that_finds_no_plan_fails(json_flag, capsys):
+    status = main(["study", "--plan-budget", "0.001", "--runs", "0", *json_flag])
+    captured = capsys.readouterr()
+    assert status == EXIT_RUNTIME
+    assert "no plan reaches plan time <= 0.001 s" in captured.err
