@@ -145,3 +145,16 @@ def test_a_plan_search_that_finds_no_plan_fails(json_flag, capsys):
     captured = capsys.readouterr()
     assert status == EXIT_RUNTIME
     assert "no plan reaches plan time <= 0.001 s" in captured.err
+
+
+def test_a_failed_check_names_a_given_latitude_as_a_possible_cause(tmp_path, capsys):
+    rec = str(tmp_path / "run.npz")
+    argv = ["record", rec, "--sim", "--seed", "2", "--warmup", "1", "--window", "60"]
+    assert main([*argv, "--pitch", "3", "--roll", "2"]) == 0
+    capsys.readouterr()
+    assert main(["solve", rec]) == 0
+    assert "wrong latitude" not in capsys.readouterr().out
+    assert main(["solve", rec, "--latitude", "60"]) == 0
+    out = capsys.readouterr().out
+    assert "CONSISTENCY CHECK FAILED" in out
+    assert "wrong latitude: 60 deg (from --latitude)" in out

@@ -147,7 +147,8 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
         "--timeout",
         type=bounded_float(0.0, MAX_WAIT_S, "s", open_lo=True),
         default=600.0,
-        help="warm-up timeout, wall s (default 600)",
+        help="longest wait, s, for the device to finish its warm-up and report READY (the "
+        "device's clock: with --sim, simulated seconds; default 600)",
     )
 
 
