@@ -78,7 +78,7 @@ def test_a_can_bus_that_cannot_be_opened_is_a_runtime_failure(capsys):
     [
         (["--azimuth", "1e20"], ["--azimuth", "-360 to 360"]),
         (["--azimuth", "nan"], ["--azimuth"]),
-        (["--positions", "1e300"], ["--positions", "-360 to 360"]),
+        (["--positions", "1e300"], ["--positions", "-720 to 720"]),
         (["--positions", "0,,180"], ["--positions", "empty"]),
         (["--positions", "0,inf"], ["--positions"]),
         (["--positions", ","], ["--positions"]),

@@ -301,7 +301,9 @@ def bus_given(args: argparse.Namespace) -> bool:
 #: Largest magnitude of an angle given in degrees (an azimuth, a table position): one turn either
 #: way. Beyond it a value is a typo, and 1e20 deg has no meaningful remainder modulo 360.
 MAX_ANGLE_DEG = 360.0
-_table_angle = bounded_float(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg")
+#: Largest magnitude of a table angle, deg: two turns either way (a plan may count on past 360).
+MAX_TABLE_ANGLE_DEG = 720.0
+_table_angle = bounded_float(-MAX_TABLE_ANGLE_DEG, MAX_TABLE_ANGLE_DEG, "deg")
 
 #: Most table positions a plan may hold (and angles a list may hold).
 MAX_POSITIONS = 64
@@ -449,8 +451,7 @@ def add_solver_argument(
     old spelling of ``find`` and ``solve``, is kept as a hidden alias)."""
     parser.add_argument(
         "--solver", choices=list(choices), default="auto", action=_SolverAction,
-        help="heading solver (default auto; --method is the same option: both may be given "
-        "only with the same value)",
+        help="heading solver (default auto)",
     )  # fmt: skip
     parser.add_argument(
         "--method", dest="solver", choices=list(choices), action=_SolverAction,
