@@ -296,6 +296,8 @@ class VirtualClock:
                 if math.isinf(t_s):
                     continue  # a paused source
                 t = ns_at_or_after(t_s)
+            except KeyboardInterrupt:
+                raise  # Ctrl-C in the thread that drives: the user's, not the simulator's
             except BaseException as exc:  # a failing simulator must not take the host with it
                 self._detach(source, exc)
                 continue
@@ -321,6 +323,8 @@ class VirtualClock:
         for source in list(self._sources):
             try:
                 done |= bool(source.run_until(t))
+            except KeyboardInterrupt:
+                raise
             except BaseException as exc:
                 self._detach(source, exc)
         if not (done or dirty):
@@ -328,6 +332,8 @@ class VirtualClock:
         for poll in list(self._pollers):
             try:
                 done |= bool(poll())
+            except KeyboardInterrupt:
+                raise
             except BaseException as exc:
                 self._detach(poll, exc)
         return done
@@ -345,6 +351,8 @@ class VirtualClock:
             try:
                 if w.predicate():
                     return False
+            except KeyboardInterrupt:
+                raise
             except BaseException:  # raised again in its own thread
                 return False
         return True

@@ -118,6 +118,9 @@ class ConsistencyCheck:
     consistent: bool | None = None
     sigma_scale: float = 1.0
     explanations: tuple[Explanation, ...] = field(default=())
+    #: Where a user-given latitude may be the cause of a failed check ("" when the latitude is
+    #: the simulated truth's): the fit takes the Earth rate of that latitude as known.
+    latitude_hint: str = ""
 
     def summary(self) -> str:
         """One line for people."""
@@ -140,10 +143,11 @@ class ConsistencyCheck:
                 if causes
                 else "no single drift, step or table angle error explains it"
             )
+            + (f"; or a wrong latitude: {self.latitude_hint}" if self.latitude_hint else "")
         )
 
     def to_dict(self) -> dict[str, Any]:
-        out = {k: v for k, v in self.__dict__.items() if k != "explanations"}
+        out = {k: v for k, v in self.__dict__.items() if k not in ("explanations", "latitude_hint")}
         out["explanations"] = [e.to_dict() for e in self.explanations]
         out["summary"] = self.summary()
         return out

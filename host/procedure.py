@@ -13,6 +13,7 @@ injected: ``sleep`` and ``clock`` default to the wall clock.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -463,6 +464,12 @@ def result_from_windows(
         accel_sem_mps2=np.array([w.accel_sem_mps2 for w in windows]),
         time_s=[w.time_s for w in windows],
     )
+    if check.consistent is False and latitude_source and "simulated" not in latitude_source:
+        # A latitude the user gave can be wrong; the fit takes its Earth rate as known.
+        check = dataclasses.replace(
+            check,
+            latitude_hint=f"{latitude_deg:g} deg (from {latitude_source}); check the site's latitude",
+        )
     notes = [f"position {i + 1}: {n}" for i, w in enumerate(windows) for n in w.notes]
     notes.append(check.summary())
     if sigma is not None and check.consistent is False:

@@ -26,12 +26,12 @@ def _figures(r: CheckResult) -> str:
 
 def format_result(r: CheckResult, name_width: int = 28) -> str:
     """One result as table rows: check, result, figures, then the message indented below."""
-    head = f"{r.name:<{name_width}} {_MARK[r.outcome]:<4}  {_figures(r)}"
+    head = f"{r.name:<{name_width}} {_MARK[r.outcome]:<6} {_figures(r)}"
     body = textwrap.fill(
         r.message,
         width=100,
-        initial_indent=" " * (name_width + 7),
-        subsequent_indent=" " * (name_width + 7),
+        initial_indent=" " * (name_width + 8),
+        subsequent_indent=" " * (name_width + 8),
     )
     return f"{head.rstrip()}\n{body}"
 
@@ -45,7 +45,7 @@ def format_header(link: str, options: SuiteOptions) -> str:
             f"stream {o.stream_seconds:g} s, accuracy {o.accuracy_deg:g} deg, "
             f"reply limit {o.reply_limit_ms:g} ms",
             "",
-            f"{'check':<28} {'result':<6}figures / message",
+            f"{'check':<28} {'result':<6} figures / message",
         ]
     )
 

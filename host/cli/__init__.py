@@ -137,6 +137,13 @@ def _command_of(argv: Sequence[str]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # while a command's module loads, or while an error is reported
+        return _interrupted(_command_of(argv) or "")
+
+
+def _main(argv: list[str]) -> int:
     parser = build_parser(only=_command_of(argv))
     try:
         args = parser.parse_args(argv)
@@ -146,7 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
+        return _interrupted(args.command)
     except BrokenPipeError:
         # The reader of stdout went away (``northfinder find --json | head``): nothing left to
         # say to it. Further writes to the closed pipe would fail again at exit.
@@ -155,9 +162,41 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_RUNTIME
     except Exception as exc:  # one line and a stated status for every error (common.py)
+        if _caused_by_interrupt(exc):
+            # Ctrl-C stopped the work, and the clean-up that followed failed because of it
+            # (a device left mid-command, an embedded simulator no longer stepped): the
+            # interrupt is what happened, not the clean-up's error.
+            if args.debug:
+                raise
+            return _interrupted(args.command)
         if args.debug:
             raise
         return report_error(args.command, exc)
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is in the error's chain of causes and contexts."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return False
+
+
+def _interrupted(command: str) -> int:
+    """The one line of Ctrl-C (SIGINT), and its status 130."""
+    try:
+        print(
+            f"northfinder{' ' + command if command else ''}: interrupted",
+            file=sys.stderr,
+            flush=True,
+        )
+    except (OSError, ValueError):
+        pass
+    return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":  # pragma: no cover

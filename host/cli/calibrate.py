@@ -16,7 +16,6 @@ logs in python-can's formats (``find/record --can-log``, ``sim --log``: .log, .a
 from __future__ import annotations
 
 import argparse
-import json
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ from northfinder.host.cli.common import (
     check_output_path,
     check_plot_path,
     command_parser,
+    dumps,
     load_sensor,
 )
 
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         Path(args.output).write_text(text)
     if args.json:
-        print(json.dumps(cal.to_json_dict(name), indent=2))
+        print(dumps(cal.to_json_dict(name)))
         return 0
     if not args.report:
         print(report)

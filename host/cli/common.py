@@ -24,6 +24,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import sys
 from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import Executor
@@ -95,6 +96,33 @@ def report_error(command: str, exc: BaseException, stream: TextIO | None = None)
     print(error_line(command, exc), file=stream or sys.stderr)
     status = exit_status(exc)
     return EXIT_RUNTIME if status is None else status
+
+
+#: A number that prints as a negative zero ("-0", "-0.000", "-0.0e+00"): a value that rounds to
+#: zero is shown as zero, without a sign that says nothing.
+_NEGATIVE_ZERO = re.compile(r"(?<![\w.])-(0(?:\.0*)?(?:[eE][-+]?\d+)?)(?![\d.])")
+
+
+def plain_numbers(text: str) -> str:
+    """``text`` with every printed negative zero written as zero (``-0.0000`` -> ``0.0000``,
+    ``+-0.0`` stays a plus-minus sign before ``0.0``)."""
+    return _NEGATIVE_ZERO.sub(r"\1", text)
+
+
+def _no_negative_zero(value: Any) -> Any:
+    if isinstance(value, float):
+        return 0.0 if value == 0.0 else value
+    if isinstance(value, Mapping):
+        return {k: _no_negative_zero(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_no_negative_zero(v) for v in value]
+    return value
+
+
+def dumps(value: Any, **options: Any) -> str:
+    """JSON of a command's result (indented by 2), with no negative zero (``-0.0`` is 0.0)."""
+    options.setdefault("indent", 2)
+    return json.dumps(_no_negative_zero(value), **options)
 
 
 def command_parser(
@@ -261,11 +289,16 @@ def open_can_bus(args: argparse.Namespace) -> Any:
 
     try:
         return can.cli.create_bus_from_namespace(args)
-    except (can.CanInterfaceNotImplementedError, argparse.ArgumentError, ValueError,
-            TypeError) as exc:  # fmt: skip
-        raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
-    except (can.CanError, OSError) as exc:
-        raise LinkError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+    except (can.CanError, OSError, argparse.ArgumentError, ValueError, TypeError) as exc:
+        # python-can wraps every failure in an argparse.ArgumentError: its cause says which
+        # it is, a bus that cannot be opened now (1) or options it refuses (2).
+        cause = exc.__cause__ if isinstance(exc, argparse.ArgumentError) and exc.__cause__ else exc
+        text = f"cannot open the CAN bus: {cause}"
+        if isinstance(cause, can.CanInterfaceNotImplementedError | ValueError | TypeError):
+            raise HostConfigError(text) from exc
+        if isinstance(cause, can.CanError | OSError):
+            raise LinkError(text) from exc
+        raise HostConfigError(text) from exc
 
 
 def open_serial_port(path: str, baud: int) -> Any:
@@ -293,6 +326,13 @@ def bus_given(args: argparse.Namespace) -> bool:
     return any(getattr(args, k, None) is not None for k in ("interface", "channel"))
 
 
+#: Largest magnitude of an angle given in degrees (an azimuth, a table position): one turn either
+#: way. Beyond it a value is a typo, and 1e20 deg has no meaningful remainder modulo 360.
+MAX_ANGLE_DEG = 360.0
+#: Largest magnitude of a table angle, deg: two turns either way (a plan may count on past 360).
+MAX_TABLE_ANGLE_DEG = 720.0
+_table_angle = bounded_float(-MAX_TABLE_ANGLE_DEG, MAX_TABLE_ANGLE_DEG, "deg")
+
 #: Most table positions a plan may hold (and angles a list may hold).
 MAX_POSITIONS = 64
 
@@ -300,14 +340,18 @@ MAX_POSITIONS = 64
 def angle_list(text: str) -> list[float]:
     """argparse type: comma-separated angles in degrees, e.g. ``0,60`` or ``0,90,180,270``
     (at most :data:`MAX_POSITIONS`)."""
-    parts = [p.strip() for p in text.split(",") if p.strip()]
-    if not parts:
+    parts = [p.strip() for p in text.split(",")]
+    if not any(parts):
         raise argparse.ArgumentTypeError("expected comma-separated angles in degrees, e.g. 0,180")
+    if not all(parts):
+        raise argparse.ArgumentTypeError(
+            f"an empty angle in {text!r}: give comma-separated angles in degrees, e.g. 0,180"
+        )
     if len(parts) > MAX_POSITIONS:
         raise argparse.ArgumentTypeError(
             f"{len(parts)} angles: at most {MAX_POSITIONS} positions are allowed"
         )
-    return [finite_float(p) for p in parts]
+    return [_table_angle(p) for p in parts]
 
 
 #: Latitude of a simulation when none is given (the source paper's site is near 34 deg N).
@@ -430,9 +474,9 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("simulated truth")
     g.add_argument(
         "--azimuth",
-        type=finite_float,
+        type=bounded_float(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
         default=None,
-        help="deg clockwise from north (default: random)",
+        help="deg clockwise from north, -360 to 360 (default: random)",
     )
     g.add_argument(
         "--latitude",
@@ -440,8 +484,11 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="deg, north positive (simulated: default 34; required for a real device)",
     )
-    g.add_argument("--pitch", type=finite_float, default=None, help="deg (default: 0)")
-    g.add_argument("--roll", type=finite_float, default=None, help="deg (default: 0)")
+    from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
+
+    tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")
+    g.add_argument("--pitch", type=tilt, default=None, help="deg (default: 0)")
+    g.add_argument("--roll", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument(
         "--seed", type=seed_value, default=None, help="random seed (default: fresh each run)"
     )
@@ -453,9 +500,31 @@ def add_solver_argument(
     """``--solver`` as ``find``, ``record``, ``solve`` and ``study`` spell it (``--method``, the
     old spelling of ``find`` and ``solve``, is kept as a hidden alias)."""
     parser.add_argument(
-        "--solver", choices=list(choices), default="auto", help="heading solver (default auto)"
-    )
-    parser.add_argument("--method", dest="solver", choices=list(choices), help=argparse.SUPPRESS)
+        "--solver", choices=list(choices), default="auto", action=_SolverAction,
+        help="heading solver (default auto)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--method", dest="solver", choices=list(choices), action=_SolverAction,
+        help=argparse.SUPPRESS,
+    )  # fmt: skip
+
+
+class _SolverAction(argparse.Action):
+    """``--solver`` and its alias ``--method``: given twice (either spelling) with different
+    values, the command is refused rather than one of them silently winning."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+        option_string: str | None = None,
+    ) -> None:  # fmt: skip
+        given = getattr(namespace, "_solver_given", None)
+        if given is not None and given[1] != values:
+            parser.error(
+                f"{given[0]} {given[1]} and {option_string} {values} disagree: "
+                "give the heading solver once"
+            )
+        namespace._solver_given = (option_string, values)
+        setattr(namespace, self.dest, values)
 
 
 def can_log_path(text: str) -> str:
@@ -465,8 +534,9 @@ def can_log_path(text: str) -> str:
 
     try:
         log_suffix(text)
-    except ArgumentError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+        check_output_path(text, "--can-log")
+    except (ArgumentError, HostConfigError) as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--can-log ")) from None
     return text
 
 

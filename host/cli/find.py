@@ -6,7 +6,7 @@ bus runs in virtual time (as fast as the CPU allows; the same result for a ``--s
 machine's load), or paced at ``--speed S`` times real time, and its truth is printed beside the
 result.
 
-The plan: ``--positions`` any table angles (default 0,180), ``--window`` seconds per position,
+The plan: ``--positions`` any table angles (default 0,180,180,0), ``--window`` seconds per position,
 ``--settle`` extra seconds after the device reports READY, ``--denoise`` a method of northfinder.host.denoise,
 ``--solver`` the heading solver. A progress bar (wall-clock seconds) shows on a terminal;
 ``--json`` prints the documented JSON result; ``--plot FILE`` draws the windows and per-pair

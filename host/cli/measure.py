@@ -12,8 +12,6 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
-import can
-import can.cli
 import numpy as np
 
 from northfinder.driver.device import Device
@@ -28,6 +26,7 @@ from northfinder.host.cli.common import (
     can_log_path,
     latitude_source,
     load_sensor,
+    open_can_bus,
     sim_latitude,
     sim_truth,
 )
@@ -148,7 +147,8 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
         "--timeout",
         type=bounded_float(0.0, MAX_WAIT_S, "s", open_lo=True),
         default=600.0,
-        help="warm-up timeout, wall s (default 600)",
+        help="longest wait, s, for the device to finish its warm-up and report READY (the "
+        "device's clock: with --sim, simulated seconds; default 600)",
     )
 
 
@@ -210,10 +210,7 @@ def _open_unit(args: argparse.Namespace, tap: FrameLog | None) -> Iterator[Devic
     if args.serial:
         device = Device.open_serial(args.serial, baudrate=args.baud, **options)
     else:
-        try:
-            bus = can.cli.create_bus_from_namespace(args)
-        except (argparse.ArgumentError, can.CanError, OSError, ValueError) as exc:
-            raise HostConfigError(f"cannot open the CAN bus: {exc.__cause__ or exc}") from exc
+        bus = open_can_bus(args)
         device = Device.from_bus(bus, node_id=args.node_id, own_bus=True, **options)
     with device:
         yield device

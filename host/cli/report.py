@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import textwrap
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from northfinder.host.cli.common import dumps, plain_numbers
 from northfinder.host.errors import HostConfigError, OutputError
 from northfinder.host.procedure import FindResult, pairwise_solutions
 from northfinder.host.results import envelope
@@ -39,7 +39,7 @@ def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
             f"error {err:+.4f} deg"
         )
     lines += [f"note: {n}" for n in result.notes]
-    return "\n".join(lines)
+    return plain_numbers("\n".join(lines))
 
 
 def as_json(
@@ -57,7 +57,7 @@ def as_json(
         body["truth"] = truth
         body["error_deg"] = angle_error(result.azimuth_deg, truth["azimuth_deg"])
     body.update(extra)
-    return json.dumps(envelope(command, device, body), indent=2)
+    return dumps(envelope(command, device, body))
 
 
 def require_matplotlib() -> None:

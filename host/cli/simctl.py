@@ -15,7 +15,7 @@ import json
 import textwrap
 
 from northfinder.firmware_sim.control import OPS, ControlClient
-from northfinder.host.cli.common import command_parser
+from northfinder.host.cli.common import command_parser, dumps
 from northfinder.host.errors import HostConfigError
 
 
@@ -54,5 +54,5 @@ def run(args: argparse.Namespace) -> int:
         except json.JSONDecodeError:
             kwargs[key] = value
     with ControlClient(args.address) as client:
-        print(json.dumps(client.call(args.op, **kwargs), indent=2))
+        print(dumps(client.call(args.op, **kwargs)))
     return 0

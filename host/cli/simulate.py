@@ -7,7 +7,6 @@ and accelerometer readings of one window beside the noise-free values.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 
 import numpy as np
@@ -21,6 +20,7 @@ from northfinder.host.cli.common import (
     angle_list,
     bounded_float,
     command_parser,
+    dumps,
     load_sensor,
     sim_truth,
 )
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
             }
         )
     if args.json:
-        print(json.dumps({"sensor": spec.name, "truth": truth.__dict__, "windows": rows}, indent=2))
+        print(dumps({"sensor": spec.name, "truth": truth.__dict__, "windows": rows}))
         return 0
     print(
         f"sensor {spec.name}; truth azimuth {truth.azimuth_deg:.4f} deg, latitude {truth.latitude_deg:g} deg, "

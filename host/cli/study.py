@@ -24,7 +24,7 @@ sweep`` runs many studies at once.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from concurrent.futures import Executor
 from dataclasses import replace
@@ -33,6 +33,7 @@ from typing import Any
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.cli.common import (
+    EXIT_RUNTIME,
     add_execution_arguments,
     add_key_values,
     add_sensor_argument,
@@ -42,6 +43,7 @@ from northfinder.host.cli.common import (
     bounded_int,
     check_plot_path,
     command_parser,
+    dumps,
     finite_float,
     load_sensor,
     seed_value,
@@ -337,18 +339,26 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
             "runs": args.runs,
             "wall_time_s": time.perf_counter() - t0,
         }
-    if args.json:
-        print(json.dumps(envelope("study", simulator_identity(spec.name), report), indent=2))
-        return 0
     what = (
         f"plan time <= {args.plan_budget:g} s"
         if args.plan_budget is not None
         else f"predicted RMSE <= {args.plan_target:g} deg"
     )
+    # No feasible plan is a failed search (exit 1), said on stderr; --json still prints the
+    # (empty) result on stdout.
+    failed = not report["plans"]
+    if failed:
+        print(
+            f"northfinder study: error: no plan reaches {what} (within 4 h, or the budget "
+            "is shorter than one move)",
+            file=sys.stderr,
+        )
+    if args.json:
+        print(dumps(envelope("study", simulator_identity(spec.name), report)))
+        return EXIT_RUNTIME if failed else 0
     print(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}")
-    if not report["plans"]:
-        print("no plan reaches it (within 4 h, or the budget is shorter than one move)")
-        return 0
+    if failed:
+        return EXIT_RUNTIME
     print(
         f"{'positions':>34} {'window s':>9} {'plan s':>8} {'predicted deg':>14} "
         f"{'bound deg':>10}  note"
@@ -488,7 +498,7 @@ def run(args: argparse.Namespace) -> int:
         )
         report["plot"] = args.plot
     if args.json:
-        print(json.dumps(envelope("study", simulator_identity(spec.name), report), indent=2))
+        print(dumps(envelope("study", simulator_identity(spec.name), report)))
         return 0
     p = report["plan"]
     print(

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import time
 from dataclasses import replace
 from typing import Any
@@ -24,6 +23,7 @@ from northfinder.host.cli.common import (
     bounded_float,
     bounded_int,
     command_parser,
+    dumps,
     finite_float,
     seed_value,
     study_executor,
@@ -218,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": wall,
     }
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(dumps(report))
         return 0
     print(
         f"{len(studies)} studies of {args.runs} runs (seed {args.seed}), denoise {args.denoise}: "
