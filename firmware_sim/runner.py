@@ -383,7 +383,6 @@ class Runner:
                 due = self.firmware.next_output_s()
             self.step(min(self.MAX_WAIT_S, clock.wall_until(due)))
 
-
     #: Paced sender: how far ahead of its clock the loop computes output, wall seconds (replies to
     #: commands wait at most this long behind the queued output; protocol.md: 20 ms).
     LEAD_WALL_S = 0.01

@@ -81,7 +81,7 @@ def test_messages_leave_in_order_at_their_due_times_on_the_tick_grid():
 
 
 def test_the_queue_is_bounded_and_leads_the_clock_by_little():
-    runner, sender, wall, link = setup()
+    runner, sender, wall, _link = setup()
     run_for(runner, sender, wall, 0.6)
     runner.firmware.handle(StreamStart(1))
     runner.produce(sender)
@@ -111,7 +111,7 @@ def test_after_a_stall_the_sender_slips_and_does_not_burst():
 
 
 def test_a_short_delay_is_caught_up_without_a_slip():
-    runner, sender, wall, link = setup()
+    runner, sender, wall, _link = setup()
     run_for(runner, sender, wall, 0.6)
     runner.firmware.handle(StreamStart(1))
     run_for(runner, sender, wall, 0.3)
