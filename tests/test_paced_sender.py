@@ -150,8 +150,9 @@ def test_a_runner_with_its_sender_streams_at_its_pace_on_the_wall_clock():
     firmware = Firmware(load_spec("ideal"), Truth(), np.random.default_rng(1), warmup_s=0.0)
     firmware.process(0.6)
     firmware.handle(StreamStart(1))
-    runner = Runner(firmware, Link(), RealTimeClock(1.0))
-    runner.clock.slip(-0.6)
+    clock = RealTimeClock(1.0)
+    clock.slip(-0.6)  # the clock at the firmware's time
+    runner = Runner(firmware, Link(), clock)
     runner.paced_sender = True
     stop = threading.Event()
     t = threading.Thread(target=runner.run, args=(stop,))
