@@ -174,7 +174,14 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """``NORTHFINDER_REALTIME=separate`` leaves out the ``realtime`` tests (``.ci/run`` runs them in
-    a step of their own, ``-m realtime``); without it every test runs."""
+    a step of their own, ``-m realtime``); without it every test runs.
+
+    The suite runs on pytest-xdist's workers (``-n auto --dist loadgroup`` in pyproject.toml): the
+    ``realtime`` tests form one group, so they run one at a time on one worker while the others
+    share the rest (two of them on the wall clock at once would only load each other)."""
+    for item in items:
+        if item.get_closest_marker("realtime") is not None:
+            item.add_marker(pytest.mark.xdist_group("realtime"))
     if os.environ.get("NORTHFINDER_REALTIME") != "separate" or config.getoption("-m"):
         return
     keep = [item for item in items if item.get_closest_marker("realtime") is None]

@@ -246,7 +246,9 @@ def test_busy_refusal_surfaces_with_its_code(link, sim):
         dev.rotate_by(10.0)
     assert err.value.result == Result.BUSY and err.value.opcode == Opcode.ROTATE_BY
     assert "rotating" in err.value.meaning and "BUSY" in str(err.value)
-    dev.stop(wait=True, timeout=5.0)
+    # STOP waits for the table's settle time, whatever an earlier test of the module left there.
+    settle_s = dev.get_config("settle_time_ms") / 1000.0
+    dev.stop(wait=True, timeout=settle_s + 5.0)
     ctl.call("wrong_result", code=int(Result.BUSY))
     with pytest.raises(DeviceRefused) as err:
         dev.get_config("node_id")

@@ -8,7 +8,9 @@ recording is one power-on. The result is a sensor TOML file that ``--sensor FILE
 (``--output``; printed when not given), a report (printed, or ``--report FILE``) and a plot of
 the Allan deviation and the fitted terms (``--plot FILE``, needs matplotlib).
 
-Readable recordings: those of ``northfinder record`` and ``find --record`` (.csv, .npz).
+Readable recordings: those of ``northfinder record`` and ``find --record`` (.csv, .npz), and CAN
+logs in python-can's formats (``find/record --can-log``, ``sim --log``: .log, .asc, .blf, .db,
+.trc, .mf4), the windows rebuilt from the frame stream.
 """
 
 from __future__ import annotations
