@@ -59,6 +59,8 @@ from northfinder.driver.transport import CanTransport, Received, Transport
 
 PERIOD_S = 0.005
 TARGET_P99_S = 0.002
+#: Whether the simulator sends from its dedicated sender thread (``--paced-sender``).
+SENDER = False
 _U32 = 0xFFFFFFFF
 ROOT = Path(__file__).resolve().parents[1]
 #: Generous link timing so that a loaded machine shows up in the figures instead of aborting
@@ -180,6 +182,7 @@ def run_can(duration_s: float, window_s: float, seed: int) -> RunResult:
         )
         send_tap = SendTap(CanLink(sim_bus, firmware, 1))
         runner = Runner(firmware, send_tap, RealTimeClock(1.0))
+        runner.paced_sender = SENDER
         tap = Tap(CanTransport(can.Bus(interface="virtual", channel=channel), 1, own_bus=True))
         with BackgroundRunner(runner) as background, Device(tap, **DEVICE_OPTIONS) as device:
             device.wait_ready(timeout=10.0)
@@ -223,6 +226,7 @@ def run_serial(duration_s: float, window_s: float, seed: int) -> RunResult:
         [
             *(str(ROOT / ".venv/bin/northfinder"), "sim", "--pty", "--warmup", "0"),
             *("--seed", str(seed), "--azimuth", "123"),
+            *(["--paced-sender"] if SENDER else []),
         ],
         stdout=subprocess.PIPE,
         stderr=log,
@@ -421,7 +425,10 @@ def main() -> None:
         default=60.0,
         help="seconds of the timer loop without a link (0: skip)",
     )
+    ap.add_argument("--paced-sender", action="store_true", help="simulator's sender thread")
     args = ap.parse_args()
+    global SENDER
+    SENDER = args.paced_sender
     runners = {"can": run_can, "serial": run_serial}
     links = [s.strip() for s in args.links.split(",") if s.strip()]
     for link in links:

@@ -25,6 +25,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -230,6 +231,9 @@ class Runner:
         # Virtual time: the clock's time minus the firmware's, ns (grows while paused).
         self._offset_ns = 0
         self._paused_at: float | None = None
+        #: Paced mode only: send from a dedicated thread (:class:`PacedSender`) what this loop
+        #: computes ahead, so that no computation holds a message that is due.
+        self.paced_sender = False
 
     @property
     def virtual(self) -> bool:
@@ -369,12 +373,150 @@ class Runner:
             self._lag_since_log = 0.0
 
     def run(self, stop: threading.Event) -> None:
+        if self.paced_sender:
+            self._run_with_sender(stop)
+            return
         clock = self._paced()
         while not stop.is_set():
             # Sleep until the next message is due; a frame arriving ends the wait at once.
             with self.lock:
                 due = self.firmware.next_output_s()
             self.step(min(self.MAX_WAIT_S, clock.wall_until(due)))
+
+    #: Paced sender: how far ahead of its clock the loop computes output, wall seconds (replies to
+    #: commands wait at most this long behind the queued output; protocol.md: 20 ms).
+    LEAD_WALL_S = 0.01
+    #: Paced sender: most messages queued for the sender.
+    MAX_QUEUED = 256
+
+    def produce(self, sender: PacedSender) -> None:
+        """One round of the paced loop with a sender: advance the firmware to LEAD_WALL_S ahead
+        of the clock (bounded by the sender's queue) and hand the output to the sender."""
+        clock = self._paced()
+        with self.lock:
+            now = clock.now()
+            late = now - self.firmware.next_output_s()
+            if late > MAX_LAG_WALL_S * clock.speed and not clock.paused and not sender.queued:
+                self._slip(clock, late)  # the loop itself was held up: no backlog burst
+                now -= late
+            self.lag.behind_s = max(0.0, late)
+            target = now + self.LEAD_WALL_S * clock.speed
+            while sender.queued < self.MAX_QUEUED:
+                dt = min(target - self.firmware.now, self.MAX_STEP_S)
+                if round(dt * NS_PER_S) <= 0:
+                    break  # within a nanosecond of the target: the firmware's clock resolution
+                out = self.firmware.process(dt)
+                if out:
+                    sender.put(out)
+            self.firmware.prefetch()
+
+    def _run_with_sender(self, stop: threading.Event) -> None:
+        self._paced()
+        sender = PacedSender(self).start()
+        try:
+            while not stop.is_set() and sender.error is None:
+                self.produce(sender)
+                self.link.poll(min(self.MAX_WAIT_S, max(0.001, self.LEAD_WALL_S / 2)))
+        finally:
+            sender.stop()
+        if sender.error is not None:
+            raise sender.error
+
+
+class PacedSender:
+    """Sends a paced runner's output at its due times, on its own thread.
+
+    Items are (simulated due time, message) in time order, put by the runner's loop; the sender
+    sleeps to each item's due time on the runner's clock (deadlines from the device's tick grid,
+    not from the previous send), most of the gap in ``time.sleep`` and the last
+    :attr:`SPIN_S` in a spin, and only sends. An item more than :data:`MAX_LAG_WALL_S` late
+    (the process was stalled) slips the clock back to it (:meth:`Runner._slip`), so the stream
+    goes on at its pace instead of bursting. ``sleep``, ``monotonic`` and ``spin`` are injectable for tests.
+    """
+
+    SPIN_S = 0.0005
+
+    def __init__(
+        self,
+        runner: Runner,
+        *,
+        sleep: Callable[[float], None] = time.sleep,
+        monotonic: Callable[[], float] = time.monotonic,
+        spin: Callable[[], None] = lambda: None,
+    ) -> None:
+        self.runner = runner
+        self._spin = spin
+        self._sleep = sleep
+        self._monotonic = monotonic
+        self._items: deque[Outgoing] = deque()
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="simulator-sender", daemon=True)
+        self.error: BaseException | None = None
+
+    @property
+    def queued(self) -> int:
+        return len(self._items)
+
+    def put(self, outgoing: list[Outgoing]) -> None:
+        with self._cond:
+            self._items.extend(outgoing)
+            self._cond.notify()
+
+    def start(self) -> PacedSender:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        with self._cond:
+            self._cond.notify()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5.0)
+        self._items.clear()
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                self.send_next()
+        except BaseException as exc:  # reported to the runner's loop, which raises it
+            self.error = exc
+
+    def send_next(self, idle: float = 0.05) -> bool:
+        """Wait for the next item's due time and send it and all others due with it."""
+        with self._cond:
+            if not self._items:
+                self._cond.wait(idle)
+                if not self._items:
+                    return False
+            first = self._items[0].time_s
+        clock = self.runner._paced()
+        while not self._stop.is_set():
+            if clock.paused:
+                self._sleep(0.005)
+                continue
+            wait = clock.wall_until(first)
+            if wait <= 0:
+                break
+            if wait > self.SPIN_S:
+                self._sleep(wait - self.SPIN_S)
+            else:
+                self._spin()  # the last moments: re-read the clock until due
+        if self._stop.is_set():
+            return False
+        late = clock.now() - first
+        if late > MAX_LAG_WALL_S * clock.speed:
+            with self.runner.lock:
+                self.runner._slip(clock, late)
+        now = clock.now()
+        with self._cond:
+            due = []
+            while self._items and self._items[0].time_s <= now:
+                due.append(self._items.popleft())
+        if due:
+            self.runner.sent += len(due)
+            self.runner.link.send(due)
+        return bool(due)
 
 
 class BackgroundRunner:

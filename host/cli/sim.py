@@ -87,6 +87,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="simulated seconds per wall second, up to 10000 (default 1)",
     )
     p.add_argument(
+        "--paced-sender",
+        action="store_true",
+        help="send from a dedicated thread what the simulator computes ahead (see protocol.md 12)",
+    )
+    p.add_argument(
         "--control",
         type=control_address,
         metavar="ADDRESS",
@@ -156,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
         closers.append(bus.shutdown)
         link = CanLink(bus, firmware, args.node_id, tap=frame_log)
     runner = Runner(firmware, link, RealTimeClock(args.speed))
+    runner.paced_sender = args.paced_sender
     server = None
     if args.control:
         server = ControlServer(Controller(runner), args.control).start()
