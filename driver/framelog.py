@@ -8,7 +8,11 @@ transports (``Device.from_bus(bus, tap=log)``, ``Device.open_serial(port, tap=lo
 simulator's links take as ``tap``. It may be called from several threads at once.
 
 Frames keep their own timestamp when they have one (a bus's receive time); frames without one
-(``timestamp == 0``, as a sender builds them) are stamped with the wall clock when logged. A
+(``timestamp == 0``, as a sender builds them) are stamped with the wall clock when logged. A log
+of a run in virtual time (:meth:`FrameLog.use_clock`, as ``find --sim --can-log`` and
+``SimulatedInstrument(log=...)`` do) stamps every frame with the virtual clock instead, counted
+from the wall-clock time at which the clock was attached, so that the log's times are the
+instrument's (a 10 s window spans 10 s of the log, however fast the CPU ran it). A
 frame the host or device sent is logged with ``is_rx=False`` (``Tx`` in ASC and BLF). Every
 frame is logged on one channel: ``channel`` (default ``can0`` for candump, whose lines name an
 interface; the writer's own default, channel 1, for the formats that number channels).
@@ -115,15 +119,28 @@ class FrameLog:
         except (OSError, ValueError, ImportError) as exc:
             raise LinkError(f"cannot write the CAN log {self.path}: {exc}") from exc
         self._lock = threading.Lock()
+        self._clock: Any = None
+        self._epoch = 0.0
         self._closed = False
         self.frames = 0
         self.lost = 0
         self.error: Exception | None = None
 
+    def use_clock(self, clock: Any) -> None:
+        """Stamp every frame from now on with ``clock.now()`` (a virtual clock), offset so that
+        the clock's present reads as the wall-clock time of this call."""
+        self._epoch = time.time() - clock.now()
+        self._clock = clock
+
     def __call__(self, msg: can.Message) -> None:
         """Log one frame (thread-safe; after :meth:`close` frames are counted as lost)."""
+        clock = self._clock
+        if clock is not None:
+            stamp = self._epoch + clock.now()
+        else:
+            stamp = msg.timestamp or time.time()
         msg = can.Message(
-            timestamp=msg.timestamp or time.time(),
+            timestamp=stamp,
             arbitration_id=msg.arbitration_id,
             is_extended_id=msg.is_extended_id,
             is_remote_frame=msg.is_remote_frame,

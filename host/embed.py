@@ -241,6 +241,8 @@ class SimulatedInstrument:
             wire: Link
             if self._log_path is not None:
                 self.log = stack.enter_context(FrameLog(self._log_path))
+                if self.virtual:
+                    self.log.use_clock(self.clock)
             tap = self.log
             if self.link == "virtual":
                 self.channel = f"northfinder-sim-{uuid.uuid4().hex}"

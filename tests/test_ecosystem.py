@@ -93,6 +93,23 @@ def test_a_logged_find_solves_again_to_the_same_heading(logged_runs, suffix, val
     assert solved["source"]["format"] == "can-log"
 
 
+@pytest.mark.parametrize("suffix", [".log", ".blf"])
+def test_a_virtual_time_log_carries_the_instruments_time(logged_runs, suffix):
+    """In virtual time the frames are stamped by the shared clock: the samples of a window are
+    5 ms apart in the log, whatever the CPU's speed (the wall clock would crowd them)."""
+    import can
+
+    path, _ = logged_runs[suffix]
+    with can.LogReader(str(path)) as reader:
+        stamps = [m.timestamp for m in reader]
+    # Every frame of a tick is logged at the tick's instant: distinct instants are the ticks.
+    ticks = np.unique(np.round(np.asarray(stamps), 6))
+    steps = np.diff(ticks)
+    assert np.median(steps) == pytest.approx(0.005, abs=1e-6)
+    # The log spans the run's device time: warm-up, two 2 s windows and the move between.
+    assert stamps[-1] - stamps[0] > 4.0
+
+
 def test_a_log_without_window_takes_every_sample_at_the_position(logged_runs):
     path, _ = logged_runs[".blf"]
     session = read_can_log(path)

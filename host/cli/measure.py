@@ -250,6 +250,8 @@ def embedded_simulator(
         node_id=args.node_id,
     )
     options = {**(RELAXED_DEVICE_OPTIONS if paced else {}), **device_options(args)}
+    if tap is not None and not paced:
+        tap.use_clock(sim.clock)  # the log's times are the instrument's, not the CPU's
     with sim, sim.open_device(tap=tap, **options) as device:
         yield device, sim.describe()
 
