@@ -176,9 +176,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """``NORTHFINDER_REALTIME=separate`` leaves out the ``realtime`` tests (``.ci/run`` runs them in
     a step of their own, ``-m realtime``); without it every test runs.
 
-    The suite runs on pytest-xdist's workers (``-n auto --dist loadgroup`` in pyproject.toml): the
-    ``realtime`` tests form one group, so they run one at a time on one worker while the others
-    share the rest (two of them on the wall clock at once would only load each other)."""
+    On pytest-xdist's workers (``-n auto --dist loadgroup``) the ``realtime`` tests form one
+    group, so they run one at a time on one worker while the others share the rest."""
     for item in items:
         if item.get_closest_marker("realtime") is not None:
             item.add_marker(pytest.mark.xdist_group("realtime"))
