@@ -215,7 +215,33 @@ class Recording:
                 f"{p}: recording version {meta.get('version')!r}; this reader knows {VERSION}"
             )
         check_meta(meta, p)
-        return Recording(_split(arrays, p, min_windows), meta)
+        windows = _split(arrays, p, min_windows)
+        check_rate(windows, float(meta["sample_rate_hz"]), p)
+        return Recording(windows, meta)
+
+
+def check_rate(windows: tuple[RecordedWindow, ...], rate_hz: float, p: Path | str) -> None:
+    """Refuse a recording whose device time disagrees with its stated ``sample_rate_hz``: the
+    solvers and the noise model read the rate, so a wrong one gives a wrong sigma.
+
+    The median step of ``time_s`` between samples whose counters follow each other must be one
+    period within 1 %.
+
+    Raises
+    ------
+    RecordingError
+    """
+    steps = [np.diff(w.time_s)[np.diff(w.counter) == 1] for w in windows if len(w.counter) > 1]
+    dt = np.concatenate(steps) if steps else np.empty(0)
+    if len(dt) < 2:
+        return
+    step = float(np.median(dt))
+    if not abs(step * rate_hz - 1.0) <= 0.01:
+        seen = f"{1.0 / step:.6g} Hz" if step > 0 else "no time at all"
+        raise RecordingError(
+            f"{p}: sample_rate_hz = {rate_hz:g}, but time_s advances {step * 1000:.6g} ms from one "
+            f"sample counter to the next ({seen}); the rate and the samples disagree"
+        )
 
 
 #: Highest sample rate a recording may state, Hz.

@@ -167,3 +167,19 @@ def test_bad_recordings_name_what_is_wrong(tmp_path):
         Recording.load(junk)
     with pytest.raises(RecordingError, match="cannot read"):
         Recording.load(tmp_path / "missing.csv")
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_stated_rate_the_samples_contradict_is_refused(tmp_path, suffix):
+    rec = simulated_recording()
+    fs = rec.meta["sample_rate_hz"]
+    good = tmp_path / f"good{suffix}"
+    rec.save(good)
+    assert Recording.load(good).meta["sample_rate_hz"] == fs
+    wrong = Recording(rec.windows, {**rec.meta, "sample_rate_hz": fs / 2})
+    path = tmp_path / f"wrong{suffix}"
+    wrong.save(path)
+    with pytest.raises(
+        RecordingError, match=rf"sample_rate_hz = {fs / 2:g}, but time_s advances 5 ms"
+    ):
+        Recording.load(path)

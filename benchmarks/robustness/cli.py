@@ -302,8 +302,8 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         (["--seed", "-1"], 2, "--seed"),
         (["--bias-step", "1e300"], 2, "--bias-step"),
         (["--plan-budget", "1e300"], 2, "--plan-budget"),
-        (["--plan-budget", "0.001"], 0, ""),  # an answer: no plan fits
-        (["--plan-target", "1e-9", "--runs", "0"], 0, ""),
+        (["--plan-budget", "0.001"], 1, "no plan"),  # the search ran and found none
+        (["--plan-target", "1e-9", "--runs", "0"], 1, "no plan"),
         (["--top", "0"], 2, "--top"),
         (["--top", "100000000"], 2, "--top"),
         (["--sweep", "0,-1", "--plot", os.path.join(tmp, "s.png")], 2, "--sweep"),
