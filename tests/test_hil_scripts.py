@@ -191,3 +191,42 @@ def test_summary_verdict_and_headline_figures(tmp_path, status, rcs, exit_status
         assert summary["sample_arrival_jitter_ms"] == {"p50": 0.5, "p99": 18.0}
         assert summary["conformance_counted"]["passed"] == 33
         assert "reported, not counted: timing.reply" in run.stdout
+
+
+@pytest.mark.skipif(
+    subprocess.run(["sh", "-c", "command -v ip"], capture_output=True).returncode != 0,
+    reason="no ip(8) to show the loopback interface the guest script is pointed at",
+)
+@pytest.mark.parametrize(
+    ("fails", "retry", "status", "rows"),
+    [
+        (1, "rehearsal", "pass", ["a 0", "rehearsal.attempt1 1", "rehearsal 0"]),
+        (2, "rehearsal", "fail steps: rehearsal", ["a 0", "rehearsal.attempt1 1", "rehearsal 1"]),
+        (1, "", "fail steps: rehearsal", ["a 0", "rehearsal 1"]),
+    ],
+)
+def test_guest_runs_a_failed_rehearsal_once_more_and_keeps_both(
+    tmp_path, fails, retry, status, rows
+):
+    """guest.sh: a failed step of HIL_RETRY_STEPS runs once more; the first attempt stays."""
+    steps = tmp_path / "d" / "steps"
+    steps.mkdir(parents=True)
+    (steps / "a").write_text("#!/bin/sh\necho a\n")
+    count = tmp_path / "count"
+    (steps / "rehearsal").write_text(
+        f"#!/bin/sh\nn=$(cat {count} 2>/dev/null || echo 0); echo $((n + 1)) > {count}\n"
+        f"[ $n -ge {fails} ]\n"
+    )
+    for exe in steps.iterdir():
+        exe.chmod(0o755)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "config.env").write_text(
+        f"HIL_D={tmp_path / 'd'}\nHIL_REPO={ROOT}\nHIL_PYTHON={sys.executable}\nHIL_CAN_IF=lo\n"
+        f'HIL_MODE=direct\nHIL_STEPS="a rehearsal"\nHIL_STEP_TIMEOUT=20\nHIL_RETRY_STEPS="{retry}"\n'
+    )
+    subprocess.run(["bash", str(ROOT / "scripts/hil.d/guest.sh"), str(out)], timeout=60)
+    assert (out / "status").read_text().strip() == status
+    tsv = [line.split("\t")[:2] for line in (out / "steps.tsv").read_text().splitlines()]
+    assert [" ".join(r) for r in tsv] == rows
+    assert (out / "steps" / "rehearsal.attempt1" / "rc").exists() == ("attempt1" in rows[1])

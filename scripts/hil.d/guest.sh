@@ -67,7 +67,15 @@ fi
 mkdir -p "$OUT/steps"
 : >"$OUT/steps.tsv"
 failed=()
-for step in $HIL_STEPS; do
+# A step named in HIL_RETRY_STEPS (default: rehearsal) that fails (not a timeout) runs once more:
+# on a shared host the guest's one CPU can be starved (hypervisor steal of 30-45 % was seen) until
+# its 200 Hz stream collapses. The failed attempt stays in steps/<name>.attempt1, with its own
+# line and log in the summary; the verdict is the second attempt's.
+HIL_RETRY_STEPS=${HIL_RETRY_STEPS-rehearsal}
+queue=($HIL_STEPS)
+retried=" "
+while ((${#queue[@]})); do
+    step=${queue[0]}; queue=("${queue[@]:1}")
     exe=$HIL_D/steps/$step
     dir=$OUT/steps/$step
     mkdir -p "$dir"
@@ -85,6 +93,14 @@ for step in $HIL_STEPS; do
         tail -n 5 "$dir/log"
     fi
     echo "$rc" >"$dir/rc"; echo "$secs" >"$dir/seconds"
+    if ((rc != 0 && rc != 124)) && [[ " $HIL_RETRY_STEPS " == *" $step "* && $retried != *" $step "* ]]; then
+        retried+="$step "
+        rm -rf -- "$dir.attempt1"; mv -- "$dir" "$dir.attempt1"
+        printf '%s\t%s\t%s\n' "$step.attempt1" "$rc" "$secs" >>"$OUT/steps.tsv"
+        echo "guest: step $step rc=$rc ${secs}s: failed; running it once more (HIL_RETRY_STEPS)"
+        queue=("$step" "${queue[@]}")
+        continue
+    fi
     printf '%s\t%s\t%s\n' "$step" "$rc" "$secs" >>"$OUT/steps.tsv"
     echo "guest: step $step rc=$rc ${secs}s"
     ((rc == 0)) || failed+=("$step")
