@@ -135,6 +135,9 @@ class CanLogSession:
     notes: tuple[str, ...] = ()
     frames: int = 0
     start_time: float | None = field(default=None, repr=False)
+    #: The notes that say samples are missing (a gap, a window the log ends early, a log cut
+    #: short): the data cannot vouch for a heading solved from it.
+    incomplete: tuple[str, ...] = ()
 
     def recording(self, **meta: Any) -> Recording:
         """The windows as a :class:`~northfinder.host.recording.Recording` (with ``meta``)."""
@@ -303,7 +306,8 @@ def read_can_log(
                     current = _Segment(commanded, requested(), msg.timestamp)
                     segments.append(current)
     chosen = segments if saw_stream_start else free_segments
-    notes: list[str] = list(cut)
+    incomplete: list[str] = list(cut)
+    notes: list[str] = []
     if receiver.malformed:
         notes.append(
             f"{receiver.malformed} frame(s) of node {node} did not decode "
@@ -317,18 +321,18 @@ def read_can_log(
         rec = RecordedWindow.from_window(w, seg.commanded_deg)
         i = len(windows) + 1
         for first, count in w.gaps:
-            notes.append(
+            incomplete.append(
                 f"window {i} ({seg.commanded_deg:g} deg): {count} tick(s) missing from counter {first}"
             )
         if window_s is not None and not seg.collector.done:
-            notes.append(
+            incomplete.append(
                 f"window {i} ({seg.commanded_deg:g} deg): the log ends the window after "
                 f"{seg.collector.received + seg.collector.missing} of {seg.requested} ticks"
             )
         if seg is current and not seg.stopped and not seg.collector.done:
             # The host stops every stream it starts: a last window without its STREAM_STOP
             # is a log cut inside the window, whose samples fall short of what was measured.
-            notes.append(
+            incomplete.append(
                 f"window {i} ({seg.commanded_deg:g} deg): the log ends inside the window after "
                 f"{seg.collector.received + seg.collector.missing} ticks, before its STREAM_STOP: "
                 "the log is cut short"
@@ -340,5 +344,6 @@ def read_can_log(
             "(a window is the samples streamed at one position)"
         )
     return CanLogSession(
-        str(p), node, rate, tuple(windows), identity, tuple(commands), tuple(notes), frames, t0
-    )
+        str(p), node, rate, tuple(windows), identity, tuple(commands),
+        tuple(incomplete + notes), frames, t0, incomplete=tuple(incomplete),
+    )  # fmt: skip

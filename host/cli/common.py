@@ -293,12 +293,10 @@ def open_can_bus(args: argparse.Namespace) -> Any:
         # python-can wraps every failure in an argparse.ArgumentError: its cause says which
         # it is, a bus that cannot be opened now (1) or options it refuses (2).
         cause = exc.__cause__ if isinstance(exc, argparse.ArgumentError) and exc.__cause__ else exc
-        text = f"cannot open the CAN bus: {cause}"
-        if isinstance(cause, can.CanInterfaceNotImplementedError | ValueError | TypeError):
-            raise HostConfigError(text) from exc
-        if isinstance(cause, can.CanError | OSError):
-            raise LinkError(text) from exc
-        raise HostConfigError(text) from exc
+        now = isinstance(cause, can.CanError | OSError) and not isinstance(
+            cause, can.CanInterfaceNotImplementedError
+        )
+        raise (LinkError if now else HostConfigError)(f"cannot open the CAN bus: {cause}") from exc
 
 
 def open_serial_port(path: str, baud: int) -> Any:
@@ -417,8 +415,6 @@ def check_plot_path(path: str, option: str = "--plot") -> str:
     """Refuse, before any work, a plot file that cannot be written: as
     :func:`check_output_path`, matplotlib not installed, or a name whose ending is no format
     matplotlib writes (the message lists those it does)."""
-    import os
-
     check_output_path(path, option)
     try:
         from matplotlib.backend_bases import FigureCanvasBase

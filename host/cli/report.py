@@ -60,14 +60,6 @@ def as_json(
     return dumps(envelope(command, device, body))
 
 
-def require_matplotlib() -> None:
-    """Refuse ``--plot`` before any work when matplotlib is not installed."""
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError as exc:
-        raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
-
-
 def _title(result: FindResult, truth: dict[str, Any] | None) -> str:
     sigma = "" if result.sigma_deg is None else f" ± {result.sigma_deg:.4f}"
     head = f"azimuth {result.azimuth_deg:.4f}{sigma} deg (1σ)"

@@ -101,12 +101,8 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
             "frames": session.frames, "sample_rate_hz": session.sample_rate_hz,
             "window_s": args.window, "notes": list(session.notes),
         }  # fmt: skip
-        gaps = [
-            n for n in session.notes
-            if "missing" in n or "ends the window" in n or "cut short" in n
-        ]  # fmt: skip
-        if gaps:
-            raise QualityError(f"{path}: " + "; ".join(gaps))
+        if session.incomplete:
+            raise QualityError(f"{path}: " + "; ".join(session.incomplete))
         return session.recording(), source
     if args.window is not None or args.node_id is not None:
         raise HostConfigError("--window and --node-id apply to CAN logs only")
