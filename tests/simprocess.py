@@ -36,7 +36,8 @@ def sim_process(
     check_exit: bool = True,
 ) -> Iterator[dict[str, str]]:
     """Start ``northfinder sim ARGS`` and yield the ``key value`` facts it prints on stdout (once
-    every name in ``wanted`` was seen); on leaving stop it with SIGTERM.
+    every name in ``wanted`` was seen); on leaving stop it with SIGTERM (then ``facts["stderr"]``
+    holds its log).
 
     Parameters
     ----------
@@ -62,8 +63,8 @@ def sim_process(
     ]
     for r in readers:
         r.start()
+    facts: dict[str, str] = {}
     try:
-        facts: dict[str, str] = {}
         deadline = time.monotonic() + timeout
         while not set(wanted) <= set(facts):
             try:
@@ -87,6 +88,7 @@ def sim_process(
                 proc.wait(5)
         for r in readers:
             r.join(5)
+        facts["stderr"] = "".join(errors)  # its log, for a test to read after the block
         proc.stdout.close()
         proc.stderr.close()
     if check_exit:

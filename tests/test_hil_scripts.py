@@ -175,6 +175,7 @@ def make_out(tmp_path: Path, status: str | None, rcs: dict[str, int]) -> Path:
         ("fail steps: rehearsal", {"probe": 0, "rehearsal": 1}, 1, "FAIL"),
         ("fail setup: insmod", {}, 2, "ERROR"),
         (None, {}, 2, "ERROR"),
+        ("not judged: rehearsal", {"probe": 0, "rehearsal": 3}, 3, "NOT JUDGED"),
     ],
 )
 def test_summary_verdict_and_headline_figures(tmp_path, status, rcs, exit_status, verdict):
@@ -230,3 +231,121 @@ def test_guest_runs_a_failed_rehearsal_once_more_and_keeps_both(
     tsv = [line.split("\t")[:2] for line in (out / "steps.tsv").read_text().splitlines()]
     assert [" ".join(r) for r in tsv] == rows
     assert (out / "steps" / "rehearsal.attempt1" / "rc").exists() == ("attempt1" in rows[1])
+
+
+@pytest.mark.skipif(
+    subprocess.run(["sh", "-c", "command -v ip"], capture_output=True).returncode != 0,
+    reason="no ip(8) to show the loopback interface the guest script is pointed at",
+)
+@pytest.mark.parametrize(
+    ("codes", "status", "rows"),
+    [
+        ("3 3", "not judged: rehearsal", ["rehearsal.attempt1 3", "rehearsal 3"]),
+        ("3 0", "pass", ["rehearsal.attempt1 3", "rehearsal 0"]),
+        ("3 1", "fail steps: rehearsal", ["rehearsal.attempt1 3", "rehearsal 1"]),
+    ],
+)
+def test_guest_tells_a_step_not_judged_from_one_failed(tmp_path, codes, status, rows):
+    """guest.sh: a step's exit 3 (not judged) is retried like a failure; if the last attempt is
+    not judged either, the run's status says so (exit 3), and a failure elsewhere still fails."""
+    steps = tmp_path / "d" / "steps"
+    steps.mkdir(parents=True)
+    count = tmp_path / "count"
+    first, second = codes.split()
+    (steps / "rehearsal").write_text(
+        f"#!/bin/sh\nn=$(cat {count} 2>/dev/null || echo 0); echo $((n + 1)) > {count}\n"
+        f'if [ "$n" = 0 ]; then exit {first}; else exit {second}; fi\n'
+    )
+    (steps / "rehearsal").chmod(0o755)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "config.env").write_text(
+        f"HIL_D={tmp_path / 'd'}\nHIL_REPO={ROOT}\nHIL_PYTHON={sys.executable}\nHIL_CAN_IF=lo\n"
+        'HIL_MODE=direct\nHIL_STEPS="rehearsal"\nHIL_STEP_TIMEOUT=20\n'
+    )
+    run = subprocess.run(["bash", str(ROOT / "scripts/hil.d/guest.sh"), str(out)], timeout=60)
+    assert (out / "status").read_text().strip() == status
+    assert run.returncode == {"pass": 0, "not judged: rehearsal": 3}.get(status, 1)
+    tsv = [line.split("\t")[:2] for line in (out / "steps.tsv").read_text().splitlines()]
+    assert [" ".join(r) for r in tsv] == rows
+
+
+STARVED_SIM_LOG = (
+    "2026-12-02 14:30:43,439 northfinder.sim.runner t=3.621 s: the simulator fell behind its "
+    "clock by 2.052 s (2.052 s wall at speed 1) and continues at its pace from here; 2.052 s of "
+    "simulated time lost in 1 slip(s) so far\n"
+    "2026-12-02 14:33:31,306 northfinder.sim stopped at t=171.215 s; fell behind its clock 41 "
+    "time(s), 37.250 s of simulated time lost\n"
+)
+
+
+def starved_result(clock_us: float) -> dict:
+    return {
+        "machine_cpu_busy_percent": 99.4,
+        "machine_stalls": {
+            "stall_ms_total": 0.0,
+            "clock_call_us": {"p50": clock_us, "p90": clock_us, "samples": [clock_us] * 40},
+        },
+    }
+
+
+def test_the_simulators_lag_is_read_from_its_last_words_or_its_latest_report(tmp_path):
+    log = tmp_path / "sim.log"
+    log.write_text(STARVED_SIM_LOG)
+    assert rehearsal.sim_lag(log) == (41, 37.25)
+    log.write_text(STARVED_SIM_LOG.splitlines()[0] + "\n")  # killed before its last words
+    assert rehearsal.sim_lag(log) == (1, 2.052)
+    log.write_text("x stopped at t=1.000 s\n")
+    assert rehearsal.sim_lag(log) == (0, 0.0)
+    assert rehearsal.sim_lag(tmp_path / "absent.log") is None
+
+
+def test_a_rehearsal_on_a_starved_vm_is_not_judged_and_says_why(tmp_path, monkeypatch):
+    monkeypatch.delenv("HIL_OUT", raising=False)
+    log = tmp_path / "sim.log"
+    log.write_text(STARVED_SIM_LOG)
+    result = starved_result(111.0)
+    assert rehearsal.judge(result, [], ["find exited 1: no sample for 3.11 s"], log, "uml") == 3
+    why = result["not_judged_because"]
+    assert result["verdict"] == "not judged"
+    assert "41 times, 37.2 s lost" in why and "99.4 % busy" in why and "111" in why
+
+
+@pytest.mark.parametrize(
+    ("hard", "clock_us", "sim_log", "why"),
+    [
+        # A wrong heading (or any failure the machine cannot excuse) fails, starved or not.
+        (["azimuth error +2.0 deg exceeds 5 sigma"], 111.0, STARVED_SIM_LOG, None),
+        # The instrument lost real time on a VM that measured fast: the product's fault.
+        ([], 47.0, STARVED_SIM_LOG, "no slower"),
+        # A slow VM on which the instrument kept its time: the failure is the product's.
+        ([], 111.0, "x stopped at t=171.215 s; fell behind its clock 2 time(s), 0.2 s of "
+         "simulated time lost\n", "kept real time"),
+    ],
+)  # fmt: skip
+def test_a_failure_is_excused_only_by_both_a_starved_instrument_and_a_slow_vm(
+    tmp_path, monkeypatch, hard, clock_us, sim_log, why
+):
+    monkeypatch.delenv("HIL_OUT", raising=False)
+    log = tmp_path / "sim.log"
+    log.write_text(sim_log)
+    result = starved_result(clock_us)
+    if not hard and why == "kept real time":
+        result["machine_cpu_busy_percent"] = 80.0
+    assert rehearsal.judge(result, hard, ["conformance: ['link.integrity']"], log, "uml") == 1
+    assert result["verdict"] == "fail" and "not_judged_because" not in result
+    if why:
+        assert why in result["why_judged"]
+
+
+def test_the_probes_figures_alone_show_a_slow_vm(tmp_path, monkeypatch):
+    (tmp_path / "steps" / "probe").mkdir(parents=True)
+    (tmp_path / "steps" / "probe" / "result.json").write_text(
+        json.dumps({"monotonic_call_us": 62.0, "socketcan_send_ms": 0.59})
+    )
+    monkeypatch.setenv("HIL_OUT", str(tmp_path))
+    log = tmp_path / "sim.log"
+    log.write_text(STARVED_SIM_LOG)
+    result = starved_result(50.0)
+    assert rehearsal.judge(result, [], ["conformance: ['link.integrity']"], log, "uml") == 3
+    assert "SocketCAN send at 0.59 ms" in result["not_judged_because"]

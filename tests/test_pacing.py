@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import signal
 import time
 
@@ -140,6 +141,13 @@ def test_a_starved_sim_process_reports_its_lag_and_streams_at_its_pace_after():
             lag = ctl.call("status")["lag"]
     assert lag["slips"] >= before["slips"] + 1
     assert lag["slipped_s"] - before["slipped_s"] >= 0.8 * speed  # about the second it lost
+    # Its last words on stopping give the totals (scripts/hil.d/rehearsal.py reads them).
+    last = re.search(
+        r"stopped at t=[0-9.]+ s; fell behind its clock (\d+) time\(s\), ([0-9.]+) s of "
+        r"simulated time lost", facts["stderr"],
+    )  # fmt: skip
+    assert last, facts["stderr"][-500:]
+    assert int(last[1]) >= lag["slips"] and float(last[2]) >= lag["slipped_s"] - 1e-3
     t = np.array(arrivals)
     assert len(t) > 0
     # No burst after the stall: in any 0.25 s at most the pace plus scheduling slack (a backlog of

@@ -188,5 +188,11 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for close in reversed(closers):
             close()
-        logging.getLogger("northfinder.sim").info("stopped at t=%.3f s", firmware.now)
+        lag = runner.lag
+        logging.getLogger("northfinder.sim").info(
+            "stopped at t=%.3f s; fell behind its clock %d time(s), %.3f s of simulated time lost",
+            firmware.now,
+            lag.slips,
+            lag.slipped_s,
+        )
     return 0

@@ -6,8 +6,10 @@
 # Usage: guest.sh <out-dir>      Reads <out-dir>/config.env written by scripts/hil.
 # Writes: <out-dir>/guest-started, <out-dir>/guest.log (this script's own log),
 #         <out-dir>/steps/<name>/{log,rc,seconds,result.json}, <out-dir>/steps.tsv,
-#         and last <out-dir>/status ("pass" or "fail <reason>").
-# Exit status: 0 all steps passed, 1 a step failed, 2 setup failed.
+#         and last <out-dir>/status ("pass", "not judged: <steps>" or "fail <reason>").
+# Exit status: 0 all steps passed, 1 a step failed, 2 setup failed, 3 no step failed but one or
+# more were not judged (a step's exit 3: the machine could not carry what it measures, e.g. a
+# starved VM under a real-time rehearsal; the step's log says why).
 set -uo pipefail
 
 OUT=${1:?usage: guest.sh <out-dir>}
@@ -67,6 +69,7 @@ fi
 mkdir -p "$OUT/steps"
 : >"$OUT/steps.tsv"
 failed=()
+not_judged=()
 # A step named in HIL_RETRY_STEPS (default: rehearsal) that fails (not a timeout) runs once more:
 # on a shared host the guest's one CPU can be starved (hypervisor steal of 30-45 % was seen) until
 # its 200 Hz stream collapses. The failed attempt stays in steps/<name>.attempt1, with its own
@@ -103,10 +106,17 @@ while ((${#queue[@]})); do
     fi
     printf '%s\t%s\t%s\n' "$step" "$rc" "$secs" >>"$OUT/steps.tsv"
     echo "guest: step $step rc=$rc ${secs}s"
-    ((rc == 0)) || failed+=("$step")
+    if ((rc == 3)); then
+        not_judged+=("$step")
+    elif ((rc != 0)); then
+        failed+=("$step")
+    fi
 done
 
 if ((${#failed[@]})); then
     finish "fail steps: ${failed[*]}" 1
+fi
+if ((${#not_judged[@]})); then
+    finish "not judged: ${not_judged[*]}" 3
 fi
 finish pass 0

@@ -5,9 +5,12 @@ seconds after it was due. Run at the highest real-time priority, nothing inside 
 delays it, so what it records is the machine itself not running: in a VM, the host not
 scheduling the VM or the VM's kernel blocked on the host. Until SIGTERM or SIGINT, then one JSON
 line on stdout: ``{"wakeups", "stalls", "stall_ms_max", "stalls_ms": [[t_s, ms], ...]}`` with t_s
-seconds since the start.
+seconds since the start, and ``clock_call_us``: the cost of one ``time.monotonic()`` call,
+timed over 100 calls every ``--cost-every`` seconds (``p50``, ``p90``, ``max`` and the list): a
+system call under user-mode Linux, so what the host's load makes every system call of the guest
+cost, measured at a priority nothing in the guest can delay.
 
-    python stallmon.py [--period 0.01] [--threshold 0.02]
+    python stallmon.py [--period 0.01] [--threshold 0.02] [--cost-every 1.0]
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--period", type=float, default=0.01)
     p.add_argument("--threshold", type=float, default=0.02)
+    p.add_argument("--cost-every", type=float, default=1.0)
     args = p.parse_args(argv)
     stop = False
 
@@ -36,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = due = clock()
     wakeups = 0
     stalls: list[list[float]] = []
+    costs: list[float] = []
+    next_cost = t0
     while not stop:
         due += args.period
         now = clock()
@@ -47,6 +53,17 @@ def main(argv: list[str] | None = None) -> int:
         if late > args.threshold:
             stalls.append([round(due - t0, 3), round(late * 1e3, 1)])
             due = now  # one stall is one record, not a train of late wake-ups
+        if now >= next_cost:
+            t = time.perf_counter()
+            for _ in range(100):
+                clock()
+            costs.append(round((time.perf_counter() - t) * 1e4, 2))  # us per call
+            next_cost = now + args.cost_every
+    ranked = sorted(costs)
+
+    def pick(q: float) -> float | None:
+        return ranked[min(len(ranked) - 1, int(q * len(ranked)))] if ranked else None
+
     print(
         json.dumps(
             {
@@ -54,6 +71,9 @@ def main(argv: list[str] | None = None) -> int:
                 "stalls": len(stalls),
                 "stall_ms_max": max((s[1] for s in stalls), default=0.0),
                 "stalls_ms": stalls,
+                "clock_call_us": {
+                    "p50": pick(0.5), "p90": pick(0.9), "max": pick(1.0), "samples": costs,
+                },
             }
         ),
         flush=True,

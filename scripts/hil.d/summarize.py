@@ -4,7 +4,8 @@
 
 Standard library only (runs with the host's python3). Exit status: 0 when the guest wrote
 status "pass" and every step's rc is 0; 1 when a step failed; 2 when the run never produced
-a status (setup failure, VM did not boot, whole-run timeout).
+a status (setup failure, VM did not boot, whole-run timeout); 3 when no step failed but one or
+more were not judged (status "not judged: ...", each such step's rc 3, its reasons printed).
 """
 
 from __future__ import annotations
@@ -82,6 +83,8 @@ def main(out: str) -> int:
         verdict, rc = "ERROR (no status from the guest: see vm.log / guest.log)", 2
     elif status == "pass" and all(s["rc"] == 0 for s in summary["steps"]):
         verdict, rc = "PASS", 0
+    elif status.startswith("not judged") and all(s["rc"] in (0, 3) for s in summary["steps"]):
+        verdict, rc = f"NOT JUDGED ({status[len('not judged: '):]}: the machine could not carry it)", 3
     elif status.startswith("fail setup") or status.startswith("fail no"):
         verdict, rc = f"ERROR ({status})", 2
     else:
@@ -142,7 +145,15 @@ def main(out: str) -> int:
                     line += f" (failed: {', '.join(c['failed'])})"
             if r.get("machine_cpu_busy_percent") is not None:
                 line += f"; guest CPU {r['machine_cpu_busy_percent']} % busy"
+            clock = (r.get("machine_stalls") or {}).get("clock_call_us") if isinstance(
+                r.get("machine_stalls"), dict) else None
+            if clock and clock.get("p50") is not None:
+                line += f"; clock read {clock['p50']} us (p90 {clock['p90']})"
         print(line)
+        if r.get("not_judged_because"):
+            print(f"hil:   NOT JUDGED: {r['not_judged_because']}")
+        elif r.get("why_judged"):
+            print(f"hil:   {r['why_judged']}")
         if s["rc"] != 0:
             # A failed or timed-out step: its last words, so a CI log says what happened.
             tail = (read(os.path.join(out, "steps", s["name"], "log")) or "").splitlines()[-25:]
