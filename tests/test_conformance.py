@@ -416,3 +416,27 @@ def test_refusal_tables_cover_the_protocol():
     )
     assert {c.name for c in CHECKS} >= {spec.name for spec in refusals.AT_REST}
     assert len(refusals.READ_ONLY) == 2 * sum(k.read_only for k in ConfigKey)
+
+
+@pytest.mark.parametrize("other_node", [False, True])
+def test_a_unit_never_heard_fails_at_once_and_says_what_to_check(other_node):
+    """Nothing at all on the link (no reply, no heartbeat): every check fails within seconds of
+    the unit's time, not after a RESET and --ready-timeout (180 s) per failed check."""
+    from northfinder.driver.protocol.can import can_id
+    from northfinder.driver.protocol.constants import CanFunction
+
+    channel = f"silent-{other_node}"
+    clock = VirtualClock()
+    with can.Bus(interface="virtual", channel=channel) as bus, can.Bus(
+        interface="virtual", channel=channel
+    ) as other:
+        if other_node:  # a unit answering to node id 2 on the same bus
+            other.send(can.Message(arbitration_id=can_id(CanFunction.STATUS, 2),
+                                   data=bytes(8), is_extended_id=False))  # fmt: skip
+        report = run_suite(CanRawLink(bus, node_id=1), SuiteOptions(), clock=clock)
+    assert not any(r.outcome == "pass" for r in report.results)
+    first, rest = report.results[0], report.results[1:]
+    assert first.name == "identify" and "nothing heard from the unit" in first.message
+    assert all(r.message.startswith("not run: nothing heard from the unit") for r in rest)
+    assert ("is the node id right?" in first.message) == other_node
+    assert 10.5 <= clock.now() < 30.0  # listened for two of the slowest heartbeats, no more

@@ -22,6 +22,9 @@ from northfinder.driver.protocol.messages import Reset, SetConfig, Stop
 __all__ = ["restore", "run_suite"]
 
 _NO_RECOVERY = "the unit did not recover"
+#: Seconds the suite listens, at least, before it calls a unit it never heard silent: two
+#: heartbeats at the slowest period the protocol allows (HEARTBEAT_PERIOD_MS 5000).
+SILENCE_S = 10.5
 
 _LINK_ERRORS = (
     LinkFault,
@@ -110,6 +113,15 @@ def _run(
         results.append(result)
         if progress is not None:
             progress(result)
+        if outcome == "fail" and session.arrived == 0:
+            # Listened SILENCE_S at least (a heartbeat would have come), and still not a frame
+            # of any kind since the suite started: restoring (a RESET, then waiting up to
+            # --ready-timeout for READY) would only wait out its timeouts.
+            session.drain(max(0.0, SILENCE_S - session.wall(session.now() - start)))
+        if outcome == "fail" and session.arrived == 0:
+            dead = silent_link(session, session.now() - start)
+            result.message += f" ({dead})"
+            continue
         if outcome == "fail":
             note = restore(session, options, shared)
             if note:
@@ -117,6 +129,19 @@ def _run(
             if note.startswith(_NO_RECOVERY):
                 dead = f"the unit stopped answering after {chk.name}"
     return Report(results, session.link.kind, options, session.now() - start)
+
+
+def silent_link(session: Session, seconds: float) -> str:
+    """Why the remaining checks are not run when the unit was never heard."""
+    link = session.link
+    other = getattr(link, "other", 0)
+    hint = (
+        f"; {other} frame(s) of other nodes or equipment were heard: is the node id right?"
+        if other
+        else "; check the interface and channel, the node id, the bitrate or baud rate, and "
+        "that the unit is powered"
+    )
+    return f"nothing heard from the unit in {seconds:.1f} s (no reply, no heartbeat){hint}"
 
 
 def _where(exc: BaseException) -> str:

@@ -157,6 +157,11 @@ class Session:
         self.clock.remove_poller(self._poll)
 
     # -- time -------------------------------------------------------------------------------------
+    @property
+    def arrived(self) -> int:
+        """Everything heard from the link so far (messages and link errors)."""
+        return self._arrived
+
     def unit(self, wall_s: float) -> float:
         """A wall duration in the unit's seconds."""
         return wall_s * self.time_scale

@@ -116,19 +116,23 @@ CONFORMANCE_MARGINS: dict[str, list[str]] = {
 #: not carry a real-time instrument, which both of these show, and nothing in NEVER_EXCUSED failed.
 #: 1. The instrument lost real time: the simulator (given precedence in the guest) fell behind its
 #:    clock by LOST_REAL_TIME_S or more in all, or the guest's CPU was SATURATED_PERCENT busy.
-#: 2. The VM was slow, measured apart from the product: the probe step or the stall monitor (at
-#:    the top real-time priority, every second) timed a clock read (a system call under
-#:    user-mode Linux) at SLOW_CLOCK_CALL_US or more (the monitor: in SLOW_SHARE of its samples),
-#:    the probe timed a SocketCAN send at SLOW_SEND_MS or more, or the guest stood still
-#:    (the host not running it) for STALLED_S or more in all. The rehearsal held in every run seen
-#:    with the probe at 47 to 63 us and 0.34 to 0.41 ms (idle and with two CPU-bound processes
-#:    beside the VM); it collapsed on CI hosts that measured 89 to 309 us and 0.52 to 0.92 ms
-#:    (hypervisor steal of 20 to 44 %), where the stream fell to 62 to 187 Hz and replies were lost.
+#: 2. The VM was slow, measured apart from the product: the probe step, in a quiet guest before
+#:    the rehearsal, timed a clock read (a system call under user-mode Linux) at
+#:    SLOW_CLOCK_CALL_US or more, a SocketCAN send at SLOW_SEND_MS or more, or its 2e6-iteration
+#:    Python loop at SLOW_LOOP_S or more (a VM held to part of a CPU); or, during the
+#:    rehearsal, the stall monitor (at the top real-time priority, every second) timed the median
+#:    clock read at SLOW_MONITOR_CLOCK_US or more, or saw the guest stand still (the host not
+#:    running it) for STALLED_S or more in all. The rehearsal held in every run seen with the
+#:    probe at 37 to 63 us, 0.26 to 0.41 ms and 0.059 to 0.073 s, the monitor's median 66 us (idle and with two
+#:    CPU-bound processes beside the VM: the guest's own load makes its system calls dearer); it
+#:    collapsed on CI hosts whose probe measured 89 to 309 us and 0.52 to 0.92 ms (hypervisor
+#:    steal of 20 to 44 %), where the stream fell to 62 to 187 Hz and replies were lost.
 LOST_REAL_TIME_S = 1.0
 SATURATED_PERCENT = 95.0
 SLOW_CLOCK_CALL_US = 80.0
-SLOW_SHARE = 0.25
 SLOW_SEND_MS = 0.5
+SLOW_LOOP_S = 0.1
+SLOW_MONITOR_CLOCK_US = 150.0
 STALLED_S = 1.0
 
 
@@ -179,15 +183,15 @@ def judge(result: dict, hard: list[str], soft: list[str], sim_log: Path, mode: s
         slow.append(f"the probe timed a clock read at {probe['monotonic_call_us']} us")
     if (probe.get("socketcan_send_ms") or 0.0) >= SLOW_SEND_MS:
         slow.append(f"the probe timed a SocketCAN send at {probe['socketcan_send_ms']} ms")
+    if (probe.get("python_loop_2e6_s") or 0.0) >= SLOW_LOOP_S:
+        slow.append(f"the probe timed its Python loop at {probe['python_loop_2e6_s']} s")
     stalls = result.get("machine_stalls")
     if isinstance(stalls, dict):
-        costs = (stalls.get("clock_call_us") or {}).get("samples") or []
-        share = sum(c >= SLOW_CLOCK_CALL_US for c in costs) / len(costs) if costs else 0.0
-        if share >= SLOW_SHARE:
+        clock = stalls.get("clock_call_us") or {}
+        if (clock.get("p50") or 0.0) >= SLOW_MONITOR_CLOCK_US:
             slow.append(
-                f"the stall monitor timed a clock read at {SLOW_CLOCK_CALL_US:g} us or more in "
-                f"{100 * share:.0f} % of {len(costs)} samples (median "
-                f"{stalls['clock_call_us']['p50']} us)"
+                f"the stall monitor timed the median clock read at {clock['p50']} us "
+                f"(p90 {clock.get('p90')} us, {len(clock.get('samples') or [])} samples)"
             )
         if stalls.get("stall_ms_total", 0.0) >= 1e3 * STALLED_S:
             slow.append(f"the guest stood still {stalls['stall_ms_total'] / 1e3:.1f} s in all")
