@@ -61,6 +61,7 @@ PERIOD_S = 0.005
 TARGET_P99_S = 0.002
 #: Whether the simulator sends from its dedicated sender thread (``--paced-sender``).
 SENDER = False
+SWITCH: float | None = None
 _U32 = 0xFFFFFFFF
 ROOT = Path(__file__).resolve().parents[1]
 #: Generous link timing so that a loaded machine shows up in the figures instead of aborting
@@ -183,6 +184,8 @@ def run_can(duration_s: float, window_s: float, seed: int) -> RunResult:
         send_tap = SendTap(CanLink(sim_bus, firmware, 1))
         runner = Runner(firmware, send_tap, RealTimeClock(1.0))
         runner.paced_sender = SENDER
+        if SWITCH is not None:
+            runner.switch_interval_s = SWITCH if SWITCH > 0 else None
         tap = Tap(CanTransport(can.Bus(interface="virtual", channel=channel), 1, own_bus=True))
         with BackgroundRunner(runner) as background, Device(tap, **DEVICE_OPTIONS) as device:
             device.wait_ready(timeout=10.0)
@@ -218,13 +221,24 @@ def run_timer(duration_s: float) -> RunResult:
 
 
 def run_serial(duration_s: float, window_s: float, seed: int) -> RunResult:
+    return run_pty("--pty", duration_s, window_s, seed)
+
+
+def run_slcan(duration_s: float, window_s: float, seed: int) -> RunResult:
+    return run_pty("--slcan-pty", duration_s, window_s, seed)
+
+
+def run_pty(kind: str, duration_s: float, window_s: float, seed: int) -> RunResult:
+    """``northfinder sim --pty`` (binary serial) or ``--slcan-pty`` (a CAN adapter's ASCII
+    protocol: python-can's ``slcan`` interface on the host) as a process of its own."""
     from northfinder.driver.transport import SerialTransport, open_serial_port
 
-    result = RunResult("serial pty, two processes")
+    slcan = kind == "--slcan-pty"
+    result = RunResult("SLCAN pty, two processes" if slcan else "serial pty, two processes")
     log = open(os.devnull, "wb")  # the simulator logs its state changes on stderr
     sim = subprocess.Popen(
         [
-            *(str(ROOT / ".venv/bin/northfinder"), "sim", "--pty", "--warmup", "0"),
+            *(str(ROOT / ".venv/bin/northfinder"), "sim", kind, "--warmup", "0"),
             *("--seed", str(seed), "--azimuth", "123"),
             *(["--paced-sender"] if SENDER else []),
         ],
@@ -244,8 +258,12 @@ def run_serial(duration_s: float, window_s: float, seed: int) -> RunResult:
             raise RuntimeError("northfinder sim --pty did not print its pty path")
         # Keep reading the simulator's stdout so it never blocks on a full pipe.
         threading.Thread(target=sim.stdout.read, daemon=True).start()
-        # Device.open_serial, with the transport wrapped by the tap.
-        tap = Tap(SerialTransport(open_serial_port(path, 115_200)))
+        # Device.open_serial / a python-can slcan bus, with the transport wrapped by the tap.
+        if slcan:
+            bus = can.Bus(interface="slcan", channel=path, bitrate=500_000, sleep_after_open=0)
+            tap = Tap(CanTransport(bus, 1, own_bus=True))
+        else:
+            tap = Tap(SerialTransport(open_serial_port(path, 115_200)))
         with Device(tap, **DEVICE_OPTIONS) as device:
             device.wait_ready(timeout=10.0)
             collect(device, tap, duration_s, window_s, result)
@@ -417,7 +435,9 @@ def main() -> None:
     )
     ap.add_argument("--duration", type=float, default=600.0, help="wall seconds per link")
     ap.add_argument("--window", type=float, default=10.0, help="acquire window, s")
-    ap.add_argument("--links", default="can,serial", help="comma-separated: can, serial")
+    ap.add_argument(
+        "--links", default="can,serial,slcan", help="comma-separated: can, serial, slcan"
+    )
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument(
         "--baseline",
@@ -426,10 +446,18 @@ def main() -> None:
         help="seconds of the timer loop without a link (0: skip)",
     )
     ap.add_argument("--paced-sender", action="store_true", help="simulator's sender thread")
+    ap.add_argument(
+        "--switch-interval",
+        type=float,
+        default=None,
+        help="can link with --paced-sender: the interpreter's switch interval while the sender "
+        "runs, s (default: the simulator's own, 0.0005; 0: leave Python's 0.005)",
+    )
     args = ap.parse_args()
-    global SENDER
+    global SENDER, SWITCH
     SENDER = args.paced_sender
-    runners = {"can": run_can, "serial": run_serial}
+    SWITCH = args.switch_interval
+    runners = {"can": run_can, "serial": run_serial, "slcan": run_slcan}
     links = [s.strip() for s in args.links.split(",") if s.strip()]
     for link in links:
         if link not in runners:
@@ -439,13 +467,31 @@ def main() -> None:
         f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, Python {sys.version.split()[0]}"
     )
     rows = []
+    timers = []
     if args.baseline > 0:
-        rows.append(summarise(run_timer(args.baseline)))
+        timers.append(summarise(run_timer(args.baseline)))
+        rows.append(timers[-1])
     for link in links:
         r = runners[link](args.duration, args.window, args.seed)
         rows.append(summarise(r))
         print(f"{r.link}: done ({r.wall_s:.0f} s)", flush=True)
+    if args.baseline > 0:
+        # The floor again after the links, so that a change of the machine's load during the
+        # run shows: each link's ratio is against the mean of the two.
+        timers.append(summarise(run_timer(args.baseline)))
+        timers[-1]["link"] += " (after the links)"
+        rows.append(timers[-1])
     print_table(rows, args.duration, args.window)
+    if timers:
+        floor = float(np.mean([t["p99_ms"] for t in timers]))
+        floors = ", ".join(f"{t['p99_ms']:.3f}" for t in timers)
+        print(f"jitter p99 over the timer loop's (mean of {floors} ms; goal <= 1.2):")
+        for s in rows:
+            if s not in timers:
+                print(
+                    f"  {s['link']}: {s['p99_ms']:.3f} / {floor:.3f} = {s['p99_ms'] / floor:.2f}; "
+                    f"lost {s['lost']}"
+                )
 
 
 if __name__ == "__main__":
