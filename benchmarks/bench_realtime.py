@@ -61,7 +61,6 @@ PERIOD_S = 0.005
 TARGET_P99_S = 0.002
 #: Whether the simulator sends from its dedicated sender thread (``--paced-sender``).
 SENDER = False
-SWITCH: float | None = None
 _U32 = 0xFFFFFFFF
 ROOT = Path(__file__).resolve().parents[1]
 #: Generous link timing so that a loaded machine shows up in the figures instead of aborting
@@ -184,8 +183,6 @@ def run_can(duration_s: float, window_s: float, seed: int) -> RunResult:
         send_tap = SendTap(CanLink(sim_bus, firmware, 1))
         runner = Runner(firmware, send_tap, RealTimeClock(1.0))
         runner.paced_sender = SENDER
-        if SWITCH is not None:
-            runner.switch_interval_s = SWITCH if SWITCH > 0 else None
         tap = Tap(CanTransport(can.Bus(interface="virtual", channel=channel), 1, own_bus=True))
         with BackgroundRunner(runner) as background, Device(tap, **DEVICE_OPTIONS) as device:
             device.wait_ready(timeout=10.0)
@@ -446,17 +443,9 @@ def main() -> None:
         help="seconds of the timer loop without a link (0: skip)",
     )
     ap.add_argument("--paced-sender", action="store_true", help="simulator's sender thread")
-    ap.add_argument(
-        "--switch-interval",
-        type=float,
-        default=None,
-        help="can link with --paced-sender: the interpreter's switch interval while the sender "
-        "runs, s (default: the simulator's own, 0.0005; 0: leave Python's 0.005)",
-    )
     args = ap.parse_args()
-    global SENDER, SWITCH
+    global SENDER
     SENDER = args.paced_sender
-    SWITCH = args.switch_interval
     runners = {"can": run_can, "serial": run_serial, "slcan": run_slcan}
     links = [s.strip() for s in args.links.split(",") if s.strip()]
     for link in links:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 import threading
 import time
 from collections import deque
@@ -36,9 +35,6 @@ from northfinder.firmware_sim.firmware import NS_PER_S, Firmware, Outgoing
 
 log = logging.getLogger("northfinder.sim.runner")
 
-#: The interpreter's thread switch interval while a paced sender runs, s (see
-#: :attr:`Runner.switch_interval_s`).
-SENDER_SWITCH_INTERVAL_S = 0.0005
 #: How far a paced runner may fall behind its clock, wall seconds, before it slips the clock
 #: instead of catching up (a catch-up sends its backlog faster than the configured pace).
 MAX_LAG_WALL_S = 0.05
@@ -238,10 +234,6 @@ class Runner:
         #: Paced mode only: send from a dedicated thread (:class:`PacedSender`) what this loop
         #: computes ahead, so that no computation holds a message that is due.
         self.paced_sender = False
-        #: Paced sender only: the interpreter's thread switch interval while it runs, s
-        #: (``sys.setswitchinterval``; Python's default is 5 ms): how long a thread that computes
-        #: can hold the interpreter while the sender's wake-up is due. None leaves it as it is.
-        self.switch_interval_s: float | None = SENDER_SWITCH_INTERVAL_S
 
     @property
     def virtual(self) -> bool:
@@ -420,9 +412,6 @@ class Runner:
 
     def _run_with_sender(self, stop: threading.Event) -> None:
         self._paced()
-        switch = sys.getswitchinterval()
-        if self.switch_interval_s is not None:
-            sys.setswitchinterval(self.switch_interval_s)
         sender = PacedSender(self).start()
         try:
             while not stop.is_set() and sender.error is None:
@@ -430,7 +419,6 @@ class Runner:
                 self.link.poll(min(self.MAX_WAIT_S, max(0.001, self.LEAD_WALL_S / 2)))
         finally:
             sender.stop()
-            sys.setswitchinterval(switch)
         if sender.error is not None:
             raise sender.error
 
