@@ -109,18 +109,19 @@ def _run(
             message = chk.summary
             if ctx.notes:
                 message += " [" + "; ".join(ctx.notes) + "]"
-        result = CheckResult(chk.name, outcome, message, ctx.figures, session.now() - t0)
-        results.append(result)
-        if progress is not None:
-            progress(result)
         if outcome == "fail" and session.arrived == 0:
             # Listened SILENCE_S at least (a heartbeat would have come), and still not a frame
             # of any kind since the suite started: restoring (a RESET, then waiting up to
             # --ready-timeout for READY) would only wait out its timeouts.
             session.drain(max(0.0, SILENCE_S - session.wall(session.now() - start)))
-        if outcome == "fail" and session.arrived == 0:
-            dead = silent_link(session, session.now() - start)
-            result.message += f" ({dead})"
+            if session.arrived == 0:
+                dead = silent_link(session, session.now() - start)
+                message += f" ({dead})"
+        result = CheckResult(chk.name, outcome, message, ctx.figures, session.now() - t0)
+        results.append(result)
+        if progress is not None:
+            progress(result)
+        if dead is not None:
             continue
         if outcome == "fail":
             note = restore(session, options, shared)
