@@ -418,14 +418,14 @@ def test_refusal_tables_cover_the_protocol():
     assert len(refusals.READ_ONLY) == 2 * sum(k.read_only for k in ConfigKey)
 
 
-@pytest.mark.parametrize("other_node", [False, True])
-def test_a_unit_never_heard_fails_at_once_and_says_what_to_check(other_node):
+@pytest.mark.parametrize(("other_node", "time_scale"), [(False, 1.0), (True, 1.0), (False, 4.0)])
+def test_a_unit_never_heard_fails_at_once_and_says_what_to_check(other_node, time_scale):
     """Nothing at all on the link (no reply, no heartbeat): every check fails within seconds of
     the unit's time, not after a RESET and --ready-timeout (180 s) per failed check."""
     from northfinder.driver.protocol.can import can_id
     from northfinder.driver.protocol.constants import CanFunction
 
-    channel = f"silent-{other_node}"
+    channel = f"silent-{other_node}-{time_scale}"
     clock = VirtualClock()
     with can.Bus(interface="virtual", channel=channel) as bus, can.Bus(
         interface="virtual", channel=channel
@@ -433,10 +433,14 @@ def test_a_unit_never_heard_fails_at_once_and_says_what_to_check(other_node):
         if other_node:  # a unit answering to node id 2 on the same bus
             other.send(can.Message(arbitration_id=can_id(CanFunction.STATUS, 2),
                                    data=bytes(8), is_extended_id=False))  # fmt: skip
-        report = run_suite(CanRawLink(bus, node_id=1), SuiteOptions(), clock=clock)
+        options = SuiteOptions(time_scale=time_scale)
+        report = run_suite(CanRawLink(bus, node_id=1), options, clock=clock)
     assert not any(r.outcome == "pass" for r in report.results)
     first, rest = report.results[0], report.results[1:]
     assert first.name == "identify" and "nothing heard from the unit" in first.message
     assert all(r.message.startswith("not run: nothing heard from the unit") for r in rest)
     assert ("is the node id right?" in first.message) == other_node
-    assert 10.5 <= clock.now() < 30.0  # listened for two of the slowest heartbeats, no more
+    # Listened for two of the slowest heartbeats of the unit's time (a unit at time scale S runs
+    # S times faster than the wall clock), no more.
+    assert 10.5 / time_scale <= clock.now() < 30.0 / time_scale
+    assert "in 10.5 s" in first.message

@@ -176,6 +176,11 @@ def make_out(tmp_path: Path, status: str | None, rcs: dict[str, int]) -> Path:
         ("fail setup: insmod", {}, 2, "ERROR"),
         (None, {}, 2, "ERROR"),
         ("not judged: rehearsal", {"probe": 0, "rehearsal": 3}, 3, "NOT JUDGED"),
+        # A retried step: the verdict is the last attempt's.
+        ("pass", {"probe": 0, "rehearsal.attempt1": 1, "rehearsal": 0}, 0, "PASS"),
+        ("pass", {"probe": 0, "rehearsal.attempt1": 3, "rehearsal": 0}, 0, "PASS"),
+        ("not judged: rehearsal", {"rehearsal.attempt1": 3, "rehearsal": 3}, 3, "NOT JUDGED"),
+        ("fail steps: rehearsal", {"rehearsal.attempt1": 1, "rehearsal": 3}, 1, "FAIL"),
     ],
 )
 def test_summary_verdict_and_headline_figures(tmp_path, status, rcs, exit_status, verdict):
@@ -243,6 +248,8 @@ def test_guest_runs_a_failed_rehearsal_once_more_and_keeps_both(
         ("3 3", "not judged: rehearsal", ["rehearsal.attempt1 3", "rehearsal 3"]),
         ("3 0", "pass", ["rehearsal.attempt1 3", "rehearsal 0"]),
         ("3 1", "fail steps: rehearsal", ["rehearsal.attempt1 3", "rehearsal 1"]),
+        # a judged failure, then not judged: the failure stands
+        ("1 3", "fail steps: rehearsal", ["rehearsal.attempt1 1", "rehearsal 3"]),
     ],
 )
 def test_guest_tells_a_step_not_judged_from_one_failed(tmp_path, codes, status, rows):
@@ -350,3 +357,22 @@ def test_the_probes_figures_alone_show_a_slow_vm(tmp_path, monkeypatch):
     result = starved_result(50.0)
     assert rehearsal.judge(result, [], ["conformance: ['link.integrity']"], log, "uml") == 3
     assert "SocketCAN send at 0.59 ms" in result["not_judged_because"]
+    # Only user-mode Linux is judged this way: under QEMU or on a host's own vcan0, a failure.
+    for mode in ("qemu", "direct"):
+        assert rehearsal.judge(dict(result), [], ["x"], log, mode) == 1
+
+
+@pytest.mark.parametrize(
+    ("name", "message", "starved"),
+    [
+        ("refusal.bad_argument", "no reply to GET_STATUS within 1 s (restore: RESET)", True),
+        ("command.rotate_to", "ROTATE_TO 37.5: the unit did not report READY within 23.1 s", True),
+        ("rotation.validity", "1 of 4692 samples: sample 22206 validity 0x07", True),
+        ("link.integrity", "3 ticks lost", True),
+        ("refusal.bad_argument", "SET_CONFIG 0x09 = 1: answered OK, expected BAD_ARGUMENT", False),
+        ("bad_input.wrong_length", "answered OK to a 3-byte command", False),
+        ("stream.rate", "internal error: KeyError: 'x' (stream.py:80)", False),
+    ],
+)
+def test_a_wrong_answer_is_never_taken_for_a_starved_vm(name, message, starved):
+    assert rehearsal.starved_symptom(name, message) == starved

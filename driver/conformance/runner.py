@@ -22,8 +22,8 @@ from northfinder.driver.protocol.messages import Reset, SetConfig, Stop
 __all__ = ["restore", "run_suite"]
 
 _NO_RECOVERY = "the unit did not recover"
-#: Seconds the suite listens, at least, before it calls a unit it never heard silent: two
-#: heartbeats at the slowest period the protocol allows (HEARTBEAT_PERIOD_MS 5000).
+#: Seconds of the unit's time the suite listens, at least, before it calls a unit it never heard
+#: silent: two heartbeats at the slowest period the protocol allows (HEARTBEAT_PERIOD_MS 5000).
 SILENCE_S = 10.5
 
 _LINK_ERRORS = (
@@ -113,9 +113,9 @@ def _run(
             # Listened SILENCE_S at least (a heartbeat would have come), and still not a frame
             # of any kind since the suite started: restoring (a RESET, then waiting up to
             # --ready-timeout for READY) would only wait out its timeouts.
-            session.drain(max(0.0, SILENCE_S - session.wall(session.now() - start)))
+            session.drain(max(0.0, session.wall(SILENCE_S) - (session.now() - start)))
             if session.arrived == 0:
-                dead = silent_link(session, session.now() - start)
+                dead = silent_link(session, session.unit(session.now() - start))
                 message += f" ({dead})"
         result = CheckResult(chk.name, outcome, message, ctx.figures, session.now() - t0)
         results.append(result)

@@ -70,10 +70,12 @@ mkdir -p "$OUT/steps"
 : >"$OUT/steps.tsv"
 failed=()
 not_judged=()
-# A step named in HIL_RETRY_STEPS (default: rehearsal) that fails (not a timeout) runs once more:
+# A step named in HIL_RETRY_STEPS (default: rehearsal) that fails or is not judged (exit 3; not
+# a timeout) runs once more:
 # on a shared host the guest's one CPU can be starved (hypervisor steal of 30-45 % was seen) until
 # its 200 Hz stream collapses. The failed attempt stays in steps/<name>.attempt1, with its own
-# line and log in the summary; the verdict is the second attempt's.
+# line and log in the summary; the verdict is the second attempt's, except that a judged failure
+# (exit 1) followed by "not judged" stays a failure.
 HIL_RETRY_STEPS=${HIL_RETRY_STEPS-rehearsal}
 queue=($HIL_STEPS)
 retried=" "
@@ -106,7 +108,7 @@ while ((${#queue[@]})); do
     fi
     printf '%s\t%s\t%s\n' "$step" "$rc" "$secs" >>"$OUT/steps.tsv"
     echo "guest: step $step rc=$rc ${secs}s"
-    if ((rc == 3)); then
+    if ((rc == 3)) && [[ $(cat "$dir.attempt1/rc" 2>/dev/null || echo 3) == 3 ]]; then
         not_judged+=("$step")
     elif ((rc != 0)); then
         failed+=("$step")

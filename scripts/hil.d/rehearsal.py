@@ -112,14 +112,18 @@ CONFORMANCE_MARGINS: dict[str, list[str]] = {
 }  # fmt: skip
 
 
-#: When a rehearsal that failed is "not judged" (exit 3) instead of failed (exit 1): the VM could
-#: not carry a real-time instrument, which both of these show, and nothing in NEVER_EXCUSED failed.
+#: When a rehearsal that failed is "not judged" (exit 3) instead of failed (exit 1), under
+#: user-mode Linux only: the VM could not carry a real-time instrument, which both of these show,
+#: and no failure of the never-excused kind (``hard`` in main: a wrong heading, an unknown or
+#: undecodable frame, a hang, a missing report, an internal error, a simulator that died, an
+#: answer that is wrong rather than missing) occurred.
 #: 1. The instrument lost real time: the simulator (given precedence in the guest) fell behind its
-#:    clock by LOST_REAL_TIME_S or more in all, or the guest's CPU was SATURATED_PERCENT busy.
+#:    clock by LOST_REAL_TIME_S or more in all (its own count, in its last words).
 #: 2. The VM was slow, measured apart from the product: the probe step, in a quiet guest before
 #:    the rehearsal, timed a clock read (a system call under user-mode Linux) at
 #:    SLOW_CLOCK_CALL_US or more, a SocketCAN send at SLOW_SEND_MS or more, or its 2e6-iteration
-#:    Python loop at SLOW_LOOP_S or more (a VM held to part of a CPU); or, during the
+#:    Python loop at SLOW_LOOP_S or more (a VM held to part of a CPU: 0.308 s at 20 %, where the
+#:    rehearsal collapsed; 0.132 s at 45 %, where it held; 0.04 to 0.12 s otherwise); or, during the
 #:    rehearsal, the stall monitor (at the top real-time priority, every second) timed the median
 #:    clock read at SLOW_MONITOR_CLOCK_US or more, or saw the guest stand still (the host not
 #:    running it) for STALLED_S or more in all. The rehearsal held in every run seen with the
@@ -128,12 +132,30 @@ CONFORMANCE_MARGINS: dict[str, list[str]] = {
 #:    collapsed on CI hosts whose probe measured 89 to 309 us and 0.52 to 0.92 ms (hypervisor
 #:    steal of 20 to 44 %), where the stream fell to 62 to 187 Hz and replies were lost.
 LOST_REAL_TIME_S = 1.0
-SATURATED_PERCENT = 95.0
 SLOW_CLOCK_CALL_US = 80.0
 SLOW_SEND_MS = 0.5
-SLOW_LOOP_S = 0.1
+SLOW_LOOP_S = 0.2
 SLOW_MONITOR_CLOCK_US = 150.0
 STALLED_S = 1.0
+
+
+#: Conformance checks that measure the unit over time (rates, periods, moves, the stream's
+#: continuity and validity against the states the host saw): a starved VM fails them by what
+#: it does to time (a batch of frames read late shares one arrival time, so a sample sent before
+#: READY can be seen after it).
+MEASURED = ("stream.", "rotation.", "link.", "timing.", "heartbeat.")
+#: Words of another check's failure that say an answer was missing or late (what a starved VM
+#: does), not wrong.
+STARVED_SYMPTOMS = ("no reply", "within", "not run:", "after ", "late", "lasted", "only ")
+
+
+def starved_symptom(name: str, message: str) -> bool:
+    """Whether a failed check is what a starved VM causes: a measuring check, or another whose
+    answer was missing or late; never an internal error."""
+    text = message.lower()
+    if "internal error" in text:
+        return False
+    return name.startswith(MEASURED) or any(w in text for w in STARVED_SYMPTOMS)
 
 
 def sim_lag(log: Path) -> tuple[int, float] | None:
@@ -168,6 +190,11 @@ def judge(result: dict, hard: list[str], soft: list[str], sim_log: Path, mode: s
     if hard or not soft:
         result["verdict"] = "fail" if hard else "pass"
         return 1 if hard else 0
+    if mode != "uml":
+        # QEMU's guest is always slow (its timing checks are reported, not counted) and a host
+        # with vcan0 of its own has no VM to starve: a failure there is a failure.
+        result["verdict"] = "fail"
+        return 1
     lost: list[str] = []
     lag = sim_lag(sim_log)
     if lag is not None:
@@ -175,8 +202,8 @@ def judge(result: dict, hard: list[str], soft: list[str], sim_log: Path, mode: s
         if lag[1] >= LOST_REAL_TIME_S:
             lost.append(f"the simulator fell behind its clock {lag[0]} times, {lag[1]:.1f} s lost")
     busy = result.get("machine_cpu_busy_percent")
-    if busy is not None and busy >= SATURATED_PERCENT:
-        lost.append(f"the guest's CPU was {busy} % busy")
+    if lost and busy is not None:
+        lost[-1] += f" (the guest's CPU {busy} % busy)"
     slow: list[str] = []
     probe = probe_result()
     if (probe.get("monotonic_call_us") or 0.0) >= SLOW_CLOCK_CALL_US:
@@ -324,7 +351,7 @@ def wait_for_heartbeat(candump: str, channel: str, status_id: int, timeout: floa
     return time.monotonic() - t0
 
 
-def candump_log(folder: Path, proc: subprocess.Popen | None, timeout: float = 10.0) -> Path | None:
+def candump_log(folder: Path, proc: subprocess.Popen | None, timeout: float = 60.0) -> Path | None:
     """The log ``candump -l`` opened in ``folder`` (it names it by the date), once it exists."""
     t0 = time.monotonic()
     while proc is not None and time.monotonic() - t0 < timeout:
@@ -530,9 +557,11 @@ def main() -> int:
         (out / "find.json").write_text(find.stdout)
         (out / "find.err").write_text(find.stderr)
         if find.returncode != 0:
-            # Exit 1 is a link or device error (a lost reply, a stalled stream); any other code
-            # (a bad argument, an internal error) is the product's fault wherever it runs.
-            (failures if find.returncode == 1 else hard).append(
+            # Exit 1 is a link or device error (a lost reply, a stalled stream), or an internal
+            # error (a bug, said so on stderr); any other code is a bad argument: only a link or
+            # device error is what a starved VM causes.
+            internal = "internal error" in find.stderr or "Traceback" in find.stderr
+            (failures if find.returncode == 1 and not internal else hard).append(
                 f"find exited {find.returncode}: {find.stderr.strip()[-300:]}"
             )
         else:
@@ -578,8 +607,19 @@ def main() -> int:
                 reported[name] = f"{status.upper()}: {message}" if status == "fail" else status
         if not cases:
             hard.append(f"conformance: no JUnit report ({result['conformance']})")
-        elif conf.returncode not in (0, 1) or failed:
-            failures.append(f"conformance: {failed or result['conformance']}")
+        elif conf.returncode not in (0, 1):
+            hard.append(f"conformance exited {conf.returncode}: {result['conformance']}")
+        elif failed:
+            # A check that failed on a missing or late answer is what a starved VM causes; one
+            # that got a wrong answer (or hit an internal error) is the product's.
+            wrong = [n for n in failed if not starved_symptom(n, counted[n][1])]
+            if wrong:
+                hard.append(
+                    "conformance (wrong answers, not missing ones): "
+                    + "; ".join(f"{n}: {counted[n][1][:160]}" for n in wrong)
+                )
+            if len(wrong) < len(failed):
+                failures.append(f"conformance: {[n for n in failed if n not in wrong]}")
     except subprocess.TimeoutExpired as exc:
         hard.append(
             f"{Path(exc.cmd[0]).name} {exc.cmd[1]} did not end within {exc.timeout:g} s"
@@ -588,8 +628,14 @@ def main() -> int:
     finally:
         progress("stopping the simulator, draining candump")
         c0 = cpu_seconds_children()
+        sim_died = sim.poll()
         result["sim_exit"] = stop(sim)
         sim_stopped = time.time()
+        if sim_died is not None or result["sim_exit"] not in (0, None):
+            hard.append(
+                f"the simulator {'died' if sim_died is not None else 'exited'} with status "
+                f"{result['sim_exit']} (its log: sim.log)"
+            )
         cpu["sim"] = cpu_seconds_children() - c0
         if dump is not None:
             c0 = cpu_seconds_children()
@@ -597,7 +643,9 @@ def main() -> int:
             stop(dump)
             cpu["candump"] = cpu_seconds_children() - c0
             shutil.move(dump_log, out / "candump.log")
-            shutil.rmtree(dump_dir, ignore_errors=True)
+            if (dump_dir / "candump.out").stat().st_size:
+                shutil.move(dump_dir / "candump.out", out / "candump.stderr")
+        shutil.rmtree(dump_dir, ignore_errors=True)
     monitor.send_signal(signal.SIGTERM)
     try:
         mon_out, _ = monitor.communicate(timeout=20)

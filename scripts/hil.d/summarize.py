@@ -79,11 +79,15 @@ def main(out: str) -> int:
     summary["conformance_counted"] = rehearsal.get("conformance_counted")
     summary["report_only"] = rehearsal.get("report_only")
 
+    # A retried step's first attempt (<name>.attempt1) is in the summary, not in the verdict: the
+    # verdict is the last attempt's (guest.sh makes a judged failure followed by "not judged" a
+    # failure).
+    final = [s for s in summary["steps"] if not s["name"].endswith(".attempt1")]
     if status is None:
         verdict, rc = "ERROR (no status from the guest: see vm.log / guest.log)", 2
-    elif status == "pass" and all(s["rc"] == 0 for s in summary["steps"]):
+    elif status == "pass" and all(s["rc"] == 0 for s in final):
         verdict, rc = "PASS", 0
-    elif status.startswith("not judged") and all(s["rc"] in (0, 3) for s in summary["steps"]):
+    elif status.startswith("not judged") and all(s["rc"] in (0, 3) for s in final):
         verdict, rc = f"NOT JUDGED ({status[len('not judged: '):]}: the machine could not carry it)", 3
     elif status.startswith("fail setup") or status.startswith("fail no"):
         verdict, rc = f"ERROR ({status})", 2
