@@ -78,7 +78,7 @@ not_judged=()
 # (exit 1) followed by "not judged" stays a failure.
 HIL_RETRY_STEPS=${HIL_RETRY_STEPS-rehearsal}
 queue=($HIL_STEPS)
-retried=" "
+declare -A first_rc=()   # a retried step: its first attempt's exit status
 while ((${#queue[@]})); do
     step=${queue[0]}; queue=("${queue[@]:1}")
     exe=$HIL_D/steps/$step
@@ -98,8 +98,8 @@ while ((${#queue[@]})); do
         tail -n 5 "$dir/log"
     fi
     echo "$rc" >"$dir/rc"; echo "$secs" >"$dir/seconds"
-    if ((rc != 0 && rc != 124)) && [[ " $HIL_RETRY_STEPS " == *" $step "* && $retried != *" $step "* ]]; then
-        retried+="$step "
+    if ((rc != 0 && rc != 124)) && [[ " $HIL_RETRY_STEPS " == *" $step "* && -z ${first_rc[$step]-} ]]; then
+        first_rc[$step]=$rc
         rm -rf -- "$dir.attempt1"; mv -- "$dir" "$dir.attempt1"
         printf '%s\t%s\t%s\n' "$step.attempt1" "$rc" "$secs" >>"$OUT/steps.tsv"
         echo "guest: step $step rc=$rc ${secs}s: failed; running it once more (HIL_RETRY_STEPS)"
@@ -108,7 +108,7 @@ while ((${#queue[@]})); do
     fi
     printf '%s\t%s\t%s\n' "$step" "$rc" "$secs" >>"$OUT/steps.tsv"
     echo "guest: step $step rc=$rc ${secs}s"
-    if ((rc == 3)) && [[ $(cat "$dir.attempt1/rc" 2>/dev/null || echo 3) == 3 ]]; then
+    if ((rc == 3 && ${first_rc[$step]-3} == 3)); then
         not_judged+=("$step")
     elif ((rc != 0)); then
         failed+=("$step")

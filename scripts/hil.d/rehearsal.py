@@ -16,8 +16,9 @@ Writes ``result.json`` (azimuth error, frames, lost ticks, arrival jitter p50/p9
 counted/passed, guest CPU use, the verdict). Exit status: 0 every counted part held; 1 a counted
 part failed; 3 not judged: parts failed the way a starved VM fails them, and the VM was measured
 unable to carry a real-time instrument (see ``judge``; the reasons are printed and in
-``not_judged_because``). A wrong heading, an unknown or undecodable frame, a hang or a missing
-report always fails. Reaches the product
+``not_judged_because``). A wrong heading, an unknown or undecodable frame, a hang, a missing
+report, an internal error, a wrong conformance answer or a simulator that died always fails.
+Reaches the product
 only through the ``northfinder`` command line, python-can's SocketCAN (through candump) and
 cantools.
 """
@@ -484,7 +485,7 @@ def main() -> int:
     result: dict = {"channel": ch, "mode": args.mode}
     failures: list[str] = []
     # Failures that no starved machine excuses (see judge()): a wrong heading, frames the DBC
-    # does not know, a missing report, a hang, an exit code other than a link error's.
+    # does not know, a missing report, a hang, an internal error, a wrong answer, a dead simulator.
     hard: list[str] = []
     reported: dict[str, str] = {}  # report-only items that did not hold, with what was measured
 
@@ -650,7 +651,6 @@ def main() -> int:
     try:
         mon_out, _ = monitor.communicate(timeout=20)
         stalls = json.loads(mon_out.strip().splitlines()[-1])
-        stalls["stall_ms_total"] = round(sum(ms for _, ms in stalls["stalls_ms"]), 1)
         stalls["stalls_ms"] = stalls["stalls_ms"][:100]
         result["machine_stalls"] = stalls
     except (subprocess.TimeoutExpired, json.JSONDecodeError, IndexError) as exc:

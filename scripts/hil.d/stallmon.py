@@ -4,8 +4,8 @@ Sleeps ``--period`` seconds in a loop and records every wake-up later than ``--t
 seconds after it was due. Run at the highest real-time priority, nothing inside the machine
 delays it, so what it records is the machine itself not running: in a VM, the host not
 scheduling the VM or the VM's kernel blocked on the host. Until SIGTERM or SIGINT, then one JSON
-line on stdout: ``{"wakeups", "stalls", "stall_ms_max", "stalls_ms": [[t_s, ms], ...]}`` with t_s
-seconds since the start, and ``clock_call_us``: the cost of one ``time.monotonic()`` call,
+line on stdout: ``{"wakeups", "stalls", "stall_ms_max", "stall_ms_total", "stalls_ms": [[t_s, ms],
+...]}`` with t_s seconds since the start, and ``clock_call_us``: the cost of one ``time.monotonic()`` call,
 timed over 100 calls every ``--cost-every`` seconds (``p50``, ``p90``, ``max`` and the list): a
 system call under user-mode Linux, so what the host's load makes every system call of the guest
 cost, measured at a priority nothing in the guest can delay.
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import signal
+import statistics
 import sys
 import time
 
@@ -59,20 +60,20 @@ def main(argv: list[str] | None = None) -> int:
                 clock()
             costs.append(round((time.perf_counter() - t) * 1e4, 2))  # us per call
             next_cost = now + args.cost_every
-    ranked = sorted(costs)
-
-    def pick(q: float) -> float | None:
-        return ranked[min(len(ranked) - 1, int(q * len(ranked)))] if ranked else None
-
+    deciles = statistics.quantiles(costs, n=10, method="inclusive") if len(costs) > 1 else costs * 9
     print(
         json.dumps(
             {
                 "wakeups": wakeups,
                 "stalls": len(stalls),
                 "stall_ms_max": max((s[1] for s in stalls), default=0.0),
+                "stall_ms_total": round(sum(s[1] for s in stalls), 1),
                 "stalls_ms": stalls,
                 "clock_call_us": {
-                    "p50": pick(0.5), "p90": pick(0.9), "max": pick(1.0), "samples": costs,
+                    "p50": round(deciles[4], 2) if deciles else None,
+                    "p90": round(deciles[8], 2) if deciles else None,
+                    "max": max(costs, default=None),
+                    "samples": costs,
                 },
             }
         ),

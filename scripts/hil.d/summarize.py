@@ -149,8 +149,8 @@ def main(out: str) -> int:
                     line += f" (failed: {', '.join(c['failed'])})"
             if r.get("machine_cpu_busy_percent") is not None:
                 line += f"; guest CPU {r['machine_cpu_busy_percent']} % busy"
-            clock = (r.get("machine_stalls") or {}).get("clock_call_us") if isinstance(
-                r.get("machine_stalls"), dict) else None
+            stalls = r.get("machine_stalls")  # a message instead when the monitor failed
+            clock = stalls.get("clock_call_us") if isinstance(stalls, dict) else None
             if clock and clock.get("p50") is not None:
                 line += f"; clock read {clock['p50']} us (p90 {clock['p90']})"
         print(line)
