@@ -128,8 +128,12 @@ class FrameLog:
 
     def use_clock(self, clock: Any) -> None:
         """Stamp every frame from now on with ``clock.now()`` (a virtual clock), offset so that
-        the clock's present reads as the wall-clock time of this call."""
-        self._epoch = time.time() - clock.now()
+        the clock's present reads as the wall-clock time of this call.
+
+        The offset is a whole number of milliseconds: instants of the device's tick grid then
+        fall on whole microseconds, as the text formats print them, instead of rounding half
+        of them up and half down (a 5 ms tick would read 4.999 and 5.001 ms alternately)."""
+        self._epoch = round(time.time() - clock.now(), 3)
         self._clock = clock
 
     def __call__(self, msg: can.Message) -> None:
