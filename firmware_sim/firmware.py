@@ -84,6 +84,8 @@ DRIVE_FAULT_LIMIT_DEG = 0.5
 #: How far ahead of the present the firmware computes its output, s (see Firmware.process).
 LOOKAHEAD_S = 0.2
 _LOOKAHEAD_NS = round(LOOKAHEAD_S * NS_PER_S)
+#: The look-ahead of a simulator in virtual time, s (:attr:`Firmware.lookahead_s`).
+VIRTUAL_LOOKAHEAD_S = 1.0
 #: Time from receiving a command to sending its reply, s.
 REPLY_LATENCY_S = 0.001
 _REPLY_LATENCY_NS = round(REPLY_LATENCY_S * NS_PER_S)
@@ -169,6 +171,16 @@ class Outgoing:
     message: Reply | Status | Sample | Identify
 
 
+@dataclass(frozen=True, slots=True)
+class _Snapshot:
+    """The computation's state at the start of a look-ahead chunk (see Firmware._rewind)."""
+
+    start_ns: int
+    engine: dict[str, Any]
+    skip_counter: int
+    generators: tuple[tuple[np.random.Generator, dict[str, Any]], ...]
+
+
 @dataclass
 class _Tick:
     """Physics increments waiting to be summed into the next output tick."""
@@ -239,7 +251,8 @@ class Firmware:
         self._now_ns = 0  # time up to which the device has sent its output
         self._horizon_ns = 0  # time up to which output has been computed ahead
         self._ahead: list[Outgoing] = []
-        self._snapshots: list[tuple[int, dict[str, object], int]] = []  # (start ns, ...)
+        self._snapshots: list[_Snapshot] = []
+        self._lookahead_ns = _LOOKAHEAD_NS
         self.boot_count = 0
         self._reboot(0, REPLY_LATENCY_S, first_status_ns=0)
         self._last_state = self.state_at(0.0)
@@ -298,6 +311,22 @@ class Firmware:
     def now_ns(self) -> int:
         """:attr:`now` in whole nanoseconds (the device's own count)."""
         return self._now_ns
+
+    @property
+    def lookahead_s(self) -> float:
+        """How much output one look-ahead chunk computes, s (:data:`LOOKAHEAD_S` by default).
+
+        Longer chunks cost less per simulated second (one snapshot and one physics block per
+        chunk) but hold the computation longer and make a rewind recompute more; a simulator in
+        virtual time, which has no deadline to keep, uses :data:`VIRTUAL_LOOKAHEAD_S`.
+        """
+        return self._lookahead_ns / NS_PER_S
+
+    @lookahead_s.setter
+    def lookahead_s(self, seconds: float) -> None:
+        if not (math.isfinite(seconds) and 0.001 <= seconds <= 10.0):
+            raise SimConfigError(f"lookahead_s: must be 0.001 to 10 s, got {seconds!r}")
+        self._lookahead_ns = round(seconds * NS_PER_S)
 
     @property
     def sample_rate_hz(self) -> int:
@@ -580,7 +609,7 @@ class Firmware:
             self._pending = [p for p in self._pending if p.time_s > target]
             out = sorted(out + due, key=lambda o: o.time_s)
         self._now_ns = target_ns
-        while len(self._snapshots) > 1 and self._snapshots[1][0] <= target_ns:
+        while len(self._snapshots) > 1 and self._snapshots[1].start_ns <= target_ns:
             self._snapshots.pop(0)  # chunks wholly in the past are never rewound to
         state = self.state_at(target)
         if state != self._last_state:
@@ -609,13 +638,22 @@ class Firmware:
     def _compute_ahead(self) -> None:
         """Compute one more chunk, keeping a snapshot of the state at its start for a rewind."""
         engine = {name: getattr(self, name) for name in self._ENGINE}
-        # The specification, the truth and the error terms are frozen: shared, not copied.
+        # The specification, the truth and the error terms are frozen: shared, not copied. The
+        # random generators are shared too, and their states recorded, to be set back on rewind.
         ins = self.instrument
-        memo: dict[int, Any] = {id(o): o for o in (ins.spec, ins.truth, ins.terms, ins.table.spec)}
+        generators = ins.generators()
+        memo: dict[int, Any] = {
+            id(o): o for o in (ins.spec, ins.truth, ins.terms, ins.table.spec, *generators)
+        }
         self._snapshots.append(
-            (self._horizon_ns, copy.deepcopy(engine, memo), self.faults.skip_counter)
+            _Snapshot(
+                self._horizon_ns,
+                copy.deepcopy(engine, memo),
+                self.faults.skip_counter,
+                tuple((g, g.bit_generator.state) for g in generators),
+            )
         )
-        self._ahead.extend(self._compute_to(self._horizon_ns + _LOOKAHEAD_NS))
+        self._ahead.extend(self._compute_to(self._horizon_ns + self._lookahead_ns))
 
     def prefetch(self) -> None:
         """Compute the next chunk of output early, when less than half a chunk is left.
@@ -623,7 +661,7 @@ class Firmware:
         A runner calls this right after sending, so that the computation does not delay a
         message that is due (the chunk then starts where the last one ended, as it would anyway).
         """
-        if self._horizon_ns - self._now_ns < _LOOKAHEAD_NS // 2:
+        if self._horizon_ns - self._now_ns < self._lookahead_ns // 2:
             self._compute_ahead()
 
     def next_output_s(self) -> float:
@@ -640,14 +678,14 @@ class Firmware:
         # The latest chunk that starts at or before the present: its output up to the present
         # has been sent, everything after it is dropped and computed again. Sent and computed
         # again are decided by the same integer times, so nothing falls between them.
-        start_ns, engine, skip = next(
-            snap for snap in reversed(self._snapshots) if snap[0] <= self._now_ns
-        )
-        for name, value in engine.items():
+        snap = next(snap for snap in reversed(self._snapshots) if snap.start_ns <= self._now_ns)
+        for name, value in snap.engine.items():
             setattr(self, name, value)
-        self.faults.skip_counter = skip
+        for generator, state in snap.generators:
+            generator.bit_generator.state = state
+        self.faults.skip_counter = snap.skip_counter
         self._snapshots.clear()
-        self._horizon_ns = start_ns
+        self._horizon_ns = snap.start_ns
         self._compute_to(self._now_ns)  # the same output again, already sent
         self._ahead.clear()
 

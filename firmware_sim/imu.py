@@ -120,7 +120,7 @@ class _SlowNoise:
     :mod:`~northfinder.firmware_sim.error_terms`, interpolated to the sample times."""
 
     def __init__(self, rng: np.random.Generator, nch: int) -> None:
-        self._rng = rng
+        self.rng = rng
         self._state = rng.standard_normal((len(FLICKER_TAUS_S), nch))
         self._walk = np.zeros(nch)
         self._k0 = 0
@@ -131,7 +131,7 @@ class _SlowNoise:
         m = k_last - (self._k0 + len(self._flicker) - 1)
         if m <= 0:
             return
-        w = self._rng.standard_normal((m, len(FLICKER_TAUS_S) + 1, self._walk.size))
+        w = self.rng.standard_normal((m, len(FLICKER_TAUS_S) + 1, self._walk.size))
         flicker, walks, self._state, self._walk = slow_noise_steps(w, self._state, self._walk)
         self._flicker = np.concatenate([self._flicker, flicker])
         self._walks = np.concatenate([self._walks, walks])
@@ -229,6 +229,15 @@ class Instrument:
             (d.vibration_hz, vib_amp) if d.vibration_hz > 0 and vib_amp.any() else None
         )
         self.table.spec = spec.table
+
+    def generators(self) -> tuple[np.random.Generator, ...]:
+        """Every random generator the instrument draws from, the table's included.
+
+        A snapshot of the instrument (the firmware's rewind) shares these and records their
+        states instead of copying them: a generator's state is a small dict, its copy a pickle.
+        """
+        return (self._white, self._slow.rng, self._imp_rng, self._move_rng,
+                *self.table.generators())  # fmt: skip
 
     @property
     def terms(self) -> ErrorTerms:

@@ -31,7 +31,12 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from northfinder.firmware_sim.errors import SimConfigError
-from northfinder.firmware_sim.firmware import NS_PER_S, Firmware, Outgoing
+from northfinder.firmware_sim.firmware import (
+    NS_PER_S,
+    VIRTUAL_LOOKAHEAD_S,
+    Firmware,
+    Outgoing,
+)
 
 log = logging.getLogger("northfinder.sim.runner")
 
@@ -285,6 +290,7 @@ class Runner:
             raise SimConfigError("attach: the runner's clock is not a virtual clock")
         with self.lock:  # the firmware's time goes on from the clock's present
             self._offset_ns = round(clock.now() * NS_PER_S) - self.firmware.now_ns
+            self.firmware.lookahead_s = VIRTUAL_LOOKAHEAD_S
         clock.add_source(self)  # type: ignore[union-attr]
 
     def detach(self) -> None:

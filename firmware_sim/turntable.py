@@ -62,6 +62,10 @@ class Turntable:
         self._stalled = False
         self._moves: list[tuple[float, float]] = []
 
+    def generators(self) -> tuple[np.random.Generator, ...]:
+        """The random generators the table draws from (for a snapshot of its state)."""
+        return (self._rng,)
+
     # -- commands -----------------------------------------------------------------------------
     def move_by(self, t: float, delta_deg: float, max_rate_dps: float | None = None) -> float:
         """Start a move by ``delta_deg`` from where the table is at time ``t``; return the time

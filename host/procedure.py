@@ -30,6 +30,7 @@ from northfinder.driver.protocol.constants import (
     DeviceState,
     Validity,
 )
+from northfinder.driver.errors import DeviceFault, DriverTimeout
 from northfinder.driver.protocol.motion import shortest_delta_deg
 from northfinder.host.consistency import ConsistencyCheck, check_windows, pooled_sem
 from northfinder.host.denoise import check_denoise, denoise
@@ -566,8 +567,12 @@ def find_north(
     if clock is None:
         clock = device_clock.now if device_clock is not None else time.monotonic
     deadline = clock() + warmup_timeout_s
+    # A device that reports its status by itself (heartbeats, protocol.md 6) is watched, not
+    # asked: one GET_STATUS first, then the heartbeats until READY, with a progress report every
+    # WARMUP_POLL_S. A device without ``wait_ready`` is asked every WARMUP_POLL_S.
+    wait_ready = getattr(device, "wait_ready", None)
+    status = device.status()
     while True:
-        status = device.status()
         state = _state_name(status)
         if state == "READY":
             break
@@ -580,7 +585,16 @@ def find_north(
                 f"the device did not become READY within {warmup_timeout_s:g} s (state {state})"
             )
         report(Progress("warm-up", 0, n, _angle(status), None))
-        sleep(WARMUP_POLL_S)
+        if wait_ready is None:
+            sleep(WARMUP_POLL_S)
+            status = device.status()
+            continue
+        try:
+            status = wait_ready(timeout=WARMUP_POLL_S)
+        except DeviceFault:
+            status = device.status()  # FAULT: reported below, as when asked
+        except DriverTimeout:
+            status = getattr(device, "last_status", None) or device.status()
     windows: list[PositionWindow] = []
     raw: list[Any] = []
     here = _angle(device.status())

@@ -340,3 +340,35 @@ def test_bad_frames_are_counted_and_answered_on_virtual_can():
         status = [m for m in got if isinstance(m, Status)][-1]
         assert status.rx_malformed == 3 and status.cmd_rejected == 2
         assert fw.state == DeviceState.READY
+
+
+def test_queries_at_any_instant_leave_the_stream_as_it_would_have_been():
+    """A query rewinds the look-ahead computation to its instant; every random process (white
+    and flicker noise, impulses, the table's indexing error, the moves' transients) must then draw
+    again exactly what it drew before, so the samples are those of a run without queries."""
+    spec = load_spec("paper-prototype").with_values(
+        {"disturbance.impulse_rate_hz": 3.0, "table.indexing_error_deg": 0.01}
+    )
+
+    def samples(query_at: list[int], lookahead_s: float) -> list[Sample]:
+        fw = make(spec=spec, seed=11)
+        fw.lookahead_s = lookahead_s
+        fw.process(1.0)
+        fw.handle(StreamStart(1))
+        fw.process(0.5)
+        fw.handle(RotateTo(2, 90_000_000))
+        out, t_ms, seq = [], 1500, 3
+        for q_ms in [*sorted(query_at), 40_000]:  # whole milliseconds: the steps add up exactly
+            step = (q_ms - t_ms) / 1000
+            out += [o.message for o in fw.process(step) if isinstance(o.message, Sample)]
+            t_ms = q_ms
+            fw.handle(GetStatus(seq & 0xFF))
+            seq += 1
+        return out
+
+    quiet = samples([], 0.2)
+    rng = np.random.default_rng(3)
+    asked = samples(list(rng.integers(1600, 39_900, 60)), 0.2)
+    assert len(quiet) == len(asked) == round(38.5 * 200)
+    assert asked == quiet
+    assert samples(list(rng.integers(1600, 39_900, 60)), 1.0) == quiet  # any chunk length
