@@ -38,6 +38,7 @@ from northfinder.driver.protocol.constants import (
     SAMPLE_RATES_HZ,
     TEMPERATURE_DEGC_PER_COUNT,
     TEMPERATURE_NOT_AVAILABLE,
+    VALIDITY_GOOD,
     ConfigKey,
     DeviceState,
     Direction,
@@ -187,6 +188,8 @@ class _Tick:
 
     gyro: list[np.ndarray] = field(default_factory=list)
     accel: list[np.ndarray] = field(default_factory=list)
+    gyro_saturated: list[np.ndarray] = field(default_factory=list)
+    accel_saturated: list[np.ndarray] = field(default_factory=list)
 
 
 class Firmware:
@@ -720,6 +723,17 @@ class Firmware:
         out.sort(key=lambda o: o.time_s)
         return out
 
+    def _states_at(self, t: np.ndarray) -> np.ndarray:
+        """:meth:`state_at` for an array of times (the state codes as integers)."""
+        state = np.full(t.shape, int(DeviceState.READY), dtype=np.int64)
+        state[t < self._settle_end] = DeviceState.SETTLING
+        state[t < self.instrument.table.motion_end_s] = DeviceState.ROTATING
+        state[t < self.warmup_s] = DeviceState.WARMUP
+        state[t < self._boot_end] = DeviceState.BOOT
+        if self._fault:
+            state[t >= self._fault_time] = DeviceState.FAULT
+        return state
+
     def _transitions(self, t0: float, t1: float) -> list[float]:
         """Times in (t0, t1] at which the state changes by itself (protocol.md 5: each sends a status)."""
         candidates = (
@@ -766,29 +780,26 @@ class Firmware:
         per_tick = round(BASE_RATE_HZ / self.sample_rate_hz)
         self._tick.gyro.append(block.gyro_rps)
         self._tick.accel.append(block.accel_mps2)
+        self._tick.gyro_saturated.append(block.gyro_saturated)
+        self._tick.accel_saturated.append(block.accel_saturated)
         gyro = np.concatenate(self._tick.gyro)
         accel = np.concatenate(self._tick.accel)
+        sat_g = np.concatenate(self._tick.gyro_saturated)
+        sat_a = np.concatenate(self._tick.accel_saturated)
         # Samples of this block that complete a tick, aligned to the physics sample grid.
         have = len(gyro)
         n_ticks = have // per_tick
         used = n_ticks * per_tick
-        self._tick = _Tick([gyro[used:]], [accel[used:]])
+        self._tick = _Tick([gyro[used:]], [accel[used:]], [sat_g[used:]], [sat_a[used:]])
         if n_ticks == 0:
             return [], np.empty(0), np.empty(0, dtype=np.int64)
         # Times and table data at the end of each completed tick.
         end_idx = np.arange(1, n_ticks + 1) * per_tick - 1 - (have - len(block))
         g = gyro[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
         a = accel[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
-        sat_g = np.zeros(n_ticks, dtype=bool)
-        sat_a = np.zeros(n_ticks, dtype=bool)
-        # per-tick flags from the block's samples that fall into each tick
-        first = have - len(block)
-        for i in range(n_ticks):
-            lo, hi = max(i * per_tick - first, 0), (i + 1) * per_tick - first
-            if hi <= 0:
-                continue
-            sat_g[i] = bool(np.any(block.gyro_saturated[lo:hi]))
-            sat_a[i] = bool(np.any(block.accel_saturated[lo:hi]))
+        # A tick is saturated if any of its physics samples was.
+        sat_g = sat_g[:used].reshape(n_ticks, per_tick).any(axis=1)
+        sat_a = sat_a[:used].reshape(n_ticks, per_tick).any(axis=1)
         # A value that is not a number cannot be sent; the device reports it as an invalid
         # (saturated) reading instead of stopping, and it must not poison the quantiser's carry.
         for values, flags in ((g, sat_g), (a, sat_a)):
@@ -800,7 +811,8 @@ class Firmware:
         # TABLE_MOVING marks ticks that overlap the motion profile (state ROTATING); the ring-down
         # after the stop belongs to SETTLING (protocol.md 4.5).
         table = self.instrument.table
-        t_end = block.time_s[np.clip(end_idx, 0, len(block) - 1)]
+        j = np.clip(end_idx, 0, len(block) - 1)
+        t_end = block.time_s[j]
         moving = (t_end > table.motion_start_s) & (
             t_end - 1.0 / self.sample_rate_hz < table.motion_end_s
         )
@@ -814,41 +826,28 @@ class Firmware:
         sat_a |= np.any((ac > INT24_MAX) | (ac < INT24_MIN), axis=1)
         gc = np.clip(gc, INT32_MIN, INT32_MAX).astype(np.int64)
         ac = np.clip(ac, INT24_MIN, INT24_MAX).astype(np.int64)
-        out = []
-        counters = np.empty(n_ticks, dtype=np.int64)
-        for i in range(n_ticks):
-            j = min(max(int(end_idx[i]), 0), len(block) - 1)
-            t = float(block.time_s[j])
-            state = self.state_at(t)
-            validity = Validity(0)
-            if state != DeviceState.FAULT:
-                validity |= Validity.GYRO_VALID | Validity.ACCEL_VALID
-            else:
-                validity |= Validity.FAULT
-            if moving[i]:
-                validity |= Validity.TABLE_MOVING
-            if state == DeviceState.SETTLING:
-                validity |= Validity.TABLE_SETTLING
-            if state in (DeviceState.BOOT, DeviceState.WARMUP):
-                validity |= Validity.WARMING_UP
-            if sat_g[i]:
-                validity |= Validity.GYRO_SATURATED
-            if sat_a[i]:
-                validity |= Validity.ACCEL_SATURATED
-            if self.faults.skip_counter:
-                self._counter += self.faults.skip_counter
-                self.faults.skip_counter = 0
-            sample = Sample(
-                counter=self._counter & 0xFFFFFFFF,
-                gyro=(int(gc[i, 0]), int(gc[i, 1]), int(gc[i, 2])),
-                accel=(int(ac[i, 0]), int(ac[i, 1]), int(ac[i, 2])),
-                angle=_angle_counts(float(block.table_deg[j])),
-                temperature=_temperature_counts(float(block.temperature_c[j])),
-                validity=validity,
+        state = self._states_at(t_end)
+        validity = np.where(state == DeviceState.FAULT, int(Validity.FAULT), int(VALIDITY_GOOD))
+        validity |= np.where(moving, int(Validity.TABLE_MOVING), 0)
+        validity |= np.where(state == DeviceState.SETTLING, int(Validity.TABLE_SETTLING), 0)
+        warming = (state == DeviceState.BOOT) | (state == DeviceState.WARMUP)
+        validity |= np.where(warming, int(Validity.WARMING_UP), 0)
+        validity |= np.where(sat_g, int(Validity.GYRO_SATURATED), 0)
+        validity |= np.where(sat_a, int(Validity.ACCEL_SATURATED), 0)
+        # A counter skip (fault injection) applies to the next tick sent.
+        self._counter += self.faults.skip_counter
+        self.faults.skip_counter = 0
+        counters = (self._counter + np.arange(n_ticks, dtype=np.int64)) & 0xFFFFFFFF
+        self._counter = (self._counter + n_ticks) & 0xFFFFFFFF
+        angle = _angle_counts_array(block.table_deg[j])
+        temperature = _temperature_counts_array(block.temperature_c[j])
+        out = [
+            Outgoing(t, Sample(c, (g0, g1, g2), (a0, a1, a2), ang, temp, _validity(v)))
+            for t, c, (g0, g1, g2), (a0, a1, a2), ang, temp, v in zip(
+                t_end.tolist(), counters.tolist(), gc.tolist(), ac.tolist(), angle.tolist(),
+                temperature.tolist(), validity.tolist(), strict=True,
             )
-            counters[i] = sample.counter
-            self._counter = (self._counter + 1) & 0xFFFFFFFF
-            out.append(Outgoing(t, sample))
+        ]  # fmt: skip
         return out, t_end, counters
 
 
@@ -876,6 +875,29 @@ def _state_refusal(cmd: Command, state: DeviceState) -> Result | None:
     ):
         return Result.BUSY
     return None
+
+
+_VALIDITY: dict[int, Validity] = {}
+
+
+def _validity(bits: int) -> Validity:
+    """The validity flags for ``bits``, built once for each combination."""
+    v = _VALIDITY.get(bits)
+    if v is None:
+        v = _VALIDITY[bits] = Validity(bits)
+    return v
+
+
+def _angle_counts_array(angle_deg: np.ndarray) -> np.ndarray:
+    """:func:`_angle_counts` of every element (the same rounding: half to even)."""
+    return np.round(angle_deg * _COUNTS_PER_DEG).astype(np.int64) % ANGLE_FULL_TURN
+
+
+def _temperature_counts_array(temp_c: np.ndarray) -> np.ndarray:
+    """:func:`_temperature_counts` of every element."""
+    finite = np.isfinite(temp_c)
+    counts = np.clip(np.round(np.where(finite, temp_c, 0.0) * _COUNTS_PER_DEGC), -32767, 32767)
+    return np.where(finite, counts.astype(np.int64), TEMPERATURE_NOT_AVAILABLE)
 
 
 def _angle_counts(angle_deg: float) -> int:
