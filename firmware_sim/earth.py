@@ -34,6 +34,7 @@ __all__ = [
 #: Normal gravity (Somigliana, WGS84) of latitude in rad, m/s^2; the units module defines it.
 gravity = normal_gravity
 
+
 def check_latitude(latitude_deg: float, field: str = "latitude_deg") -> float:
     """Return ``latitude_deg`` as float if north finding is defined there, else raise.
 

@@ -17,7 +17,7 @@ import bisect
 import copy
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -179,7 +179,7 @@ class _Snapshot:
     start_ns: int
     engine: dict[str, Any]
     skip_counter: int
-    generators: tuple[tuple[np.random.Generator, dict[str, Any]], ...]
+    generators: tuple[tuple[np.random.Generator, Mapping[str, Any]], ...]
 
 
 @dataclass
@@ -784,13 +784,13 @@ class Firmware:
         self._tick.accel_saturated.append(block.accel_saturated)
         gyro = np.concatenate(self._tick.gyro)
         accel = np.concatenate(self._tick.accel)
-        sat_g = np.concatenate(self._tick.gyro_saturated)
-        sat_a = np.concatenate(self._tick.accel_saturated)
+        sat_g_all = np.concatenate(self._tick.gyro_saturated)
+        sat_a_all = np.concatenate(self._tick.accel_saturated)
         # Samples of this block that complete a tick, aligned to the physics sample grid.
         have = len(gyro)
         n_ticks = have // per_tick
         used = n_ticks * per_tick
-        self._tick = _Tick([gyro[used:]], [accel[used:]], [sat_g[used:]], [sat_a[used:]])
+        self._tick = _Tick([gyro[used:]], [accel[used:]], [sat_g_all[used:]], [sat_a_all[used:]])
         if n_ticks == 0:
             return [], np.empty(0), np.empty(0, dtype=np.int64)
         # Times and table data at the end of each completed tick.
@@ -798,8 +798,8 @@ class Firmware:
         g = gyro[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
         a = accel[:used].reshape(n_ticks, per_tick, 3).mean(axis=1)
         # A tick is saturated if any of its physics samples was.
-        sat_g = sat_g[:used].reshape(n_ticks, per_tick).any(axis=1)
-        sat_a = sat_a[:used].reshape(n_ticks, per_tick).any(axis=1)
+        sat_g = np.asarray(sat_g_all[:used].reshape(n_ticks, per_tick).any(axis=1))
+        sat_a = np.asarray(sat_a_all[:used].reshape(n_ticks, per_tick).any(axis=1))
         # A value that is not a number cannot be sent; the device reports it as an invalid
         # (saturated) reading instead of stopping, and it must not poison the quantiser's carry.
         for values, flags in ((g, sat_g), (a, sat_a)):

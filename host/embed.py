@@ -91,25 +91,49 @@ class _DeviceEndBus(VirtualBus):
     python-can's virtual bus gives every receiver a deep copy of each message sent, in case a
     receiver changes it; that copy costs more than the rest of a frame's journey. The device
     builds a new message for every frame and never touches it again, and receivers only read
-    them, so this end hands every receiver on the channel the same message (stamped once).
+    them, so this end hands every receiver on the channel the same message (stamped once), and
+    hands over all the frames of one sending (:meth:`send_many`) under one lock per receiver.
     Receivers are ordinary ``virtual`` buses on the same channel.
     """
 
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """python-can's ``recv``, which returns at once when nothing waits and no wait is asked
+        (the device polls at every instant of a virtual clock)."""
+        if timeout == 0 and not self.queue.qsize():
+            self._check_if_open()
+            return None
+        return super().recv(timeout)
+
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.send_many([msg], timeout):
+            raise can.CanOperationError("Could not send message to one or more recipients")
+
+    def send_many(self, msgs: list[can.Message], timeout: float | None = None) -> list[can.Message]:
+        """Send frames in order, handed to each receiver at once; return those that some
+        receiver could not take (its queue full)."""
         self._check_if_open()
-        msg.timestamp = time.time()
-        msg.channel = self.channel_id
-        msg.is_rx = True
-        full = False
+        stamp = time.time()
+        for msg in msgs:
+            msg.timestamp = stamp
+            msg.channel = self.channel_id
+            msg.is_rx = True
+        dropped: list[can.Message] = []
         for bus_queue in self.channel:
             if bus_queue is self.queue:
                 continue
-            try:
-                bus_queue.put(msg, block=True, timeout=timeout)
-            except queue.Full:
-                full = True
-        if full:
-            raise can.CanOperationError("Could not send message to one or more recipients")
+            if bus_queue.maxsize <= 0:  # unbounded (python-can's default): all in one go
+                with bus_queue.mutex:
+                    bus_queue.queue.extend(msgs)
+                    bus_queue.unfinished_tasks += len(msgs)
+                    bus_queue.not_empty.notify_all()
+                continue
+            for msg in msgs:
+                try:
+                    bus_queue.put(msg, block=True, timeout=timeout)
+                except queue.Full:
+                    if msg not in dropped:
+                        dropped.append(msg)
+        return dropped
 
 
 class SimulatedInstrument:

@@ -23,6 +23,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from northfinder.driver.errors import DeviceFault, DriverTimeout
 from northfinder.driver.protocol.constants import (
     VALIDITY_GOOD,
     VALIDITY_UNFIT,
@@ -30,7 +31,6 @@ from northfinder.driver.protocol.constants import (
     DeviceState,
     Validity,
 )
-from northfinder.driver.errors import DeviceFault, DriverTimeout
 from northfinder.driver.protocol.motion import shortest_delta_deg
 from northfinder.host.consistency import ConsistencyCheck, check_windows, pooled_sem
 from northfinder.host.denoise import check_denoise, denoise

@@ -299,7 +299,10 @@ def test_a_new_recording_format_plugs_into_the_reader_table(tmp_path, monkeypatc
     cal = calibrate([run])
     # White noise of sigma 1 deg/h per sample at 10 Hz: N = 1 / sqrt(10) deg/h sqrt(s).
     assert cal.fits["gyro_x"].coefficients["arw"] == pytest.approx(1 / math.sqrt(10), rel=0.05)
-    with pytest.raises(RecordingError, match=r"no reader for '.bin'; readable: .asc, .blf, .csv, .db, .fake, .gz, .log, .mf4, .npz, .trc"):
+    with pytest.raises(
+        RecordingError,
+        match=r"no reader for '.bin'; readable: .asc, .blf, .csv, .db, .fake, .gz, .log, .mf4, .npz, .trc",
+    ):
         read_runs([tmp_path / "b.bin"])
 
 
@@ -336,7 +339,9 @@ def test_calibrate_refuses_the_same_recording_given_twice(tmp_path, capsys):
     copy.write_bytes(Path(a).read_bytes())
     with pytest.raises(RecordingError, match=rf"is the same file as {re.escape(a)}"):
         read_runs([a, str(Path(a).parent / "." / Path(a).name)])
-    with pytest.raises(RecordingError, match=rf"{re.escape(str(copy))}: holds the same samples as {re.escape(a)}"):
+    with pytest.raises(
+        RecordingError, match=rf"{re.escape(str(copy))}: holds the same samples as {re.escape(a)}"
+    ):
         read_runs([a, other, copy])
     assert cli(["calibrate", a, str(copy)]) == 2
     assert "holds the same samples as" in capsys.readouterr().err

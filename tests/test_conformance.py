@@ -231,7 +231,9 @@ def test_conformance_sim_runs_the_suite_in_virtual_time(capsys, tmp_path):
 
 def test_conformance_sim_json_prints_the_json_result_alone(capsys):
     """``--sim --json``: stdout is one JSON document (no header, no progress lines)."""
-    status = main(["conformance", "--sim", "--seed", "2", "--only", "identify,state.ready", "--json"])
+    status = main(
+        ["conformance", "--sim", "--seed", "2", "--only", "identify,state.ready", "--json"]
+    )
     out = capsys.readouterr().out
     assert status == 0, out
     result = json.loads(out)
@@ -427,9 +429,10 @@ def test_a_unit_never_heard_fails_at_once_and_says_what_to_check(other_node, tim
 
     channel = f"silent-{other_node}-{time_scale}"
     clock = VirtualClock()
-    with can.Bus(interface="virtual", channel=channel) as bus, can.Bus(
-        interface="virtual", channel=channel
-    ) as other:
+    with (
+        can.Bus(interface="virtual", channel=channel) as bus,
+        can.Bus(interface="virtual", channel=channel) as other,
+    ):
         if other_node:  # a unit answering to node id 2 on the same bus
             other.send(can.Message(arbitration_id=can_id(CanFunction.STATUS, 2),
                                    data=bytes(8), is_extended_id=False))  # fmt: skip

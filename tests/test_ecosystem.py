@@ -210,7 +210,7 @@ def test_an_interface_that_sends_off_the_machine_is_refused(command, tmp_path):
     ("name", "content", "why"),
     [
         ("garbage.blf", bytes(range(256)) * 8, "Unexpected file format"),
-        ("notes.db", b"VERSION \"\"\nBU_: NF\n", "not a database"),
+        ("notes.db", b'VERSION ""\nBU_: NF\n', "not a database"),
         ("empty.db", b"", "no such table"),
     ],
 )
@@ -236,7 +236,10 @@ def test_an_mf4_log_without_asammdf_names_the_package(tmp_path, monkeypatch):
 @pytest.mark.parametrize("command", [["find", *FAST], ["study", "--runs", "5"], ["solve", "x.npz"]])
 def test_a_plot_name_of_no_format_is_refused_before_the_run(command, tmp_path):
     pytest.importorskip("matplotlib")
-    for bad, why in ((tmp_path / "p.xyz", ".xyz is no plot format"), (tmp_path / "p", "no file ending")):
+    for bad, why in (
+        (tmp_path / "p.xyz", ".xyz is no plot format"),
+        (tmp_path / "p", "no file ending"),
+    ):
         code, out, err = run_cli(*command, "--plot", str(bad))
         assert code == 2 and out == "" and why in err and ".png" in err, err
         assert not bad.exists()
@@ -410,7 +413,10 @@ def test_a_heading_the_consistency_check_rejected_is_never_sent_as_valid():
     """Windows that disagree beyond their noise: however small sigma, no heading in either
     sentence and status V; a passed check (or none, with two windows) leaves it valid."""
     rejected = HeadingFix(42.0, 0.01, 0.0, 0.0, 4, consistent=False)
-    hdt, nfdh = pynmea2.parse(hdt_sentence(rejected), check=True), pynmea2.parse(nfdh_sentence(rejected))
+    hdt, nfdh = (
+        pynmea2.parse(hdt_sentence(rejected), check=True),
+        pynmea2.parse(nfdh_sentence(rejected)),
+    )
     assert hdt.heading is None
     assert nfdh.status == "V" and nfdh.data[1] == "" and nfdh.sigma == 0.01
     for consistent in (True, None):

@@ -401,7 +401,9 @@ def test_an_angle_must_be_a_finite_number(value, named):
 
 
 def test_configuration_values_with_a_fraction_are_refused_not_rounded():
-    with pytest.raises(ArgumentError, match=r"value=199\.7: configuration values are whole numbers"):
+    with pytest.raises(
+        ArgumentError, match=r"value=199\.7: configuration values are whole numbers"
+    ):
         whole_number("value", 199.7)
     assert whole_number("value", 200.0) == 200 and whole_number("value", np.int16(7)) == 7
     with pytest.raises(ArgumentError, match="whole number"):

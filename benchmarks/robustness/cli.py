@@ -135,12 +135,16 @@ def _files(tmp: str) -> dict[str, str]:
     }.items():
         np.savez(os.path.join(tmp, name), **{**arrays, "meta_json": np.array(meta_json)})
         out[name] = os.path.join(tmp, name)
-    np.savez(os.path.join(tmp, "gyro-shape.npz"), **{**arrays, "gyro_dph": arrays["gyro_dph"][:, :2]})
+    np.savez(
+        os.path.join(tmp, "gyro-shape.npz"), **{**arrays, "gyro_dph": arrays["gyro_dph"][:, :2]}
+    )
     out["gyro-shape.npz"] = os.path.join(tmp, "gyro-shape.npz")
     np.savez(os.path.join(tmp, "counter-float.npz"),
              **{**arrays, "counter": arrays["counter"].astype(float) + 0.5})  # fmt: skip
     out["counter-float.npz"] = os.path.join(tmp, "counter-float.npz")
-    np.savez(os.path.join(tmp, "no-meta.npz"), **{k: v for k, v in arrays.items() if k != "meta_json"})
+    np.savez(
+        os.path.join(tmp, "no-meta.npz"), **{k: v for k, v in arrays.items() if k != "meta_json"}
+    )
     out["no-meta.npz"] = os.path.join(tmp, "no-meta.npz")
     write("garbage.npz", "PK\x03\x04 not really a zip")
     return out
@@ -167,14 +171,26 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
             (["--serial", "/dev/null", "--latitude", "34"], 1, "/dev/null"),
             (["-i", "virtual", "-c", "nf-sweep", "--latitude", "34"], 1, "reply"),
             (["-i", "no-such-interface", "-c", "x", "--latitude", "34"], 2, "interface"),
-            (["--serial", "/dev/null", "--latitude", "34", "--reply-timeout", "0.05"], 2,
-             "--reply-timeout"),
-            (["--serial", "/dev/null", "--latitude", "34", "--reply-timeout", "1e300"], 2,
-             "--reply-timeout"),
-            (["--serial", "/dev/null", "--latitude", "34", "--link-timeout", "1e300"], 2,
-             "--link-timeout"),
-            (["--serial", "/dev/null", "--latitude", "34", "--link-timeout", "0"], 2,
-             "--link-timeout"),
+            (
+                ["--serial", "/dev/null", "--latitude", "34", "--reply-timeout", "0.05"],
+                2,
+                "--reply-timeout",
+            ),
+            (
+                ["--serial", "/dev/null", "--latitude", "34", "--reply-timeout", "1e300"],
+                2,
+                "--reply-timeout",
+            ),
+            (
+                ["--serial", "/dev/null", "--latitude", "34", "--link-timeout", "1e300"],
+                2,
+                "--link-timeout",
+            ),
+            (
+                ["--serial", "/dev/null", "--latitude", "34", "--link-timeout", "0"],
+                2,
+                "--link-timeout",
+            ),
             (["--serial", "/dev/null", "--latitude", "34", "--speed", "5"], 2, "--speed"),
             (["--serial", "/dev/null", "--latitude", "34", "--sensor", "mems"], 2, "--sensor"),
             (["--serial", "/dev/null", "--latitude", "91"], 2, "latitude"),
@@ -281,8 +297,18 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         (["--denoise", "moving-average", "--denoise-option", "window=abc"], 2, "window"),
         (["--denoise", "moving-average", "--denoise-option", "window=0"], 2, "window"),
         (["--denoise", "moving-average", "--denoise-option", "window=1e9"], 2, "window"),
-        (["--denoise", "moving-average", "--denoise-option", "window=5", "--denoise-option",
-          "nope=1"], 2, "nope"),
+        (
+            [
+                "--denoise",
+                "moving-average",
+                "--denoise-option",
+                "window=5",
+                "--denoise-option",
+                "nope=1",
+            ],
+            2,
+            "nope",
+        ),
         (["--denoise", "wavelet-2p", "--denoise-option", "level=99"], 2, "level"),
         (["--denoise-option", "window=5"], 2, "window"),
         (["--runs", "0"], 2, "--runs"),
@@ -377,8 +403,8 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
         ([control, "vibration", "hz=NaN"], 2, "hz"),
         ([control, "impulses", "count=1000000"], 2, "count"),
         ([control, "impulses", "gyro_dph=NaN"], 2, "gyro_dph"),
-        ([control, "set_sensor", "values={\"gyro.arw_dpsh\": -1}"], 2, "arw_dpsh"),
-        ([control, "set_sensor", "values={\"table.max_rate_dps\": 1e300}"], 2, "max_rate_dps"),
+        ([control, "set_sensor", 'values={"gyro.arw_dpsh": -1}'], 2, "arw_dpsh"),
+        ([control, "set_sensor", 'values={"table.max_rate_dps": 1e300}'], 2, "max_rate_dps"),
         ([control, "set_truth", "latitude_deg=95"], 2, "latitude_deg"),
         ([control, "speed", "value=0"], 2, "value"),
         (["nonsense", "status"], 2, "nonsense"),
@@ -521,7 +547,9 @@ def cli_sweep(args: argparse.Namespace) -> dict[str, Any]:
             row["unnamed"] += 1
             bad.append(f"line does not name {case.names!r}")
         if bad:
-            problems.append(f"{', '.join(bad)}: {' '.join(case.argv)[:120]}\n        -> {line[:200]}")
+            problems.append(
+                f"{', '.join(bad)}: {' '.join(case.argv)[:120]}\n        -> {line[:200]}"
+            )
         else:
             row["clean"] += 1
     print("bad-input sweep (each case its own `northfinder` process, "

@@ -22,8 +22,14 @@ def _sample_frames(rng: random.Random, count: int, seq0: int = 0) -> list[bytes]
 
     return [
         enc.encode(
-            Sample(rng.randrange(2**32), (i32(), i32(), i32()), (i32(), i32(), i32()),
-                   rng.randrange(2**32), rng.randrange(-(2**15), 2**15), Validity(rng.randrange(256)))
+            Sample(
+                rng.randrange(2**32),
+                (i32(), i32(), i32()),
+                (i32(), i32(), i32()),
+                rng.randrange(2**32),
+                rng.randrange(-(2**15), 2**15),
+                Validity(rng.randrange(256)),
+            )
         )
         for _ in range(count)
     ]
@@ -80,7 +86,13 @@ def codec_fuzz(args: argparse.Namespace) -> dict[str, Any]:
         chunks += 1
     # Resynchronisation: a frame, a mutated frame, then the stream goes on; the frame before
     # and the two after the mutated one must come through.
-    mutations = ("delete a byte", "flip a byte", "insert a byte", "truncate", "last byte lost (0xA5)")
+    mutations = (
+        "delete a byte",
+        "flip a byte",
+        "insert a byte",
+        "truncate",
+        "last byte lost (0xA5)",
+    )
     lost = {m: 0 for m in mutations}
     false = {m: 0 for m in mutations}  # damaged frames that passed the CRC
     trials = {m: 0 for m in mutations}

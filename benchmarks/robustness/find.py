@@ -17,7 +17,11 @@ FIND_FAULTS: list[tuple[str, dict[str, Any], dict[str, Any] | None]] = [
     ("corrupt 5 frames", {"op": "corrupt", "count": 5}, None),
     ("corrupt 200 frames", {"op": "corrupt", "count": 200}, None),
     ("skip the counter by 3", {"op": "skip_counter", "count": 3}, None),
-    ("delay replies 0.3 s", {"op": "delay_replies", "seconds": 0.3}, {"op": "delay_replies", "seconds": 0}),
+    (
+        "delay replies 0.3 s",
+        {"op": "delay_replies", "seconds": 0.3},
+        {"op": "delay_replies", "seconds": 0},
+    ),
     ("delay replies 5 s", {"op": "delay_replies", "seconds": 5}, None),
     ("wrong result once", {"op": "wrong_result", "code": 7}, None),
     ("silent", {"op": "silent"}, None),
@@ -105,6 +109,9 @@ def find_faults(args: argparse.Namespace) -> dict[str, Any]:
         e = f"{r['error_deg']:+10.4f}" if "error_deg" in r else f"{'-':>10}"
         z = f"{r['z']:6.1f}" if "z" in r else f"{'-':>6}"
         print(f"{r['fault']:<26} {r['moment']:<8} {r['outcome']:<15} {e} {z}  {r['detail'][:110]}")
-    tally = {k: sum(r["outcome"] == k for r in rows) for k in ("error", "warning", "right", "SILENTLY WRONG")}
+    tally = {
+        k: sum(r["outcome"] == k for r in rows)
+        for k in ("error", "warning", "right", "SILENTLY WRONG")
+    }
     print(f"runs {len(rows)}: {tally}")
     return {"rows": rows, "tally": tally}

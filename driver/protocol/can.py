@@ -8,6 +8,7 @@ the identify pages, and :class:`CanReceiver` does both plus status merging and c
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -35,6 +36,9 @@ from northfinder.driver.protocol.messages import (
     Status,
     StatusCounters,
     StatusMain,
+    sample_aux_fields,
+    sample_axis_fields,
+    validity_of,
 )
 
 __all__ = [
@@ -147,6 +151,12 @@ def encode_can(message: Message | CanMessage, node_id: int = 1) -> list[CanFrame
     EncodeError
         A field does not fit, or the object is not a protocol message.
     """
+    if type(message) is Sample:
+        # The stream's message: its four frames packed directly (Sample.can_payloads).
+        return [
+            CanFrame(i, data)
+            for i, data in zip(_sample_ids(node_id), message.can_payloads(), strict=True)
+        ]
     if isinstance(message, Sample):
         parts: tuple[CanMessage, ...] | list[IdentifyPage] = message.split()
     elif isinstance(message, Status):
@@ -166,6 +176,22 @@ def encode_can(message: Message | CanMessage, node_id: int = 1) -> list[CanFrame
                 raise EncodeError(f"{type(part).__name__} is not a CAN message")
         frames.append(CanFrame(can_id(function, node_id), part.encode()))
     return frames
+
+
+_SAMPLE_FUNCTIONS = (
+    CanFunction.SAMPLE_X,
+    CanFunction.SAMPLE_Y,
+    CanFunction.SAMPLE_Z,
+    CanFunction.SAMPLE_AUX,
+)
+#: Slot of each sample frame in its tick: x, y, z, aux.
+_SAMPLE_SLOT = {function: slot for slot, function in enumerate(_SAMPLE_FUNCTIONS)}
+
+
+@functools.cache
+def _sample_ids(node_id: int) -> tuple[int, int, int, int]:
+    """The identifiers of the four sample frames of ``node_id`` (checked once)."""
+    return tuple(can_id(function, node_id) for function in _SAMPLE_FUNCTIONS)  # type: ignore[return-value]
 
 
 def decode_can(
@@ -244,8 +270,9 @@ class TickAssembler:
     def __init__(self) -> None:
         self.counter = TickCounter()
         self._tick: int | None = None  # the tick in progress
-        self._axes: list[SampleAxis | None] = [None] * 3
-        self._aux: SampleAux | None = None
+        # The fields of the tick's frames held so far, by slot: x, y, z as (gyro, accel), aux as
+        # (angle, temperature, validity bits).
+        self._parts: list[tuple[int, ...] | None] = [None] * 4
         self.complete = 0
         self.incomplete = 0
         self.lost = 0
@@ -267,8 +294,22 @@ class TickAssembler:
 
     def add(self, part: SampleAxis | SampleAux) -> list[Sample | TickLoss]:
         """Add one sample frame; return completed samples and loss reports, in tick order."""
+        if isinstance(part, SampleAux):
+            return self._add(part.tick, 3, (part.angle, part.temperature, int(part.validity)))
+        return self._add(part.tick, _AXIS_SLOT[type(part)], (part.gyro, part.accel))
+
+    def add_frame(self, function: CanFunction, data: bytes | bytearray) -> list[Sample | TickLoss]:
+        """:meth:`add` for the 8-byte data of a sample frame of ``function`` (SAMPLE_X, _Y, _Z
+        or _AUX), without building the frame's message."""
+        slot = _SAMPLE_SLOT[function]
+        if slot == 3:
+            tick, *fields = sample_aux_fields(data)
+        else:
+            tick, *fields = sample_axis_fields(data)
+        return self._add(tick, slot, tuple(fields))
+
+    def _add(self, t: int, slot: int, fields: tuple[int, ...]) -> list[Sample | TickLoss]:
         out: list[Sample | TickLoss] = []
-        t = part.tick
         if self._tick is not None and t != self._tick:
             out.append(self._finish_incomplete())
         if self._tick is None:
@@ -280,21 +321,23 @@ class TickAssembler:
                 self.lost += step - 1
                 out.append(TickLoss((counter - step + 1) & UINT32_MAX, step - 1, False))
             self._tick = t
-        if isinstance(part, SampleAux):
-            if self._aux is not None:
-                self.duplicates += 1
-                return out
-            self._aux = part
-        else:
-            slot = _AXIS_SLOT[type(part)]
-            if self._axes[slot] is not None:
-                self.duplicates += 1
-                return out
-            self._axes[slot] = part
-        x, y, z = self._axes
-        aux = self._aux
+        parts = self._parts
+        if parts[slot] is not None:
+            self.duplicates += 1
+            return out
+        parts[slot] = fields
+        x, y, z, aux = parts
         if x is not None and y is not None and z is not None and aux is not None:
-            out.append(Sample.from_parts(self._placed(), x, y, z, aux))
+            out.append(
+                Sample(
+                    self._placed(),
+                    (x[0], y[0], z[0]),
+                    (x[1], y[1], z[1]),
+                    aux[0],
+                    aux[1],
+                    validity_of(aux[2]),
+                )
+            )
             self.complete += 1
             self._end_tick()
         return out
@@ -316,8 +359,7 @@ class TickAssembler:
 
     def _end_tick(self) -> None:
         self._tick = None
-        self._axes = [None] * 3
-        self._aux = None
+        self._parts = [None] * 4
 
 
 class IdentifyAssembler:
@@ -407,6 +449,19 @@ class CanReceiver:
     ) -> list[Message | TickLoss]:
         """Add one received frame; return the messages and tick losses it completes."""
         self.frames += 1
+        function = arbitration_id & 0x7F0
+        if (
+            function in _SAMPLE_SLOT
+            and len(data) == 8
+            and arbitration_id & 0x0F
+            and arbitration_id <= 0x7FF
+            and not is_extended_id
+        ):
+            # The stream's frames (four a tick): straight into the tick, as decode_can would.
+            if self.node_id is not None and arbitration_id & 0x0F != self.node_id:
+                self.other_node += 1
+                return []
+            return self.ticks.add_frame(function, data)  # type: ignore[arg-type,return-value]
         try:
             node, msg = decode_can(arbitration_id, data, is_extended_id=is_extended_id)
         except UnknownMessageError as exc:

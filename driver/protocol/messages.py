@@ -502,6 +502,30 @@ def _check_sample_common(angle: int, temperature: int, validity: int) -> None:
     _check_u8("validity", int(validity))
 
 
+_VALIDITY: dict[int, Validity] = {}
+
+
+def validity_of(bits: int) -> Validity:
+    """``Validity(bits)``, built once for each of the 256 values (a flag enum is slow to build
+    and every sample carries one)."""
+    v = _VALIDITY.get(bits)
+    if v is None:
+        v = _VALIDITY[bits] = Validity(bits)
+    return v
+
+
+def sample_axis_fields(payload: bytes | bytearray) -> tuple[int, int, int]:
+    """``(tick, gyro, accel)`` of an 8-byte SAMPLE_X/Y/Z payload (the length unchecked)."""
+    tick, gyro, lo, hi = _SAMPLE_AXIS.unpack(payload)
+    return tick, gyro, lo | (hi << 16)
+
+
+def sample_aux_fields(payload: bytes | bytearray) -> tuple[int, int, int, int]:
+    """``(tick, angle, temperature, validity bits)`` of an 8-byte SAMPLE_AUX payload (the
+    length unchecked)."""
+    return _SAMPLE_AUX.unpack(payload)
+
+
 @dataclass(frozen=True, slots=True)
 class Sample:
     """One sample tick: the serial SAMPLE payload (35 bytes); on CAN four frames.
@@ -558,7 +582,36 @@ class Sample:
         """Decode a serial SAMPLE payload (35 bytes)."""
         _expect_len(cls, payload, _SAMPLE.size)
         c, gx, gy, gz, ax, ay, az, angle, temp, valid = _SAMPLE.unpack(payload)
-        return cls(c, (gx, gy, gz), (ax, ay, az), angle, temp, Validity(valid))
+        return cls(c, (gx, gy, gz), (ax, ay, az), angle, temp, validity_of(valid))
+
+    def can_payloads(self) -> tuple[bytes, bytes, bytes, bytes]:
+        """The data of the four CAN frames of this tick, in sending order: what the frames of
+        :meth:`split` encode to, without building them."""
+        g, a = self.gyro, self.accel
+        angle, temp, valid = self.angle, self.temperature, self.validity
+        if not (
+            len(g) == 3
+            and len(a) == 3
+            and all(type(v) is int and INT32_MIN <= v <= INT32_MAX for v in g)
+            and all(type(v) is int and INT24_MIN <= v <= INT24_MAX for v in a)
+            and type(angle) is int
+            and 0 <= angle <= UINT32_MAX
+            and type(temp) is int
+            and -32768 <= temp <= 32767
+            and isinstance(valid, int)
+            and 0 <= valid <= 0xFF
+        ):
+            if len(g) != 3 or len(a) != 3:
+                raise EncodeError("gyro and accel must have three channels")
+            return tuple(part.encode() for part in self.split())  # type: ignore[return-value]
+        t = self.counter & 0xFF
+        pack = _SAMPLE_AXIS.pack
+        return (
+            pack(t, g[0], a[0] & 0xFFFF, a[0] >> 16),
+            pack(t, g[1], a[1] & 0xFFFF, a[1] >> 16),
+            pack(t, g[2], a[2] & 0xFFFF, a[2] >> 16),
+            _SAMPLE_AUX.pack(t, angle, temp, valid),
+        )
 
     def split(self) -> tuple[SampleX, SampleY, SampleZ, SampleAux]:
         """The four CAN frames of this tick, in sending order."""
@@ -622,8 +675,7 @@ class SampleAxis:
     def decode(cls, payload: bytes) -> Self:
         """Decode a CAN payload (8 bytes)."""
         _expect_len(cls, payload, 8)
-        tick, gyro, lo, hi = _SAMPLE_AXIS.unpack(payload)
-        return cls(tick, gyro, lo | (hi << 16))
+        return cls(*sample_axis_fields(payload))
 
 
 @dataclass(frozen=True, slots=True)
@@ -678,8 +730,8 @@ class SampleAux:
     def decode(cls, payload: bytes) -> SampleAux:
         """Decode a CAN payload (8 bytes)."""
         _expect_len(cls, payload, 8)
-        tick, angle, temp, valid = _SAMPLE_AUX.unpack(payload)
-        return cls(tick, angle, temp, Validity(valid))
+        tick, angle, temp, valid = sample_aux_fields(payload)
+        return cls(tick, angle, temp, validity_of(valid))
 
 
 # --------------------------------------------------------------------------------------------

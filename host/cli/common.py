@@ -419,7 +419,9 @@ def check_plot_path(path: str, option: str = "--plot") -> str:
     try:
         from matplotlib.backend_bases import FigureCanvasBase
     except ImportError as exc:
-        raise HostConfigError(f"{option} needs matplotlib: pip install 'northfinder[plot]'") from exc
+        raise HostConfigError(
+            f"{option} needs matplotlib: pip install 'northfinder[plot]'"
+        ) from exc
     formats = sorted(FigureCanvasBase.get_supported_filetypes())
     suffix = os.path.splitext(path)[1].lower().lstrip(".")
     if suffix not in formats:

@@ -622,9 +622,7 @@ def main() -> int:
             if len(wrong) < len(failed):
                 failures.append(f"conformance: {[n for n in failed if n not in wrong]}")
     except subprocess.TimeoutExpired as exc:
-        hard.append(
-            f"{Path(exc.cmd[0]).name} {exc.cmd[1]} did not end within {exc.timeout:g} s"
-        )
+        hard.append(f"{Path(exc.cmd[0]).name} {exc.cmd[1]} did not end within {exc.timeout:g} s")
         progress(hard[-1])
     finally:
         progress("stopping the simulator, draining candump")

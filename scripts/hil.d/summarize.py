@@ -88,7 +88,10 @@ def main(out: str) -> int:
     elif status == "pass" and all(s["rc"] == 0 for s in final):
         verdict, rc = "PASS", 0
     elif status.startswith("not judged") and all(s["rc"] in (0, 3) for s in final):
-        verdict, rc = f"NOT JUDGED ({status[len('not judged: '):]}: the machine could not carry it)", 3
+        verdict, rc = (
+            f"NOT JUDGED ({status[len('not judged: ') :]}: the machine could not carry it)",
+            3,
+        )
     elif status.startswith("fail setup") or status.startswith("fail no"):
         verdict, rc = f"ERROR ({status})", 2
     else:
