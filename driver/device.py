@@ -761,8 +761,8 @@ class Device(DeviceLink):
         collector = WindowCollector(n, on_gap=on_gap)
         last_sample_at = t_start
         while not collector.done:
-            seen = self._events
             with self._lock:
+                alerts = self._inbox_alerts
                 items = list(inbox)
                 inbox.clear()
             for kind, item, mono, wall in items:
@@ -800,7 +800,12 @@ class Device(DeviceLink):
                     f"({collector.received} received)",
                     limit,
                 ) from None
-            self._wait_change(
-                seen, min(deadline, last_sample_at + stall_limit, self._link_deadline())
+            # Sleep until the window can be complete, or something else than a sample came (a
+            # loss, a reset, a lost or closed link), or a deadline is to be judged: one wake-up
+            # for the whole window on a steady stream, not one for each sample.
+            need = n - collector.received
+            self._clock.wait_until(
+                lambda: len(inbox) >= need or self._inbox_alerts != alerts,
+                min(deadline, last_sample_at + stall_limit, self._link_deadline()),
             )
         return collector.window(rate, self._scales)

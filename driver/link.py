@@ -227,6 +227,7 @@ class DeviceLink:
         # for samples, losses, resets and a lost link.
         self._inbox: deque[tuple[str, Any, float, float]] | None = None
         self._inbox_since = 0.0  # clock time the inbox was registered
+        self._inbox_alerts = 0  # items other than samples put in an inbox, and closings
         self._config: dict[ConfigKey, int] = {}
         self._config_stale = True
         self._streaming = False
@@ -278,6 +279,7 @@ class DeviceLink:
             for waiter in self._waiters.values():
                 waiter.error = LinkError("the device was closed")
             self._events += 1
+            self._inbox_alerts += 1
         self._clock.notify()
 
     @property
@@ -348,6 +350,7 @@ class DeviceLink:
             if self._inbox is not None:
                 now = self._clock.now()
                 self._inbox.append(("lost", error, now, self._clock.wall()))
+                self._inbox_alerts += 1
             self._events += 1
         self._clock.notify()
 
@@ -359,8 +362,11 @@ class DeviceLink:
                         self._counts["samples"] += 1
                     # Only what was received after acquire() was called belongs to its window.
                     if self._inbox is not None and mono >= self._inbox_since:
-                        kind = "sample" if isinstance(item, Sample) else "loss"
-                        self._inbox.append((kind, item, mono, wall))
+                        if isinstance(item, Sample):
+                            self._inbox.append(("sample", item, mono, wall))
+                        else:
+                            self._inbox.append(("loss", item, mono, wall))
+                            self._inbox_alerts += 1
                 elif isinstance(item, Reply):
                     self._on_reply(item)
                 elif isinstance(item, Status):
@@ -420,6 +426,7 @@ class DeviceLink:
         log.warning("device restart detected: %s", reason)
         if self._inbox is not None:
             self._inbox.append(("reset", reason, self._clock.now(), self._clock.wall()))
+            self._inbox_alerts += 1
 
     # -- requests -----------------------------------------------------------------------------
     def _check_open(self) -> None:
