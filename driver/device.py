@@ -805,7 +805,7 @@ class Device(DeviceLink):
             # for the whole window on a steady stream, not one for each sample.
             need = n - collector.received
             self._clock.wait_until(
-                lambda: len(inbox) >= need or self._inbox_alerts != alerts,
+                lambda need=need, alerts=alerts: len(inbox) >= need or self._inbox_alerts != alerts,
                 min(deadline, last_sample_at + stall_limit, self._link_deadline()),
             )
         return collector.window(rate, self._scales)
