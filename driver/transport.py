@@ -258,6 +258,8 @@ class CanTransport:
                     frames = [msg, *self._take(MAX_FRAMES_PER_RECV - 1)]
         except (can.CanError, OSError, ValueError, serial.SerialException) as exc:
             raise LinkLost(f"cannot receive from the CAN bus {self._name()}: {exc}") from exc
+        if not frames:
+            return []
         out: list[Any] = []
         if self.tap is not None:
             for msg in frames:

@@ -13,13 +13,13 @@ its validity bits.
 
 from __future__ import annotations
 
-import bisect
 import copy
 import logging
 import math
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -58,6 +58,7 @@ from northfinder.driver.protocol.messages import (
     Sample,
     SetConfig,
     Status,
+    validity_of,
 )
 from northfinder.driver.protocol.units import DPH, G0
 from northfinder.firmware_sim.error_terms import quantise_carry
@@ -164,8 +165,7 @@ class FaultInjection:
     wrong_result: int | None = None
 
 
-@dataclass(frozen=True)
-class Outgoing:
+class Outgoing(NamedTuple):
     """A message the firmware sends at simulated time ``time_s``."""
 
     time_s: float
@@ -253,7 +253,7 @@ class Firmware:
         self._pending: list[Outgoing] = []
         self._now_ns = 0  # time up to which the device has sent its output
         self._horizon_ns = 0  # time up to which output has been computed ahead
-        self._ahead: list[Outgoing] = []
+        self._ahead: deque[Outgoing] = deque()
         self._snapshots: list[_Snapshot] = []
         self._lookahead_ns = _LOOKAHEAD_NS
         self.boot_count = 0
@@ -605,12 +605,15 @@ class Firmware:
         target = target_ns / NS_PER_S
         while self._horizon_ns < target_ns:
             self._compute_ahead()
-        n = bisect.bisect_right(self._ahead, target, key=lambda o: o.time_s)
-        out, self._ahead = self._ahead[:n], self._ahead[n:]
-        due = [p for p in self._pending if p.time_s <= target]
-        if due:
-            self._pending = [p for p in self._pending if p.time_s > target]
-            out = sorted(out + due, key=lambda o: o.time_s)
+        ahead = self._ahead
+        out = []
+        while ahead and ahead[0].time_s <= target:
+            out.append(ahead.popleft())
+        if self._pending:
+            due = [p for p in self._pending if p.time_s <= target]
+            if due:
+                self._pending = [p for p in self._pending if p.time_s > target]
+                out = sorted(out + due, key=lambda o: o.time_s)
         self._now_ns = target_ns
         while len(self._snapshots) > 1 and self._snapshots[1].start_ns <= target_ns:
             self._snapshots.pop(0)  # chunks wholly in the past are never rewound to
@@ -622,6 +625,8 @@ class Firmware:
             self._last_state = state
         if self.faults.silent:
             return []
+        if not any(isinstance(o.message, Status) for o in out):
+            return out
         # Counters are the link's, not the computation's: a status carries their values when sent.
         rx, tx, rejected = (
             self.rx_malformed & 0xFFFF,
@@ -842,7 +847,7 @@ class Firmware:
         angle = _angle_counts_array(block.table_deg[j])
         temperature = _temperature_counts_array(block.temperature_c[j])
         out = [
-            Outgoing(t, Sample(c, (g0, g1, g2), (a0, a1, a2), ang, temp, _validity(v)))
+            Outgoing(t, Sample.fast(c, (g0, g1, g2), (a0, a1, a2), ang, temp, validity_of(v)))
             for t, c, (g0, g1, g2), (a0, a1, a2), ang, temp, v in zip(
                 t_end.tolist(), counters.tolist(), gc.tolist(), ac.tolist(), angle.tolist(),
                 temperature.tolist(), validity.tolist(), strict=True,
@@ -875,17 +880,6 @@ def _state_refusal(cmd: Command, state: DeviceState) -> Result | None:
     ):
         return Result.BUSY
     return None
-
-
-_VALIDITY: dict[int, Validity] = {}
-
-
-def _validity(bits: int) -> Validity:
-    """The validity flags for ``bits``, built once for each combination."""
-    v = _VALIDITY.get(bits)
-    if v is None:
-        v = _VALIDITY[bits] = Validity(bits)
-    return v
 
 
 def _angle_counts_array(angle_deg: np.ndarray) -> np.ndarray:

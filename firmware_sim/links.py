@@ -23,6 +23,7 @@ from typing import Any, Protocol
 
 import can
 import serial
+from can import Message
 
 from northfinder.driver.protocol.can import encode_can, split_can_id
 from northfinder.driver.protocol.constants import CanFunction
@@ -212,17 +213,17 @@ class CanLink:
 
     def send(self, outgoing: list[Outgoing]) -> None:
         msgs = []
+        faults = self.firmware.faults
         for item in outgoing:
-            for frame in encode_can(item.message, self.node_id):
-                # A corrupted CAN frame that still reaches the host has a wrong length: the
-                # bus's own CRC would have stopped any other corruption.
-                data = self._faults.filter(frame.data, lambda d: d[:-1])
-                if data is not None:
-                    msgs.append(
-                        can.Message(
-                            arbitration_id=frame.arbitration_id, data=data, is_extended_id=False
-                        )
-                    )
+            for arbitration_id, data in encode_can(item.message, self.node_id):
+                if faults.drop_frames or faults.corrupt_frames:
+                    # A corrupted CAN frame that still reaches the host has a wrong length: the
+                    # bus's own CRC would have stopped any other corruption.
+                    kept = self._faults.filter(data, _drop_last_byte)
+                    if kept is None:
+                        continue
+                    data = kept
+                msgs.append(Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
         if not msgs:
             return
         send_many = getattr(self.bus, "send_many", None)
@@ -247,6 +248,10 @@ class CanLink:
                     arbitration_id=msg.arbitration_id, data=msg.data, is_extended_id=False,
                     is_rx=False,
                 ))  # fmt: skip
+
+
+def _drop_last_byte(data: bytes) -> bytes:
+    return data[:-1]
 
 
 def _frame_sender(bus: FrameBus) -> Callable[[can.Message], None]:

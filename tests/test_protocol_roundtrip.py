@@ -190,6 +190,10 @@ def test_a_samples_can_payloads_are_its_frames_encoded(sample, node_id):
     frames = encode_can(sample, node_id)
     assert [f.data for f in frames] == [part.encode() for part in sample.split()]
     assert sample.can_payloads() == tuple(part.encode() for part in sample.split())
+    fast = Sample.fast(*(getattr(sample, f.name) for f in dataclasses.fields(Sample)))
+    assert fast == sample and hash(fast) == hash(sample) and repr(fast) == repr(sample)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fast.counter = 1  # type: ignore[misc]
     functions = [CanFunction.SAMPLE_X, CanFunction.SAMPLE_Y, CanFunction.SAMPLE_Z,
                  CanFunction.SAMPLE_AUX]  # fmt: skip
     assert [split_can_id(f.arbitration_id) for f in frames] == [(f, node_id) for f in functions]

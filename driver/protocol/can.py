@@ -329,7 +329,7 @@ class TickAssembler:
         x, y, z, aux = parts
         if x is not None and y is not None and z is not None and aux is not None:
             out.append(
-                Sample(
+                Sample.fast(
                     self._placed(),
                     (x[0], y[0], z[0]),
                     (x[1], y[1], z[1]),

@@ -584,6 +584,27 @@ class Sample:
         c, gx, gy, gz, ax, ay, az, angle, temp, valid = _SAMPLE.unpack(payload)
         return cls(c, (gx, gy, gz), (ax, ay, az), angle, temp, validity_of(valid))
 
+    @classmethod
+    def fast(
+        cls,
+        counter: int,
+        gyro: tuple[int, int, int],
+        accel: tuple[int, int, int],
+        angle: int,
+        temperature: int,
+        validity: Validity,
+    ) -> Sample:
+        """The same as ``Sample(...)``, built in half the time (a frozen dataclass sets each
+        field through ``object.__setattr__``); for the stream, which builds one every tick."""
+        sample = _new(cls)
+        _SET_COUNTER(sample, counter)
+        _SET_GYRO(sample, gyro)
+        _SET_ACCEL(sample, accel)
+        _SET_ANGLE(sample, angle)
+        _SET_TEMPERATURE(sample, temperature)
+        _SET_VALIDITY(sample, validity)
+        return sample
+
     def can_payloads(self) -> tuple[bytes, bytes, bytes, bytes]:
         """The data of the four CAN frames of this tick, in sending order: what the frames of
         :meth:`split` encode to, without building them."""
@@ -637,6 +658,13 @@ class Sample:
             aux.temperature,
             aux.validity,
         )
+
+
+_new = object.__new__
+_SET_COUNTER, _SET_GYRO, _SET_ACCEL, _SET_ANGLE, _SET_TEMPERATURE, _SET_VALIDITY = (
+    getattr(Sample, name).__set__
+    for name in ("counter", "gyro", "accel", "angle", "temperature", "validity")
+)
 
 
 @dataclass(frozen=True, slots=True)
