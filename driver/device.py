@@ -804,8 +804,11 @@ class Device(DeviceLink):
             # loss, a reset, a lost or closed link), or a deadline is to be judged: one wake-up
             # for the whole window on a steady stream, not one for each sample.
             need = n - collector.received
+
+            def window_ready(need: int = need, alerts: int = alerts) -> bool:
+                return len(inbox) >= need or self._inbox_alerts != alerts
+
             self._clock.wait_until(
-                lambda need=need, alerts=alerts: len(inbox) >= need or self._inbox_alerts != alerts,
-                min(deadline, last_sample_at + stall_limit, self._link_deadline()),
+                window_ready, min(deadline, last_sample_at + stall_limit, self._link_deadline())
             )
         return collector.window(rate, self._scales)
