@@ -165,13 +165,14 @@ def _virtual_batch(bus: VirtualBus) -> Callable[[int], list[can.Message]]:
     """:func:`frame_batch` of a python-can ``virtual`` bus: from its queue, under its lock."""
     q = bus.queue
 
+    waiting = q.queue
+
     def take(n: int) -> list[can.Message]:
-        if not q.qsize():
+        if not waiting:  # a look without the lock: a frame put meanwhile is taken next time
             return []
         if bus._is_shutdown:  # as the bus's own recv: reading a closed bus is an error
             raise can.CanOperationError("Cannot operate on a closed bus")
         with q.mutex:
-            waiting = q.queue
             out = [waiting.popleft() for _ in range(min(n, len(waiting)))]
             q.not_full.notify_all()
         return out

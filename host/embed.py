@@ -99,7 +99,7 @@ class _DeviceEndBus(VirtualBus):
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """python-can's ``recv``, which returns at once when nothing waits and no wait is asked
         (the device polls at every instant of a virtual clock)."""
-        if timeout == 0 and not self.queue.qsize():
+        if timeout == 0 and not self.queue.queue:  # a look without the lock
             self._check_if_open()
             return None
         return super().recv(timeout)

@@ -613,8 +613,14 @@ class Sample:
         if not (
             len(g) == 3
             and len(a) == 3
-            and all(type(v) is int and INT32_MIN <= v <= INT32_MAX for v in g)
-            and all(type(v) is int and INT24_MIN <= v <= INT24_MAX for v in a)
+            and (type(g0 := g[0]) is type(g1 := g[1]) is type(g2 := g[2]) is int)
+            and INT32_MIN <= g0 <= INT32_MAX
+            and INT32_MIN <= g1 <= INT32_MAX
+            and INT32_MIN <= g2 <= INT32_MAX
+            and (type(a0 := a[0]) is type(a1 := a[1]) is type(a2 := a[2]) is int)
+            and INT24_MIN <= a0 <= INT24_MAX
+            and INT24_MIN <= a1 <= INT24_MAX
+            and INT24_MIN <= a2 <= INT24_MAX
             and type(angle) is int
             and 0 <= angle <= UINT32_MAX
             and type(temp) is int
@@ -628,9 +634,9 @@ class Sample:
         t = self.counter & 0xFF
         pack = _SAMPLE_AXIS.pack
         return (
-            pack(t, g[0], a[0] & 0xFFFF, a[0] >> 16),
-            pack(t, g[1], a[1] & 0xFFFF, a[1] >> 16),
-            pack(t, g[2], a[2] & 0xFFFF, a[2] >> 16),
+            pack(t, g0, a0 & 0xFFFF, a0 >> 16),
+            pack(t, g1, a1 & 0xFFFF, a1 >> 16),
+            pack(t, g2, a2 & 0xFFFF, a2 >> 16),
             _SAMPLE_AUX.pack(t, angle, temp, valid),
         )
 
