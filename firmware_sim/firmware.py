@@ -407,18 +407,36 @@ class Firmware:
         return self._status_at(self.now, (self._counter - 1) & 0xFFFFFFFF)
 
     def _status_at(self, t: float, sample_counter: int) -> Status:
+        return self._statuses_at([t], [sample_counter])[0]
+
+    def _statuses_at(self, times: list[float], sample_counters: list[int]) -> list[Status]:
+        """The statuses at ``times`` (the table and the temperature computed for all at once)."""
+        if not times:
+            return []
         table = self.instrument.table
-        angle = float(table.encoder(table.state(t)[0]))
-        return Status(
-            state=self.state_at(t),
-            angle=_angle_counts(angle),
-            temperature=_temperature_counts(float(self.instrument.temperature(t))),
-            faults=self._fault if t >= self._fault_time else Fault(0),
-            sample_counter=sample_counter,
-            rx_malformed=self.rx_malformed & 0xFFFF,
-            tx_dropped=self.tx_dropped & 0xFF,
-            cmd_rejected=self.cmd_rejected & 0xFF,
+        tt = np.asarray(times, dtype=float)
+        angles = _angle_counts_array(table.encoder(table.state(tt)[0])).tolist()
+        temperatures = _temperature_counts_array(self.instrument.temperature(tt)).tolist()
+        rx, tx, rejected = (
+            self.rx_malformed & 0xFFFF,
+            self.tx_dropped & 0xFF,
+            self.cmd_rejected & 0xFF,
         )
+        return [
+            Status(
+                state=self.state_at(t),
+                angle=angle,
+                temperature=temperature,
+                faults=self._fault if t >= self._fault_time else Fault(0),
+                sample_counter=counter,
+                rx_malformed=rx,
+                tx_dropped=tx,
+                cmd_rejected=rejected,
+            )
+            for t, counter, angle, temperature in zip(
+                times, sample_counters, angles, temperatures, strict=True
+            )
+        ]
 
     def note_malformed(self) -> None:
         """A frame addressed to the device could not be decoded at all: count it, nothing else."""
@@ -713,19 +731,22 @@ class Firmware:
             self._ticks(block) if len(block) else ([], np.empty(0), np.empty(0, dtype=np.int64))
         )
 
-        def counter_at(t: float) -> int:
-            """Counter of the latest tick at or before ``t``."""
-            i = int(np.searchsorted(tick_times, t, side="right"))
-            return int(tick_counters[i - 1]) if i else (counter0 - 1) & 0xFFFFFFFF
-
         period_ns = self.config[ConfigKey.HEARTBEAT_PERIOD_MS] * 1_000_000
+        times = []
         while self._next_heartbeat_ns <= until_ns:
-            t = self._next_heartbeat_ns / NS_PER_S
-            out.append(Outgoing(t, self._status_at(t, counter_at(t))))
+            times.append(self._next_heartbeat_ns / NS_PER_S)
             self._next_heartbeat_ns += period_ns
-        for t in self._transitions(t0, t1):
-            out.append(Outgoing(t, self._status_at(t, counter_at(t))))
-        out.sort(key=lambda o: o.time_s)
+        times += self._transitions(t0, t1)
+        if times:
+            # Each status carries the counter of the latest tick at or before its time.
+            last = (counter0 - 1) & 0xFFFFFFFF
+            if len(tick_counters):
+                i = np.searchsorted(tick_times, times, side="right")
+                counters = np.where(i > 0, tick_counters[np.maximum(i - 1, 0)], last).tolist()
+            else:
+                counters = [last] * len(times)
+            out += map(Outgoing, times, self._statuses_at(times, counters))
+            out.sort(key=lambda o: o.time_s)
         return out
 
     def _states_at(self, t: np.ndarray) -> np.ndarray:

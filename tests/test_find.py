@@ -237,3 +237,22 @@ def test_plan_validation_and_progress_line():
     off = Tty()
     ProgressBar(stream=off, enabled=False)(Progress("rotate", 1, 2, None, None))
     assert off.getvalue() == ""
+
+
+def test_a_simulator_that_fails_is_named_as_the_cause(capsys, monkeypatch):
+    """In virtual time a simulator that raises falls silent; find then names the simulator's
+    failure, not a silent device or a lost link."""
+    from northfinder.firmware_sim.firmware import Firmware
+
+    process = Firmware.process
+
+    def failing(self, dt):
+        if self.now > 3.0:
+            raise ZeroDivisionError("a defect in the simulator")
+        return process(self, dt)
+
+    monkeypatch.setattr(Firmware, "process", failing)
+    code = main(["find", "--sim", "--seed", "1", "--warmup", "5", "--window", "1"])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert "simulated instrument is not running" in err and "ZeroDivisionError" in err, err

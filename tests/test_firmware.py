@@ -372,3 +372,15 @@ def test_queries_at_any_instant_leave_the_stream_as_it_would_have_been():
     assert len(quiet) == len(asked) == round(38.5 * 200)
     assert asked == quiet
     assert samples(list(rng.integers(1600, 39_900, 60)), 1.0) == quiet  # any chunk length
+
+
+@pytest.mark.parametrize("lookahead_s", [0.2, 1.0])
+def test_a_command_at_the_instant_of_power_on_is_answered(lookahead_s):
+    """The output computed ahead from power-on is rewound to t = 0, where the first status is
+    due and no sample tick has ended yet."""
+    fw = make()
+    fw.lookahead_s = lookahead_s
+    fw.prefetch()
+    reply, out = ask(fw, GetStatus(1))
+    assert reply.result == Result.OK
+    assert any(isinstance(m, Status) for m in out)

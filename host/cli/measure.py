@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from northfinder.driver.device import Device
+from northfinder.driver.errors import DriverError
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.host.cli.common import (
     add_link_arguments,
@@ -253,7 +254,11 @@ def embedded_simulator(
     if tap is not None and not paced:
         tap.use_clock(sim.clock)  # the log's times are the instrument's, not the CPU's
     with sim, sim.open_device(tap=tap, **options) as device:
-        yield device, sim.describe()
+        try:
+            yield device, sim.describe()
+        except DriverError:
+            sim.check()  # a simulator that failed is the cause, not the link: say so
+            raise
 
 
 class ProgressBar:
