@@ -176,17 +176,23 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """``NORTHFINDER_REALTIME=separate`` leaves out the ``realtime`` tests (``.ci/run`` runs them in
     a step of their own, ``-m realtime``); without it every test runs.
 
-    On pytest-xdist's workers (``-n auto --dist loadgroup``) the ``realtime`` tests form one
-    group, so they run one at a time on one worker while the others share the rest."""
+    On pytest-xdist's workers (``-n auto --dist loadgroup``, the default) the ``realtime`` tests
+    form one group, so they run one at a time on one worker while the others share the rest;
+    ``realtime(alone=False)`` marks one that may run beside another (its margin is not about the
+    CPU it gets, such as an interrupt a few seconds after a process starts)."""
     for item in items:
-        if item.get_closest_marker("realtime") is not None:
-            item.add_marker(pytest.mark.xdist_group("realtime"))
+        marker = item.get_closest_marker("realtime")
+        if marker is not None and marker.kwargs.get("alone", True):
+            item.add_marker(pytest.mark.xdist_group(REALTIME_GROUP))
     if os.environ.get("NORTHFINDER_REALTIME") != "separate" or config.getoption("-m"):
         return
     keep = [item for item in items if item.get_closest_marker("realtime") is None]
     if len(keep) != len(items):
         config.hook.pytest_deselected(items=[i for i in items if i not in keep])
         items[:] = keep
+
+
+REALTIME_GROUP = "realtime"
 
 
 def link_params(links: tuple[str, ...] = LINKS) -> list[Any]:

@@ -42,7 +42,7 @@ def _interrupt(argv: list[str], after_s: float) -> subprocess.CompletedProcess[s
     return subprocess.CompletedProcess(cmd, p.returncode, out, err)
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(alone=False)
 @pytest.mark.parametrize(
     "argv",
     [
