@@ -354,6 +354,7 @@ class Controller:
             "paused": self.runner.paused,
             "clock": "virtual" if self.runner.virtual else "paced",
             "lag": dataclasses.asdict(self.runner.lag),
+            "sender": self.runner.sender_info(),
             "faults": dataclasses.asdict(fw.faults),
         }
 

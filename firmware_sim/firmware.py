@@ -681,13 +681,19 @@ class Firmware:
         )
         self._ahead.extend(self._compute_to(self._horizon_ns + self._lookahead_ns))
 
+    @property
+    def prefetch_due(self) -> bool:
+        """Whether less than half a chunk of output is left computed (:meth:`prefetch` would
+        compute the next one)."""
+        return self._horizon_ns - self._now_ns < self._lookahead_ns // 2
+
     def prefetch(self) -> None:
         """Compute the next chunk of output early, when less than half a chunk is left.
 
-        A runner calls this right after sending, so that the computation does not delay a
-        message that is due (the chunk then starts where the last one ended, as it would anyway).
+        A runner calls this between sendings, so that the computation does not delay a message
+        that is due (the chunk then starts where the last one ended, as it would anyway).
         """
-        if self._horizon_ns - self._now_ns < self._lookahead_ns // 2:
+        if self.prefetch_due:
             self._compute_ahead()
 
     def next_output_s(self) -> float:

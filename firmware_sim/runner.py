@@ -23,20 +23,25 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim import sendloop
+from northfinder.firmware_sim.errors import SimConfigError, SimError
 from northfinder.firmware_sim.firmware import (
     NS_PER_S,
     VIRTUAL_LOOKAHEAD_S,
     Firmware,
     Outgoing,
 )
+
+if TYPE_CHECKING:
+    from northfinder.firmware_sim.sender import Capture, ProcessSender
 
 log = logging.getLogger("northfinder.sim.runner")
 
@@ -163,6 +168,13 @@ class RealTimeClock:
     def slip(self, seconds: float) -> None:
         self._anchor_sim -= seconds
 
+    def wall_at(self, sim_t: float) -> float:
+        """The wall clock's reading (``monotonic``) at which simulated time reaches ``sim_t``
+        at the present pace (infinite while paused)."""
+        if self._paused:
+            return math.inf
+        return self._anchor_wall + (sim_t - self._anchor_sim) / self._speed
+
 
 class LockstepClock:
     """A clock that moves only when told: ``advance(dt)``."""
@@ -239,6 +251,18 @@ class Runner:
         #: Paced mode only: send from a dedicated thread (:class:`PacedSender`) what this loop
         #: computes ahead, so that no computation holds a message that is due.
         self.paced_sender = False
+        #: Paced mode only, and preferred to the thread: a sender process and the capture around
+        #: the link's stream or bus whose writes it sends (:mod:`~northfinder.firmware_sim.sender`).
+        self.sender_process: tuple[ProcessSender, Capture] | None = None
+
+    def sender_info(self) -> dict[str, Any]:
+        """How the output is sent: ``{"kind": "loop"}`` (by the loop that computes it),
+        ``"thread"`` (:class:`PacedSender`) or ``"process"`` (with its ``pid`` and the
+        ``SCHED_FIFO`` ``priority`` it runs at, 0 for the ordinary class)."""
+        if self.sender_process is not None:
+            sender = self.sender_process[0]
+            return {"kind": "process", "pid": sender.pid, "priority": sender.priority}
+        return {"kind": "thread" if self.paced_sender and not self.virtual else "loop"}
 
     @property
     def virtual(self) -> bool:
@@ -333,6 +357,15 @@ class Runner:
     MAX_STEP_S = 0.02
     #: Longest wait for incoming frames between steps, wall seconds.
     MAX_WAIT_S = 0.05
+    #: The last part of the wait for a message that is due, spent re-reading the clock rather
+    #: than asleep, wall seconds.
+    SPIN_S = 0.0003
+    #: The look-ahead's next chunk is computed only when the next message is due at least this
+    #: far ahead, wall seconds (a chunk of 0.2 s takes about a millisecond here), ...
+    PREFETCH_QUIET_S = 0.003
+    #: ... and after waiting this long for commands, so that a host in this interpreter reads
+    #: what was just sent first, wall seconds.
+    PREFETCH_AFTER_S = 0.001
 
     def step(self, poll_timeout: float = 0.0) -> None:
         clock = self._paced()
@@ -351,7 +384,6 @@ class Runner:
                 out = self.firmware.process(dt)
                 self.sent += len(out)
                 self.link.send(out)
-                self.firmware.prefetch()
 
     def _slip(self, clock: Clock, behind: float) -> None:
         """Fallen too far behind: the clock slips back to the oldest message due (no burst)."""
@@ -379,15 +411,37 @@ class Runner:
             self._lag_since_log = 0.0
 
     def run(self, stop: threading.Event) -> None:
+        if self.sender_process is not None:
+            self._run_with_process(stop, *self.sender_process)
+            return
         if self.paced_sender:
             self._run_with_sender(stop)
             return
         clock = self._paced()
         while not stop.is_set():
-            # Sleep until the next message is due; a frame arriving ends the wait at once.
             with self.lock:
                 due = self.firmware.next_output_s()
-            self.step(min(self.MAX_WAIT_S, clock.wall_until(due)))
+                prefetch = self.firmware.prefetch_due
+            wait = clock.wall_until(due)
+            if prefetch and wait > self.PREFETCH_QUIET_S:
+                # The next chunk is computed in the quiet part of a period: after a host that
+                # shares this interpreter had the time to read what was just sent, and well
+                # before the next message is due.
+                self.link.poll(self.PREFETCH_AFTER_S)
+                with self.lock:
+                    if clock.wall_until(self.firmware.next_output_s()) > self.PREFETCH_QUIET_S / 2:
+                        self.firmware.prefetch()
+                continue
+            if 0 < wait <= self.SPIN_S:
+                # The last moments on the clock itself: a timed wait wakes up late.
+                while clock.wall_until(due) > 0 and not clock.paused:
+                    pass
+                wait = 0.0
+            # Sleep until shortly before the next message is due; a frame arriving ends the
+            # wait at once.
+            self.step(
+                min(self.MAX_WAIT_S, max(0.0, wait - self.SPIN_S)) if wait > self.SPIN_S else 0.0
+            )
 
     #: Paced sender: how far ahead of its clock the loop computes output, wall seconds (replies to
     #: commands wait at most this long behind the queued output; protocol.md: 20 ms).
@@ -427,6 +481,70 @@ class Runner:
             sender.stop()
         if sender.error is not None:
             raise sender.error
+
+    def produce_for(self, sender: ProcessSender, capture: Capture) -> None:
+        """One round of the paced loop with a sender process: take its reports, advance the
+        firmware to LEAD_WALL_S ahead of the clock and hand each due time's output, encoded by
+        the link into ``capture``, to the sender with its due time on the monotonic clock."""
+        clock = self._paced()
+        wall_at = getattr(clock, "wall_at", None)
+        if wall_at is None:
+            raise SimConfigError("a sender process needs a real-time clock (RealTimeClock)")
+        with self.lock:
+            self._take_reports(sender, clock)
+            now = clock.now()
+            late = now - self.firmware.next_output_s()
+            if late > MAX_LAG_WALL_S * clock.speed and not clock.paused:
+                self._slip(clock, late)  # the loop itself was held up: no backlog burst
+                now -= late
+            self.lag.behind_s = max(0.0, late)
+            if clock.paused:
+                return
+            target = now + self.LEAD_WALL_S * clock.speed
+            while True:
+                dt = min(target - self.firmware.now, self.MAX_STEP_S)
+                if round(dt * NS_PER_S) <= 0:
+                    break  # within a nanosecond of the target: the firmware's clock resolution
+                out = self.firmware.process(dt)
+                i = 0
+                while i < len(out):
+                    j = i + 1
+                    while j < len(out) and out[j].time_s == out[i].time_s:
+                        j += 1
+                    capture.begin()
+                    self.link.send(out[i:j])
+                    chunks = capture.take()
+                    if chunks:
+                        sender.put(wall_at(out[i].time_s), chunks)
+                    self.sent += j - i
+                    i = j
+            self.firmware.prefetch()
+
+    def _take_reports(self, sender: ProcessSender, clock: Clock) -> None:
+        """Apply what the sender process reported: its slips (the clock slips with it), the
+        chunks the link did not take (counted as dropped), a link that failed (raised)."""
+        for kind, value in sender.reports():
+            if kind == sendloop.SLIP:
+                self._slip(clock, value / NS_PER_S * clock.speed)
+                sender.epoch += 1
+            elif kind == sendloop.DROPPED:
+                self.firmware.tx_dropped += value
+            elif kind == sendloop.FAILED:
+                raise SimError(
+                    f"the sender process could not write to the link: {os.strerror(value)}"
+                )
+        if not sender.alive:
+            raise SimError("the sender process has ended")
+
+    def _run_with_process(
+        self, stop: threading.Event, sender: ProcessSender, capture: Capture
+    ) -> None:
+        try:
+            while not stop.is_set():
+                self.produce_for(sender, capture)
+                self.link.poll(min(self.MAX_WAIT_S, max(0.001, self.LEAD_WALL_S / 2)))
+        finally:
+            sender.close()
 
 
 class PacedSender:

@@ -1,18 +1,29 @@
 """The paced sender (firmware_sim.runner.PacedSender): the runner's loop computes ahead, the
 sender sends each message at its due time on the device's tick grid, in order, from a bounded
-queue, and after a stall slips instead of bursting. Injected wall clock and sleep (exact)."""
+queue, and after a stall slips instead of bursting. Injected wall clock and sleep (exact).
+
+The sender process (firmware_sim.sender.ProcessSender, firmware_sim/sendloop.py): its records,
+one write per chunk in order, and what its reports do to the simulator; tests/test_pacing.py
+stalls it on the wall clock."""
 
 from __future__ import annotations
 
+import errno
+import socket
 import threading
+import time
+from collections import deque
 
 import numpy as np
 import pytest
 
 from northfinder.driver.protocol.messages import Sample, StreamStart
+from northfinder.firmware_sim import sendloop
+from northfinder.firmware_sim.errors import SimError
 from northfinder.firmware_sim.firmware import Firmware
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import MAX_LAG_WALL_S, PacedSender, RealTimeClock, Runner
+from northfinder.firmware_sim.sender import ProcessSender
 from northfinder.firmware_sim.sensors import load_spec
 
 
@@ -164,3 +175,76 @@ def test_a_runner_with_its_sender_streams_at_its_pace_on_the_wall_clock():
     iv = np.diff(wall_link)
     assert len(wall_link) == pytest.approx(400, rel=0.15)
     assert np.median(np.abs(iv - 0.005)) < 0.002
+
+
+# -- the sender process ------------------------------------------------------------------------
+
+
+def test_the_sender_process_reads_records_in_any_pieces():
+    record = [
+        sendloop.HEADER.pack(10, 0, 2),
+        sendloop.LENGTH.pack(3),
+        b"abc",
+        sendloop.LENGTH.pack(0),
+    ]
+    data = b"".join(record) + sendloop.HEADER.pack(20, 1, 1) + sendloop.LENGTH.pack(1) + b"z"
+    for cut in range(len(data) + 1):
+        buf, out = bytearray(data[:cut]), deque[tuple[int, int, list[bytes]]]()
+        assert sendloop.parse(buf, out)
+        buf += data[cut:]
+        assert sendloop.parse(buf, out)
+        assert list(out) == [(10, 0, [b"abc", b""]), (20, 1, [b"z"])] and not buf
+    assert not sendloop.parse(bytearray(sendloop.HEADER.pack(-1, 0, 0)), deque())  # stop
+
+
+@pytest.mark.subprocess
+def test_the_sender_process_writes_each_chunk_in_order_and_reports_its_class():
+    """Each chunk is one write (a datagram socket keeps the boundaries, as a CAN socket keeps its
+    frames); records already due go out at once, in order."""
+    here, there = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sender = ProcessSender(there.fileno(), priority=0)
+    try:
+        now = time.monotonic()
+        for k in range(50):
+            sender.put(now + k * 1e-4, [b"%d" % k, b"again %d" % k])
+        here.settimeout(10.0)
+        got = [here.recv(100) for _ in range(100)]
+        assert got == [c for k in range(50) for c in (b"%d" % k, b"again %d" % k)]
+        # nothing dropped or failed (a machine busy enough to delay it may make it slip)
+        kinds = {kind for kind, _ in sender.reports()}
+        assert kinds <= {sendloop.SCHEDULING, sendloop.SLIP}
+        assert sender.priority == 0 and sender.alive
+    finally:
+        sender.close()
+        here.close()
+        there.close()
+    assert not sender.alive
+    with pytest.raises(SimError):
+        ProcessSender(there.fileno(), priority=100)
+
+
+def test_a_runner_with_a_sender_process_slips_with_it_and_counts_what_it_dropped():
+    """The sender's reports reach the simulator: a slip moves its clock back (and later records
+    carry the new epoch), dropped chunks count in tx_dropped, a failed link stops it."""
+
+    class Reporting:
+        def __init__(self, reports):
+            self._reports, self.epoch, self.alive = list(reports), 0, True
+
+        def reports(self):
+            out, self._reports = self._reports, []
+            return out
+
+    wall = FakeWall()
+    firmware = Firmware(load_spec("ideal"), Truth(), np.random.default_rng(1), warmup_s=0.0)
+    clock = RealTimeClock(1.0, monotonic=wall)
+    runner = Runner(firmware, Recorder(wall), clock)
+    sender = Reporting([(sendloop.SLIP, 250_000_000), (sendloop.DROPPED, 3)])
+    wall.t = 1.0
+    runner._take_reports(sender, clock)  # type: ignore[arg-type]
+    assert clock.now() == pytest.approx(0.75)
+    assert runner.lag.slips == 1 and runner.lag.slipped_s == pytest.approx(0.25)
+    assert sender.epoch == 1 and firmware.tx_dropped == 3
+    sender = Reporting([(sendloop.FAILED, errno.EIO)])
+    with pytest.raises(SimError, match="Input/output error"):
+        runner._take_reports(sender, clock)  # type: ignore[arg-type]

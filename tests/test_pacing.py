@@ -114,9 +114,18 @@ def test_the_control_channel_reports_the_lag():
 
 @pytest.mark.realtime
 @pytest.mark.subprocess
-def test_a_starved_sim_process_reports_its_lag_and_streams_at_its_pace_after():
+@pytest.mark.parametrize(
+    "sender, stopped",
+    [("loop", "simulator"), ("process", "simulator"), ("process", "sender")],
+    ids=["loop", "process-simulator-stalled", "process-sender-stalled"],
+)
+def test_a_starved_sim_process_reports_its_lag_and_streams_at_its_pace_after(sender, stopped):
+    """The simulator (or, with ``--paced-sender``, its sender process) gets no CPU for a second:
+    the lag is reported, and the stream goes on at its pace."""
     speed = 2.0
     args = ["--pty", "--warmup", "0", "--seed", "4", "--speed", str(speed)]
+    if sender == "process":
+        args.append("--paced-sender")
     with sim_process(*args, "--control", "127.0.0.1:0") as facts:
         with (
             serial.Serial(facts["pty"], 115200, timeout=0.05) as port,
@@ -126,8 +135,10 @@ def test_a_starved_sim_process_reports_its_lag_and_streams_at_its_pace_after():
             time.sleep(0.6)  # past BOOT
             port.write(SerialEncoder().encode(StreamStart(1)))
             time.sleep(0.5)
-            before = ctl.call("status")["lag"]
-            pid = int(facts["pid"])
+            status = ctl.call("status")
+            before = status["lag"]
+            assert status["sender"]["kind"] == sender
+            pid = int(facts["pid"]) if stopped == "simulator" else status["sender"]["pid"]
             os.kill(pid, signal.SIGSTOP)
             time.sleep(1.0)  # starved: no CPU at all for a second
             port.reset_input_buffer()

@@ -19,6 +19,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +36,7 @@ from northfinder.firmware_sim.links import (
     SlcanAdapter,
 )
 from northfinder.firmware_sim.runner import Link, RealTimeClock, Runner
+from northfinder.firmware_sim.sender import Capture, CaptureBus, CaptureStream, ProcessSender
 from northfinder.host.cli.common import (
     add_link_arguments,
     add_sensor_argument,
@@ -89,7 +91,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--paced-sender",
         action="store_true",
-        help="send from a dedicated thread what the simulator computes ahead (see protocol.md 12)",
+        help="send what the simulator computes ahead from a process of its own (a pty, a serial "
+        "port, SocketCAN; a thread on other python-can buses; see protocol.md 12)",
     )
     p.add_argument(
         "--control",
@@ -111,6 +114,16 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         f"format ({', '.join(LOG_SUFFIXES)}); a serial link logs the CAN frames of its messages",
     )
     return p
+
+
+def _socketcan_fd(bus: Any) -> int | None:
+    """The file descriptor of a python-can SocketCAN bus's socket (None for other buses)."""
+    try:
+        from can.interfaces.socketcan.socketcan import SocketcanBus
+    except ImportError:  # pragma: no cover - not Linux
+        return None
+    sock = getattr(bus, "socket", None)
+    return sock.fileno() if isinstance(bus, SocketcanBus) and sock is not None else None
 
 
 def _links(args: argparse.Namespace) -> int:
@@ -146,11 +159,23 @@ def run(args: argparse.Namespace) -> int:
     else:
         info = LinkInfo("can", getattr(args, "bitrate", None) or CAN_BITRATE_DEFAULT)
     firmware = Firmware(spec, truth, rng, warmup_s=args.warmup, node_id=args.node_id, link=info)
+    # With --paced-sender, a link on a file descriptor is written by a process of its own (the
+    # simulator encodes into a capture); any other python-can bus by a thread of its own.
+    paced = args.paced_sender
+    capture: Capture | None = None
+    out_fd: int | None = None
     link: Link
     if args.serial:
-        link = SerialLink(SerialStream(port), firmware, tap=frame_log, node_id=args.node_id)
+        stream: Any = SerialStream(port)
+        if paced:
+            stream = capture = CaptureStream(stream)
+            out_fd = port.fileno()
+        link = SerialLink(stream, firmware, tap=frame_log, node_id=args.node_id)
     elif pty is not None:
         stream = pty.stream
+        if paced:
+            stream = capture = CaptureStream(stream)
+            out_fd = pty.master
         link = (
             SerialLink(stream, firmware, tap=frame_log, node_id=args.node_id)
             if args.pty
@@ -159,9 +184,19 @@ def run(args: argparse.Namespace) -> int:
     else:
         bus = open_can_bus(args)
         closers.append(bus.shutdown)
-        link = CanLink(bus, firmware, args.node_id, tap=frame_log)
+        socket_fd = _socketcan_fd(bus)
+        frames: Any = bus
+        if paced and socket_fd is not None:
+            frames = capture = CaptureBus(bus)
+            out_fd = socket_fd
+        link = CanLink(frames, firmware, args.node_id, tap=frame_log)
     runner = Runner(firmware, link, RealTimeClock(args.speed))
-    runner.paced_sender = args.paced_sender
+    if capture is not None and out_fd is not None:
+        sender = ProcessSender(out_fd)
+        closers.append(sender.close)
+        runner.sender_process = (sender, capture)
+    else:
+        runner.paced_sender = paced
     server = None
     if args.control:
         server = ControlServer(Controller(runner), args.control).start()
