@@ -59,6 +59,8 @@ from northfinder.driver.transport import CanTransport, Received, Transport
 
 PERIOD_S = 0.005
 TARGET_P99_S = 0.002
+#: The SocketCAN interface of the ``socketcan`` link (``--channel``).
+CHANNEL = "vcan0"
 #: Whether the simulator sends from its dedicated sender thread (``--paced-sender``).
 SENDER = False
 _U32 = 0xFFFFFFFF
@@ -264,6 +266,45 @@ def run_serial(duration_s: float, window_s: float, seed: int) -> RunResult:
 
 def run_slcan(duration_s: float, window_s: float, seed: int) -> RunResult:
     return run_pty("--slcan-pty", duration_s, window_s, seed)
+
+
+def run_socketcan(duration_s: float, window_s: float, seed: int) -> RunResult:
+    """``northfinder sim -i socketcan -c CHANNEL`` as a process of its own and the host on the
+    same SocketCAN interface (``--channel``, default vcan0: a kernel with vcan, such as the HIL's
+    virtual machine: ``scripts/hil --steps jitter``)."""
+    result = RunResult(f"SocketCAN {CHANNEL}, two processes")
+    log = open(os.devnull, "wb")
+    sim = subprocess.Popen(
+        [
+            *(str(ROOT / ".venv/bin/northfinder"), "sim", "-i", "socketcan", "-c", CHANNEL),
+            *("--warmup", "0", "--seed", str(seed), "--azimuth", "123"),
+            *(["--paced-sender"] if SENDER else []),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=log,
+        text=True,
+        cwd=ROOT,
+    )
+    try:
+        assert sim.stdout is not None
+        for line in sim.stdout:
+            if line.startswith("truth "):
+                break
+        threading.Thread(target=sim.stdout.read, daemon=True).start()
+        bus = can.Bus(interface="socketcan", channel=CHANNEL)
+        tap = Tap(CanTransport(bus, 1, own_bus=True))
+        with Device(tap, **DEVICE_OPTIONS) as device:
+            device.wait_ready(timeout=10.0)
+            collect(device, tap, duration_s, window_s, result)
+    finally:
+        sim.terminate()
+        try:
+            sim.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+            sim.wait()
+        log.close()
+    return result
 
 
 def run_pty(kind: str, duration_s: float, window_s: float, seed: int) -> RunResult:
@@ -474,7 +515,9 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=600.0, help="wall seconds per link")
     ap.add_argument("--window", type=float, default=10.0, help="acquire window, s")
     ap.add_argument(
-        "--links", default="can,serial,slcan", help="comma-separated: can, serial, slcan"
+        "--links",
+        default="can,serial,slcan",
+        help="comma-separated: can, serial, slcan, socketcan (needs a kernel with vcan0)",
     )
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument(
@@ -483,11 +526,17 @@ def main() -> None:
         default=60.0,
         help="seconds of the timer loop without a link (0: skip)",
     )
-    ap.add_argument("--paced-sender", action="store_true", help="simulator's sender thread")
+    ap.add_argument(
+        "--paced-sender",
+        action="store_true",
+        help="the simulator sends from a process of its own (a thread on virtual CAN)",
+    )
+    ap.add_argument("--channel", default="vcan0", help="SocketCAN interface of the socketcan link")
     args = ap.parse_args()
-    global SENDER
+    global SENDER, CHANNEL
     SENDER = args.paced_sender
-    runners = {"can": run_can, "serial": run_serial, "slcan": run_slcan}
+    CHANNEL = args.channel
+    runners = {"can": run_can, "serial": run_serial, "slcan": run_slcan, "socketcan": run_socketcan}
     links = [s.strip() for s in args.links.split(",") if s.strip()]
     for link in links:
         if link not in runners:

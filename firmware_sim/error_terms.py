@@ -413,8 +413,9 @@ def triad_matrices(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray
     return m
 
 
-#: Runs of at most this many grid steps are filtered by the recursion itself, longer ones by lfilter.
-_SHORT_RUN = 16
+#: Runs of at most this many grid steps are filtered by the recursion itself, longer ones by lfilter
+#: (scipy, whose import takes a second): the instrument's look-ahead chunks, up to 6.4 s, stay short.
+_SHORT_RUN = 64
 
 
 def slow_noise_steps(

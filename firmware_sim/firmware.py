@@ -87,7 +87,7 @@ DRIVE_FAULT_LIMIT_DEG = 0.5
 LOOKAHEAD_S = 0.2
 _LOOKAHEAD_NS = round(LOOKAHEAD_S * NS_PER_S)
 #: The look-ahead of a simulator in virtual time, s (:attr:`Firmware.lookahead_s`).
-VIRTUAL_LOOKAHEAD_S = 1.0
+VIRTUAL_LOOKAHEAD_S = 2.0
 #: Time from receiving a command to sending its reply, s.
 REPLY_LATENCY_S = 0.001
 _REPLY_LATENCY_NS = round(REPLY_LATENCY_S * NS_PER_S)
@@ -873,11 +873,14 @@ class Firmware:
         self._counter = (self._counter + n_ticks) & 0xFFFFFFFF
         angle = _angle_counts_array(block.table_deg[j])
         temperature = _temperature_counts_array(block.temperature_c[j])
+        bits = validity.tolist()
+        flags = {b: validity_of(b) for b in set(bits)}
+        make, new = Sample.fast, tuple.__new__
         out = [
-            Outgoing(t, Sample.fast(c, (g0, g1, g2), (a0, a1, a2), ang, temp, validity_of(v)))
+            new(Outgoing, (t, make(c, (g0, g1, g2), (a0, a1, a2), ang, temp, flags[v])))
             for t, c, (g0, g1, g2), (a0, a1, a2), ang, temp, v in zip(
                 t_end.tolist(), counters.tolist(), gc.tolist(), ac.tolist(), angle.tolist(),
-                temperature.tolist(), validity.tolist(), strict=True,
+                temperature.tolist(), bits, strict=True,
             )
         ]  # fmt: skip
         return out, t_end, counters

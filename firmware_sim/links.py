@@ -214,8 +214,9 @@ class CanLink:
     def send(self, outgoing: list[Outgoing]) -> None:
         msgs = []
         faults = self.firmware.faults
+        node = self.node_id
         for item in outgoing:
-            for arbitration_id, data in encode_can(item.message, self.node_id):
+            for arbitration_id, data in encode_can(item.message, node):
                 if faults.drop_frames or faults.corrupt_frames:
                     # A corrupted CAN frame that still reaches the host has a wrong length: the
                     # bus's own CRC would have stopped any other corruption.

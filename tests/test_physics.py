@@ -707,6 +707,10 @@ def test_short_runs_of_the_slow_noise_recursion_equal_lfilter_to_the_bit():
     """The instrument filters its few look-ahead steps without scipy; the batch generator's long
     runs use lfilter: both must give the same numbers."""
     import northfinder.firmware_sim.error_terms as terms
+    from northfinder.firmware_sim.firmware import LOOKAHEAD_S, VIRTUAL_LOOKAHEAD_S
+
+    # every look-ahead chunk is a short run (a longer one would import scipy on the stream's path)
+    assert max(LOOKAHEAD_S, VIRTUAL_LOOKAHEAD_S) / terms.FLICKER_GRID_S + 1 <= terms._SHORT_RUN
 
     rng = np.random.default_rng(1)
     k = len(terms.FLICKER_PHI)
