@@ -42,6 +42,7 @@ from northfinder.host.cli.common import (
     add_sensor_argument,
     add_truth_arguments,
     bounded_float,
+    bounded_int,
     bus_given,
     can_log_path,
     command_parser,
@@ -93,6 +94,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_true",
         help="send what the simulator computes ahead from a process of its own (a pty, a serial "
         "port, SocketCAN; a thread on other python-can buses; see protocol.md 12)",
+    )
+    p.add_argument(
+        "--sender-priority",
+        type=bounded_int(0, 99),
+        default=ProcessSender.PRIORITY,
+        metavar="N",
+        help="SCHED_FIFO priority of the sender process where the system allows it, 0 for the "
+        f"ordinary class (default {ProcessSender.PRIORITY})",
     )
     p.add_argument(
         "--control",
@@ -192,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
         link = CanLink(frames, firmware, args.node_id, tap=frame_log)
     runner = Runner(firmware, link, RealTimeClock(args.speed))
     if capture is not None and out_fd is not None:
-        sender = ProcessSender(out_fd)
+        sender = ProcessSender(out_fd, priority=args.sender_priority)
         closers.append(sender.close)
         runner.sender_process = (sender, capture)
     else:
