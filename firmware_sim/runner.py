@@ -21,6 +21,7 @@ whenever a host waits, and moves time straight to the next message it will send.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -50,6 +51,22 @@ log = logging.getLogger("northfinder.sim.runner")
 MAX_LAG_WALL_S = 0.05
 #: While a paced runner keeps falling behind, it logs a summary this often, wall seconds.
 LAG_LOG_EVERY_S = 10.0
+
+
+#: A spin on the clock only where reading it costs less than this, s: in user-mode Linux every
+#: clock read is a system call of 30 to 120 us, and a spin would take the guest's one CPU from the
+#: processes beside the instrument.
+CHEAP_CLOCK_READ_S = 5e-6
+
+
+@functools.cache
+def clock_read_s() -> float:
+    """What one read of the monotonic clock costs here, s (measured once)."""
+    n = 200
+    t0 = time.perf_counter()
+    for _ in range(n):
+        time.monotonic()
+    return (time.perf_counter() - t0) / n
 
 
 class Link(Protocol):
@@ -358,7 +375,8 @@ class Runner:
     #: Longest wait for incoming frames between steps, wall seconds.
     MAX_WAIT_S = 0.05
     #: The last part of the wait for a message that is due, spent re-reading the clock rather
-    #: than asleep, wall seconds.
+    #: than asleep, wall seconds; none where a clock read is a costly system call
+    #: (:data:`CHEAP_CLOCK_READ_S`).
     SPIN_S = 0.0003
     #: The look-ahead's next chunk is computed only when the next message is due at least this
     #: far ahead, wall seconds (a chunk of 0.2 s takes about a millisecond here), ...
@@ -418,6 +436,7 @@ class Runner:
             self._run_with_sender(stop)
             return
         clock = self._paced()
+        spin = self.SPIN_S if clock_read_s() < CHEAP_CLOCK_READ_S else 0.0
         while not stop.is_set():
             with self.lock:
                 due = self.firmware.next_output_s()
@@ -432,16 +451,14 @@ class Runner:
                     if clock.wall_until(self.firmware.next_output_s()) > self.PREFETCH_QUIET_S / 2:
                         self.firmware.prefetch()
                 continue
-            if 0 < wait <= self.SPIN_S:
+            if 0 < wait <= spin:
                 # The last moments on the clock itself: a timed wait wakes up late.
                 while clock.wall_until(due) > 0 and not clock.paused:
                     pass
                 wait = 0.0
             # Sleep until shortly before the next message is due; a frame arriving ends the
             # wait at once.
-            self.step(
-                min(self.MAX_WAIT_S, max(0.0, wait - self.SPIN_S)) if wait > self.SPIN_S else 0.0
-            )
+            self.step(min(self.MAX_WAIT_S, max(0.0, wait - spin)) if wait > spin else 0.0)
 
     #: Paced sender: how far ahead of its clock the loop computes output, wall seconds (replies to
     #: commands wait at most this long behind the queued output; protocol.md: 20 ms).
