@@ -252,11 +252,12 @@ class CanTransport:
             The bus reported an error or was shut down under the driver.
         """
         try:
-            frames = self._take(MAX_FRAMES_PER_RECV)
-            if not frames and timeout > 0:
+            if timeout > 0:
+                # Block in the bus (one wake-up for the first frame), then take what came with it.
                 msg = self.bus.recv(timeout)
-                if msg is not None:
-                    frames = [msg, *self._take(MAX_FRAMES_PER_RECV - 1)]
+                frames = [] if msg is None else [msg, *self._take(MAX_FRAMES_PER_RECV - 1)]
+            else:  # a poll (a virtual clock's, at every instant): nothing but what is waiting
+                frames = self._take(MAX_FRAMES_PER_RECV)
         except (can.CanError, OSError, ValueError, serial.SerialException) as exc:
             raise LinkLost(f"cannot receive from the CAN bus {self._name()}: {exc}") from exc
         if not frames:
