@@ -221,6 +221,8 @@ class ProcessSender:
             return
         self._closed = True
         try:
+            # Never blocks: a sender that stopped reading (stopped, or starved) is killed below.
+            os.set_blocking(self._w, False)
             os.write(self._w, sendloop.HEADER.pack(-1, 0, 0))
         except OSError:
             pass
