@@ -874,10 +874,10 @@ class Firmware:
         angle = _angle_counts_array(block.table_deg[j])
         temperature = _temperature_counts_array(block.temperature_c[j])
         bits = validity.tolist()
-        flags = {b: validity_of(b) for b in set(bits)}
+        flag_of = {b: validity_of(b) for b in set(bits)}
         make, new = Sample.fast, tuple.__new__
         out = [
-            new(Outgoing, (t, make(c, (g0, g1, g2), (a0, a1, a2), ang, temp, flags[v])))
+            new(Outgoing, (t, make(c, (g0, g1, g2), (a0, a1, a2), ang, temp, flag_of[v])))
             for t, c, (g0, g1, g2), (a0, a1, a2), ang, temp, v in zip(
                 t_end.tolist(), counters.tolist(), gc.tolist(), ac.tolist(), angle.tolist(),
                 temperature.tolist(), bits, strict=True,

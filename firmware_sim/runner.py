@@ -185,6 +185,12 @@ class RealTimeClock:
     def slip(self, seconds: float) -> None:
         self._anchor_sim -= seconds
 
+    def align(self, sim_t: float) -> None:
+        """Simulated time is ``sim_t`` now (a loop that starts: what happened before, such as
+        starting a sender process, is not time the device lost)."""
+        self._anchor_sim = float(sim_t)
+        self._anchor_wall = self._monotonic()
+
     def wall_at(self, sim_t: float) -> float:
         """The wall clock's reading (``monotonic``) at which simulated time reaches ``sim_t``
         at the present pace (infinite while paused)."""
@@ -429,6 +435,10 @@ class Runner:
             self._lag_since_log = 0.0
 
     def run(self, stop: threading.Event) -> None:
+        align = getattr(self.clock, "align", None)
+        if align is not None and not self.virtual:
+            with self.lock:  # the device's time runs from the loop's start
+                align(self.firmware.now)
         if self.sender_process is not None:
             self._run_with_process(stop, *self.sender_process)
             return
@@ -551,7 +561,9 @@ class Runner:
                     f"the sender process could not write to the link: {os.strerror(value)}"
                 )
         if not sender.alive:
-            raise SimError("the sender process has ended")
+            code = sender.returncode
+            how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit {code}"
+            raise SimError(f"the sender process has ended ({how})")
 
     def _run_with_process(
         self, stop: threading.Event, sender: ProcessSender, capture: Capture

@@ -172,6 +172,11 @@ class ProcessSender:
     def alive(self) -> bool:
         return self._proc.poll() is None
 
+    @property
+    def returncode(self) -> int | None:
+        """The process's exit status once it has ended (negative: the signal that ended it)."""
+        return self._proc.poll()
+
     def put(self, due_s: float, chunks: Sequence[bytes]) -> None:
         """Send ``chunks`` (one write each) at ``due_s`` on the monotonic clock.
 

@@ -230,6 +230,7 @@ def test_a_runner_with_a_sender_process_slips_with_it_and_counts_what_it_dropped
     class Reporting:
         def __init__(self, reports):
             self._reports, self.epoch, self.alive = list(reports), 0, True
+            self.returncode: int | None = None
 
         def reports(self):
             out, self._reports = self._reports, []
@@ -247,4 +248,8 @@ def test_a_runner_with_a_sender_process_slips_with_it_and_counts_what_it_dropped
     assert sender.epoch == 1 and firmware.tx_dropped == 3
     sender = Reporting([(sendloop.FAILED, errno.EIO)])
     with pytest.raises(SimError, match="Input/output error"):
+        runner._take_reports(sender, clock)  # type: ignore[arg-type]
+    sender = Reporting([])
+    sender.alive, sender.returncode = False, -9
+    with pytest.raises(SimError, match="ended .killed by signal 9"):
         runner._take_reports(sender, clock)  # type: ignore[arg-type]

@@ -199,10 +199,12 @@ def run(args: argparse.Namespace) -> int:
             frames = capture = CaptureBus(bus)
             out_fd = socket_fd
         link = CanLink(frames, firmware, args.node_id, tap=frame_log)
-    runner = Runner(firmware, link, RealTimeClock(args.speed))
+    sender = None
     if capture is not None and out_fd is not None:
         sender = ProcessSender(out_fd, priority=args.sender_priority)
         closers.append(sender.close)
+    runner = Runner(firmware, link, RealTimeClock(args.speed))
+    if sender is not None and capture is not None:
         runner.sender_process = (sender, capture)
     else:
         runner.paced_sender = paced
