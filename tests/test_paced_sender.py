@@ -251,5 +251,5 @@ def test_a_runner_with_a_sender_process_slips_with_it_and_counts_what_it_dropped
         runner._take_reports(sender, clock)  # type: ignore[arg-type]
     sender = Reporting([])
     sender.alive, sender.returncode = False, -9
-    with pytest.raises(SimError, match="ended .killed by signal 9"):
+    with pytest.raises(SimError, match=r"ended \(killed by signal 9"):
         runner._take_reports(sender, clock)  # type: ignore[arg-type]
