@@ -460,8 +460,11 @@ class DeviceLink:
 
     def _link_alive(self) -> bool:
         """A status within the supervision time, or frames still being read (protocol.md 6: the
-        time without a status counts once the host has read all that arrived)."""
-        return self._status_age_s() < self._supervision_s() or not self._link_idle
+        time without a status counts once the host has read all that arrived). On a virtual
+        clock the host reads every frame at the instant it is sent: only the status counts."""
+        if self._status_age_s() < self._supervision_s():
+            return True
+        return not self._link_idle and not self._clock.virtual
 
     def _wait_change(self, seen: int, until: float) -> None:
         """Wait until the reader delivered something after ``seen`` (:attr:`_events`) or the

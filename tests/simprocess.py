@@ -28,12 +28,23 @@ def _pump(stream: IO[str], into: queue.SimpleQueue[str] | list[str]) -> None:
             into.put(line)
 
 
+def _wait_ready(control: str, deadline: float, errors: list[str]) -> None:
+    from northfinder.firmware_sim.control import ControlClient
+
+    with ControlClient(control) as ctl:
+        while (state := ctl.call("status")["state"]) != "READY":
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the simulator was still {state}: {''.join(errors)}")
+            time.sleep(0.02)
+
+
 @contextmanager
 def sim_process(
     *args: str,
     wanted: Collection[str] = ("pty", "control"),
     timeout: float = 20.0,
     check_exit: bool = True,
+    ready: bool = False,
 ) -> Iterator[dict[str, str]]:
     """Start ``northfinder sim ARGS`` and yield the ``key value`` facts it prints on stdout (once
     every name in ``wanted`` was seen); on leaving stop it with SIGTERM (then ``facts["stderr"]``
@@ -43,6 +54,9 @@ def sim_process(
     ----------
     check_exit : bool
         Assert that it exits with status 0 (its stderr is the message).
+    ready : bool
+        Yield only once the device reports READY on its control channel (past BOOT and warm-up;
+        however long a busy machine takes to start it), within ``timeout``.
 
     Raises
     ------
@@ -77,6 +91,8 @@ def sim_process(
             key, _, value = line.strip().partition(" ")
             facts[key] = value
         facts["pid"] = str(proc.pid)
+        if ready:
+            _wait_ready(facts["control"], deadline, errors)
         yield facts
     finally:
         if proc.poll() is None:

@@ -126,13 +126,12 @@ def test_a_starved_sim_process_reports_its_lag_and_streams_at_its_pace_after(sen
     args = ["--pty", "--warmup", "0", "--seed", "4", "--speed", str(speed)]
     if sender == "process":
         args.append("--paced-sender")
-    with sim_process(*args, "--control", "127.0.0.1:0") as facts:
+    with sim_process(*args, "--control", "127.0.0.1:0", ready=True) as facts:
         with (
             serial.Serial(facts["pty"], 115200, timeout=0.05) as port,
             ControlClient(facts["control"]) as ctl,
         ):
             deframer = Deframer()
-            time.sleep(0.6)  # past BOOT
             port.write(SerialEncoder().encode(StreamStart(1)))
             time.sleep(0.5)
             status = ctl.call("status")

@@ -35,8 +35,10 @@ pytestmark = pytest.mark.subprocess
 
 @contextmanager
 def simulator(*link: str, seed: int = 1) -> Iterator[tuple[str, str]]:
-    """Start ``northfinder sim`` on a new pty; yield (pty path, control address); always stop it."""
-    with sim_process(*link, "--warmup", "0", "--seed", str(seed), "--control", "127.0.0.1:0") as f:
+    """Start ``northfinder sim`` on a new pty; yield (pty path, control address) once the device
+    is READY; always stop it."""
+    args = ("--warmup", "0", "--seed", str(seed), "--control", "127.0.0.1:0")
+    with sim_process(*link, *args, ready=True) as f:
         yield f["pty"], f["control"]
 
 
@@ -52,7 +54,6 @@ def test_serial_pty_subprocess_identifies_streams_and_answers():
     with simulator("--pty") as (path, control):
         with serial.Serial(path, 115200, timeout=0.05) as port:
             enc, de = SerialEncoder(), Deframer()
-            time.sleep(0.6)  # past BOOT
             port.reset_input_buffer()
             port.write(enc.encode(RequestIdentify(1)) + enc.encode(StreamStart(2)))
             got = read_serial(port, de, 2.0)
@@ -89,7 +90,6 @@ def test_slcan_pty_subprocess_reached_with_python_can():
     with simulator("--slcan-pty") as (path, _control):
         with can.Bus(interface="slcan", channel=path, sleep_after_open=0, bitrate=500_000) as bus:
             rx = CanReceiver(node_id=1)
-            time.sleep(0.6)
             can_send(bus, RequestIdentify(1))
             can_send(bus, StreamStart(2))
             got = read_can(bus, rx, 2.0)
@@ -107,7 +107,6 @@ def test_random_bytes_on_serial_do_not_disturb_the_stream():
     with simulator("--pty", seed=4) as (path, control):
         with serial.Serial(path, 115200, timeout=0.02) as port:
             enc, de = SerialEncoder(), Deframer()
-            time.sleep(0.6)
             port.reset_input_buffer()
             port.write(enc.encode(StreamStart(1)))
             got = read_serial(port, de, 0.3)
@@ -140,7 +139,6 @@ def test_random_can_frames_do_not_disturb_the_stream():
     with simulator("--slcan-pty", seed=5) as (path, control):
         with can.Bus(interface="slcan", channel=path, sleep_after_open=0) as bus:
             rx = CanReceiver(node_id=1)
-            time.sleep(0.6)
             can_send(bus, StreamStart(1))
             got = read_can(bus, rx, 0.3)
             sent_bad = 0
