@@ -627,7 +627,7 @@ class Device(DeviceLink):
                     f"{st.angle_deg:.4f} deg; RESET clears it",
                     int(st.faults),
                 )
-            moved = self._motion_count > n0 or self._clock.now() - t0 >= min_s
+            moved = self._motion_count > n0 or self._clock.now() >= t0 + min_s
             return st if st.state == DeviceState.READY and moved else None
 
         return self._wait_for(
@@ -787,7 +787,7 @@ class Device(DeviceLink):
             self._check_open()
             if not self._link_alive():
                 raise self._link_lost_error() from None
-            if now - last_sample_at >= stall_limit:
+            if now >= last_sample_at + stall_limit:  # the sum the wait below uses
                 raise StreamTimeout(
                     f"no sample for {now - last_sample_at:.2f} s while the device's status "
                     f"still arrives ({collector.received} of {n} received): the stream was "

@@ -450,10 +450,16 @@ class DeviceLink:
         heartbeat periods; never less than ``min_supervision_s``)."""
         return max(HEARTBEATS_UNTIL_LOST * self._heartbeat_period_s(), self.min_supervision_s)
 
+    def _lost_at(self) -> float:
+        """Clock time at which the link counts as lost if no status comes before. Judged by this
+        one sum (never by an age ``now - last``, whose rounding could differ from it): a wait
+        until this deadline ends with the link judged lost."""
+        return self._last_status_at() + self._supervision_s()
+
     def _link_deadline(self) -> float:
         """Clock time at which supervision is to be judged again: when the link counts as lost if
         no status comes before, or (past that, while frames still arrive) a moment later."""
-        deadline = self._last_status_at() + self._supervision_s()
+        deadline = self._lost_at()
         if deadline > self._clock.now():
             return deadline
         return self._clock.now() + READ_POLL_S
@@ -462,7 +468,7 @@ class DeviceLink:
         """A status within the supervision time, or frames still being read (protocol.md 6: the
         time without a status counts once the host has read all that arrived). On a virtual
         clock the host reads every frame at the instant it is sent: only the status counts."""
-        if self._status_age_s() < self._supervision_s():
+        if self._clock.now() < self._lost_at():
             return True
         return not self._link_idle and not self._clock.virtual
 

@@ -198,6 +198,31 @@ def test_corrupted_frames_are_ignored_and_counted(link, sim):
     assert dev.status().state == DeviceState.READY  # and the link goes on
 
 
+@VIRTUAL_ONLY
+def test_a_silent_link_is_judged_lost_on_time_whatever_the_clock_reads(sim):
+    """The time without a status is judged by one sum (last status + supervision), so a wait
+    until that instant ends with the verdict, at any reading of the clock (an age computed as a
+    difference of two readings can round below the limit and add a poll period)."""
+    late = []
+    for k in range(40):
+        with sim.open_device() as dev:
+            dev.wait_ready(timeout=5.0)
+            dev.start_streaming()
+            sim.clock.sleep(0.0137 * (k % 7) + 0.001 * k)  # another instant of the clock each time
+            dev.acquire(0.05)  # the last status came at most one heartbeat period before now
+            t0 = sim.clock.now()
+            sim.control.call("silent", on=True)
+            try:
+                with pytest.raises(LinkLost, match="no status"):
+                    dev.acquire(5.0)
+            finally:
+                sim.control.call("reset")
+            elapsed = sim.clock.now() - t0
+        if not 0.2 - NS <= elapsed <= 0.3 + NS:
+            late.append((t0, elapsed))
+    assert not late
+
+
 def test_silent_device_times_out_within_the_stated_deadline(link, sim):
     dev, ctl = link
     dev.start_streaming()
