@@ -46,9 +46,10 @@ from northfinder.driver.protocol.messages import Sample, SampleAux, SampleX, Sam
 
 G_34N = 9.7966  # normal gravity at 34 deg N, m/s^2
 #: The driver's logic, which is the same on every link: in virtual time only.
-#: Slack for a duration on a virtual clock: its deadlines are whole nanoseconds (rounded up), and
-#: a difference of two clock readings in seconds carries a float's rounding.
-NS = 2e-9
+#: Slack for a duration on a virtual clock: its deadlines are whole nanoseconds (rounded up, so
+#: each deadline in a chain of events may add one), and a difference of two clock readings in
+#: seconds carries a float's rounding. Ten nanoseconds against the milliseconds judged.
+NS = 1e-8
 VIRTUAL_ONLY = pytest.mark.parametrize("sim", link_params(("virtual",)), indirect=True)
 
 
