@@ -172,6 +172,16 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
     return handle
 
 
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: one worker more than the cores this process may use. The worker that runs
+    the ``realtime`` group mostly waits on the wall clock (paced simulators, ptys), so the others
+    get the cores; measured on 2 cores, idle 1 min 50 s to 2 min instead of 2 min 20 s, and 3 min
+    instead of 3 min 40 s with two CPU-bound processes beside it (BENCHMARKS.md, "The test
+    suite"). A second realtime group beside the first (tried) failed the conformance suite's
+    timing checks under that load."""
+    return len(os.sched_getaffinity(0)) + 1
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """``NORTHFINDER_REALTIME=separate`` leaves out the ``realtime`` tests (``.ci/run`` runs them in
     a step of their own, ``-m realtime``); without it every test runs.
