@@ -179,7 +179,9 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
     instead of 3 min 40 s with two CPU-bound processes beside it (BENCHMARKS.md, "The test
     suite"). A second realtime group beside the first (tried) failed the conformance suite's
     timing checks under that load."""
-    return len(os.sched_getaffinity(0)) + 1
+    affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere all the cores
+    cores = len(affinity(0)) if affinity is not None else (os.cpu_count() or 1)
+    return cores + 1
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
