@@ -45,6 +45,8 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -269,16 +271,14 @@ def run_slcan(duration_s: float, window_s: float, seed: int) -> RunResult:
     return run_pty("--slcan-pty", duration_s, window_s, seed)
 
 
-def run_socketcan(duration_s: float, window_s: float, seed: int) -> RunResult:
-    """``northfinder sim -i socketcan -c CHANNEL`` as a process of its own and the host on the
-    same SocketCAN interface (``--channel``, default vcan0: a kernel with vcan, such as the HIL's
-    virtual machine: ``scripts/hil --steps jitter``)."""
-    result = RunResult(f"SocketCAN {CHANNEL}, two processes")
-    log = open(os.devnull, "wb")
+@contextmanager
+def sim_process(*args: str, wait_for: str) -> Iterator[str]:
+    """``northfinder sim ARGS --warmup 0`` (with ``--paced-sender`` if asked) as a process of its
+    own; yields the first line it prints that starts with ``wait_for``; always stops it."""
+    log = open(os.devnull, "wb")  # the simulator logs its state changes on stderr
     sim = subprocess.Popen(
         [
-            *(str(ROOT / ".venv/bin/northfinder"), "sim", "-i", "socketcan", "-c", CHANNEL),
-            *("--warmup", "0", "--seed", str(seed), "--azimuth", "123"),
+            *(str(ROOT / ".venv/bin/northfinder"), "sim", *args, "--warmup", "0"),
             *(["--paced-sender"] if SENDER else []),
         ],
         stdout=subprocess.PIPE,
@@ -288,15 +288,12 @@ def run_socketcan(duration_s: float, window_s: float, seed: int) -> RunResult:
     )
     try:
         assert sim.stdout is not None
-        for line in sim.stdout:
-            if line.startswith("truth "):
-                break
+        line = next((x for x in sim.stdout if x.startswith(wait_for)), None)
+        if line is None:
+            raise RuntimeError(f"northfinder sim {' '.join(args)} did not print {wait_for!r}")
+        # Keep reading the simulator's stdout so it never blocks on a full pipe.
         threading.Thread(target=sim.stdout.read, daemon=True).start()
-        bus = can.Bus(interface="socketcan", channel=CHANNEL)
-        tap = Tap(CanTransport(bus, 1, own_bus=True))
-        with Device(tap, **DEVICE_OPTIONS) as device:
-            device.wait_ready(timeout=10.0)
-            collect(device, tap, duration_s, window_s, result)
+        yield line
     finally:
         sim.terminate()
         try:
@@ -305,6 +302,20 @@ def run_socketcan(duration_s: float, window_s: float, seed: int) -> RunResult:
             sim.kill()
             sim.wait()
         log.close()
+
+
+def run_socketcan(duration_s: float, window_s: float, seed: int) -> RunResult:
+    """``northfinder sim -i socketcan -c CHANNEL`` as a process of its own and the host on the
+    same SocketCAN interface (``--channel``, default vcan0: a kernel with vcan, such as the HIL's
+    virtual machine: ``scripts/hil --steps jitter``)."""
+    result = RunResult(f"SocketCAN {CHANNEL}, two processes")
+    args = ("-i", "socketcan", "-c", CHANNEL, "--seed", str(seed), "--azimuth", "123")
+    with sim_process(*args, wait_for="truth "):
+        bus = can.Bus(interface="socketcan", channel=CHANNEL)
+        tap = Tap(CanTransport(bus, 1, own_bus=True))
+        with Device(tap, **DEVICE_OPTIONS) as device:
+            device.wait_ready(timeout=10.0)
+            collect(device, tap, duration_s, window_s, result)
     return result
 
 
@@ -315,29 +326,8 @@ def run_pty(kind: str, duration_s: float, window_s: float, seed: int) -> RunResu
 
     slcan = kind == "--slcan-pty"
     result = RunResult("SLCAN pty, two processes" if slcan else "serial pty, two processes")
-    log = open(os.devnull, "wb")  # the simulator logs its state changes on stderr
-    sim = subprocess.Popen(
-        [
-            *(str(ROOT / ".venv/bin/northfinder"), "sim", kind, "--warmup", "0"),
-            *("--seed", str(seed), "--azimuth", "123"),
-            *(["--paced-sender"] if SENDER else []),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=log,
-        text=True,
-        cwd=ROOT,
-    )
-    try:
-        assert sim.stdout is not None
-        path = None
-        for line in sim.stdout:
-            if line.startswith("pty "):
-                path = line.split()[1]
-                break
-        if path is None:
-            raise RuntimeError("northfinder sim --pty did not print its pty path")
-        # Keep reading the simulator's stdout so it never blocks on a full pipe.
-        threading.Thread(target=sim.stdout.read, daemon=True).start()
+    with sim_process(kind, "--seed", str(seed), "--azimuth", "123", wait_for="pty ") as line:
+        path = line.split()[1]
         # Device.open_serial / a python-can slcan bus, with the transport wrapped by the tap.
         if slcan:
             bus = can.Bus(interface="slcan", channel=path, bitrate=500_000, sleep_after_open=0)
@@ -347,14 +337,6 @@ def run_pty(kind: str, duration_s: float, window_s: float, seed: int) -> RunResu
         with Device(tap, **DEVICE_OPTIONS) as device:
             device.wait_ready(timeout=10.0)
             collect(device, tap, duration_s, window_s, result)
-    finally:
-        sim.terminate()
-        try:
-            sim.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.wait()
-        log.close()
     return result
 
 

@@ -316,22 +316,22 @@ class DeviceLink:
                 raise
 
     def _pump(self) -> bool:
-        """On a virtual clock: receive what has arrived, without blocking (the clock calls this
-        at every instant); True if anything came."""
-        if self._closed or self._dead is not None:
-            return False
+        """On a virtual clock: receive all that has arrived, without blocking (the clock calls
+        this at every instant); True if anything came. Nothing arrives between two instants, so
+        the link is never left with frames to read (``_link_idle`` stays True): a device that
+        falls silent is judged by its last status alone, whether or not the clock polls again."""
+        got = False
         try:
-            items = self._transport.recv(0.0)
+            while not self._closed and self._dead is None:
+                items = self._transport.recv(0.0)
+                if not items:
+                    break
+                self._dispatch(items, self._clock.now(), self._clock.wall())
+                got = True
         except DriverError as exc:
             self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
             return True
-        if not items:
-            if not self._link_idle:
-                self._went_idle()
-            return False
-        self._link_idle = False
-        self._dispatch(items, self._clock.now(), self._clock.wall())
-        return True
+        return got
 
     def _went_idle(self) -> None:
         with self._lock:
@@ -466,11 +466,8 @@ class DeviceLink:
 
     def _link_alive(self) -> bool:
         """A status within the supervision time, or frames still being read (protocol.md 6: the
-        time without a status counts once the host has read all that arrived). On a virtual
-        clock the host reads every frame at the instant it is sent: only the status counts."""
-        if self._clock.now() < self._lost_at():
-            return True
-        return not self._link_idle and not self._clock.virtual
+        time without a status counts once the host has read all that arrived)."""
+        return self._clock.now() < self._lost_at() or not self._link_idle
 
     def _wait_change(self, seen: int, until: float) -> None:
         """Wait until the reader delivered something after ``seen`` (:attr:`_events`) or the

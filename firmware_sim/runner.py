@@ -22,6 +22,7 @@ whenever a host waits, and moves time straight to the next message it will send.
 from __future__ import annotations
 
 import functools
+import itertools
 import logging
 import math
 import os
@@ -30,6 +31,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from operator import attrgetter
 from typing import TYPE_CHECKING, Any, Protocol
 
 from northfinder.firmware_sim import sendloop
@@ -45,6 +47,7 @@ if TYPE_CHECKING:
     from northfinder.firmware_sim.sender import Capture, ProcessSender
 
 log = logging.getLogger("northfinder.sim.runner")
+_time_of = attrgetter("time_s")  # an output's due time, simulated s
 
 #: How far a paced runner may fall behind its clock, wall seconds, before it slips the clock
 #: instead of catching up (a catch-up sends its backlog faster than the configured pace).
@@ -53,20 +56,9 @@ MAX_LAG_WALL_S = 0.05
 LAG_LOG_EVERY_S = 10.0
 
 
-#: A spin on the clock only where reading it costs less than this, s: in user-mode Linux every
-#: clock read is a system call of 30 to 120 us, and a spin would take the guest's one CPU from the
-#: processes beside the instrument.
-CHEAP_CLOCK_READ_S = 5e-6
-
-
-@functools.cache
-def clock_read_s() -> float:
-    """What one read of the monotonic clock costs here, s (measured once)."""
-    n = 200
-    t0 = time.perf_counter()
-    for _ in range(n):
-        time.monotonic()
-    return (time.perf_counter() - t0) / n
+#: Whether a spin on the clock is worth it here (``sendloop.cheap_clock``, measured once: the
+#: sender process decides the same way).
+cheap_clock = functools.cache(sendloop.cheap_clock)
 
 
 class Link(Protocol):
@@ -382,8 +374,8 @@ class Runner:
     MAX_WAIT_S = 0.05
     #: The last part of the wait for a message that is due, spent re-reading the clock rather
     #: than asleep, wall seconds; none where a clock read is a costly system call
-    #: (:data:`CHEAP_CLOCK_READ_S`).
-    SPIN_S = 0.0003
+    #: (:func:`cheap_clock`).
+    SPIN_S = sendloop.SPIN_S
     #: The look-ahead's next chunk is computed only when the next message is due at least this
     #: far ahead, wall seconds (a chunk of 0.2 s takes about a millisecond here), ...
     PREFETCH_QUIET_S = 0.003
@@ -446,7 +438,7 @@ class Runner:
             self._run_with_sender(stop)
             return
         clock = self._paced()
-        spin = self.SPIN_S if clock_read_s() < CHEAP_CLOCK_READ_S else 0.0
+        spin = self.SPIN_S if cheap_clock() else 0.0
         while not stop.is_set():
             with self.lock:
                 due = self.firmware.next_output_s()
@@ -532,19 +524,14 @@ class Runner:
                 dt = min(target - self.firmware.now, self.MAX_STEP_S)
                 if round(dt * NS_PER_S) <= 0:
                     break  # within a nanosecond of the target: the firmware's clock resolution
-                out = self.firmware.process(dt)
-                i = 0
-                while i < len(out):
-                    j = i + 1
-                    while j < len(out) and out[j].time_s == out[i].time_s:
-                        j += 1
+                for due, group in itertools.groupby(self.firmware.process(dt), _time_of):
+                    items = list(group)
                     capture.begin()
-                    self.link.send(out[i:j])
+                    self.link.send(items)
                     chunks = capture.take()
                     if chunks:
-                        sender.put(wall_at(out[i].time_s), chunks)
-                    self.sent += j - i
-                    i = j
+                        sender.put(wall_at(due), chunks)
+                    self.sent += len(items)
             self.firmware.prefetch()
 
     def _take_reports(self, sender: ProcessSender, clock: Clock) -> None:

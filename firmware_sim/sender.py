@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import os
-import select
 import subprocess
 import sys
 from collections.abc import Sequence
@@ -124,7 +123,7 @@ class ProcessSender:
         The process could not be started.
     """
 
-    SPIN_S = 0.0003
+    SPIN_S = sendloop.SPIN_S
     PRIORITY = 10
 
     def __init__(
@@ -199,7 +198,7 @@ class ProcessSender:
     def reports(self) -> list[tuple[int, int]]:
         """What the sender reported since the last call: ``(kind, value)`` records, kinds
         :data:`~northfinder.firmware_sim.sendloop.SLIP`, ``DROPPED`` and ``FAILED``."""
-        while select.select([self._back], [], [], 0)[0]:
+        while True:  # the pipe is non-blocking: read what is there
             try:
                 data = os.read(self._back, 4096)
             except BlockingIOError:

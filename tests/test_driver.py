@@ -199,6 +199,41 @@ def test_corrupted_frames_are_ignored_and_counted(link, sim):
     assert dev.status().state == DeviceState.READY  # and the link goes on
 
 
+def test_a_simulator_that_stops_by_itself_is_judged_lost_on_time(monkeypatch):
+    """In virtual time a simulator that fails falls silent without anybody telling the clock:
+    the host has read every frame it sent, so the time without a status counts at once and the
+    link is lost three heartbeat periods after the last status."""
+    from northfinder.firmware_sim.firmware import Firmware
+    from northfinder.firmware_sim.imu import Truth
+    from northfinder.host.embed import SimulatedInstrument
+
+    sim = SimulatedInstrument(
+        "paper-rlg", Truth(azimuth_deg=30.0, latitude_deg=34.0), seed=3, clock="virtual",
+        warmup_s=0.0,
+    ).start()  # fmt: skip
+    process, failed_at = Firmware.process, []
+
+    def failing(self, dt):
+        if self.now >= 1.0:
+            failed_at.append(sim.clock.now())
+            raise ZeroDivisionError("a defect in the simulator")
+        return process(self, dt)
+
+    try:
+        with sim.open_device() as dev:
+            dev.wait_ready(timeout=5.0)
+            dev.start_streaming()
+            monkeypatch.setattr(Firmware, "process", failing)
+            with pytest.raises(LinkLost, match="no status"):
+                dev.acquire(5.0)
+            lost = sim.clock.now()
+    finally:
+        monkeypatch.undo()
+        sim.close()
+    # the last status came within one heartbeat period (0.1 s) before the failure
+    assert failed_at[0] + 0.2 - NS <= lost <= failed_at[0] + 0.3 + NS
+
+
 @VIRTUAL_ONLY
 def test_a_silent_link_is_judged_lost_on_time_whatever_the_clock_reads(sim):
     """The time without a status is judged by one sum (last status + supervision), so a wait

@@ -171,20 +171,19 @@ def run(args: argparse.Namespace) -> int:
     # With --paced-sender, a link on a file descriptor is written by a process of its own (the
     # simulator encodes into a capture); any other python-can bus by a thread of its own.
     paced = args.paced_sender
-    capture: Capture | None = None
-    out_fd: int | None = None
+    send_from: tuple[Capture, int] | None = None  # what a sender process writes, and where
     link: Link
     if args.serial:
         stream: Any = SerialStream(port)
         if paced:
-            stream = capture = CaptureStream(stream)
-            out_fd = port.fileno()
+            stream = CaptureStream(stream)
+            send_from = (stream, port.fileno())
         link = SerialLink(stream, firmware, tap=frame_log, node_id=args.node_id)
     elif pty is not None:
         stream = pty.stream
         if paced:
-            stream = capture = CaptureStream(stream)
-            out_fd = pty.master
+            stream = CaptureStream(stream)
+            send_from = (stream, pty.master)
         link = (
             SerialLink(stream, firmware, tap=frame_log, node_id=args.node_id)
             if args.pty
@@ -196,15 +195,14 @@ def run(args: argparse.Namespace) -> int:
         socket_fd = _socketcan_fd(bus)
         frames: Any = bus
         if paced and socket_fd is not None:
-            frames = capture = CaptureBus(bus)
-            out_fd = socket_fd
+            frames = CaptureBus(bus)
+            send_from = (frames, socket_fd)
         link = CanLink(frames, firmware, args.node_id, tap=frame_log)
-    sender = None
-    if capture is not None and out_fd is not None:
+    runner = Runner(firmware, link, RealTimeClock(args.speed))
+    if send_from is not None:
+        capture, out_fd = send_from
         sender = ProcessSender(out_fd, priority=args.sender_priority)
         closers.append(sender.close)
-    runner = Runner(firmware, link, RealTimeClock(args.speed))
-    if sender is not None and capture is not None:
         runner.sender_process = (sender, capture)
     else:
         runner.paced_sender = paced
