@@ -175,7 +175,7 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
     """``-n auto``: one worker more than the cores this process may use. The worker that runs
     the ``realtime`` group mostly waits on the wall clock (paced simulators, ptys), so the others
-    get the cores; measured on 2 cores, idle 1 min 50 s to 2 min instead of 2 min 20 s, and 3 min
+    get the cores; measured on 2 cores, idle 1 min 50 s to 2 min 3 s instead of 2 min 20 s, and 3 min
     instead of 3 min 40 s with two CPU-bound processes beside it (BENCHMARKS.md, "The test
     suite"). A second realtime group beside the first (tried) failed the conformance suite's
     timing checks under that load."""
