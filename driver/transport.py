@@ -23,6 +23,7 @@ from typing import Any, Protocol
 
 import can
 import serial
+from can.interfaces.slcan import slcanBus
 from can.interfaces.virtual import VirtualBus
 
 try:  # python-can's SocketCAN backend: importable on Linux only
@@ -117,13 +118,18 @@ def frame_batch(bus: can.BusABC) -> Callable[[int], list[can.Message]]:
     user-mode Linux: 60 to 100 us each) this halves a reader's cost per frame. On python-can's
     ``virtual`` bus it takes the frames waiting in the bus's queue under one lock (``recv``
     locks, reads two clocks and logs for each frame). Every other bus, and a SocketCAN or
-    virtual bus with filters set in python-can, gets ``bus.recv(0.0)`` for each frame.
+    virtual bus with filters set in python-can, gets ``bus.recv(0.0)`` for each frame; on
+    python-can's ``slcan`` bus only while bytes are waiting (there ``recv(0.0)`` on an empty
+    port waits for the port's read timeout, 1 ms by default, before it says there is nothing:
+    every batch would end 1 ms after its last frame, on a timer's wake-up).
 
     The socket is switched to non-blocking mode, which python-can's own ``recv`` and ``send``
     allow (both wait with ``select`` before they read or write).
     """
     if isinstance(bus, VirtualBus) and not bus.filters:
         return _virtual_batch(bus)
+    if isinstance(bus, slcanBus):
+        return _slcan_batch(bus)
     sock = getattr(bus, "socket", None)
     if (
         SocketcanBus is None
@@ -159,6 +165,29 @@ def frame_batch(bus: can.BusABC) -> Callable[[int], list[can.Message]]:
         return out
 
     return take_socket
+
+
+def _slcan_batch(bus: slcanBus) -> Callable[[int], list[can.Message]]:
+    """:func:`frame_batch` of a python-can ``slcan`` bus: ``recv(0.0)`` while the port has bytes
+    waiting or the bus holds a whole line it has read (python-can's newer ``slcan`` reads all
+    the waiting bytes at once and keeps the lines after the first)."""
+    port = bus.serialPortOrig
+
+    def line_held() -> bool:
+        held = getattr(bus, "_buffer", b"")
+        return b"\r" in held or b"\a" in held
+
+    def take(n: int) -> list[can.Message]:
+        out: list[can.Message] = []
+        for _ in range(n):  # at most n reads, whatever keeps arriving
+            if not (port.in_waiting or line_held()):
+                break
+            msg = bus.recv(0.0)  # None: a line not complete yet, or an answer to a command
+            if msg is not None:
+                out.append(msg)
+        return out
+
+    return take
 
 
 def _virtual_batch(bus: VirtualBus) -> Callable[[int], list[can.Message]]:

@@ -466,3 +466,54 @@ def test_can_tick_counter_measures_gaps_of_256_or_more_with_the_status_anchor():
     asm.restart()
     out = _tick(asm, 5002)
     assert len(out) == 1 and out[0].counter == 5002 and asm.lost == 300
+
+
+def test_an_slcan_batch_takes_the_waiting_frames_without_a_read_that_waits():
+    """python-can's ``slcan`` ``recv(0.0)`` on an empty port waits for the port's read timeout
+    (1 ms): the driver takes the frames that came with the first one while bytes are waiting,
+    and makes no read beyond them (each batch would otherwise end 1 ms late, on a timer)."""
+    import os
+    import time
+
+    from northfinder.driver.protocol.can import encode_can
+    from northfinder.driver.protocol.messages import Validity
+    from northfinder.driver.transport import frame_batch
+    from northfinder.firmware_sim.links import PseudoTerminal
+
+    pty = PseudoTerminal()
+    bus = can.Bus(interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0)
+    try:
+        reads = []
+        recv = bus.recv
+
+        def counted(timeout=None):
+            msg = recv(timeout)
+            reads.append(msg)
+            return msg
+
+        bus.recv = counted
+        take = frame_batch(bus)
+        frames = encode_can(Sample(7, (1, 2, 3), (4, 5, 6), 8, 9, Validity(0)), 1)
+        text = b"".join(
+            f"t{f.arbitration_id:03X}{len(f.data)}{bytes(f.data).hex().upper()}\r".encode()
+            for f in frames
+        )
+        os.write(pty.master, text[:-5])  # four frames, the last one not complete yet
+        port = bus.serialPortOrig
+        deadline = time.monotonic() + 10.0
+        while port.in_waiting < len(text) - 5 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        got = take(16)
+        assert [bytes(m.data) for m in got] == [bytes(f.data) for f in frames[:3]]
+        # Three reads gave a frame and one read the bytes of the incomplete fourth: no read
+        # found the port empty.
+        assert len(reads) == 4 and reads[3] is None
+        os.write(pty.master, text[-5:])
+        while port.in_waiting < 5 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        (last,) = take(16)
+        assert bytes(last.data) == bytes(frames[3].data) and len(reads) == 5
+        assert take(16) == [] and len(reads) == 5
+    finally:
+        bus.shutdown()
+        pty.close()
