@@ -1,7 +1,8 @@
-"""Real-time stream: a 200 Hz sample stream in real time over virtual CAN and over a serial pty.
+"""Real-time stream: a 200 Hz sample stream in real time over virtual CAN, a serial pty, an SLCAN
+pty or SocketCAN.
 
 Run: ``.venv/bin/python benchmarks/bench_realtime.py [--duration 600] [--window 10]
-[--links can,serial]``.
+[--links can,serial,slcan] [--paced-sender] [--bare 120]``.
 
 Links:
 
@@ -11,8 +12,13 @@ Links:
 - ``serial``: ``northfinder sim --pty --warmup 0`` as a separate process, the host
   ``Device.open_serial(PATH, 115200)`` on the pty it prints (a pty has no baud rate: bytes move
   as fast as both processes read and write them).
+- ``slcan``: ``northfinder sim --slcan-pty``, the host on python-can's ``slcan`` interface.
+- ``socketcan``: ``northfinder sim -i socketcan -c vcan0`` and the host on the same interface
+  (a kernel with vcan: ``scripts/hil --steps jitter`` runs it in the HIL's virtual machine).
 
-Both: paper-rlg preset, default configuration (200 Hz, heartbeat 100 ms), stream started once by
+With ``--paced-sender`` the simulators in processes of their own send from their sender process.
+
+All: paper-rlg preset, default configuration (200 Hz, heartbeat 100 ms), stream started once by
 the first window. The host collects consecutive ``acquire(window, on_gap="report")`` windows for
 ``duration`` wall seconds, exactly as a north-finding host would.
 
@@ -34,6 +40,20 @@ What is counted:
 
 The machine's 1-minute load average is sampled after every window (shared machine: the figures
 depend on it).
+
+References, each measured in the same run:
+
+- A timer loop in a process of its own beside each link, for the same minutes (a thread sleeping
+  to 5 ms deadlines): the machine's floor for one wake-up. Ratios are printed over the whole run
+  and as the median over ``SLICE_S`` slices (the machine's tails come in bursts).
+- Each link's **bare floor** (``--bare`` seconds after the link, with its own timer loop beside
+  it): the same link carrying fixed samples, written at their deadlines by the simulator's sender
+  process and read by a reader that does nothing else with the link's host library. No
+  simulator, no protocol decoding, no ``Device``: what the link itself costs on this machine. A
+  link has more wake-ups than a timer loop (the sender's, on a pty the kernel's worker that moves
+  the bytes to the reader's side, the reader's), so the bare link's ratio to the timer loop is
+  what any implementation of that link can reach, and the link over its bare floor is what the
+  instrument and the driver add.
 """
 
 from __future__ import annotations
@@ -407,7 +427,7 @@ def run_bare(link: str, duration_s: float) -> RunResult:
             sender = threading.Thread(target=send, daemon=True)
             sender.start()
             frames = 0
-            while len(stamps) < n and rx.recv(1.0 if frames else 10.0) is not None:
+            while len(stamps) < n and rx.recv(10.0) is not None:
                 frames += 1
                 if frames % 4 == 0:
                     stamps.append(time.time())
@@ -458,7 +478,7 @@ def run_bare(link: str, duration_s: float) -> RunResult:
     try:
         if bus is not None:  # slcan, socketcan: four frames a sample
             frames = 0
-            while len(stamps) < n and bus.recv(1.0 if frames else 10.0) is not None:
+            while len(stamps) < n and bus.recv(10.0) is not None:
                 frames += 1
                 if frames % 4 == 0:
                     stamps.append(time.time())
@@ -468,7 +488,7 @@ def run_bare(link: str, duration_s: float) -> RunResult:
             size = len(SerialEncoder().encode(_bare_sample(0)))
             got = 0
             while len(stamps) < n:
-                port.timeout = 1.0 if got else 10.0
+                port.timeout = 10.0
                 data = port.read(1)
                 if not data:
                     break
