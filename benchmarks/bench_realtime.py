@@ -424,14 +424,14 @@ def run_bare(link: str, duration_s: float) -> RunResult:
                     for m in messages:
                         tx.send(m)
 
-            sender = threading.Thread(target=send, daemon=True)
-            sender.start()
+            sending = threading.Thread(target=send, daemon=True)
+            sending.start()
             frames = 0
             while len(stamps) < n and rx.recv(10.0) is not None:
                 frames += 1
                 if frames % 4 == 0:
                     stamps.append(time.time())
-            sender.join()
+            sending.join()
         return _bare_stamps(result, stamps, n)
 
     pty = None
@@ -439,7 +439,7 @@ def run_bare(link: str, duration_s: float) -> RunResult:
     if link == "socketcan":
         from can.interfaces.socketcan.socketcan import build_can_frame
 
-        tx_bus = can.Bus(interface="socketcan", channel=CHANNEL)
+        tx_bus: Any = can.Bus(interface="socketcan", channel=CHANNEL)
         out_fd = tx_bus.socket.fileno()
         chunks = lambda k: [build_can_frame(m) for m in _can_messages(k)]  # noqa: E731
         bus = can.Bus(interface="socketcan", channel=CHANNEL)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import threading
+from typing import Any
 
 import can
 import numpy as np
@@ -481,7 +482,7 @@ def test_an_slcan_batch_takes_the_waiting_frames_without_a_read_that_waits():
     from northfinder.firmware_sim.links import PseudoTerminal
 
     pty = PseudoTerminal()
-    bus = can.Bus(interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0)
+    bus: Any = can.Bus(interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0)
     try:
         reads = []
         recv = bus.recv
