@@ -169,21 +169,38 @@ def frame_batch(bus: can.BusABC) -> Callable[[int], list[can.Message]]:
 
 def _slcan_batch(bus: slcanBus) -> Callable[[int], list[can.Message]]:
     """:func:`frame_batch` of a python-can ``slcan`` bus: ``recv(0.0)`` while the port has bytes
-    waiting or the bus holds a whole line it has read (python-can's newer ``slcan`` reads all
-    the waiting bytes at once and keeps the lines after the first)."""
+    waiting or the bus holds a whole line it has read. python-can's next ``slcan`` reader
+    (merged after 4.6.1) reads all the waiting bytes at once and keeps the lines after the first;
+    it reads at least one byte before it looks at them, so for those the port's read timeout is
+    set to 0 (that read returns at once)."""
     port = bus.serialPortOrig
 
     def line_held() -> bool:
         held = getattr(bus, "_buffer", b"")
         return b"\r" in held or b"\a" in held
 
+    def waiting() -> int:
+        if not port.is_open:
+            raise can.CanOperationError("the SLCAN adapter's serial port is closed")
+        try:
+            return port.in_waiting
+        except TypeError as exc:  # pyserial, on a port closed meanwhile
+            raise can.CanOperationError(f"the SLCAN adapter's serial port: {exc}") from exc
+
     def take(n: int) -> list[can.Message]:
         out: list[can.Message] = []
         for _ in range(n):  # at most n reads, whatever keeps arriving
-            if not (port.in_waiting or line_held()):
+            if waiting():
+                msg = bus.recv(0.0)
+            elif line_held():
+                timeout, port.timeout = port.timeout, 0
+                try:
+                    msg = bus.recv(0.0)
+                finally:
+                    port.timeout = timeout
+            else:
                 break
-            msg = bus.recv(0.0)  # None: a line not complete yet, or an answer to a command
-            if msg is not None:
+            if msg is not None:  # None: a line not complete yet, or an answer to a command
                 out.append(msg)
         return out
 

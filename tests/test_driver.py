@@ -469,12 +469,17 @@ def test_can_tick_counter_measures_gaps_of_256_or_more_with_the_status_anchor():
     assert len(out) == 1 and out[0].counter == 5002 and asm.lost == 300
 
 
-def test_an_slcan_batch_takes_the_waiting_frames_without_a_read_that_waits():
+@pytest.mark.parametrize("reader", ["installed", "bulk"])
+def test_an_slcan_batch_takes_the_waiting_frames_without_a_read_that_waits(reader):
     """python-can's ``slcan`` ``recv(0.0)`` on an empty port waits for the port's read timeout
-    (1 ms): the driver takes the frames that came with the first one while bytes are waiting,
-    and makes no read beyond them (each batch would otherwise end 1 ms late, on a timer)."""
+    (1 ms): the driver takes the frames that came with the first one while bytes are waiting or
+    whole lines are held, and no read of the port waits (each batch would otherwise end 1 ms late,
+    on a timer). ``bulk``: python-can's next reader (all waiting bytes at once, the lines after
+    the first kept in the bus)."""
     import os
     import time
+
+    import serial
 
     from northfinder.driver.protocol.can import encode_can
     from northfinder.driver.protocol.messages import Validity
@@ -483,38 +488,60 @@ def test_an_slcan_batch_takes_the_waiting_frames_without_a_read_that_waits():
 
     pty = PseudoTerminal()
     bus: Any = can.Bus(interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0)
+    port = bus.serialPortOrig
     try:
-        reads = []
-        recv = bus.recv
+        if reader == "bulk":
 
-        def counted(timeout=None):
-            msg = recv(timeout)
-            reads.append(msg)
-            return msg
+            def bulk_read(timeout):
+                expiry = serial.Timeout(timeout)
+                while True:
+                    bus._buffer.extend(port.read(port.in_waiting or 1))
+                    for i, byte in enumerate(bus._buffer):
+                        if byte in b"\r\a":
+                            line = bus._buffer[: i + 1].decode()
+                            del bus._buffer[: i + 1]
+                            return line
+                    if expiry.expired():
+                        return None
 
-        bus.recv = counted
+            bus._read = bulk_read
+        waited = []  # reads of the port that came back empty after waiting for its timeout
+        read = port.read
+
+        def recorded(size=1):
+            data = read(size)
+            if not data and port.timeout:
+                waited.append(size)
+            return data
+
+        port.read = recorded
         take = frame_batch(bus)
         frames = encode_can(Sample(7, (1, 2, 3), (4, 5, 6), 8, 9, Validity(0)), 1)
         text = b"".join(
             f"t{f.arbitration_id:03X}{len(f.data)}{bytes(f.data).hex().upper()}\r".encode()
             for f in frames
         )
-        os.write(pty.master, text[:-5])  # four frames, the last one not complete yet
-        port = bus.serialPortOrig
-        deadline = time.monotonic() + 10.0
-        while port.in_waiting < len(text) - 5 and time.monotonic() < deadline:
-            time.sleep(0.001)
+
+        def arrive(data: bytes) -> None:
+            before = port.in_waiting
+            os.write(pty.master, data)
+            deadline = time.monotonic() + 10.0
+            while port.in_waiting < before + len(data) and time.monotonic() < deadline:
+                time.sleep(0.001)
+
+        arrive(text[:-5])  # four frames, the last one not complete yet
         got = take(16)
         assert [bytes(m.data) for m in got] == [bytes(f.data) for f in frames[:3]]
-        # Three reads gave a frame and one read the bytes of the incomplete fourth: no read
-        # found the port empty.
-        assert len(reads) == 4 and reads[3] is None
-        os.write(pty.master, text[-5:])
-        while port.in_waiting < 5 and time.monotonic() < deadline:
-            time.sleep(0.001)
+        arrive(text[-5:])
         (last,) = take(16)
-        assert bytes(last.data) == bytes(frames[3].data) and len(reads) == 5
-        assert take(16) == [] and len(reads) == 5
-    finally:
+        assert bytes(last.data) == bytes(frames[3].data)
+        assert take(16) == []
+        assert waited == []
+        assert port.timeout == 0.001  # as python-can set it
         bus.shutdown()
+        with pytest.raises(can.CanOperationError, match="closed"):
+            take(16)
+    finally:
+        if port.is_open:
+            bus.shutdown()
         pty.close()
