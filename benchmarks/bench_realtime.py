@@ -66,7 +66,7 @@ import threading
 import time
 import uuid
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -376,12 +376,18 @@ def _can_messages(counter: int) -> list[can.Message]:
     ]
 
 
-def _bare_stamps(result: RunResult, stamps: list[float], n: int) -> RunResult:
-    result.counters = np.arange(len(stamps), dtype=np.int64)
-    result.arrivals = np.asarray(stamps, dtype=np.float64)
-    if len(stamps) < n:
-        result.errors.append(f"{n - len(stamps)} of {n} samples did not arrive")
-    return result
+class _Ticks:
+    """Counters from the low 8 bits of the tick that each sample carries (a lost sample leaves a
+    gap instead of shifting the ones after it)."""
+
+    def __init__(self) -> None:
+        self.counters: list[int] = []
+        self.stamps: list[float] = []
+
+    def add(self, low8: int, stamp: float) -> None:
+        last = self.counters[-1] if self.counters else low8 - 1
+        self.counters.append(last + ((low8 - last) & 0xFF or 0x100))
+        self.stamps.append(stamp)
 
 
 def run_bare(link: str, duration_s: float) -> RunResult:
@@ -392,31 +398,41 @@ def run_bare(link: str, duration_s: float) -> RunResult:
     ``SCHED_FIFO`` where allowed) fed fixed samples; on virtual CAN, where only the one process
     can reach the bus, a thread of this process that sleeps and spins the same way. The reader:
     pyserial (serial), python-can ``slcan`` / ``socketcan`` / ``virtual`` (``recv`` in a loop),
-    stamping ``time.time()`` when a sample's last byte or frame is in. No simulator, no
-    protocol decoding, no :class:`Device`: what a link in Python costs on this machine before
-    any of the instrument's work."""
+    stamping ``time.time()`` when a sample's last byte or frame is in (its counter from the low
+    8 bits of the tick it carries). No simulator, no protocol decoding, no :class:`Device`: what a
+    link in Python costs on this machine before any of the instrument's work. It ends when all
+    samples came or after 10 s without one (a guest may stall for seconds)."""
     from northfinder.driver.protocol.serial import SerialEncoder
     from northfinder.driver.transport import open_serial_port
     from northfinder.firmware_sim.links import PseudoTerminal
     from northfinder.firmware_sim.sender import ProcessSender
-    from northfinder.firmware_sim.sendloop import SPIN_S
+    from northfinder.firmware_sim.sendloop import DROPPED, FAILED, SLIP, SPIN_S
 
     n = round(duration_s / PERIOD_S)
     result = RunResult(f"bare {link}")
-    stamps: list[float] = []
-    t_start = time.monotonic() + 0.5
-    if link == "can":
-        channel = f"bench-bare-{uuid.uuid4().hex}"
-        with (
-            can.Bus(interface="virtual", channel=channel) as tx,
-            can.Bus(interface="virtual", channel=channel) as rx,
-        ):
+    ticks = _Ticks()
+    last_id = _can_messages(0)[-1].arbitration_id  # a sample's last frame
+
+    def read_frames(bus: Any) -> None:
+        while len(ticks.stamps) < n and (msg := bus.recv(10.0)) is not None:
+            if msg.arbitration_id == last_id:
+                ticks.add(msg.data[0], time.time())
+
+    with ExitStack() as stack:
+        if link == "can":
+            channel = f"bench-bare-{uuid.uuid4().hex}"
+            tx = stack.enter_context(can.Bus(interface="virtual", channel=channel))
+            rx = stack.enter_context(can.Bus(interface="virtual", channel=channel))
+            stop = threading.Event()
+            t_start = time.monotonic() + 0.5
 
             def send() -> None:
                 for k in range(n):
                     messages = _can_messages(k)
                     due = t_start + k * PERIOD_S
                     wait = due - time.monotonic() - SPIN_S
+                    if stop.is_set():
+                        return
                     if wait > 0:
                         time.sleep(wait)
                     while time.monotonic() < due:
@@ -426,87 +442,95 @@ def run_bare(link: str, duration_s: float) -> RunResult:
 
             sending = threading.Thread(target=send, daemon=True)
             sending.start()
-            frames = 0
-            while len(stamps) < n and rx.recv(10.0) is not None:
-                frames += 1
-                if frames % 4 == 0:
-                    stamps.append(time.time())
-            sending.join()
-        return _bare_stamps(result, stamps, n)
-
-    pty = None
-    bus: Any = None
-    if link == "socketcan":
-        from can.interfaces.socketcan.socketcan import build_can_frame
-
-        tx_bus: Any = can.Bus(interface="socketcan", channel=CHANNEL)
-        out_fd = tx_bus.socket.fileno()
-        chunks = lambda k: [build_can_frame(m) for m in _can_messages(k)]  # noqa: E731
-        bus = can.Bus(interface="socketcan", channel=CHANNEL)
-    else:
-        pty = PseudoTerminal()
-        out_fd = pty.master
-        if link == "slcan":
-
-            def chunks(k: int) -> list[bytes]:
-                text = "".join(
-                    f"t{m.arbitration_id:03X}{m.dlc}{bytes(m.data).hex().upper()}\r"
-                    for m in _can_messages(k)
-                )
-                return [text.encode("ascii")]
-
-            bus = can.Bus(interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0)
+            stack.callback(sending.join)
+            stack.callback(stop.set)
+            read_frames(rx)
         else:
-            encoder = SerialEncoder()
-            chunks = lambda k: [encoder.encode(_bare_sample(k))]  # noqa: E731
-    sender = ProcessSender(out_fd)
-    deadline = time.monotonic() + 30.0
-    while sender.priority is None and sender.alive and time.monotonic() < deadline:
-        sender.reports()  # its first report says it runs (a Python start: seconds in a VM)
-        time.sleep(0.01)
-    t_start = time.monotonic() + 0.5
+            bus: Any = None
+            port: Any = None
+            if link == "socketcan":
+                from can.interfaces.socketcan.socketcan import build_can_frame
 
-    def feed() -> None:  # blocks while the sender's pipe is full: it takes them as they fall due
-        try:
-            for k in range(n):
-                sender.put(t_start + k * PERIOD_S, chunks(k))
-        except Exception as exc:  # the sender ended: reported as samples that did not arrive
-            result.errors.append(f"feeding the sender: {exc}")
+                tx_bus: Any = stack.enter_context(can.Bus(interface="socketcan", channel=CHANNEL))
+                bus = stack.enter_context(can.Bus(interface="socketcan", channel=CHANNEL))
+                out_fd = tx_bus.socket.fileno()
+                chunks = lambda k: [build_can_frame(m) for m in _can_messages(k)]  # noqa: E731
+            else:
+                pty = PseudoTerminal()
+                stack.callback(pty.close)
+                out_fd = pty.master
+                if link == "slcan":
 
-    feeder = threading.Thread(target=feed, daemon=True)
-    feeder.start()
-    try:
-        if bus is not None:  # slcan, socketcan: four frames a sample
-            frames = 0
-            while len(stamps) < n and bus.recv(10.0) is not None:
-                frames += 1
-                if frames % 4 == 0:
-                    stamps.append(time.time())
-        else:
-            assert pty is not None
-            port = open_serial_port(pty.path, 115_200)
-            size = len(SerialEncoder().encode(_bare_sample(0)))
-            got = 0
-            while len(stamps) < n:
+                    def chunks(k: int) -> list[bytes]:
+                        text = "".join(
+                            f"t{m.arbitration_id:03X}{m.dlc}{bytes(m.data).hex().upper()}\r"
+                            for m in _can_messages(k)
+                        )
+                        return [text.encode("ascii")]
+
+                    bus = stack.enter_context(
+                        can.Bus(
+                            interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0
+                        )
+                    )
+                else:
+                    encoder = SerialEncoder()
+                    chunks = lambda k: [encoder.encode(_bare_sample(k))]  # noqa: E731
+                    port = open_serial_port(pty.path, 115_200)  # before any byte is written
+                    stack.callback(port.close)
+            sender = ProcessSender(out_fd)
+            stack.callback(sender.close)
+            deadline = time.monotonic() + 30.0
+            while sender.priority is None and sender.alive and time.monotonic() < deadline:
+                sender.reports()  # its first report says it runs (a Python start: seconds in a VM)
+                time.sleep(0.01)
+            t_start = time.monotonic() + 0.5
+            stop = threading.Event()
+
+            def feed() -> (
+                None
+            ):  # blocks while the sender's pipe is full: it takes them as they fall due
+                try:
+                    for k in range(n):
+                        if stop.is_set():
+                            return
+                        sender.put(t_start + k * PERIOD_S, chunks(k))
+                except Exception as exc:  # the sender ended: its samples do not arrive
+                    result.errors.append(f"feeding the sender: {exc}")
+
+            feeder = threading.Thread(target=feed, daemon=True)
+            feeder.start()
+            # Closed in this order: the feeder stops before the sender's pipe closes.
+            stack.callback(feeder.join, 5.0)
+            stack.callback(stop.set)
+            if bus is not None:
+                read_frames(bus)
+            else:
+                size = len(SerialEncoder().encode(_bare_sample(0)))
+                buf = bytearray()
                 port.timeout = 10.0
-                data = port.read(1)
-                if not data:
-                    break
-                waiting = port.in_waiting
-                got += len(data) + (len(port.read(waiting)) if waiting else 0)
-                while got >= size * (len(stamps) + 1):
-                    stamps.append(time.time())
-            port.close()
-    finally:
-        sender.close()
-        feeder.join(timeout=5.0)
-        if bus is not None:
-            bus.shutdown()
-        if link == "socketcan":
-            tx_bus.shutdown()
-        if pty is not None:
-            pty.close()
-    return _bare_stamps(result, stamps, n)
+                while len(ticks.stamps) < n:
+                    data = port.read(1)
+                    if not data:
+                        break
+                    waiting = port.in_waiting
+                    buf += data + (port.read(waiting) if waiting else b"")
+                    stamp = time.time()
+                    while len(buf) >= size:
+                        ticks.add(buf[5], stamp)  # the counter's low byte (frame header: 5 bytes)
+                        del buf[:size]
+            for kind, value in sender.reports():
+                if kind == SLIP:
+                    result.errors.append(f"the sender slipped {value / 1e6:.1f} ms")
+                elif kind == DROPPED:
+                    result.errors.append(f"the sender dropped {value} chunks (link full)")
+                elif kind == FAILED:
+                    result.errors.append(f"the sender failed (errno {value})")
+    result.counters = np.asarray(ticks.counters, dtype=np.int64)
+    result.arrivals = np.asarray(ticks.stamps, dtype=np.float64)
+    if len(ticks.stamps) < n:
+        result.errors.append(f"{n - len(ticks.stamps)} of {n} samples did not come")
+    return result
 
 
 def jitter(arrivals: np.ndarray, counters: np.ndarray) -> np.ndarray:
@@ -796,9 +820,12 @@ def main() -> None:
             if t_link is not None and t_bare is not None:
                 own = s["p99_ms"] / t_link["p99_ms"]
                 floor_ratio = f["p99_ms"] / t_bare["p99_ms"]
+                own_s, floor_s = sliced_ratio(s, t_link)[0], sliced_ratio(f, t_bare)[0]
                 both = (
                     f"; over the timer loop: link {own:.2f}, bare link {floor_ratio:.2f} "
-                    f"(link over bare, each against its timer: {own / floor_ratio:.2f})"
+                    f"(link over bare, each against its timer: {own / floor_ratio:.2f}); medians "
+                    f"of {SLICE_S:g} s slices: link {own_s:.2f}, bare link {floor_s:.2f} "
+                    f"({own_s / floor_s:.2f})"
                 )
             print(
                 f"  {s['link']}: {s['p99_ms']:.3f} / {f['p99_ms']:.3f} = "
