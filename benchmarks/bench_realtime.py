@@ -402,9 +402,9 @@ def run_bare(link: str, duration_s: float) -> RunResult:
     8 bits of the tick it carries). No simulator, no protocol decoding, no :class:`Device`: what a
     link in Python costs on this machine before any of the instrument's work. It ends when all
     samples came or after 10 s without one (a guest may stall for seconds)."""
-    from northfinder.driver.protocol.serial import SerialEncoder
+    from northfinder.driver.protocol.serial import HEADER_SIZE, SerialEncoder
     from northfinder.driver.transport import open_serial_port
-    from northfinder.firmware_sim.links import PseudoTerminal
+    from northfinder.firmware_sim.links import PseudoTerminal, slcan_line
     from northfinder.firmware_sim.sender import ProcessSender
     from northfinder.firmware_sim.sendloop import DROPPED, FAILED, SLIP, SPIN_S
 
@@ -460,14 +460,7 @@ def run_bare(link: str, duration_s: float) -> RunResult:
                 stack.callback(pty.close)
                 out_fd = pty.master
                 if link == "slcan":
-
-                    def chunks(k: int) -> list[bytes]:
-                        text = "".join(
-                            f"t{m.arbitration_id:03X}{m.dlc}{bytes(m.data).hex().upper()}\r"
-                            for m in _can_messages(k)
-                        )
-                        return [text.encode("ascii")]
-
+                    chunks = lambda k: [b"".join(map(slcan_line, _can_messages(k)))]  # noqa: E731
                     bus = stack.enter_context(
                         can.Bus(
                             interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0
@@ -487,9 +480,8 @@ def run_bare(link: str, duration_s: float) -> RunResult:
             t_start = time.monotonic() + 0.5
             stop = threading.Event()
 
-            def feed() -> (
-                None
-            ):  # blocks while the sender's pipe is full: it takes them as they fall due
+            def feed() -> None:
+                """Blocks while the sender's pipe is full: it takes them as they fall due."""
                 try:
                     for k in range(n):
                         if stop.is_set():
@@ -517,7 +509,9 @@ def run_bare(link: str, duration_s: float) -> RunResult:
                     buf += data + (port.read(waiting) if waiting else b"")
                     stamp = time.time()
                     while len(buf) >= size:
-                        ticks.add(buf[5], stamp)  # the counter's low byte (frame header: 5 bytes)
+                        ticks.add(
+                            buf[HEADER_SIZE], stamp
+                        )  # the payload's first byte: the tick's low 8 bits
                         del buf[:size]
             for kind, value in sender.reports():
                 if kind == SLIP:
@@ -794,13 +788,15 @@ def main() -> None:
         timers[-1]["link"] += " (after the links)"
         rows.append(timers[-1])
     print_table(rows, args.duration, args.window)
+    # name -> (median of the slices' ratios over the timer loop beside it, slices)
+    sliced = {s["link"]: sliced_ratio(s, beside[s["link"]]) for s in rows if s["link"] in beside}
     if beside:
         print("jitter p99 over that of a timer loop in a process of its own beside the link, for the "
               "same minutes (goal <= 1.2):")  # fmt: skip
         for s in rows:
             if s["link"] in beside:
                 t = beside[s["link"]]
-                med, k = sliced_ratio(s, t)
+                med, k = sliced[s["link"]]
                 print(
                     f"  {s['link']}: {s['p99_ms']:.3f} / {t['p99_ms']:.3f} = "
                     f"{s['p99_ms'] / t['p99_ms']:.2f}; median over {k} slices of {SLICE_S:g} s "
@@ -820,7 +816,7 @@ def main() -> None:
             if t_link is not None and t_bare is not None:
                 own = s["p99_ms"] / t_link["p99_ms"]
                 floor_ratio = f["p99_ms"] / t_bare["p99_ms"]
-                own_s, floor_s = sliced_ratio(s, t_link)[0], sliced_ratio(f, t_bare)[0]
+                own_s, floor_s = sliced[s["link"]][0], sliced[f["link"]][0]
                 both = (
                     f"; over the timer loop: link {own:.2f}, bare link {floor_ratio:.2f} "
                     f"(link over bare, each against its timer: {own / floor_ratio:.2f}); medians "

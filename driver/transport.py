@@ -189,19 +189,20 @@ def _slcan_batch(bus: slcanBus) -> Callable[[int], list[can.Message]]:
 
     def take(n: int) -> list[can.Message]:
         out: list[can.Message] = []
-        for _ in range(n):  # at most n reads, whatever keeps arriving
-            if waiting():
+        timeout = port.timeout  # pyserial reconfigures the port at each change: at most two
+        try:
+            for _ in range(n):  # at most n reads, whatever keeps arriving
+                if not waiting():
+                    if not line_held():
+                        break
+                    if port.timeout:
+                        port.timeout = 0
                 msg = bus.recv(0.0)
-            elif line_held():
-                timeout, port.timeout = port.timeout, 0
-                try:
-                    msg = bus.recv(0.0)
-                finally:
-                    port.timeout = timeout
-            else:
-                break
-            if msg is not None:  # None: a line not complete yet, or an answer to a command
-                out.append(msg)
+                if msg is not None:  # None: a line not complete yet, or an answer to a command
+                    out.append(msg)
+        finally:
+            if port.timeout != timeout and port.is_open:
+                port.timeout = timeout
         return out
 
     return take

@@ -375,6 +375,13 @@ def _flip_payload_bit(frame: bytes) -> bytes:
     return bytes(b)
 
 
+def slcan_line(msg: can.Message) -> bytes:
+    """The SLCAN (Lawicel) line an adapter sends for a received data frame: ``tIIILDD..\\r``
+    (standard identifier) or ``TIIIIIIIILDD..\\r`` (extended)."""
+    ident = f"T{msg.arbitration_id:08X}" if msg.is_extended_id else f"t{msg.arbitration_id:03X}"
+    return f"{ident}{msg.dlc}{bytes(msg.data).hex().upper()}\r".encode("ascii")
+
+
 class SlcanAdapter:
     """The device side of an SLCAN (Lawicel) adapter on a byte stream, usable as a CAN bus.
 
@@ -393,12 +400,8 @@ class SlcanAdapter:
     def send(self, msg: can.Message) -> None:
         if not self.open:
             return  # a closed adapter puts nothing on the wire
-        if msg.is_extended_id:
-            text = f"T{msg.arbitration_id:08X}{msg.dlc}{bytes(msg.data).hex().upper()}\r"
-        else:
-            text = f"t{msg.arbitration_id:03X}{msg.dlc}{bytes(msg.data).hex().upper()}\r"
         try:
-            self.stream.write(text.encode("ascii"))
+            self.stream.write(slcan_line(msg))
         except OSError as exc:  # BlockingIOError included: the host does not read
             # Like a real adapter's full transmit queue: the caller counts the frame as dropped.
             raise can.CanOperationError(f"SLCAN adapter: {exc}") from exc

@@ -484,7 +484,7 @@ def test_an_slcan_batch_takes_the_waiting_frames_without_a_read_that_waits(reade
     from northfinder.driver.protocol.can import encode_can
     from northfinder.driver.protocol.messages import Validity
     from northfinder.driver.transport import frame_batch
-    from northfinder.firmware_sim.links import PseudoTerminal
+    from northfinder.firmware_sim.links import PseudoTerminal, slcan_line
 
     pty = PseudoTerminal()
     bus: Any = can.Bus(interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0)
@@ -518,16 +518,22 @@ def test_an_slcan_batch_takes_the_waiting_frames_without_a_read_that_waits(reade
         take = frame_batch(bus)
         frames = encode_can(Sample(7, (1, 2, 3), (4, 5, 6), 8, 9, Validity(0)), 1)
         text = b"".join(
-            f"t{f.arbitration_id:03X}{len(f.data)}{bytes(f.data).hex().upper()}\r".encode()
+            slcan_line(
+                can.Message(arbitration_id=f.arbitration_id, data=f.data, is_extended_id=False)
+            )
             for f in frames
         )
 
         def arrive(data: bytes) -> None:
-            before = port.in_waiting
+            """Write to the adapter's side; return once the host's side has it all (the kernel
+            moves a pty's bytes across in a worker of its own)."""
+            want = port.in_waiting + len(data)
             os.write(pty.master, data)
-            deadline = time.monotonic() + 10.0
-            while port.in_waiting < before + len(data) and time.monotonic() < deadline:
+            for _ in range(10_000):  # a bound for a hang, not a measure
+                if port.in_waiting >= want:
+                    return
                 time.sleep(0.001)
+            raise AssertionError(f"the pty passed {port.in_waiting} of {want} bytes")
 
         arrive(text[:-5])  # four frames, the last one not complete yet
         got = take(16)
