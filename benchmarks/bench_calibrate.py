@@ -32,11 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
+from northfinder.cli import main as cli
 from northfinder.driver.protocol.units import DPH
 from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import SensorSpec, load_spec
-from northfinder.host.cli import main as cli
 from northfinder.host.recording import RecordedWindow, Recording
 
 TRUTH = Truth(azimuth_deg=75.0, latitude_deg=34.0)

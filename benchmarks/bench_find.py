@@ -21,7 +21,7 @@ time from ``--record``.
 
 Modes: ``subprocess`` runs the venv's ``northfinder find --sim ... --json --record FILE`` as a
 new process and times it from start to exit (interpreter start and imports included, as a user
-sees it); ``inprocess`` calls ``northfinder.host.cli.main([...])`` in this process after the imports (the
+sees it); ``inprocess`` calls ``northfinder.cli.main([...])`` in this process after the imports (the
 run itself). Every repeat uses another ``--seed`` (another true azimuth); the error against the
 simulated truth is printed as a sanity figure with the white-noise bound for the plan.
 """
@@ -126,7 +126,7 @@ def run_once(
                 raise SystemExit(f"northfinder find failed: {done.stderr.strip()}")
             out = done.stdout
         else:
-            from northfinder.host.cli import main as cli_main
+            from northfinder.cli import main as cli_main
 
             buf = io.StringIO()
             t0 = time.perf_counter()
@@ -171,7 +171,7 @@ def main() -> None:
     modes = ("subprocess", "inprocess") if args.mode == "both" else (args.mode,)
     plan_s, move_s = plan_time_s(args.sensor, args.window)
     if "inprocess" in modes:
-        from northfinder.host.cli import build_parser
+        from northfinder.cli import build_parser
 
         build_parser()  # imports every subcommand once, outside the timed runs
     if "subprocess" in modes or args.quickstart:

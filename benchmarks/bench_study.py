@@ -38,7 +38,6 @@ from numpy.typing import NDArray
 
 from northfinder.firmware_sim.error_terms import FLICKER_TAUS_S
 from northfinder.firmware_sim.sensors import load_spec
-from northfinder.host.cli.simulated import SimulatedWindows
 from northfinder.host.montecarlo import (
     StudySettings,
     chunk_runs,
@@ -46,6 +45,7 @@ from northfinder.host.montecarlo import (
     monte_carlo,
 )
 from northfinder.host.plan import Plan
+from northfinder.simwindows import SimulatedWindows
 
 BLOCK = 2**18
 

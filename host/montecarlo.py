@@ -8,7 +8,7 @@ beyond its statistical spread would be a bug.
 
 Where the samples come from is injected: a :class:`WindowGenerator` turns a :class:`RunRequest`
 (truths, plan, sample rate, warm-up) and a seeded generator into a :class:`WindowBatch`. The
-application layer wires in the simulated instrument (``northfinder.host.cli.simulated``); the
+application layer wires in the simulated instrument (``northfinder.simwindows``); the
 host library never imports it. A generator is a module-level, picklable callable (a frozen
 dataclass instance, say), so that studies can run in other processes.
 

@@ -124,8 +124,8 @@ class SimHandle:
 
 
 def _start_in_process() -> SimHandle:
+    from northfinder.embed import SimulatedInstrument
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.host.embed import SimulatedInstrument
 
     sim = SimulatedInstrument(
         "paper-rlg",

@@ -15,7 +15,7 @@ from typing import IO
 COMMAND = [
     sys.executable,
     "-c",
-    "from northfinder.host.cli import main; raise SystemExit(main())",
+    "from northfinder.cli import main; raise SystemExit(main())",
     "sim",
 ]
 

@@ -1,11 +1,13 @@
-"""The import direction of the three packages, read from the source (every import statement, also
-those inside functions), so that a wrong import fails here before it spreads.
+"""The import direction of the layers, read from the source (every import statement, also those
+inside functions), so that a wrong import fails here before it spreads.
 
 - ``driver`` imports neither ``firmware_sim`` nor ``host``; its wire format ``driver.protocol``
   imports nothing outside itself;
 - ``firmware_sim`` imports only the wire format, ``driver.protocol``;
-- the host library (``host`` but the application layer: ``host.cli``, ``host.embed`` and
-  ``host.pytest_plugin``) does not import ``firmware_sim``;
+- ``host`` imports the driver and itself: never the simulator, never the application layer;
+- the application layer is every module of the top-level ``northfinder/`` folder (the public
+  face, the command line, embedding, the pytest plugin): nothing beneath it imports it. The rule
+  holds by structure: there is no list of exempted modules;
 - no module imports itself through others (no cycles).
 """
 
@@ -22,20 +24,23 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("driver", "firmware_sim", "host")
-APPLICATION = ("northfinder.host.cli", "northfinder.host.embed", "northfinder.host.pytest_plugin")
+LIBRARY = tuple(f"northfinder.{pkg}" for pkg in PACKAGES)
 
 
 def module_name(path: Path) -> str:
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts.pop()
+    if parts[0] == "northfinder":  # the application layer's folder is the package itself
+        parts.pop(0)
     return ".".join(["northfinder", *parts])
 
 
 def modules() -> dict[str, Path]:
-    """Every module of the three packages by its installed name."""
+    """Every module of the three library packages and of the application layer (``northfinder/``)
+    by its installed name."""
     found = {}
-    for pkg in PACKAGES:
+    for pkg in (*PACKAGES, "northfinder"):
         for path in sorted((ROOT / pkg).rglob("*.py")):
             found[module_name(path)] = path
     return found
@@ -90,6 +95,7 @@ WIRE = "the wire format imports only itself"
 DRIVER = "the driver imports neither the simulator nor the host"
 SIM = "the simulator imports only the wire format"
 HOST = "the host library does not import the simulator"
+APP = "nothing in the library imports the application layer"
 
 
 def broken_rule(importer: str, target: str) -> str | None:
@@ -106,12 +112,10 @@ def broken_rule(importer: str, target: str) -> str | None:
         target, "northfinder.firmware_sim", "northfinder.driver.protocol"
     ):
         return SIM
-    if (
-        under(importer, "northfinder.host")
-        and not under(importer, *APPLICATION)
-        and under(target, "northfinder.firmware_sim")
-    ):
+    if under(importer, "northfinder.host") and under(target, "northfinder.firmware_sim"):
         return HOST
+    if under(importer, *LIBRARY) and not under(target, *LIBRARY):
+        return APP
     return None
 
 
@@ -120,14 +124,20 @@ def breaking(rule: str) -> list[tuple[str, str, int]]:
 
 
 def test_the_source_is_found_and_read():
-    assert {"northfinder.driver.device", "northfinder.firmware_sim.firmware"} <= set(MODULES)
+    assert {
+        "northfinder",
+        "northfinder.cli",
+        "northfinder.cli.find",
+        "northfinder.driver.device",
+        "northfinder.firmware_sim.firmware",
+    } <= set(MODULES)
     edges = {(a, b) for a, b, _ in imports_of("northfinder")}
     assert ("northfinder.driver.device", "northfinder.driver.window") in edges
     # an import inside a function counts (the CLI loads the simulator lazily)
-    assert ("northfinder.host.cli.measure", "northfinder.host.embed") in edges
+    assert ("northfinder.cli.measure", "northfinder.embed") in edges
 
 
-@pytest.mark.parametrize("rule", [DRIVER, WIRE, SIM, HOST])
+@pytest.mark.parametrize("rule", [DRIVER, WIRE, SIM, HOST, APP])
 def test_the_import_direction(rule):
     bad = breaking(rule)
     assert not bad, show(bad)
@@ -146,9 +156,15 @@ def test_the_import_direction(rule):
         ("northfinder.firmware_sim.control", "northfinder.host.errors", SIM),
         ("northfinder.host.procedure", "northfinder.driver.device", None),
         ("northfinder.host.study", "northfinder.firmware_sim.batch", HOST),
-        ("northfinder.host.cli.study", "northfinder.firmware_sim.batch", None),
-        ("northfinder.host.embed", "northfinder.firmware_sim.runner", None),
-        ("northfinder.host.pytest_plugin", "northfinder.firmware_sim.control", None),
+        ("northfinder.host.study", "northfinder.simwindows", APP),
+        ("northfinder.host.procedure", "northfinder", APP),
+        ("northfinder.driver.device", "northfinder.embed", APP),
+        ("northfinder.firmware_sim.runner", "northfinder.cli", SIM),
+        ("northfinder", "northfinder.firmware_sim.imu", None),
+        ("northfinder.simwindows", "northfinder.firmware_sim.batch", None),
+        ("northfinder.cli.study", "northfinder.firmware_sim.batch", None),
+        ("northfinder.embed", "northfinder.firmware_sim.runner", None),
+        ("northfinder.pytest_plugin", "northfinder.firmware_sim.control", None),
     ],
 )
 def test_the_rules(importer, target, rule):
@@ -260,7 +276,7 @@ def _modules_after(code: str, depth: int = 1) -> set[str]:
 
 
 def test_the_cli_imports_heavy_modules_only_where_a_command_needs_them():
-    run = "from northfinder.host.cli import main\ntry:\n    main({})\nexcept SystemExit: pass"
+    run = "from northfinder.cli import main\ntry:\n    main({})\nexcept SystemExit: pass"
     help_only = _modules_after(run.format("['--help']"))
     assert not help_only & {*HEAVY, "can", "serial", "numpy"}
     code = run.format(
@@ -278,7 +294,7 @@ def test_the_cli_imports_heavy_modules_only_where_a_command_needs_them():
 def test_the_command_list_summaries_are_the_commands_own():
     import argparse
 
-    from northfinder.host import cli
+    from northfinder import cli
 
     for name, module_name in cli.COMMANDS.items():
         parser = argparse.ArgumentParser()

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from northfinder.cli import main as cli
 from northfinder.driver.protocol.motion import move_time_s
 from northfinder.driver.protocol.units import DPH
 from northfinder.firmware_sim.batch import simulate_windows
@@ -31,7 +32,6 @@ from northfinder.host.calibrate import (
     read_runs,
     register_reader,
 )
-from northfinder.host.cli import main as cli
 from northfinder.host.errors import HostConfigError, InputError, QualityError, RecordingError
 from northfinder.host.recording import RecordedWindow, Recording
 

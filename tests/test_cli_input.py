@@ -11,8 +11,8 @@ import time
 
 import pytest
 
-from northfinder.host.cli import main
-from northfinder.host.cli.common import (
+from northfinder.cli import main
+from northfinder.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_RUNTIME,
     EXIT_USAGE,
@@ -30,7 +30,7 @@ def _restore_sigint() -> None:
 
 
 def _interrupt(argv: list[str], after_s: float) -> subprocess.CompletedProcess[str]:
-    cmd = [sys.executable, "-c", "import sys; from northfinder.host.cli import main; "
+    cmd = [sys.executable, "-c", "import sys; from northfinder.cli import main; "
            "sys.exit(main())", *argv]  # fmt: skip
     p = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

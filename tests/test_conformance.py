@@ -30,6 +30,7 @@ import can
 import pytest
 from simprocess import sim_process
 
+from northfinder.cli import main
 from northfinder.driver.clock import VirtualClock, WallClock
 from northfinder.driver.conformance import (
     CHECKS,
@@ -50,11 +51,10 @@ from northfinder.driver.protocol.constants import (
     Result,
 )
 from northfinder.driver.protocol.messages import Home, Reply, RotateBy, SetConfig
+from northfinder.embed import SimulatedInstrument
 from northfinder.firmware_sim.control import ControlClient
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec, load_spec
-from northfinder.host.cli import main
-from northfinder.host.embed import SimulatedInstrument
 
 SPEED = 2.0
 #: Host-side margins for a simulator on the wall clock that shares a loaded machine with other

@@ -204,9 +204,9 @@ def test_a_simulator_that_stops_by_itself_is_judged_lost_on_time(monkeypatch):
     """In virtual time a simulator that fails falls silent without anybody telling the clock:
     the host has read every frame it sent, so the time without a status counts at once and the
     link is lost three heartbeat periods after the last status."""
+    from northfinder.embed import SimulatedInstrument
     from northfinder.firmware_sim.firmware import Firmware
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.host.embed import SimulatedInstrument
 
     sim = SimulatedInstrument(
         "paper-rlg", Truth(azimuth_deg=30.0, latitude_deg=34.0), seed=3, clock="virtual",

@@ -27,11 +27,11 @@ import pynmea2
 import pytest
 from simprocess import sim_process
 
+from northfinder.cli import main
 from northfinder.driver.framelog import FrameLog, log_suffix
 from northfinder.driver.protocol.can import decode_can
 from northfinder.driver.protocol.messages import RotateTo, SampleX
 from northfinder.host.canlog import is_can_log, read_can_log
-from northfinder.host.cli import main
 from northfinder.host.nmea import HeadingFix, hdt_sentence, nfdh_sentence
 from northfinder.host.results import SIMULATOR_MODEL, schema
 
@@ -252,7 +252,7 @@ def test_the_log_name_must_name_a_format(tmp_path):
 
 
 def test_the_embedded_simulator_logs_what_it_sends_and_receives(tmp_path):
-    from northfinder.host.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument, Truth
+    from northfinder.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument, Truth
     from northfinder.host.procedure import Plan, find_north
 
     log = tmp_path / "sim.asc"
@@ -482,7 +482,7 @@ def test_study_json_validates_in_both_kinds(validator):
 
 @pytest.mark.realtime
 def test_conformance_json_validates_with_the_units_identity(validator):
-    from northfinder.host.embed import SimulatedInstrument
+    from northfinder.embed import SimulatedInstrument
 
     with SimulatedInstrument("paper-rlg", speed=20, warmup_s=0) as sim:
         assert sim.channel is not None

@@ -11,11 +11,11 @@ import pytest
 from northfinder.driver.clock import VirtualClock
 from northfinder.driver.errors import ReplyTimeout
 from northfinder.driver.protocol.constants import DeviceState
+from northfinder.embed import LINKS, RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 from northfinder.firmware_sim.control import ControlError
 from northfinder.firmware_sim.errors import SimConfigError, SimError
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import RealTimeClock
-from northfinder.host.embed import LINKS, RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 from northfinder.host.errors import HostConfigError
 
 TRUTH = Truth(azimuth_deg=42.0, latitude_deg=34.0)

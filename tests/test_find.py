@@ -11,9 +11,9 @@ import sys
 import numpy as np
 import pytest
 
+from northfinder.cli import main
+from northfinder.cli.measure import ProgressBar
 from northfinder.driver.protocol.constants import Validity
-from northfinder.host.cli import main
-from northfinder.host.cli.measure import ProgressBar
 from northfinder.host.errors import HostConfigError
 from northfinder.host.procedure import Plan, Progress, QualityError, summarise_window
 from northfinder.host.recording import Recording
@@ -90,7 +90,7 @@ def test_the_same_seed_gives_the_same_result_whatever_the_load(capsys):
     args = ["--seed", "21", "--positions", "0,90", "--window", "2", "--warmup", "5"]
     first = find_json(capsys, *args)
     done = subprocess.run(
-        [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())",
+        [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit(main())",
          "find", "--sim", *args, "--json"],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip

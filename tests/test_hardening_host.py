@@ -16,14 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from northfinder.cli import main
+from northfinder.cli.common import EXIT_RUNTIME, EXIT_USAGE, error_line, exit_status
 from northfinder.driver.arguments import finite_number, seconds, whole_number
 from northfinder.driver.errors import ArgumentError, DriverError, LinkError, ReplyTimeout
 from northfinder.driver.protocol.constants import Validity
 from northfinder.driver.protocol.units import DPH, OMEGA_IE
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.sensors import load_spec
-from northfinder.host.cli import main
-from northfinder.host.cli.common import EXIT_RUNTIME, EXIT_USAGE, error_line, exit_status
 from northfinder.host.consistency import FALSE_ALARM, check_windows
 from northfinder.host.errors import (
     GeometryError,
@@ -372,7 +372,7 @@ def test_sensor_figures_are_bounded():
 
 
 def test_with_sim_the_link_timeouts_apply_to_the_simulated_link(monkeypatch, capsys):
-    import northfinder.host.embed as embed
+    import northfinder.embed as embed
 
     seen = {}
     original = embed.SimulatedInstrument.open_device
@@ -433,8 +433,8 @@ def test_the_device_refuses_bad_numbers_before_sending(sim_device):
 
 @pytest.fixture
 def sim_device():
+    from northfinder.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.host.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 
     with SimulatedInstrument("ideal", Truth(), seed=1, speed=50, warmup_s=0) as sim:
         with sim.open_device(**RELAXED_DEVICE_OPTIONS) as dev:

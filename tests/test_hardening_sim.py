@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from northfinder.cli import main
 from northfinder.driver.protocol.constants import DeviceState, Fault, Validity
 from northfinder.driver.protocol.messages import (
     GetStatus,
@@ -42,7 +43,6 @@ from northfinder.firmware_sim.firmware import Firmware, Outgoing
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import LockstepClock, Runner
 from northfinder.firmware_sim.sensors import load_spec
-from northfinder.host.cli import main
 
 NAN, INF = float("nan"), float("inf")
 

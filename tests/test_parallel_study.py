@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from northfinder.cli import main
 from northfinder.driver.protocol.units import DPSH, UG
 from northfinder.firmware_sim import error_terms as et
 from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import load_spec
-from northfinder.host.cli import main
-from northfinder.host.cli.simulated import SimulatedWindows
 from northfinder.host.denoise import METHODS, denoise, denoised_mean, wavelet_denoise_mean
 from northfinder.host.distributed import (
     DistributedError,
@@ -40,6 +39,7 @@ from northfinder.host.montecarlo import (
 )
 from northfinder.host.plan import Plan
 from northfinder.host.study import chunk_errors
+from northfinder.simwindows import SimulatedWindows
 
 # 10 s windows at 200 Hz: 65 runs a chunk, so 150 runs make three chunks, the last one short.
 PLAN = Plan((0.0, 180.0), 10.0, denoise="wavelet-soft")

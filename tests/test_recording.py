@@ -10,10 +10,10 @@ import sys
 import numpy as np
 import pytest
 
+from northfinder.cli.solve import solve_recording
 from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import load_spec
-from northfinder.host.cli.solve import solve_recording
 from northfinder.host.procedure import QualityError
 from northfinder.host.recording import SAMPLE_ARRAYS, RecordedWindow, Recording, RecordingError
 
@@ -79,7 +79,7 @@ def test_solve_cli_prints_json(tmp_path):
     path = tmp_path / "rec.npz"
     simulated_recording().save(path)
     out = subprocess.run(
-        [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())", "solve", str(path), "--json"],
+        [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit(main())", "solve", str(path), "--json"],
         capture_output=True, text=True, timeout=60, check=True,
     )  # fmt: skip
     data = json.loads(out.stdout)

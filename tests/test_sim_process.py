@@ -183,7 +183,7 @@ def test_sim_refuses_bad_arguments_with_one_clear_line():
             [
                 sys.executable,
                 "-c",
-                "from northfinder.host.cli import main; raise SystemExit(main())",
+                "from northfinder.cli import main; raise SystemExit(main())",
                 "sim",
                 *args,
             ],

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from northfinder.cli import main
 from northfinder.driver.protocol.motion import move_time_s
 from northfinder.driver.protocol.units import DPSH as ARW
 from northfinder.driver.protocol.units import OMEGA_IE, UG
@@ -18,8 +19,6 @@ from northfinder.firmware_sim.batch import plan_timeline, simulate_windows
 from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.accuracy import ErrorModel, _window_mean_cov, bound_deg, predict
-from northfinder.host.cli import main
-from northfinder.host.cli.simulated import SimulatedWindows, error_model
 from northfinder.host.errors import GeometryError, HostConfigError, InputError, TiltError
 from northfinder.host.heading import (
     solve_multi_position,
@@ -31,6 +30,7 @@ from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
 from northfinder.host.plan import Plan, TableModel, plan_time_s, window_starts_s
 from northfinder.host.planner import search_plans, shortest_plan
 from northfinder.host.study import summarize
+from northfinder.simwindows import SimulatedWindows, error_model
 
 #: Every random term off, deterministic terms on: closed-form means must agree exactly.
 DETERMINISTIC = {
@@ -476,7 +476,7 @@ def test_cli_planner_json(capsys):
 
 
 def test_cli_errors(capsys):
-    # every one a wrong request: exit status 2 (northfinder.host.cli.common)
+    # every one a wrong request: exit status 2 (northfinder.cli.common)
     assert main(["study", "--positions", "0", "--runs", "10"]) == 2
     assert "at least 2 positions" in capsys.readouterr().err
     assert main(["study", "--runs", "1"]) == 2

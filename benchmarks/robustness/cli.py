@@ -37,7 +37,7 @@ def _files(tmp: str) -> dict[str, str]:
     """Bad input files for the sweep: sensor TOMLs and mutated recordings, by name."""
     import numpy as np
 
-    from northfinder.host.cli import main as cli
+    from northfinder.cli import main as cli
 
     out: dict[str, str] = {}
 

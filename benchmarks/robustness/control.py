@@ -53,7 +53,7 @@ from northfinder.driver.protocol.messages import Sample, StreamStart
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder
 from northfinder.firmware_sim.control import ControlClient, ControlError
 
-SIM = [sys.executable, "-c", "from northfinder.host.cli import main; raise SystemExit(main())"]
+SIM = [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit(main())"]
 NAN, INF = float("nan"), float("inf")
 RATE_HZ = 200  # the simulator's default sample rate
 

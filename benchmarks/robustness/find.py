@@ -46,8 +46,8 @@ FIND_MOMENTS = ("acquire", "rotate")
 def _find_with_fault(label: str, request: dict[str, Any], clear: dict[str, Any] | None,
                      moment: str, seed: int) -> dict[str, Any]:  # fmt: skip
     from northfinder.driver.errors import DriverError
+    from northfinder.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.host.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
     from northfinder.host.errors import HostError
     from northfinder.host.procedure import Plan, find_north
 

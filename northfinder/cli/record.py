@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from northfinder.host.cli.common import check_output_path, command_parser
-from northfinder.host.cli.measure import add_arguments, run_plan, save_recording
+from northfinder.cli.common import check_output_path, command_parser
+from northfinder.cli.measure import add_arguments, run_plan, save_recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

@@ -14,8 +14,8 @@ import argparse
 import json
 import textwrap
 
+from northfinder.cli.common import command_parser, dumps
 from northfinder.firmware_sim.control import OPS, ControlClient
-from northfinder.host.cli.common import command_parser, dumps
 from northfinder.host.errors import HostConfigError
 
 

@@ -1,5 +1,5 @@
 """Measuring with a device, shared by ``find`` and ``record``: the device and plan options, opening
-the device (or the embedded simulator, :class:`~northfinder.host.embed.SimulatedInstrument`),
+the device (or the embedded simulator, :class:`~northfinder.embed.SimulatedInstrument`),
 running the plan, and writing the raw windows."""
 
 from __future__ import annotations
@@ -14,10 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from northfinder.driver.device import Device
-from northfinder.driver.errors import DriverError
-from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
-from northfinder.host.cli.common import (
+from northfinder.cli.common import (
     add_link_arguments,
     add_solver_argument,
     add_truth_arguments,
@@ -31,6 +28,9 @@ from northfinder.host.cli.common import (
     sim_latitude,
     sim_truth,
 )
+from northfinder.driver.device import Device
+from northfinder.driver.errors import DriverError
+from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
 from northfinder.host.procedure import (
@@ -236,7 +236,7 @@ def embedded_simulator(
     Virtual time by default; paced (``--speed S``) on a thread, with the driver's relaxed
     deadlines since the simulator shares this interpreter.
     """
-    from northfinder.host.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
+    from northfinder.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 
     rng = np.random.default_rng(args.seed)
     truth = sim_truth(args, rng)

@@ -25,8 +25,8 @@ import argparse
 import sys
 import time
 
-from northfinder.host.cli import report
-from northfinder.host.cli.common import (
+from northfinder.cli import report
+from northfinder.cli.common import (
     baud_rate,
     check_output_path,
     check_plot_path,
@@ -34,7 +34,7 @@ from northfinder.host.cli.common import (
     positive_float,
     whole_number,
 )
-from northfinder.host.cli.measure import Measured, add_arguments, run_plan, save_recording
+from northfinder.cli.measure import Measured, add_arguments, run_plan, save_recording
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
 
 

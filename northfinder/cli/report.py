@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from northfinder.host.cli.common import dumps, plain_numbers
+from northfinder.cli.common import dumps, plain_numbers
 from northfinder.host.errors import HostConfigError, OutputError
 from northfinder.host.procedure import FindResult, pairwise_solutions
 from northfinder.host.results import envelope

@@ -20,10 +20,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from northfinder.firmware_sim.sensors import spec_from_dict
-from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
-from northfinder.host.calibrate.readers import READERS
-from northfinder.host.cli.common import (
+from northfinder.cli.common import (
     bounded_float,
     check_output_path,
     check_plot_path,
@@ -31,6 +28,9 @@ from northfinder.host.cli.common import (
     dumps,
     load_sensor,
 )
+from northfinder.firmware_sim.sensors import spec_from_dict
+from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
+from northfinder.host.calibrate.readers import READERS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

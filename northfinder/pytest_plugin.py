@@ -4,7 +4,7 @@ Installed with northfinder and registered through the ``pytest11`` entry point, 
 depends on northfinder has it without a conftest: ask for the fixture by name.
 
 ``northfinder_sim``
-    A started :class:`~northfinder.host.embed.SimulatedInstrument` (python-can ``virtual`` bus,
+    A started :class:`~northfinder.embed.SimulatedInstrument` (python-can ``virtual`` bus,
     the ``paper-rlg`` sensor, level at azimuth 0 deg and 34 deg N, seed 0, no warm-up, a control
     channel on a free loopback port). On the ``virtual`` bus it runs in virtual time unless the
     test asks for a ``speed``: the instrument and a :class:`~northfinder.driver.device.Device`
@@ -21,7 +21,7 @@ depends on northfinder has it without a conftest: ask for the fixture by name.
     test.
 
 Choose the instrument with the ``northfinder_sim`` marker (keywords of
-:class:`~northfinder.host.embed.SimulatedInstrument`; ``azimuth_deg``, ``latitude_deg``,
+:class:`~northfinder.embed.SimulatedInstrument`; ``azimuth_deg``, ``latitude_deg``,
 ``pitch_deg`` and ``roll_deg`` build the truth), or parametrise the fixture indirectly with dicts
 of the same keywords::
 
@@ -45,8 +45,8 @@ from typing import Any
 
 import pytest
 
+from northfinder.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 from northfinder.firmware_sim.imu import Truth
-from northfinder.host.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 
 __all__ = ["DEFAULTS", "northfinder_device", "northfinder_sim", "simulator_options"]
 

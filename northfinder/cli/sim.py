@@ -23,6 +23,20 @@ from typing import Any
 
 import numpy as np
 
+from northfinder.cli.common import (
+    add_link_arguments,
+    add_sensor_argument,
+    add_truth_arguments,
+    bounded_float,
+    bounded_int,
+    bus_given,
+    can_log_path,
+    command_parser,
+    load_sensor,
+    open_can_bus,
+    open_serial_port,
+    sim_truth,
+)
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT
 from northfinder.firmware_sim.control import Controller, ControlServer, parse_address
@@ -37,20 +51,6 @@ from northfinder.firmware_sim.links import (
 )
 from northfinder.firmware_sim.runner import Link, RealTimeClock, Runner
 from northfinder.firmware_sim.sender import Capture, CaptureBus, CaptureStream, ProcessSender
-from northfinder.host.cli.common import (
-    add_link_arguments,
-    add_sensor_argument,
-    add_truth_arguments,
-    bounded_float,
-    bounded_int,
-    bus_given,
-    can_log_path,
-    command_parser,
-    load_sensor,
-    open_can_bus,
-    open_serial_port,
-    sim_truth,
-)
 from northfinder.host.errors import HostConfigError
 
 #: Longest ``--warmup``, s, and ``--duration``, wall s.

@@ -30,9 +30,7 @@ from concurrent.futures import Executor
 from dataclasses import replace
 from typing import Any
 
-from northfinder.firmware_sim.sensors import SensorSpec
-from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
-from northfinder.host.cli.common import (
+from northfinder.cli.common import (
     EXIT_RUNTIME,
     add_execution_arguments,
     add_key_values,
@@ -49,7 +47,8 @@ from northfinder.host.cli.common import (
     seed_value,
     study_executor,
 )
-from northfinder.host.cli.simulated import SimulatedWindows, error_model, simulator_identity
+from northfinder.firmware_sim.sensors import SensorSpec
+from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.denoise import METHODS, check_denoise
 from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
@@ -63,6 +62,7 @@ from northfinder.host.montecarlo import (
 from northfinder.host.plan import PLANS, SOLVERS, Plan, plan_time_s, settle_time_s
 from northfinder.host.planner import PlanCandidate, search_plans, shortest_plan
 from northfinder.host.results import envelope
+from northfinder.simwindows import SimulatedWindows, error_model, simulator_identity
 
 #: Bounds of what a study may ask for: runs, seconds (window, settle, warm-up, budget), Hz, deg/h.
 MAX_RUNS = 1_000_000

@@ -11,10 +11,7 @@ import math
 
 import numpy as np
 
-from northfinder.driver.protocol.units import DPH, UG
-from northfinder.firmware_sim.earth import mat_table
-from northfinder.firmware_sim.imu import Instrument, body_rates
-from northfinder.host.cli.common import (
+from northfinder.cli.common import (
     add_sensor_argument,
     add_truth_arguments,
     angle_list,
@@ -24,6 +21,9 @@ from northfinder.host.cli.common import (
     load_sensor,
     sim_truth,
 )
+from northfinder.driver.protocol.units import DPH, UG
+from northfinder.firmware_sim.earth import mat_table
+from northfinder.firmware_sim.imu import Instrument, body_rates
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:

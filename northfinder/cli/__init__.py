@@ -2,7 +2,7 @@
 
 Every subcommand's errors derive from the packages' root exceptions (``HostError``, ``DriverError``,
 ``SimError``); they are printed as one line naming what is wrong, with the exit status of
-:mod:`northfinder.host.cli.common` (2: the request is wrong, 1: the work failed). ``--debug``
+:mod:`northfinder.cli.common` (2: the request is wrong, 1: the work failed). ``--debug``
 shows the traceback instead.
 """
 
@@ -15,9 +15,9 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from northfinder.cli.common import EXIT_INTERRUPTED, EXIT_RUNTIME, EXIT_USAGE, report_error
 from northfinder.driver.errors import DriverError
 from northfinder.firmware_sim.errors import SimError
-from northfinder.host.cli.common import EXIT_INTERRUPTED, EXIT_RUNTIME, EXIT_USAGE, report_error
 from northfinder.host.errors import HostError
 
 #: Subcommand name -> module in this package. A command's module (and what it imports: scipy,
@@ -25,16 +25,16 @@ from northfinder.host.errors import HostError
 #: ``northfinder --help`` and each command start quickly and a broken optional dependency of one
 #: command does not break the others.
 COMMANDS: dict[str, str] = {
-    "simulate": "northfinder.host.cli.simulate",
-    "sim": "northfinder.host.cli.sim",
-    "simctl": "northfinder.host.cli.simctl",
-    "conformance": "northfinder.host.cli.conformance",
-    "study": "northfinder.host.cli.study",
-    "sweep": "northfinder.host.cli.sweep",
-    "solve": "northfinder.host.cli.solve",
-    "find": "northfinder.host.cli.find",
-    "record": "northfinder.host.cli.record",
-    "calibrate": "northfinder.host.cli.calibrate",
+    "simulate": "northfinder.cli.simulate",
+    "sim": "northfinder.cli.sim",
+    "simctl": "northfinder.cli.simctl",
+    "conformance": "northfinder.cli.conformance",
+    "study": "northfinder.cli.study",
+    "sweep": "northfinder.cli.sweep",
+    "solve": "northfinder.cli.solve",
+    "find": "northfinder.cli.find",
+    "record": "northfinder.cli.record",
+    "calibrate": "northfinder.cli.calibrate",
 }
 
 #: The one-line help of each command, for the command list (the same text as each module's).

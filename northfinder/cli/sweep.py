@@ -15,8 +15,7 @@ import time
 from dataclasses import replace
 from typing import Any
 
-from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
-from northfinder.host.cli.common import (
+from northfinder.cli.common import (
     add_execution_arguments,
     add_key_values,
     angle_list,
@@ -28,8 +27,7 @@ from northfinder.host.cli.common import (
     seed_value,
     study_executor,
 )
-from northfinder.host.cli.simulated import SimulatedWindows, error_model
-from northfinder.host.cli.study import (
+from northfinder.cli.study import (
     MAX_BIAS_STEP_DPH,
     MAX_RATE_HZ,
     MAX_RUNS,
@@ -39,11 +37,13 @@ from northfinder.host.cli.study import (
     _plan_json,
     _settings,
 )
+from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
 from northfinder.host.montecarlo import monte_carlo_many, study_rows
 from northfinder.host.plan import PLANS, SOLVERS, Plan
+from northfinder.simwindows import SimulatedWindows, error_model
 
 
 def _names(text: str) -> list[str]:

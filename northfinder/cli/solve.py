@@ -18,9 +18,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from northfinder.host.canlog import is_can_log, read_can_log
-from northfinder.host.cli import report
-from northfinder.host.cli.common import (
+from northfinder.cli import report
+from northfinder.cli.common import (
     add_solver_argument,
     bounded_float,
     check_plot_path,
@@ -28,6 +27,7 @@ from northfinder.host.cli.common import (
     node_id,
     positive_float,
 )
+from northfinder.host.canlog import is_can_log, read_can_log
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError, QualityError
 from northfinder.host.procedure import (

@@ -6,7 +6,7 @@ or a ready :class:`~northfinder.driver.device.Device`, the truth, the control ch
 runner (whose failure :meth:`~SimulatedInstrument.check` reports)::
 
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.host.embed import SimulatedInstrument
+    from northfinder.embed import SimulatedInstrument
 
     with SimulatedInstrument("nav-fog", Truth(azimuth_deg=42.0), seed=1, speed=50, warmup_s=0) as sim:
         with sim.open_device() as dev:

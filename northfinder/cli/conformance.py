@@ -32,6 +32,17 @@ import can
 import can.cli
 import serial
 
+from northfinder.cli.common import (
+    add_link_arguments,
+    add_sensor_argument,
+    angle_list,
+    bounded_float,
+    bus_given,
+    check_output_path,
+    command_parser,
+    open_can_bus,
+    open_serial_port,
+)
 from northfinder.driver.conformance import (
     CHECKS,
     CanRawLink,
@@ -46,17 +57,6 @@ from northfinder.driver.conformance import (
 )
 from northfinder.driver.conformance.core import Report
 from northfinder.driver.conformance.errors import SuiteConfigError
-from northfinder.host.cli.common import (
-    add_link_arguments,
-    add_sensor_argument,
-    angle_list,
-    bounded_float,
-    bus_given,
-    check_output_path,
-    command_parser,
-    open_can_bus,
-    open_serial_port,
-)
 from northfinder.host.errors import HostConfigError
 from northfinder.host.results import SIMULATOR_MODEL, envelope
 
@@ -233,8 +233,8 @@ def _finish(args: argparse.Namespace, report: Report) -> int:
 def _run_simulated(args: argparse.Namespace, options: SuiteOptions) -> int:
     """The suite against the simulated instrument on virtual CAN in this process, in virtual time."""
     from northfinder.driver.clock import VirtualClock
+    from northfinder.embed import SimulatedInstrument
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.host.embed import SimulatedInstrument
 
     sim = SimulatedInstrument(
         args.sensor, Truth(), seed=args.seed, clock="virtual", warmup_s=0.0, node_id=args.node_id

@@ -1,0 +1,225 @@
+"""northfinder: a workbench for gyro north finders.
+
+What a user needs is named here, as python-can names ``can.Bus`` and ``can.Message``::
+
+    import northfinder
+
+    truth = northfinder.Truth(azimuth_deg=42.0)
+    with northfinder.SimulatedInstrument("paper-rlg", truth, seed=1, clock="virtual") as sim:
+        with sim.open_device() as device:
+            plan = northfinder.Plan((0.0, 180.0, 180.0, 0.0), 10.0)
+            result, _ = northfinder.find_north(device, plan, latitude_deg=34.0)
+    print(result.azimuth_deg, result.sigma_deg)
+
+The names are loaded when first used, so ``import northfinder`` stays light (the command line
+and the codec do not pay for the simulator or SciPy). The modules they come from keep working
+under their own paths (``northfinder.driver.device.Device`` is ``northfinder.Device``).
+
+The package is laid out in layers, imports going one way only:
+
+- :mod:`northfinder.driver`: the host-side driver and the wire codec (imports neither other package);
+- :mod:`northfinder.firmware_sim`: the simulated instrument (imports only the wire codec);
+- :mod:`northfinder.host`: north finding (imports the driver, never the simulator);
+- this package's own modules, the application layer: the command line (:mod:`northfinder.cli`),
+  the embedded simulator (:mod:`northfinder.embed`), the pytest plugin
+  (:mod:`northfinder.pytest_plugin`) and the study's simulated windows
+  (:mod:`northfinder.simwindows`). Only they import all three.
+"""
+
+import importlib as _importlib
+import importlib.abc as _abc
+import importlib.machinery as _machinery
+import sys as _sys
+import warnings as _warnings
+from types import ModuleType as _ModuleType
+from typing import TYPE_CHECKING as _TYPE_CHECKING
+from typing import Any as _Any
+
+__version__ = "0.2.0"
+
+#: Public name -> the module that defines it.
+_PUBLIC: dict[str, str] = {
+    # the device and what it reports
+    "Device": "northfinder.driver.device",
+    "DeviceStatus": "northfinder.driver.link",
+    "LinkStats": "northfinder.driver.link",
+    "Window": "northfinder.driver.window",
+    "VirtualClock": "northfinder.driver.clock",
+    "WallClock": "northfinder.driver.clock",
+    # the simulated instrument
+    "SimulatedInstrument": "northfinder.embed",
+    "SensorSpec": "northfinder.firmware_sim.sensors",
+    "Truth": "northfinder.firmware_sim.imu",
+    "load_spec": "northfinder.firmware_sim.sensors",
+    "preset_names": "northfinder.firmware_sim.sensors",
+    # finding north
+    "Plan": "northfinder.host.plan",
+    "TableModel": "northfinder.host.plan",
+    "find_north": "northfinder.host.procedure",
+    "FindResult": "northfinder.host.procedure",
+    "solve_windows": "northfinder.host.procedure",
+    "Recording": "northfinder.host.recording",
+    "RecordedWindow": "northfinder.host.recording",
+    # the errors: one root per package, and what a host handles by kind
+    "DriverError": "northfinder.driver.errors",
+    "ArgumentError": "northfinder.driver.errors",
+    "ProtocolError": "northfinder.driver.errors",
+    "DeviceRefused": "northfinder.driver.errors",
+    "DriverTimeout": "northfinder.driver.errors",
+    "ReplyTimeout": "northfinder.driver.errors",
+    "MoveTimeout": "northfinder.driver.errors",
+    "StreamTimeout": "northfinder.driver.errors",
+    "LinkError": "northfinder.driver.errors",
+    "LinkLost": "northfinder.driver.errors",
+    "StreamGap": "northfinder.driver.errors",
+    "DeviceReset": "northfinder.driver.errors",
+    "DeviceFault": "northfinder.driver.errors",
+    "EmptyWindow": "northfinder.driver.errors",
+    "HostError": "northfinder.host.errors",
+    "HostConfigError": "northfinder.host.errors",
+    "QualityError": "northfinder.host.errors",
+    "RecordingError": "northfinder.host.errors",
+    "SimError": "northfinder.firmware_sim.errors",
+    "SimConfigError": "northfinder.firmware_sim.errors",
+}
+
+__all__ = [
+    "ArgumentError",
+    "Device",
+    "DeviceFault",
+    "DeviceRefused",
+    "DeviceReset",
+    "DeviceStatus",
+    "DriverError",
+    "DriverTimeout",
+    "EmptyWindow",
+    "FindResult",
+    "HostConfigError",
+    "HostError",
+    "LinkError",
+    "LinkLost",
+    "LinkStats",
+    "MoveTimeout",
+    "Plan",
+    "ProtocolError",
+    "QualityError",
+    "RecordedWindow",
+    "Recording",
+    "RecordingError",
+    "ReplyTimeout",
+    "SensorSpec",
+    "SimConfigError",
+    "SimError",
+    "SimulatedInstrument",
+    "StreamGap",
+    "StreamTimeout",
+    "TableModel",
+    "Truth",
+    "VirtualClock",
+    "WallClock",
+    "Window",
+    "__version__",
+    "find_north",
+    "load_spec",
+    "preset_names",
+    "solve_windows",
+]
+
+if _TYPE_CHECKING:  # what static tools and the API reference see
+    from northfinder.driver.clock import VirtualClock, WallClock
+    from northfinder.driver.device import Device
+    from northfinder.driver.errors import (
+        ArgumentError,
+        DeviceFault,
+        DeviceRefused,
+        DeviceReset,
+        DriverError,
+        DriverTimeout,
+        EmptyWindow,
+        LinkError,
+        LinkLost,
+        MoveTimeout,
+        ProtocolError,
+        ReplyTimeout,
+        StreamGap,
+        StreamTimeout,
+    )
+    from northfinder.driver.link import DeviceStatus, LinkStats
+    from northfinder.driver.window import Window
+    from northfinder.embed import SimulatedInstrument
+    from northfinder.firmware_sim.errors import SimConfigError, SimError
+    from northfinder.firmware_sim.imu import Truth
+    from northfinder.firmware_sim.sensors import SensorSpec, load_spec, preset_names
+    from northfinder.host.errors import HostConfigError, HostError, QualityError, RecordingError
+    from northfinder.host.plan import Plan, TableModel
+    from northfinder.host.procedure import FindResult, find_north, solve_windows
+    from northfinder.host.recording import RecordedWindow, Recording
+
+
+def __getattr__(name: str) -> _Any:
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module 'northfinder' has no attribute {name!r}")
+    value = getattr(_importlib.import_module(module), name)
+    globals()[name] = value  # later look-ups do not come here again
+    return value
+
+
+def __dir__() -> list[str]:
+    """The public names and the subpackages imported so far."""
+    modules = [k for k, v in globals().items() if isinstance(v, _ModuleType) and k[0] != "_"]
+    return sorted({*__all__, *modules})
+
+
+# ---------------------------------------------------------------------------------------------
+# Paths of version 0.1: the application layer lived under northfinder.host. Importing an old path
+# gives the module at its new path (the same module object) with a DeprecationWarning, so code and
+# entry points written for 0.1 keep working while the host library itself never imports the layer
+# above it.
+# ---------------------------------------------------------------------------------------------
+
+_MOVED: dict[str, str] = {
+    "northfinder.host.cli.simulated": "northfinder.simwindows",
+    "northfinder.host.cli": "northfinder.cli",
+    "northfinder.host.embed": "northfinder.embed",
+    "northfinder.host.pytest_plugin": "northfinder.pytest_plugin",
+}
+
+
+def _new_name(old: str) -> str | None:
+    for prefix, new in _MOVED.items():
+        if old == prefix or old.startswith(prefix + "."):
+            return new + old[len(prefix) :]
+    return None
+
+
+class _MovedModuleLoader(_abc.Loader):
+    def __init__(self, new: str) -> None:
+        self.new = new
+
+    def create_module(self, spec: _machinery.ModuleSpec) -> _ModuleType:
+        _warnings.warn(
+            f"{spec.name} moved to {self.new} in northfinder 0.2; import it from there",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        module = _importlib.import_module(self.new)
+        _sys.modules[spec.name] = module
+        return module
+
+    def exec_module(self, module: _ModuleType) -> None:
+        """The module was executed under its new name."""
+
+
+class _MovedModuleFinder(_abc.MetaPathFinder):
+    def find_spec(
+        self, fullname: str, path: _Any = None, target: _Any = None
+    ) -> _machinery.ModuleSpec | None:
+        new = _new_name(fullname)
+        if new is None:
+            return None
+        return _machinery.ModuleSpec(fullname, _MovedModuleLoader(new))
+
+
+if not any(isinstance(f, _MovedModuleFinder) for f in _sys.meta_path):
+    _sys.meta_path.insert(0, _MovedModuleFinder())
