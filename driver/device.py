@@ -60,6 +60,7 @@ from northfinder.driver.link import (
 from northfinder.driver.protocol.constants import (
     PROTOCOL_VERSION_MAJOR,
     ROTATE_BY_LIMIT,
+    SPIN_RATE_MDPS_MIN,
     ConfigKey,
     DeviceState,
     Direction,
@@ -77,6 +78,7 @@ from northfinder.driver.protocol.messages import (
     RotateTo,
     SelfTest,
     SetConfig,
+    Spin,
     Stop,
     StreamStart,
     StreamStop,
@@ -529,8 +531,89 @@ class Device(DeviceLink):
         return self._move(Home, (), min(a, 360.0 - a), wait, timeout)
 
     @_on_clock
+    def spin(
+        self, rate_dps: float, *, wait: bool = True, timeout: float | None = None
+    ) -> DeviceStatus | None:
+        """Turn the table at a constant rate until :meth:`stop` (SPIN, protocol 1.1, sent once).
+
+        The table accelerates at its limit (ROTATING), then holds the rate (SPINNING); samples
+        taken at the steady rate carry the steady-rate validity pair
+        (:data:`~northfinder.driver.protocol.constants.VALIDITY_STEADY_RATE`) and each its
+        encoder angle, so :meth:`acquire` while spinning gives angle-tagged samples.
+
+        Parameters
+        ----------
+        rate_dps : float
+            Rate, deg/s, positive counter-clockwise seen from above; sent in steps of 0.001
+            deg/s; ``0.001 <= |rate_dps| <=`` the table's rate limit (TABLE_MAX_RATE_MDPS).
+        wait : bool
+            Wait until the device reports SPINNING (the rate reached) and return that status.
+        timeout : float or None
+            Seconds to wait; default: the acceleration time times 1.5 plus 2 s.
+
+        Raises
+        ------
+        ArgumentError
+            A rate that is not a finite number, rounds to 0, or exceeds the table's limit; or a
+            device of protocol 1.0 (it has no SPIN).
+        DeviceRefused
+            BUSY while the table moves, spins or settles, NOT_READY while warming up, FAULT.
+        DeviceFault, DeviceReset, MoveTimeout, LinkLost
+            While waiting.
+        """
+        rate_dps = finite_number("rate_dps", rate_dps, "deg/s")
+        timeout = seconds("timeout", timeout)
+        ident = self._identify
+        if ident is not None and tuple(ident.protocol_version) < (1, 1):
+            raise ArgumentError(
+                f"the device speaks protocol {ident.protocol_version[0]}."
+                f"{ident.protocol_version[1]}; turning at a constant rate (SPIN) needs 1.1"
+            )
+        self._refresh_config_if_stale()
+        limit_mdps = self._config[ConfigKey.TABLE_MAX_RATE_MDPS]
+        mdps = round(rate_dps * 1000.0)
+        if not SPIN_RATE_MDPS_MIN <= abs(mdps) <= limit_mdps:
+            raise ArgumentError(
+                f"rate_dps={rate_dps!r}: the table turns at 0.001 to {limit_mdps / 1000:g} deg/s "
+                "either way (its rate limit, TABLE_MAX_RATE_MDPS)"
+            )
+        limits = TableLimits.from_config(self._config)
+        ramp = abs(mdps) / 1000.0 / limits.max_accel_dps2
+        with self._lock:
+            n0, epoch = self._status_count, self._boot_epoch
+        t0 = self._clock.now()
+        self._request(Spin, mdps)
+        if not wait:
+            return None
+        wait_s = ramp * 1.5 + 2.0 if timeout is None else timeout
+
+        def check() -> DeviceStatus | None:
+            if self._boot_epoch != epoch:
+                raise DeviceReset(f"the device restarted during SPIN: {self._reset_reason}")
+            st = self._status
+            if st is None or self._status_count <= n0:
+                return None
+            if st.state == DeviceState.FAULT:
+                raise DeviceFault(
+                    f"the device entered FAULT during SPIN ({st.faults!r}); RESET clears it",
+                    int(st.faults),
+                )
+            return st if st.state == DeviceState.SPINNING else None
+
+        return self._wait_for(
+            check,
+            t0 + wait_s,
+            lambda: MoveTimeout(
+                f"SPIN: the table did not reach {rate_dps:g} deg/s within {wait_s:.1f} s "
+                f"(state {self._state_name()})",
+                wait_s,
+            ),
+        )
+
+    @_on_clock
     def stop(self, *, wait: bool = False, timeout: float | None = None) -> DeviceStatus | None:
-        """Stop the table (STOP; accepted in every state, repeated if its reply is lost).
+        """Stop the table (STOP; accepted in every state, repeated if its reply is lost); a
+        spinning table brakes at the acceleration limit.
 
         With ``wait`` return the status once the table has settled (READY).
         """
@@ -542,7 +625,9 @@ class Device(DeviceLink):
         if not wait:
             return None
         self._refresh_config_if_stale()
-        limit = self.move_duration_s(0.0) * 1.5 + 5.0 if timeout is None else timeout
+        limits = TableLimits.from_config(self._config)
+        braking = limits.max_rate_dps / limits.max_accel_dps2
+        limit = (braking + limits.settle_s) * 1.5 + 5.0 if timeout is None else timeout
         return self._wait_settled(n0, epoch, t0, 0.0, limit, "STOP")
 
     @_on_clock

@@ -400,7 +400,7 @@ class DeviceLink:
             received_at=mono,
         )
         self._status_count += 1
-        if status.state in (DeviceState.ROTATING, DeviceState.SETTLING):
+        if status.state in (DeviceState.ROTATING, DeviceState.SETTLING, DeviceState.SPINNING):
             self._motion_count = self._status_count
         if status.state == DeviceState.BOOT and previous is not None:
             if previous.state != DeviceState.BOOT:

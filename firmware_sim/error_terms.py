@@ -630,7 +630,11 @@ def quantise_carry(
     rem = np.asarray(remainder, dtype=float)
     if values.shape[axis] == 0:
         return values.copy(), rem
-    cum = np.expand_dims(rem, axis) + np.cumsum(values, axis=axis)
+    # The whole counts of each value pass through exactly; only the fractions (|f| <= 1/2) are
+    # summed, so the running sum stays small and its rounding error (what makes a sum taken from
+    # another starting point round differently) is about 1e-16 of a count, not of the total.
+    whole = np.round(values)
+    cum = np.expand_dims(rem, axis) + np.cumsum(values - whole, axis=axis)
     q = np.round(cum)
     last = np.take(cum, -1, axis=axis) - np.take(q, -1, axis=axis)
-    return np.diff(q, axis=axis, prepend=0.0), last
+    return whole + np.diff(q, axis=axis, prepend=0.0), last

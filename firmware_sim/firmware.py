@@ -36,9 +36,11 @@ from northfinder.driver.protocol.constants import (
     INT32_MIN,
     ROTATE_BY_LIMIT,
     SAMPLE_RATES_HZ,
+    SPIN_RATE_MDPS_MIN,
     TEMPERATURE_DEGC_PER_COUNT,
     TEMPERATURE_NOT_AVAILABLE,
     VALIDITY_GOOD,
+    VALIDITY_STEADY_RATE,
     ConfigKey,
     DeviceState,
     Direction,
@@ -57,6 +59,7 @@ from northfinder.driver.protocol.messages import (
     RotateTo,
     Sample,
     SetConfig,
+    Spin,
     Status,
     validity_of,
 )
@@ -91,7 +94,7 @@ VIRTUAL_LOOKAHEAD_S = 2.0
 #: Time from receiving a command to sending its reply, s.
 REPLY_LATENCY_S = 0.001
 _REPLY_LATENCY_NS = round(REPLY_LATENCY_S * NS_PER_S)
-MOTION_OPCODES = (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME)
+MOTION_OPCODES = (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME, Opcode.SPIN)
 #: Most random impulses per second the device's physics is asked to draw: one per physics sample.
 MAX_IMPULSE_RATE_HZ = BASE_RATE_HZ
 #: Longest impulse, s: a shock, not a bias change (which ``bias_step`` injects).
@@ -351,6 +354,8 @@ class Firmware:
             return DeviceState.BOOT
         if t < self.warmup_s:
             return DeviceState.WARMUP
+        if self.instrument.table.is_steady(t):
+            return DeviceState.SPINNING
         if self.instrument.table.is_moving(t):
             return DeviceState.ROTATING
         if t < self._settle_end:
@@ -518,6 +523,8 @@ class Firmware:
         if op == Opcode.SELF_TEST:
             failures = SelfTestFailure.DRIVE if self._fault & Fault.DRIVE else SelfTestFailure(0)
             return Result.OK, Reply.self_test(cmd.seq, failures).data, None
+        if isinstance(cmd, Spin):
+            return self._spin(cmd), b"", None
         if op in MOTION_OPCODES:
             return self._move(cmd), b"", None
         return Result.UNKNOWN_COMMAND, b"", None
@@ -574,6 +581,15 @@ class Firmware:
         self._commanded_deg = table.target_deg
         self._settle_end = table.motion_end_s + table.spec.settle_s
         self._checked_move = False
+        return Result.OK
+
+    def _spin(self, cmd: Spin) -> Result:
+        if not SPIN_RATE_MDPS_MIN <= abs(cmd.rate) <= self.config[ConfigKey.TABLE_MAX_RATE_MDPS]:
+            return Result.OUT_OF_RANGE
+        table = self.instrument.table
+        table.spin(self.now, cmd.rate * 1e-3)
+        self._settle_end = -math.inf
+        self._checked_move = True  # no target angle to supervise against
         return Result.OK
 
     def _stop(self) -> None:
@@ -760,6 +776,7 @@ class Firmware:
         state = np.full(t.shape, int(DeviceState.READY), dtype=np.int64)
         state[t < self._settle_end] = DeviceState.SETTLING
         state[t < self.instrument.table.motion_end_s] = DeviceState.ROTATING
+        state[self.instrument.table.is_steady(t)] = DeviceState.SPINNING
         state[t < self.warmup_s] = DeviceState.WARMUP
         state[t < self._boot_end] = DeviceState.BOOT
         if self._fault:
@@ -772,6 +789,8 @@ class Firmware:
             self._boot_end,
             self.warmup_s,
             self.instrument.table.motion_end_s,
+            self.instrument.table.steady_start_s,
+            self.instrument.table.steady_end_s,
             self._settle_end,
             self._fault_time,
         )
@@ -861,7 +880,13 @@ class Firmware:
         state = self._states_at(t_end)
         validity = np.where(state == DeviceState.FAULT, int(Validity.FAULT), int(VALIDITY_GOOD))
         validity |= np.where(moving, int(Validity.TABLE_MOVING), 0)
-        validity |= np.where(state == DeviceState.SETTLING, int(Validity.TABLE_SETTLING), 0)
+        # A tick that still overlaps the motion is moving, not settling: the pair of both bits
+        # means a steady spin (protocol.md 4.5, version 1.1).
+        settling = (state == DeviceState.SETTLING) & ~moving
+        validity |= np.where(settling, int(Validity.TABLE_SETTLING), 0)
+        # Version 1.1: the whole interval at the steady rate of a spin.
+        steady = table.is_steady(t_end - 1.0 / self.sample_rate_hz) & table.is_steady(t_end)
+        validity |= np.where(steady, int(VALIDITY_STEADY_RATE), 0)
         warming = (state == DeviceState.BOOT) | (state == DeviceState.WARMUP)
         validity |= np.where(warming, int(Validity.WARMING_UP), 0)
         validity |= np.where(sat_g, int(Validity.GYRO_SATURATED), 0)
@@ -905,7 +930,7 @@ def _state_refusal(cmd: Command, state: DeviceState) -> Result | None:
         return Result.NOT_READY
     if state == DeviceState.WARMUP and op in MOTION_OPCODES:
         return Result.NOT_READY
-    if state in (DeviceState.ROTATING, DeviceState.SETTLING) and (
+    if state in (DeviceState.ROTATING, DeviceState.SETTLING, DeviceState.SPINNING) and (
         op in _BUSY_REFUSED or (isinstance(cmd, SetConfig) and cmd.key in _MOTION_KEYS)
     ):
         return Result.BUSY

@@ -115,6 +115,32 @@ class SampleBlock:
         )
 
 
+def _times(v: NDArray[np.float64], m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``v @ m`` summed in a fixed order, so that a row's result does not depend on how many rows
+    are computed together (a matrix product's blocking does): output computed in chunks of any
+    length, or again after a rewind, is then the same to the last bit."""
+    out = np.zeros((v.shape[0], m.shape[1]))
+    for i in range(m.shape[0]):
+        for j in np.flatnonzero(m[i]):
+            out[:, j] += v[:, i] * m[i, j]
+    return out
+
+
+def _wobble_matrix(wobble_urad: float, phase_deg: float) -> NDArray[np.float64] | None:
+    """Sensor frame from table frame for a table top tilted by ``wobble_urad`` towards the
+    table-frame direction ``phase_deg`` (a small rotation about the horizontal axis at right
+    angles to it), or None when there is no wobble."""
+    if not wobble_urad:
+        return None
+    w = wobble_urad * 1e-6
+    p = math.radians(phase_deg)
+    # The top's normal leans towards (cos p, sin p): a rotation by w about (-sin p, cos p, 0).
+    k = np.array([-math.sin(p), math.cos(p), 0.0])
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    rot = np.eye(3) + math.sin(w) * kx + (1.0 - math.cos(w)) * kx @ kx
+    return rot.T  # coordinates in the tilted frame
+
+
 class _SlowNoise:
     """Flicker noise and random walks on the coarse grid of
     :mod:`~northfinder.firmware_sim.error_terms`, interpolated to the sample times."""
@@ -229,6 +255,7 @@ class Instrument:
             (d.vibration_hz, vib_amp) if d.vibration_hz > 0 and vib_amp.any() else None
         )
         self.table.spec = spec.table
+        self._wobble = _wobble_matrix(spec.table.wobble_urad, spec.table.wobble_phase_deg)
 
     def generators(self) -> tuple[np.random.Generator, ...]:
         """Every random generator the instrument draws from, the table's included.
@@ -344,20 +371,33 @@ class Instrument:
                     f_b[2],
                 ]
             )
-            out[:] = (true if self._identity else true @ self._m_t) + self._bias + self._extra_bias
+            if self._wobble is not None:
+                true = (true.reshape(2, 3) @ self._wobble.T).reshape(6)
+            if not self._identity:
+                true = _times(true[None, :], self._m_t)[0]
+            out[:] = true + self._bias + self._extra_bias
         else:
             mu = np.radians(angle)
             cm, sm = np.cos(mu), np.sin(mu)
-            c = 0.5 * (cm[:-1] + cm[1:])
-            s = 0.5 * (sm[:-1] + sm[1:])
+            # Means of cos and sin over each interval, exact for a constant rate within it (the
+            # trapezoid where the table hardly moves): a turning table's samples keep the phase
+            # of the angle at mid-interval.
+            dmu = np.diff(mu)
+            turning = np.abs(dmu) > 1e-6
+            safe = np.where(turning, dmu, 1.0)
+            c = np.where(turning, (sm[1:] - sm[:-1]) / safe, 0.5 * (cm[:-1] + cm[1:]))
+            s = np.where(turning, -(cm[1:] - cm[:-1]) / safe, 0.5 * (sm[:-1] + sm[1:]))
             out[:, 0] = c * omega_b[0] + s * omega_b[1]
             out[:, 1] = -s * omega_b[0] + c * omega_b[1]
             out[:, 2] = omega_b[2] + np.radians(table_rate)
             out[:, 3] = c * f_b[0] + s * f_b[1]
             out[:, 4] = -s * f_b[0] + c * f_b[1]
             out[:, 5] = f_b[2]
+            if self._wobble is not None:
+                out[:, :3] = out[:, :3] @ self._wobble.T
+                out[:, 3:] = out[:, 3:] @ self._wobble.T
             if not self._identity:
-                out = out @ self._m_t
+                out = _times(out, self._m_t)
             out += self._bias + self._extra_bias
         terms = self._terms
         if terms.warmup_bias.any():

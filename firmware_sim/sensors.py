@@ -141,6 +141,26 @@ class TableSpec:
         doc="time constant of the heat the motor holds, s: the bias disturbance a move starts has "
         "the variance of all angles turned, each decayed with it; 0 = of this move's angle alone",
     )
+    rate_ripple: float = _f(
+        0.0,
+        doc="while spinning: once-per-turn rate ripple, amplitude as a fraction of the rate "
+        "(0.001 = 0.1 %); the rate is v (1 + k cos(mu - rate_ripple_phase_deg))",
+    )
+    rate_ripple_phase_deg: float = _f(0.0, _ANY, "table angle of the ripple's fastest point, deg")
+    wobble_urad: float = _f(
+        0.0,
+        doc="tilt of the table top (and the sensor block on it) against the axis it turns "
+        "about, urad: seen from the base it wobbles once per turn; in the sensor frame it is a "
+        "fixed tilt, so the gyros see the table rate and the vertical Earth rate through it",
+    )
+    wobble_phase_deg: float = _f(0.0, _ANY, "table-frame direction the top tilts towards, deg")
+    encoder_error_deg: float = _f(
+        0.0,
+        doc="periodic encoder error, amplitude, deg (e.g. eccentricity for harmonic 1): the "
+        "encoder reads mu + e sin(n mu + phase)",
+    )
+    encoder_error_harmonic: float = _f(1.0, _POSITIVE, "cycles of the encoder error per turn")
+    encoder_error_phase_deg: float = _f(0.0, _ANY, "phase of the encoder error, deg")
 
 
 _SECTIONS: dict[str, type] = {

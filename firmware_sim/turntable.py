@@ -1,4 +1,5 @@
-"""The turntable: trapezoidal moves about body z, settling, encoder and indexing error.
+"""The turntable: trapezoidal moves about body z, settling, encoder and indexing error, and
+turning at a constant rate (:meth:`Turntable.spin`) with a once-per-turn rate ripple.
 
 The table angle is continuous (not wrapped) in the model; the encoder reports it modulo 360 deg,
 quantised to its resolution. A move stops at the commanded angle plus an indexing error drawn
@@ -27,15 +28,28 @@ class TableBusyError(SimError):
 
 @dataclass(frozen=True)
 class _Segment:
-    """Constant acceleration from ``t0``: angle = a0 + v0 dt + acc dt^2 / 2 (deg, deg/s, deg/s^2)."""
+    """Constant acceleration from ``t0``: angle = a0 + v0 dt + acc dt^2 / 2 (deg, deg/s, deg/s^2).
+
+    A steady spin (``acc`` 0) may carry a once-per-turn ripple: the rate is
+    ``v0 (1 + ripple cos(mu_n - ripple_phase))`` with ``mu_n = a0 + v0 dt`` the nominal angle.
+    """
 
     t0: float
     a0: float
     v0: float
     acc: float
+    ripple: float = 0.0
+    ripple_phase_deg: float = 0.0
 
     def at(self, dt: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return self.a0 + self.v0 * dt + 0.5 * self.acc * dt * dt, self.v0 + self.acc * dt
+        angle, rate = self.a0 + self.v0 * dt + 0.5 * self.acc * dt * dt, self.v0 + self.acc * dt
+        if self.ripple and self.v0:
+            x = np.radians(self.a0 + self.v0 * dt - self.ripple_phase_deg)
+            x0 = math.radians(self.a0 - self.ripple_phase_deg)
+            k = self.ripple * abs(self.v0)
+            angle = angle + k * (np.sin(x) - math.sin(x0)) / math.radians(self.v0)
+            rate = rate + k * np.cos(x)
+        return angle, rate
 
 
 class Turntable:
@@ -61,6 +75,7 @@ class Turntable:
         self._overshoot = 0.0
         self._stalled = False
         self._moves: list[tuple[float, float]] = []
+        self._steady = (math.inf, math.inf)  # the present spin's steady interval [start, end)
 
     def generators(self) -> tuple[np.random.Generator, ...]:
         """The random generators the table draws from (for a snapshot of its state)."""
@@ -141,8 +156,61 @@ class Turntable:
         self._overshoot = s * self.spec.overshoot_deg
         return self._motion_end
 
+    def spin(self, t: float, rate_dps: float) -> float:
+        """Start turning from rest at time ``t`` towards ``rate_dps`` at the acceleration limit and
+        hold that rate (with the specified ripple) until :meth:`stop`; return when the rate is
+        reached (the start of the steady spin).
+
+        Raises
+        ------
+        TableBusyError
+            The table is moving at ``t``.
+        """
+        if self.is_moving(t):
+            raise TableBusyError(f"table still moving at t={t:.3f} s")
+        start = float(self.state(t)[0])
+        self._motion_start = t
+        if self._stalled or rate_dps == 0.0:
+            self._segments = [_Segment(-math.inf, start, 0.0, 0.0)]
+            self._motion_end = t
+            return t
+        # A spin starts no move transient in the sensors (the move log stays as it is).
+        a = self.spec.max_accel_dps2
+        ta = abs(rate_dps) / a
+        a1 = start + 0.5 * rate_dps * ta
+        self._segments = [
+            _Segment(-math.inf, start, 0.0, 0.0),
+            _Segment(t, start, 0.0, math.copysign(a, rate_dps)),
+            _Segment(
+                t + ta, a1, rate_dps, 0.0, self.spec.rate_ripple, self.spec.rate_ripple_phase_deg
+            ),
+        ]
+        self._motion_end = math.inf
+        self._overshoot = 0.0
+        self._steady = (t + ta, math.inf)
+        return t + ta
+
+    def is_steady(self, t: ArrayLike) -> NDArray[np.bool_]:
+        """Whether the table turns at the steady rate of a spin at times ``t`` (s)."""
+        tt = np.asarray(t, dtype=float)
+        return (tt >= self._steady[0]) & (tt < self._steady[1])
+
+    @property
+    def steady_start_s(self) -> float:
+        """When the present (or last) spin reached its rate, s (inf: none)."""
+        return self._steady[0]
+
+    @property
+    def steady_end_s(self) -> float:
+        """When the present (or last) spin's steady rate ended (STOP), s (inf: still turning)."""
+        return self._steady[1]
+
     def stop(self, t: float) -> float:
         """Decelerate at the acceleration limit from time ``t``; return when the table is at rest."""
+        if self._steady[0] <= t < self._steady[1]:
+            self._steady = (self._steady[0], t)
+        elif t < self._steady[0] < math.inf:
+            self._steady = (math.inf, math.inf)  # stopped while still accelerating
         angle, rate = (float(x) for x in self.state(t))
         if rate == 0.0:
             self._motion_end = min(self._motion_end, t)
@@ -241,9 +309,15 @@ class Turntable:
         return angle, rate
 
     def encoder(self, angle_deg: ArrayLike) -> NDArray[np.float64]:
-        """What the encoder reports for true angles: modulo 360, quantised to its resolution."""
+        """What the encoder reports for true angles: with its periodic error, modulo 360,
+        quantised to its resolution."""
         a = np.asarray(angle_deg, dtype=float)
-        res = self.spec.encoder_resolution_deg
+        spec = self.spec
+        if spec.encoder_error_deg:
+            a = a + spec.encoder_error_deg * np.sin(
+                np.radians(spec.encoder_error_harmonic * a + spec.encoder_error_phase_deg)
+            )
+        res = spec.encoder_resolution_deg
         if res > 0:
             a = np.round(a / res) * res
         return np.mod(a, 360.0)

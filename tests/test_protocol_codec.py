@@ -98,7 +98,7 @@ def test_unknown_ids_and_lengths():
     with pytest.raises(PayloadError):
         decode_can(0x101, bytes(9))
     with pytest.raises(PayloadError):
-        decode_can(0x201, bytes([6]) + bytes(7))  # undefined state
+        decode_can(0x201, bytes([7]) + bytes(7))  # undefined state (6 is SPINNING since 1.1)
 
 
 def test_can_ids():

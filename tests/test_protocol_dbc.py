@@ -25,6 +25,7 @@ from northfinder.driver.protocol import (
     SampleAux,
     SampleAxis,
     SetConfig,
+    Spin,
     StatusCounters,
     StatusMain,
     Validity,
@@ -74,6 +75,8 @@ def expected_signals(part) -> dict[str, int]:
             sig |= {"RotateToAngle": part.angle, "RotateToDirection": part.direction}
         elif isinstance(part, RotateBy):
             sig["RotateByAngle"] = part.delta
+        elif isinstance(part, Spin):
+            sig["SpinRate"] = part.rate
         elif isinstance(part, GetConfig):
             sig["GetConfigKey"] = part.key
         elif isinstance(part, SetConfig):

@@ -41,6 +41,7 @@ from northfinder.driver.protocol import (
     SelfTest,
     SelfTestFailure,
     SetConfig,
+    Spin,
     Status,
     Stop,
     StreamStart,
@@ -67,6 +68,9 @@ GOLDEN: dict[str, Message] = {
     "cmd_set_config": SetConfig(11, ConfigKey.HEARTBEAT_PERIOD_MS, 250),
     "cmd_reset": Reset(12),
     "cmd_self_test": SelfTest(13),
+    "cmd_spin": Spin(16, 6_000),
+    "cmd_spin_negative": Spin(17, -2_500),
+    "reply_spin_out_of_range": Reply(18, Opcode.SPIN, Result.OUT_OF_RANGE),
     "reply_ok": Reply(3, Opcode.ROTATE_TO, Result.OK),
     "reply_busy": Reply(5, Opcode.ROTATE_BY, Result.BUSY),
     "reply_get_config": Reply.config(10, Opcode.GET_CONFIG, ConfigKey.SAMPLE_RATE_HZ, 200),
@@ -92,6 +96,27 @@ GOLDEN: dict[str, Message] = {
         | Validity.TABLE_MOVING
         | Validity.GYRO_SATURATED
         | Validity.ACCEL_SATURATED,
+    ),
+    "sample_spinning": Sample(
+        counter=1_000,
+        gyro=(9_000, -120_000, 216_000_000),
+        accel=(-5_000, 3_000, 1_000_000),
+        angle=90_000_123,
+        temperature=2_300,
+        validity=Validity.GYRO_VALID
+        | Validity.ACCEL_VALID
+        | Validity.TABLE_MOVING
+        | Validity.TABLE_SETTLING,
+    ),
+    "status_spinning": Status(
+        state=DeviceState.SPINNING,
+        angle=270_000_000,
+        temperature=2_300,
+        faults=Fault(0),
+        sample_counter=1_000,
+        rx_malformed=0,
+        tx_dropped=0,
+        cmd_rejected=1,
     ),
     "status": Status(
         state=DeviceState.READY,
@@ -222,3 +247,18 @@ def test_hand_checked_bytes(vectors):
     serial = vectors["sample"][1]
     assert serial[:5] == bytes([0xA5, 0x5A, 35, 0x05, SERIAL_SEQ])
     assert serial[5:9] == (76_805).to_bytes(4, "little")
+
+
+def test_spin_bytes_by_hand(vectors):
+    """Version 1.1: SPIN's i32 rate in 1e-3 deg/s, state SPINNING and the steady-rate pair."""
+    (spin,), _ = vectors["cmd_spin"]
+    assert spin.arbitration_id == 0x041
+    assert spin.data == bytes([16, 0x14]) + (6_000).to_bytes(4, "little", signed=True)
+    (neg,), _ = vectors["cmd_spin_negative"]
+    assert neg.data[2:] == (-2_500).to_bytes(4, "little", signed=True)
+    aux = vectors["sample_spinning"][0][3]
+    assert aux.data[7] == 0x0F  # GYRO_VALID | ACCEL_VALID | TABLE_MOVING | TABLE_SETTLING
+    z = vectors["sample_spinning"][0][2]
+    assert z.data[1:5] == (216_000_000).to_bytes(4, "little")  # 6 deg/s = 21 600 deg/h
+    (main, _counters), _ = vectors["status_spinning"]
+    assert main.data[0] == 6

@@ -31,6 +31,7 @@ from northfinder.driver.protocol import (
     Scale,
     SelfTest,
     SetConfig,
+    Spin,
     Status,
     Stop,
     StreamStart,
@@ -61,6 +62,7 @@ commands = st.one_of(
     *(st.builds(c, u8) for c in (StreamStop, Reset, SelfTest)),
     st.builds(RotateTo, u8, u32, st.sampled_from(Direction)),
     st.builds(RotateBy, u8, i32),
+    st.builds(Spin, u8, i32),
     st.builds(GetConfig, u8, keys),
     st.builds(SetConfig, u8, keys, u32),
 )

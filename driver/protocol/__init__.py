@@ -19,6 +19,7 @@ Pure code: no I/O, no clock, no threads. Byte order is little-endian everywhere.
 from northfinder.driver.protocol.constants import (
     PROTOCOL_VERSION_MAJOR,
     PROTOCOL_VERSION_MINOR,
+    VALIDITY_STEADY_RATE,
     Axis,
     CanFunction,
     ConfigKey,
@@ -54,6 +55,7 @@ from northfinder.driver.protocol.messages import (
     Scale,
     SelfTest,
     SetConfig,
+    Spin,
     Status,
     StatusCounters,
     StatusMain,
@@ -65,6 +67,7 @@ from northfinder.driver.protocol.messages import (
 __all__ = [
     "PROTOCOL_VERSION_MAJOR",
     "PROTOCOL_VERSION_MINOR",
+    "VALIDITY_STEADY_RATE",
     "Axis",
     "CanFunction",
     "Command",
@@ -96,6 +99,7 @@ __all__ = [
     "SelfTestFailure",
     "SerialType",
     "SetConfig",
+    "Spin",
     "Status",
     "StatusCounters",
     "StatusMain",

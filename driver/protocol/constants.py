@@ -9,7 +9,7 @@ from enum import IntEnum, IntFlag
 
 PROTOCOL_VERSION_MAJOR = 1
 """Incremented on any incompatible change; a host refuses a device with another major version."""
-PROTOCOL_VERSION_MINOR = 0
+PROTOCOL_VERSION_MINOR = 1
 """Incremented when messages, opcodes, config keys or result codes are added."""
 
 # Physical value of one count (the defaults; a unit reports its own in IDENTIFY).
@@ -66,6 +66,8 @@ class DeviceState(IntEnum):
     ROTATING = 3
     SETTLING = 4
     FAULT = 5
+    SPINNING = 6
+    """Version 1.1: the table turns at the rate SPIN commanded, held steady (until STOP)."""
 
 
 class Opcode(IntEnum):
@@ -77,6 +79,8 @@ class Opcode(IntEnum):
     ROTATE_BY = 0x11
     STOP = 0x12
     HOME = 0x13
+    SPIN = 0x14
+    """Version 1.1: turn the table at a constant rate until STOP."""
     STREAM_START = 0x20
     STREAM_STOP = 0x21
     GET_CONFIG = 0x30
@@ -218,6 +222,16 @@ VALIDITY_UNFIT = (
     | Validity.FAULT
 )
 """Bits 2..7: any of them set makes a sample unfit for north finding (protocol.md 4.5)."""
+VALIDITY_STEADY_RATE = Validity.TABLE_MOVING | Validity.TABLE_SETTLING
+"""Version 1.1: both motion bits set (a pair version 1.0 never sends) mark a sample taken while
+the table turns at the steady rate of SPIN (state SPINNING); fit for a spin solution when the
+other unfit bits (4..7) are clear (protocol.md 4.5)."""
+VALIDITY_SPIN_UNFIT = (
+    Validity.GYRO_SATURATED | Validity.ACCEL_SATURATED | Validity.WARMING_UP | Validity.FAULT
+)
+"""Bits 4..7: any of them makes a steady-rate sample unfit for a spin solution."""
+SPIN_RATE_MDPS_MIN = 1
+"""Smallest ``|rate|`` SPIN accepts, 1e-3 deg/s; the largest is TABLE_MAX_RATE_MDPS."""
 
 
 class Fault(IntFlag):

@@ -60,6 +60,7 @@ __all__ = [
     "Scale",
     "SelfTest",
     "SetConfig",
+    "Spin",
     "Status",
     "StatusCounters",
     "StatusMain",
@@ -266,6 +267,31 @@ class Home(Command):
     """HOME: rotate to the encoder zero (absolute angle 0) by the shortest way. No arguments."""
 
     OPCODE: ClassVar[Opcode] = Opcode.HOME
+
+
+@dataclass(frozen=True, slots=True)
+class Spin(Command):
+    """SPIN (version 1.1): turn the table at a constant rate until STOP.
+
+    The table accelerates at TABLE_MAX_ACCEL_MDPS2 (state ROTATING), then holds the rate (state
+    SPINNING, samples marked steady-rate); STOP brakes it to rest (ROTATING, SETTLING, READY).
+
+    Attributes
+    ----------
+    rate : int
+        Rate, i32 in 1e-3 deg/s, positive counter-clockwise seen from above; the device accepts
+        ``1 <= |rate| <= TABLE_MAX_RATE_MDPS`` and replies OUT_OF_RANGE otherwise.
+    """
+
+    rate: int = 0
+    OPCODE: ClassVar[Opcode] = Opcode.SPIN
+    _ARGS: ClassVar[struct.Struct] = struct.Struct("<i")
+
+    def _args(self) -> tuple[int, ...]:
+        return (self.rate,)
+
+    def _check_args(self) -> None:
+        _check("rate", self.rate, INT32_MIN, INT32_MAX)
 
 
 @dataclass(frozen=True, slots=True)

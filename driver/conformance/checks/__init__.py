@@ -7,6 +7,7 @@
 - :mod:`.refusals`: every refusal as a table of cases run by one routine;
 - :mod:`.bad_input`: input the unit must drop and count without disturbing the stream;
 - :mod:`.rotations`: every move, STOP during a move, commands while turning, accuracy and settling;
+- :mod:`.spin`: SPIN (protocol 1.1): rate reached and held, angle monotonic, STOP, refusals;
 - :mod:`.whole_run`: reply latencies and link integrity over the whole run.
 
 :data:`ORDER` is the run order. Checks share what they measured (the configuration, the
@@ -24,6 +25,7 @@ from northfinder.driver.conformance.checks import (  # noqa: F401  (each registe
     identity,
     refusals,
     rotations,
+    spin,
     stream,
     whole_run,
 )
@@ -71,6 +73,8 @@ ORDER = (
     "rotation.accuracy",
     "rotation.settle_time",
     "rotation.validity",
+    "spin.refusals",
+    "spin.steady",
     "command.reset",
     "refusal.not_ready",
     "refusal.fault",

@@ -11,6 +11,7 @@ from northfinder.driver.protocol.constants import (
     ANGLE_DEG_PER_COUNT,
     ANGLE_FULL_TURN,
     VALIDITY_GOOD,
+    VALIDITY_STEADY_RATE,
     VALIDITY_UNFIT,
     ConfigKey,
     DeviceState,
@@ -70,6 +71,11 @@ def validity_problem(v: int, state: DeviceState | None) -> str | None:
     elif state == DeviceState.ROTATING:
         if not v & Validity.TABLE_MOVING:
             return "ROTATING needs TABLE_MOVING"
+        if v & Validity.TABLE_SETTLING:
+            return "ROTATING needs TABLE_SETTLING clear (both bits mean a steady spin)"
+    elif state == DeviceState.SPINNING:
+        if v & VALIDITY_STEADY_RATE != VALIDITY_STEADY_RATE:
+            return "SPINNING needs TABLE_MOVING and TABLE_SETTLING (steady rate)"
     elif state == DeviceState.SETTLING:
         if not v & Validity.TABLE_SETTLING:
             return "SETTLING needs TABLE_SETTLING"

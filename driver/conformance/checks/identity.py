@@ -38,6 +38,7 @@ def identify(c: Ctx) -> None:
     c.fig("serial", ident.serial_number)
     c.fig("firmware", ".".join(map(str, ident.firmware_version)))
     c.fig("protocol", "{}.{}".format(*ident.protocol_version))
+    c.shared["protocol_version"] = tuple(ident.protocol_version)
     c.fig("max rate", f"{ident.max_sample_rate_hz} Hz")
     if ident.protocol_version[0] != PROTOCOL_VERSION_MAJOR:
         c.fail(

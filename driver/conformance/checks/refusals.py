@@ -234,7 +234,7 @@ def _stream_undisturbed(c: Ctx, before: Before) -> None:
     undisturbed(c, before.t0)
 
 
-UNDEFINED_OPCODES = (0x00, 0x03, 0x14, 0x22, 0x42, 0x7F, 0xFF)
+UNDEFINED_OPCODES = (0x00, 0x03, 0x15, 0x22, 0x42, 0x7F, 0xFF)
 """Opcodes protocol.md leaves undefined (a sample of the range)."""
 ARG_BYTES = {Opcode.ROTATE_TO: 5, Opcode.ROTATE_BY: 4, Opcode.GET_CONFIG: 1, Opcode.SET_CONFIG: 5}
 """Argument bytes of each opcode that has arguments (protocol.md 4.1)."""
