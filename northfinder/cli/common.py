@@ -396,11 +396,13 @@ def load_sensor(name_or_path: str, overrides: Mapping[str, Any] | None = None) -
 
 def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) -> str:
     """Refuse, before any work, an output file that cannot be written: a missing folder, a
-    folder in its place, or (with ``suffixes``) a name of another kind."""
-    import os
-
+    folder in its place, a path under /dev that does not exist, or (with ``suffixes``) a name
+    of another kind."""
     if suffixes and not path.endswith(suffixes):
         raise HostConfigError(f"{option} {path}: the file name must end in {' or '.join(suffixes)}")
+    if os.path.abspath(path).startswith("/dev/") and not os.path.exists(path):
+        # A mistyped port name must not become a regular file under /dev.
+        raise HostConfigError(f"{option} {path}: no such device (a path under /dev must exist)")
     if os.path.isdir(path):
         raise HostConfigError(f"{option} {path}: is a folder; give a file name")
     folder = os.path.dirname(path) or "."

@@ -13,15 +13,18 @@ The plan: ``--positions`` any table angles (default 0,180,180,0), ``--window`` s
 azimuths (needs matplotlib); ``--can-log FILE`` logs every frame; ``--record FILE`` writes the
 raw windows.
 
-NMEA 0183: ``--nmea TARGET`` (``-`` for stdout, a file, a serial port or pty path) sends
-``$HEHDT`` and the proprietary ``$PNFDH`` (heading, sigma, status; README "NMEA 0183 output")
-once the heading is found, ``--nmea-count`` times (0: until interrupted) at ``--nmea-rate`` Hz.
-With ``--nmea -`` the result goes to stderr.
+NMEA 0183: ``--nmea TARGET`` (``-`` for stdout, ``udp://HOST:PORT``, ``tcp://HOST:PORT``, a
+pyserial URL, a serial port or pty path, or a file) sends ``$HEHDT`` and the proprietary
+``$PNFDH`` (heading, sigma, status) once the heading is found, ``--nmea-count`` times (0: until
+interrupted) at ``--nmea-rate`` Hz. The target is opened before the device is: a target that
+cannot be opened stops the command at once (exit 2). With ``--nmea -`` the result goes to
+stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 
@@ -55,7 +58,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--record", metavar="FILE", help="also write the raw windows (.csv or .npz)")
     g = p.add_argument_group("NMEA 0183 output")
     g.add_argument(
-        "--nmea", metavar="TARGET", help="send $HEHDT and $PNFDH to - (stdout), a file or a port"
+        "--nmea",
+        metavar="TARGET",
+        help="send $HEHDT and $PNFDH to - (stdout), udp://HOST:PORT (10110 is usual), "
+        "tcp://HOST:PORT, a serial port, a pyserial URL or a file",
     )
     g.add_argument(
         "--nmea-rate", type=positive_float, default=1.0, metavar="HZ",
@@ -76,7 +82,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def send_nmea(args: argparse.Namespace, m: Measured) -> int:
+def send_nmea(args: argparse.Namespace, m: Measured, out: NmeaOutput) -> int:
     """Send the heading ``--nmea-count`` times at ``--nmea-rate``; return how many were sent."""
     r = m.result
     fix = HeadingFix(
@@ -85,16 +91,15 @@ def send_nmea(args: argparse.Namespace, m: Measured) -> int:
     )  # fmt: skip
     lines = (hdt_sentence(fix), nfdh_sentence(fix))
     period = 1.0 / args.nmea_rate
-    with NmeaOutput(args.nmea, baudrate=args.nmea_baud) as out:
-        n = 0
-        next_at = time.monotonic()
-        while args.nmea_count == 0 or n < args.nmea_count:
-            out.send(*lines)
-            n += 1
-            if args.nmea_count and n >= args.nmea_count:
-                break
-            next_at += period
-            time.sleep(max(0.0, next_at - time.monotonic()))
+    n = 0
+    next_at = time.monotonic()
+    while args.nmea_count == 0 or n < args.nmea_count:
+        out.send(*lines)
+        n += 1
+        if args.nmea_count and n >= args.nmea_count:
+            break
+        next_at += period
+        time.sleep(max(0.0, next_at - time.monotonic()))
     return n
 
 
@@ -104,6 +109,16 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_plot_path(args.plot)
     to_stdout = args.nmea == "-"
+    with contextlib.ExitStack() as stack:
+        nmea = (
+            stack.enter_context(NmeaOutput(args.nmea, baudrate=args.nmea_baud))
+            if args.nmea
+            else None
+        )
+        return _find(args, nmea, to_stdout)
+
+
+def _find(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
     m = run_plan(args, progress=not (args.json or to_stdout))
     if args.record:
         save_recording(args.record, m)
@@ -115,6 +130,6 @@ def run(args: argparse.Namespace) -> int:
         else report.text(m.result, m.truth)
     )
     print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
-    if args.nmea:
-        send_nmea(args, m)
+    if nmea is not None:
+        send_nmea(args, m, nmea)
     return 0

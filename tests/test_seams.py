@@ -1,0 +1,137 @@
+"""The seams a user trips on: every output checked before the work, NMEA to the network,
+reproducible runs, a failed consistency check that says so, logs that forgive, link statistics,
+progress, one JSON envelope, ``dump``, and a calibration that bounds what it cannot resolve.
+
+Everything runs in-process against the embedded simulator in virtual time; network sockets are
+on 127.0.0.1 only.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import socket
+from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
+from typing import Any
+
+import pynmea2
+import pytest
+
+from northfinder.cli import main
+
+FAST = ["--sim", "--warmup", "0", "--window", "2", "--positions", "0,180"]
+
+
+def run_cli(*argv: str) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        code = main(list(argv))
+    return code, out.getvalue(), err.getvalue()
+
+
+def run_json(*argv: str) -> dict[str, Any]:
+    code, out, err = run_cli(*argv, "--json")
+    assert code == 0, err
+    doc: dict[str, Any] = json.loads(out)
+    return doc
+
+
+# -- 1. outputs checked before any work; NMEA to UDP and TCP ----------------------------------
+@pytest.mark.parametrize(
+    ("option", "value", "says"),
+    [
+        ("--nmea", "/dev/ttyNOSUCHPORT", "no such device"),
+        ("--nmea", "udp://127.0.0.1", "udp://HOST:PORT"),
+        ("--nmea", "tcp://127.0.0.1:99999", "tcp://HOST:PORT"),
+        ("--nmea", "/no/such/folder/heading.nmea", "cannot open"),
+        ("--record", "/dev/nosuchdevice.csv", "no such device"),
+        ("--record", "/no/such/folder/run.csv", "does not exist"),
+        ("--can-log", "/dev/nosuchdevice.log", "no such device"),
+        ("--plot", "/no/such/folder/find.png", "does not exist"),
+        ("--plot", "find.nosuchformat", "no plot format"),
+    ],
+)
+def test_a_bad_output_stops_find_before_it_measures(option, value, says, monkeypatch):
+    """Exit 2 with one line (argparse's usage before it for a malformed option), and the
+    device is never opened (no measuring first)."""
+    import northfinder.cli.measure as measure
+
+    def never(*_: Any, **__: Any) -> Any:
+        raise AssertionError("the device was opened")
+
+    monkeypatch.setattr(measure, "open_device", never)
+    code, out, err = run_cli("find", *FAST, option, value)
+    assert code == 2, err
+    assert out == "" and says in err.strip().splitlines()[-1], err
+    assert not os.path.exists(value) or not value.startswith("/dev/")
+
+
+def test_nmea_over_udp_reaches_a_listener_on_loopback():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        rx.settimeout(5.0)
+        port = rx.getsockname()[1]
+        found = run_json(
+            "find", *FAST, "--seed", "3", "--nmea", f"udp://127.0.0.1:{port}",
+            "--nmea-count", "2", "--nmea-rate", "100",
+        )  # fmt: skip
+        datagrams = [rx.recv(4096).decode("ascii") for _ in range(4)]
+    assert all(d.endswith("\r\n") and d.count("$") == 1 for d in datagrams)  # one sentence each
+    parsed = [pynmea2.parse(d.strip(), check=True) for d in datagrams]
+    assert isinstance(parsed[0], pynmea2.HDT)
+    assert float(parsed[0].heading) == pytest.approx(found["azimuth_deg"] % 360, abs=0.005)
+    assert parsed[1].manufacturer == "NFD" and parsed[1].status == "A"
+    assert [str(p) for p in parsed[2:]] == [str(p) for p in parsed[:2]]
+
+
+def test_nmea_over_udp_with_nobody_listening_is_not_an_error():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    code, _, err = run_cli(
+        "find", *FAST, "--nmea", f"udp://127.0.0.1:{port}", "--nmea-count", "3",
+        "--nmea-rate", "100",
+    )  # fmt: skip
+    assert code == 0, err
+
+
+def test_nmea_over_tcp_is_sent_to_the_server():
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)
+        server.settimeout(5.0)
+        port = server.getsockname()[1]
+        code, _, err = run_cli("find", *FAST, "--nmea", f"tcp://127.0.0.1:{port}")
+        assert code == 0, err
+        conn, _ = server.accept()  # the connection waited in the backlog
+        with conn:
+            conn.settimeout(5.0)
+            data = b""
+            while data.count(b"\r\n") < 2:
+                chunk = conn.recv(4096)
+                if not chunk:
+                    break
+                data += chunk
+    lines = data.decode("ascii").split("\r\n")
+    assert pynmea2.parse(lines[0], check=True).sentence_type == "HDT"
+    assert pynmea2.parse(lines[1], check=True).manufacturer == "NFD"
+
+
+def test_tcp_nmea_with_no_server_stops_before_measuring():
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]  # closed again: nobody listens there
+    code, out, err = run_cli("find", *FAST, "--nmea", f"tcp://127.0.0.1:{port}")
+    assert code == 2 and "refused" in err.lower() and out == ""
+
+
+def test_an_output_path_under_dev_is_never_created(tmp_path):
+    for option in ("--record", "--can-log"):
+        path = "/dev/northfinder-no-such-device" + (".csv" if option == "--record" else ".log")
+        code, _, err = run_cli("find", *FAST, option, path)
+        assert code == 2 and "no such device" in err
+        assert not Path(path).exists()
+    code, _, err = run_cli("record", "/dev/northfinder-no-such.npz", *FAST)
+    assert code == 2 and not Path("/dev/northfinder-no-such.npz").exists()
