@@ -135,3 +135,38 @@ def test_an_output_path_under_dev_is_never_created(tmp_path):
         assert not Path(path).exists()
     code, _, err = run_cli("record", "/dev/northfinder-no-such.npz", *FAST)
     assert code == 2 and not Path("/dev/northfinder-no-such.npz").exists()
+
+
+# -- 2. the seed reported and taken back --------------------------------------------------------
+def test_an_unseeded_find_reports_its_seed_and_the_seed_repeats_it_exactly():
+    first = run_json("find", *FAST)
+    seed = first["truth"]["seed"]
+    assert isinstance(seed, int) and seed >= 0
+    again = run_json("find", *FAST, "--seed", str(seed))
+    for doc in (first, again):
+        doc.pop("created_utc")
+    assert again == first
+    code, out, _ = run_cli("find", *FAST, "--seed", str(seed))
+    assert code == 0 and f"seed {seed}" in out
+
+
+def test_an_unseeded_recording_keeps_its_seed_and_the_seed_repeats_it(tmp_path):
+    from northfinder.host.recording import Recording
+
+    code, out, err = run_cli("record", str(tmp_path / "a.npz"), *FAST)
+    assert code == 0, err
+    seed = Recording.load(tmp_path / "a.npz").meta["truth"]["seed"]
+    assert f"seed {seed}" in out
+    code, _, err = run_cli("record", str(tmp_path / "b.npz"), *FAST, "--seed", str(seed))
+    assert code == 0, err
+    a, b = Recording.load(tmp_path / "a.npz"), Recording.load(tmp_path / "b.npz")
+    for wa, wb in zip(a.windows, b.windows, strict=True):
+        assert (wa.gyro_dph == wb.gyro_dph).all() and (wa.counter == wb.counter).all()
+    assert a.meta["truth"] == b.meta["truth"]
+
+
+def test_simulate_reports_its_seed_and_repeats_with_it():
+    first = json.loads(run_cli("simulate", "--window", "1", "--json")[1])
+    seed = first["seed"]
+    again = json.loads(run_cli("simulate", "--window", "1", "--json", "--seed", str(seed))[1])
+    assert again == first

@@ -202,6 +202,17 @@ seed_value = bounded_int(0, MAX_SEED)
 """argparse type: a random seed, a whole number 0 .. 2**63 - 1."""
 
 
+def run_seed(args: argparse.Namespace) -> int:
+    """The seed of a simulated run: ``--seed``, or a fresh one drawn now (and kept in ``args``)
+    when none was given, so that every run can state its seed and be run again with it."""
+    if getattr(args, "seed", None) is None:
+        import secrets
+
+        args.seed = secrets.randbelow(2**32)  # short to type; any seed up to MAX_SEED is taken
+    seed: int = args.seed
+    return seed
+
+
 def node_id(text: str) -> int:
     """argparse type: a CAN node id, 1..15 (protocol.md 2.1)."""
     value = whole_number(text)
@@ -490,7 +501,11 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--pitch", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument("--roll", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument(
-        "--seed", type=seed_value, default=None, help="random seed (default: fresh each run)"
+        "--seed",
+        type=seed_value,
+        default=None,
+        help="random seed (default: a fresh one, reported with the result; give it back to "
+        "repeat the run exactly)",
     )
 
 

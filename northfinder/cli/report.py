@@ -37,6 +37,11 @@ def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
         lines.append(
             f"truth   {truth['azimuth_deg']:.4f} deg (pitch {truth['pitch_deg']:g}, roll {truth['roll_deg']:g}); "
             f"error {err:+.4f} deg"
+            + (
+                f"; seed {truth['seed']} (--seed {truth['seed']} repeats the run)"
+                if "seed" in truth
+                else ""
+            )
         )
     lines += [f"note: {n}" for n in result.notes]
     return plain_numbers("\n".join(lines))

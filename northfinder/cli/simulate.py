@@ -19,6 +19,7 @@ from northfinder.cli.common import (
     command_parser,
     dumps,
     load_sensor,
+    run_seed,
     sim_truth,
 )
 from northfinder.driver.protocol.units import DPH, UG
@@ -59,7 +60,8 @@ MAX_RATE_HZ = 1000.0
 
 
 def run(args: argparse.Namespace) -> int:
-    rng = np.random.default_rng(args.seed)
+    seed = run_seed(args)
+    rng = np.random.default_rng(seed)
     truth = sim_truth(args, rng)
     spec = load_sensor(args.sensor)
     ins = Instrument(spec, truth, rng, sample_rate_hz=args.rate)
@@ -84,11 +86,12 @@ def run(args: argparse.Namespace) -> int:
             }
         )
     if args.json:
-        print(dumps({"sensor": spec.name, "truth": truth.__dict__, "windows": rows}))
+        print(dumps({"sensor": spec.name, "seed": seed, "truth": truth.__dict__, "windows": rows}))
         return 0
     print(
         f"sensor {spec.name}; truth azimuth {truth.azimuth_deg:.4f} deg, latitude {truth.latitude_deg:g} deg, "
-        f"pitch {truth.pitch_deg:g} deg, roll {truth.roll_deg:g} deg; {args.window:g} s windows at {args.rate:g} Hz"
+        f"pitch {truth.pitch_deg:g} deg, roll {truth.roll_deg:g} deg; {args.window:g} s windows at {args.rate:g} Hz; "
+        f"seed {seed}"
     )
     print(f"{'table deg':>10} {'gyro x/y/z deg/h (noise-free)':>50} {'accel x/y/z ug':>36}")
     for r in rows:
