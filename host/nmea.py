@@ -100,6 +100,13 @@ class HeadingFix:
         )
 
 
+def _fixed(value: float, digits: int) -> str:
+    """``value`` with ``digits`` decimals, a value that rounds to zero without its sign (a
+    consumer reads ``-0.000`` as a tilt the other way)."""
+    text = f"{value:.{digits}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0.0 else text
+
+
 def hdt_sentence(fix: HeadingFix) -> str:
     """``$HEHDT,x.xx,T*hh`` (empty heading when the fix is not valid)."""
     heading = f"{fix.azimuth_deg % 360.0:.2f}" if fix.valid else ""
@@ -116,7 +123,8 @@ def nfdh_sentence(fix: HeadingFix) -> str:
     heading = f"{fix.azimuth_deg % 360.0:.4f}" if fix.valid else ""
     status = "A" if fix.valid else "V"
     return sentence(
-        f"PNFDH,{heading},{sigma},{status},{fix.pitch_deg:.3f},{fix.roll_deg:.3f},{fix.positions}"
+        f"PNFDH,{heading},{sigma},{status},{_fixed(fix.pitch_deg, 3)},{_fixed(fix.roll_deg, 3)},"
+        f"{fix.positions}"
     )
 
 

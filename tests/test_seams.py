@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import socket
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
@@ -21,6 +22,8 @@ import pytest
 
 from northfinder.cli import main
 
+#: A number printed as a negative zero (-0, -0.000), not -0.0001.
+NEGATIVE_ZERO = re.compile(r"(?<![\w.])-0(\.0*)?(?![\d.])")
 FAST = ["--sim", "--warmup", "0", "--window", "2", "--positions", "0,180"]
 
 
@@ -170,3 +173,77 @@ def test_simulate_reports_its_seed_and_repeats_with_it():
     seed = first["seed"]
     again = json.loads(run_cli("simulate", "--window", "1", "--json", "--seed", str(seed))[1])
     assert again == first
+
+
+# -- 3. a failed consistency check: its own exit status, said as a shift, shown in the plot ----
+def _stepped_recording(tmp_path: Path, step_dph: float = 2.0) -> Path:
+    """A four-window recording whose last two windows carry a gyro x bias step."""
+    import dataclasses
+
+    from northfinder.host.recording import Recording
+
+    path = tmp_path / "run.npz"
+    code, _, err = run_cli(
+        "record", str(path), "--sim", "--warmup", "0", "--window", "2", "--seed", "5",
+        "--azimuth", "30",
+    )  # fmt: skip
+    assert code == 0, err
+    rec = Recording.load(path)
+    windows = list(rec.windows)
+    for i in (2, 3):
+        gyro = windows[i].gyro_dph.copy()
+        gyro[:, 0] += step_dph
+        windows[i] = dataclasses.replace(windows[i], gyro_dph=gyro)
+    stepped = tmp_path / "stepped.npz"
+    Recording(tuple(windows), rec.meta).save(stepped)
+    return stepped
+
+
+def test_a_heading_that_failed_its_check_exits_3_and_says_so_as_a_shift(tmp_path):
+    from northfinder.cli.common import EXIT_INCONSISTENT
+
+    assert EXIT_INCONSISTENT == 3
+    stepped = _stepped_recording(tmp_path)
+    plot = tmp_path / "failed.png"
+    code, out, err = run_cli("solve", str(stepped), "--plot", str(plot))
+    assert code == 3, err
+    assert "CONSISTENCY CHECK FAILED" in out and "fitting it shifts the azimuth by" in out
+    assert "if so" not in out and not NEGATIVE_ZERO.search(out)
+    assert plot.stat().st_size > 0
+    doc = json.loads(run_cli("solve", str(stepped), "--json")[1])
+    assert doc["consistent"] is False and doc["check"]["consistent"] is False
+    # The same recording without the step passes and exits 0.
+    code, out, _ = run_cli("solve", str(tmp_path / "run.npz"))
+    assert code == 0 and "consistency check passed" in out
+
+
+def test_the_plot_of_a_failed_check_says_so_in_its_title(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    titles: list[tuple[str, str]] = []
+    real = matplotlib.figure.Figure.suptitle
+
+    def spy(self: Any, t: str, **kw: Any) -> Any:
+        titles.append((t, kw.get("color", "")))
+        return real(self, t, **kw)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle", spy)
+    stepped = _stepped_recording(tmp_path)
+    assert run_cli("solve", str(stepped), "--plot", str(tmp_path / "a.png"))[0] == 3
+    assert run_cli("solve", str(tmp_path / "run.npz"), "--plot", str(tmp_path / "b.png"))[0] == 0
+    (failed, colour), (passed, _) = titles
+    assert failed.startswith("CONSISTENCY CHECK FAILED") and colour == "tab:red"
+    assert "FAILED" not in passed
+    assert not NEGATIVE_ZERO.search(failed + passed)
+
+
+def test_no_negative_zero_in_nmea_or_the_notes():
+    from northfinder.host.nmea import HeadingFix, nfdh_sentence
+
+    fix = HeadingFix(42.0, 0.01, -0.0001, -0.0004, 4)
+    body = nfdh_sentence(fix)
+    assert ",0.000,0.000," in body and "-0.000" not in body
+    assert pynmea2.parse(body, check=True).pitch == 0.0
+    from northfinder.cli.common import dumps
+
+    assert "-0.0" not in dumps({"notes": ["shift -0.0000 deg"], "x": -0.0})

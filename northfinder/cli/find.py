@@ -19,6 +19,9 @@ pyserial URL, a serial port or pty path, or a file) sends ``$HEHDT`` and the pro
 interrupted) at ``--nmea-rate`` Hz. The target is opened before the device is: a target that
 cannot be opened stops the command at once (exit 2). With ``--nmea -`` the result goes to
 stderr.
+
+Exit status: 0 a heading; 3 a heading whose windows failed their consistency check (printed
+with the warning; NMEA sends it as not valid); 2 a wrong request; 1 the work failed.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from northfinder.cli.common import (
     check_plot_path,
     command_parser,
     positive_float,
+    result_status,
     whole_number,
 )
 from northfinder.cli.measure import Measured, add_arguments, run_plan, save_recording
@@ -132,4 +136,4 @@ def _find(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) ->
     print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
     if nmea is not None:
         send_nmea(args, m, nmea)
-    return 0
+    return result_status(m.result.consistent)

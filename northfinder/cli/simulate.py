@@ -20,6 +20,7 @@ from northfinder.cli.common import (
     dumps,
     load_sensor,
     run_seed,
+    say,
     sim_truth,
 )
 from northfinder.driver.protocol.units import DPH, UG
@@ -86,19 +87,19 @@ def run(args: argparse.Namespace) -> int:
             }
         )
     if args.json:
-        print(dumps({"sensor": spec.name, "seed": seed, "truth": truth.__dict__, "windows": rows}))
+        say(dumps({"sensor": spec.name, "seed": seed, "truth": truth.__dict__, "windows": rows}))
         return 0
-    print(
+    say(
         f"sensor {spec.name}; truth azimuth {truth.azimuth_deg:.4f} deg, latitude {truth.latitude_deg:g} deg, "
         f"pitch {truth.pitch_deg:g} deg, roll {truth.roll_deg:g} deg; {args.window:g} s windows at {args.rate:g} Hz; "
         f"seed {seed}"
     )
-    print(f"{'table deg':>10} {'gyro x/y/z deg/h (noise-free)':>50} {'accel x/y/z ug':>36}")
+    say(f"{'table deg':>10} {'gyro x/y/z deg/h (noise-free)':>50} {'accel x/y/z ug':>36}")
     for r in rows:
         g = " ".join(
             f"{m:8.4f}({t:8.4f})" for m, t in zip(r["gyro_dph"], r["gyro_true_dph"], strict=True)
         )
         a = " ".join(f"{m:11.1f}" for m in r["accel_ug"])
-        print(f"{r['table_deg']:10.4f} {g} {a}")
-    print(f"simulated {ins.time_s:.1f} s")
+        say(f"{r['table_deg']:10.4f} {g} {a}")
+    say(f"simulated {ins.time_s:.1f} s")
     return 0
