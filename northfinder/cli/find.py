@@ -1,27 +1,10 @@
 """``northfinder find``: find true north with a device, or with the embedded simulator (``--sim``).
 
-Device links: python-can bus options as python-can's own tools spell them (``-i socketcan -c vcan0``),
-or ``--serial PORT``. With ``--sim`` an in-process simulated instrument on python-can's ``virtual``
-bus runs in virtual time (as fast as the CPU allows; the same result for a ``--seed`` whatever the
-machine's load), or paced at ``--speed S`` times real time, and its truth is printed beside the
-result.
-
-The plan: ``--positions`` any table angles (default 0,180,180,0), ``--window`` seconds per position,
-``--settle`` extra seconds after the device reports READY, ``--denoise`` a method of northfinder.host.denoise,
-``--solver`` the heading solver. A progress bar (wall-clock seconds) shows on a terminal;
-``--json`` prints the documented JSON result; ``--plot FILE`` draws the windows and per-pair
-azimuths (needs matplotlib); ``--can-log FILE`` logs every frame; ``--record FILE`` writes the
-raw windows.
-
-NMEA 0183: ``--nmea TARGET`` (``-`` for stdout, ``udp://HOST:PORT``, ``tcp://HOST:PORT``, a
-pyserial URL, a serial port or pty path, or a file) sends ``$HEHDT`` and the proprietary
-``$PNFDH`` (heading, sigma, status) once the heading is found, ``--nmea-count`` times (0: until
-interrupted) at ``--nmea-rate`` Hz. The target is opened before the device is: a target that
-cannot be opened stops the command at once (exit 2). With ``--nmea -`` the result goes to
-stderr.
-
-Exit status: 0 a heading; 3 a heading whose windows failed their consistency check (printed
-with the warning; NMEA sends it as not valid); 2 a wrong request; 1 the work failed.
+With ``--sim`` the simulated instrument runs in this process in virtual time (the same result for
+a ``--seed`` whatever the machine's load); a real device needs ``--latitude``. ``--json`` prints the
+documented JSON result, ``--nmea TARGET`` sends the heading as NMEA 0183 (a file, a port,
+udp://HOST:PORT, tcp://HOST:PORT). Exit status 3: a heading whose windows failed their
+consistency check.
 """
 
 from __future__ import annotations
