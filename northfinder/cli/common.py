@@ -598,8 +598,7 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         "--seed",
         type=seed_value,
         default=None,
-        help="random seed (default: a fresh one, reported with the result; give it back to "
-        "repeat the run exactly)",
+        help="random seed (default: a fresh one, reported)",
     )
 
 

@@ -2,9 +2,8 @@
 
 With ``--sim`` the simulated instrument runs in this process in virtual time (the same result for
 a ``--seed`` whatever the machine's load); a real device needs ``--latitude``. ``--json`` prints the
-documented JSON result, ``--nmea TARGET`` sends the heading as NMEA 0183 (a file, a port,
-udp://HOST:PORT, tcp://HOST:PORT). Exit status 3: a heading whose windows failed their
-consistency check.
+documented JSON result, ``--nmea TARGET`` sends the heading as NMEA 0183. Exit status 3: the
+windows failed their consistency check.
 """
 
 from __future__ import annotations
@@ -47,8 +46,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     g.add_argument(
         "--nmea",
         metavar="TARGET",
-        help="send $HEHDT and $PNFDH to - (stdout), udp://HOST:PORT (10110 is usual), "
-        "tcp://HOST:PORT, a serial port, a pyserial URL or a file",
+        help="-, a file, a port, udp://HOST:PORT or tcp://HOST:PORT",
     )
     g.add_argument(
         "--nmea-rate", type=positive_float, default=1.0, metavar="HZ",
