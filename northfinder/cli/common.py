@@ -37,6 +37,7 @@ from northfinder.driver.protocol.constants import (
     NODE_ID_MIN,
     SERIAL_BAUD_DEFAULT,
 )
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.errors import ControlRefused, SimConfigError, SimError
 from northfinder.host.errors import (
     DenoiseError,
@@ -427,10 +428,6 @@ def angle_list(text: str) -> list[float]:
     return [_table_angle(p) for p in parts]
 
 
-#: Latitude of a simulation when none is given (the source paper's site is near 34 deg N).
-DEFAULT_LATITUDE_DEG = 34.0
-
-
 def sim_latitude(args: argparse.Namespace) -> float:
     return DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
 
@@ -555,7 +552,8 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         "--latitude",
         type=bounded_float(-90.0, 90.0, "deg"),
         default=None,
-        help="deg, north positive (simulated: default 34; required for a real device)",
+        help=f"deg, north positive (simulated: default {DEFAULT_LATITUDE_DEG:g}; required for a "
+        "real device)",
     )
     from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
 
