@@ -41,7 +41,6 @@ from northfinder.driver.protocol.constants import (
     NODE_ID_MIN,
     SERIAL_BAUD_DEFAULT,
 )
-from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.errors import ControlRefused, SimConfigError, SimError
 from northfinder.host.errors import (
     DenoiseError,
@@ -459,6 +458,8 @@ def angle_list(text: str) -> list[float]:
 
 
 def sim_latitude(args: argparse.Namespace) -> float:
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
+
     return DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
 
 
@@ -475,6 +476,8 @@ def latitude_source(args: argparse.Namespace, simulated: bool) -> str:
     """Where the latitude of a run comes from, as the result states it."""
     if args.latitude is not None:
         return "--latitude"
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
+
     return f"the simulated truth (default, {DEFAULT_LATITUDE_DEG:g} deg)" if simulated else ""
 
 
@@ -573,6 +576,8 @@ def add_sensor_argument(parser: argparse.ArgumentParser | argparse._ArgumentGrou
 
 def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     """The simulated truth: where the simulated instrument really stands."""
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
+
     g = common_group(parser, "simulated truth")
     g.add_argument(
         "--azimuth",
