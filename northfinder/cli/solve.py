@@ -18,6 +18,8 @@ from northfinder.cli.common import (
     command_parser,
     node_id,
     positive_float,
+    result_status,
+    say,
 )
 from northfinder.host.canlog import is_can_log, read_can_log
 from northfinder.host.denoise import METHODS
@@ -112,9 +114,9 @@ def run(args: argparse.Namespace) -> int:
         report.plot(args.plot, result, list(rec.windows), args.denoise, truth)
     device = rec.meta.get("device")
     if args.json:
-        print(report.as_json("solve", result, truth, device, source=source))
+        say(report.as_json("solve", result, truth, device, source=source))
     else:
-        print(report.text(result, truth))
+        say(report.text(result, truth))
         for note in source.get("notes", []):
-            print(f"note: {note}")
-    return 0
+            say(f"note: {note}")
+    return result_status(result.consistent)
