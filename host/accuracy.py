@@ -24,6 +24,7 @@ from northfinder.driver.protocol.units import DPH, DPH_PSH, DPSH, OMEGA_IE, UG, 
 from northfinder.host.errors import GeometryError, check_choice
 from northfinder.host.kernels import latitude_rad
 from northfinder.host.plan import Plan, TableModel, moves_deg, plan_time_s, window_starts_s
+from northfinder.host.spin import MIN_SWEEP_DEG, spin_weights_level
 
 __all__ = [
     "ANGLE_SOURCES",
@@ -32,6 +33,7 @@ __all__ = [
     "Prediction",
     "bound_deg",
     "predict",
+    "spin_bound_deg",
 ]
 
 #: Where the tilt comes from.
@@ -249,3 +251,71 @@ def predict(
         plan_time_s=plan_time_s(plan, model.table),
         parts_deg={k: math.degrees(math.sqrt(max(v, 0.0))) for k, v in parts.items()},
     )
+
+
+def spin_bound_deg(
+    duration_s: float,
+    rate_dps: float,
+    arw_dpsh: float,
+    latitude_deg: float,
+    *,
+    sample_rate_hz: float = 200.0,
+    vrw_ug_rthz: float = 0.0,
+    start_deg: float = 0.0,
+    drift: bool = False,
+) -> float:
+    """White-noise limit of the heading from a spin (rotation modulation), 1 sigma, deg.
+
+    Derivation. Over a spin of T s at rate Omega_t, each sample of N_s = T f samples sees
+    ``w = R(mu) h + b + e`` on both horizontal gyros, e white with variance s^2 = N^2 f per
+    sample and axis (N the angle random walk in rad/sqrt(s)). With whole turns the columns
+    cos(mu), sin(mu) are orthogonal to the constant bias and to each other, and each of h_x, h_y
+    is fitted from 2 N_s equations whose regressors have squared norm ``sum(cos^2 + sin^2) = N_s``
+    (both gyros together): var(h_k) = s^2 / N_s = N^2 / T. The heading moves h at right angles
+    to itself by Omega_H per rad, so
+
+        sigma_az = N / (Omega_H sqrt(T))          (whole turns, level, biases fitted)
+
+    which is the two-position bound at mu = 180 deg with the same total time: every sample of
+    a spin is as useful as a sample of the best stop-and-go plan, and no time goes to moves and
+    settling. One gyro alone would give sqrt(2) more. For a part turn, a drift fitted as well, or
+    accelerometer noise (tilt error times about tan(lat)), this function evaluates the same
+    least-squares covariance exactly from the design (first order), sample by sample.
+
+    Parameters
+    ----------
+    duration_s : float
+        Time at the steady rate used, s.
+    rate_dps : float
+        Table rate, deg/s (either sign).
+    arw_dpsh : float
+        Gyro angle random walk, deg/sqrt(h).
+    latitude_deg : float
+    sample_rate_hz : float
+        Sample rate (the bound hardly depends on it).
+    vrw_ug_rthz : float
+        Accelerometer white noise, ug/sqrt(Hz) (0: tilt known).
+    start_deg : float
+        Table angle at the start, deg (matters only for part turns).
+    drift : bool
+        A linear drift of each gyro and accelerometer is fitted too.
+
+    Raises
+    ------
+    GeometryError
+        The table turns less than 90 deg over the time.
+    """
+
+    n = round(duration_s * sample_rate_hz)
+    if n < 16 or abs(rate_dps) * duration_s < MIN_SWEEP_DEG:
+        raise GeometryError(
+            f"a spin of {duration_s:g} s at {rate_dps:g} deg/s: the table must turn at least "
+            f"{MIN_SWEEP_DEG:g} deg over at least 16 samples"
+        )
+    t = np.arange(1, n + 1) / sample_rate_hz
+    mu1 = np.radians(start_deg + rate_dps * t)
+    mu0 = mu1 - math.radians(rate_dps / sample_rate_hz)
+    c_g, c_a = spin_weights_level(mu0, mu1, t, latitude_deg, drift)
+    s_g = arw_dpsh * DPSH * math.sqrt(sample_rate_hz)
+    s_a = vrw_ug_rthz * UG * math.sqrt(sample_rate_hz)
+    return math.degrees(math.sqrt(s_g**2 * float(c_g @ c_g) + s_a**2 * float(c_a @ c_a)))

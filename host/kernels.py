@@ -37,6 +37,7 @@ __all__ = [
     "MIN_MU_SEPARATION_DEG",
     "Eq14",
     "HeadingFit",
+    "bias_design",
     "earth_rate_body",
     "eq14",
     "f0_from_two_positions",
@@ -327,7 +328,7 @@ class HeadingFit:
     ----------
     alpha : ndarray, shape (R,)
         The model's counter-clockwise angle, rad (azimuth = -alpha mod 360).
-    bias : ndarray, shape (R, 2)
+    bias : ndarray, shape (R, k)
         x and y gyro biases, in the unit of the means.
     converged : ndarray of bool, shape (R,)
         Whether the last alpha step fell below the tolerance.
@@ -338,16 +339,24 @@ class HeadingFit:
     converged: NDArray[np.bool_]
 
 
-def _linear_design(rot: Array) -> Array:
-    """Design of w_i = R(mu_i) u + b for every run: (R, N, 2, 2) -> (R, 2N, 4)."""
+def bias_design(r_count: int, n: int) -> Array:
+    """Nuisance design of a constant x and y bias: (R, 2N, 2), rows x, y of each mean in turn."""
+    return np.broadcast_to(np.eye(2), (r_count, n, 2, 2)).reshape(r_count, 2 * n, 2)
+
+
+def _linear_design(rot: Array, nuisance: Array | None = None) -> Array:
+    """Design of w_i = R(mu_i) u + nuisance for every run: (R, N, 2, 2) -> (R, 2N, 2 + k)."""
     r_count, n = rot.shape[:2]
-    return np.concatenate([rot, np.broadcast_to(np.eye(2), rot.shape)], axis=-1).reshape(
-        r_count, 2 * n, 4
-    )
+    nu = bias_design(r_count, n) if nuisance is None else nuisance
+    return np.concatenate([rot.reshape(r_count, 2 * n, 2), nu], axis=-1)
 
 
 def fit_tilt(
-    accel: Array, rot: Array, g: float, weights: Array | None = None
+    accel: Array,
+    rot: Array,
+    g: float,
+    weights: Array | None = None,
+    nuisance: Array | None = None,
 ) -> tuple[Array, Array, Array, Array, Array]:
     """Tilt and accelerometer biases from ``f_i = R(mu_i) f0 + b_a`` (linear) for every run.
 
@@ -361,19 +370,21 @@ def fit_tilt(
         Gravity in the unit of the means.
     weights : ndarray, shape (R, 2N), optional
         1 / sigma of each mean (x, y of each position in turn).
+    nuisance : ndarray, shape (R, 2N, k), optional
+        Design of what else the means hold (default :func:`bias_design`: a constant bias each).
 
     Returns
     -------
     theta, gamma : ndarray, shape (R,)
         Pitch and roll, rad (NaN where the fit contradicts gravity).
-    x : ndarray, shape (R, 4)
-        (f0x, f0y, bias_x, bias_y).
+    x : ndarray, shape (R, 2 + k)
+        (f0x, f0y, then the nuisance coefficients: bias_x, bias_y by default).
     residuals : ndarray, shape (R, 2N)
     normal_inv : ndarray, shape (R, 4, 4)
         Unit-weight covariance of x.
     """
     r_count, n = accel.shape[:2]
-    x, res, ninv = lstsq(_linear_design(rot), accel.reshape(r_count, 2 * n), weights)
+    x, res, ninv = lstsq(_linear_design(rot, nuisance), accel.reshape(r_count, 2 * n), weights)
     theta, gamma = tilt_from_f0(x[:, 0], x[:, 1], g)
     return theta, gamma, x, res, ninv
 
@@ -389,6 +400,7 @@ def fit_heading(
     *,
     max_iterations: int = 50,
     tolerance: float = 1e-12,
+    nuisance: Array | None = None,
 ) -> HeadingFit:
     """Heading and gyro biases of every run: least squares of ``w_i = R(mu_i) h(alpha) + b``.
 
@@ -417,10 +429,13 @@ def fit_heading(
         Newton steps at most.
     tolerance : float
         Convergence threshold on the alpha step, rad.
+    nuisance : ndarray, shape (R, 2N, k), optional
+        Design of what else the means hold (default :func:`bias_design`: a constant bias each);
+        the fit's ``bias`` then holds its k coefficients.
     """
     r_count, n = gyro.shape[:2]
     w = np.ones((r_count, 2 * n)) if weights is None else np.broadcast_to(weights, (r_count, 2 * n))
-    x_lin, _, _ = lstsq(_linear_design(rot), gyro.reshape(r_count, 2 * n), weights)
+    x_lin, _, _ = lstsq(_linear_design(rot, nuisance), gyro.reshape(r_count, 2 * n), weights)
     st, ct, sg, cg = np.sin(theta), np.cos(theta), np.sin(gamma), np.cos(gamma)
     # h = M (cos a, sin a) + c0 with M = [[on ct, 0], [on st sg, -on cg]]: solve for (cos a, sin a).
     c0 = np.stack([-omega_u * st, omega_u * ct * sg], -1)
@@ -428,7 +443,8 @@ def fit_heading(
     u1 = -((x_lin[:, 1] - c0[:, 1]) - omega_n * st * sg * u0) / (omega_n * cg)
     alpha = np.arctan2(u1, u0)
     # Weighted bias design B (R, 2N, 2) and the projection P v = v - B (B^T B)^-1 B^T v.
-    b_w = np.broadcast_to(np.eye(2), (r_count, n, 2, 2)).reshape(r_count, 2 * n, 2) * w[..., None]
+    nu = bias_design(r_count, n) if nuisance is None else nuisance
+    b_w = nu * w[..., None]
     b_pinv = np.linalg.solve(np.swapaxes(b_w, 1, 2) @ b_w, np.swapaxes(b_w, 1, 2))  # (R, 2, 2N)
 
     def project(v: Array) -> Array:

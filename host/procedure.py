@@ -32,6 +32,7 @@ from northfinder.driver.protocol.constants import (
     Validity,
 )
 from northfinder.driver.protocol.motion import shortest_delta_deg
+from northfinder.host import spin
 from northfinder.host.consistency import ConsistencyCheck, check_windows, pooled_sem
 from northfinder.host.denoise import check_denoise, denoise
 from northfinder.host.errors import HostConfigError, HostError, QualityError
@@ -54,15 +55,18 @@ __all__ = [
     "PositionWindow",
     "Progress",
     "QualityError",
+    "SpinFind",
     "base_attitude",
     "batch_sem",
     "check_plan_for_device",
     "extra_settle_s",
     "find_north",
+    "find_north_spin",
     "result_from_windows",
     "solve_windows",
     "summarise_window",
     "unfit_samples",
+    "wait_until_ready",
 ]
 
 #: Largest span of the encoder during a window before the window counts as moved, deg.
@@ -500,6 +504,56 @@ def _state_name(status: Any) -> str:
 WARMUP_POLL_S = 0.5
 
 
+def wait_until_ready(
+    device: DeviceLike,
+    warmup_timeout_s: float,
+    on_wait: Callable[[Any], None] | None = None,
+    *,
+    sleep: Callable[[float], None] | None = None,
+    clock: Callable[[], float] | None = None,
+) -> None:
+    """Wait until ``device`` is READY (its warm-up over), calling ``on_wait`` with the status at
+    every poll; raise :class:`HostError` on FAULT or after ``warmup_timeout_s`` (by ``clock``,
+    default the device's own)."""
+    report = on_wait or (lambda status: None)
+    device_clock = getattr(device, "clock", None)
+    pause: Callable[[float], None] = sleep or (
+        device_clock.sleep if device_clock is not None else time.sleep
+    )
+    now: Callable[[], float] = clock or (
+        device_clock.now if device_clock is not None else time.monotonic
+    )
+    deadline = now() + warmup_timeout_s
+    # A device that reports its status by itself (heartbeats, protocol.md 6) is watched, not
+    # asked: one GET_STATUS first, then the heartbeats until READY, with a progress report every
+    # WARMUP_POLL_S. A device without ``wait_ready`` is asked every WARMUP_POLL_S.
+    wait_ready = getattr(device, "wait_ready", None)
+    status = device.status()
+    while True:
+        state = _state_name(status)
+        if state == "READY":
+            break
+        if state == "FAULT":
+            raise HostError(
+                f"the device is in FAULT (faults {getattr(status, 'faults', '?')!r}); reset it"
+            )
+        if now() > deadline:
+            raise HostError(
+                f"the device did not become READY within {warmup_timeout_s:g} s (state {state})"
+            )
+        report(status)
+        if wait_ready is None:
+            pause(WARMUP_POLL_S)
+            status = device.status()
+            continue
+        try:
+            status = wait_ready(timeout=WARMUP_POLL_S)
+        except DeviceFault:
+            status = device.status()  # FAULT: reported below, as when asked
+        except DriverTimeout:
+            status = getattr(device, "last_status", None) or device.status()
+
+
 def find_north(
     device: DeviceLike,
     plan: Plan,
@@ -561,40 +615,13 @@ def find_north(
             left += extra + plan.window_s
         return left
 
-    device_clock = getattr(device, "clock", None)
+    wait_until_ready(
+        device, warmup_timeout_s, lambda st: report(Progress("warm-up", 0, n, _angle(st), None)),
+        sleep=sleep, clock=clock,
+    )  # fmt: skip
     if sleep is None:
+        device_clock = getattr(device, "clock", None)
         sleep = device_clock.sleep if device_clock is not None else time.sleep
-    if clock is None:
-        clock = device_clock.now if device_clock is not None else time.monotonic
-    deadline = clock() + warmup_timeout_s
-    # A device that reports its status by itself (heartbeats, protocol.md 6) is watched, not
-    # asked: one GET_STATUS first, then the heartbeats until READY, with a progress report every
-    # WARMUP_POLL_S. A device without ``wait_ready`` is asked every WARMUP_POLL_S.
-    wait_ready = getattr(device, "wait_ready", None)
-    status = device.status()
-    while True:
-        state = _state_name(status)
-        if state == "READY":
-            break
-        if state == "FAULT":
-            raise HostError(
-                f"the device is in FAULT (faults {getattr(status, 'faults', '?')!r}); reset it"
-            )
-        if clock() > deadline:
-            raise HostError(
-                f"the device did not become READY within {warmup_timeout_s:g} s (state {state})"
-            )
-        report(Progress("warm-up", 0, n, _angle(status), None))
-        if wait_ready is None:
-            sleep(WARMUP_POLL_S)
-            status = device.status()
-            continue
-        try:
-            status = wait_ready(timeout=WARMUP_POLL_S)
-        except DeviceFault:
-            status = device.status()  # FAULT: reported below, as when asked
-        except DriverTimeout:
-            status = getattr(device, "last_status", None) or device.status()
     windows: list[PositionWindow] = []
     raw: list[Any] = []
     here = _angle(device.status())
@@ -625,3 +652,67 @@ def _angle(status: Any) -> float | None:
     if angle is None and getattr(status, "angle", None) is not None:
         angle = status.angle * 1e-6
     return None if angle is None else float(angle)
+
+
+@dataclass(frozen=True)
+class SpinFind:
+    """What :func:`find_north_spin` gives: the solution and the raw window of the spin."""
+
+    solution: spin.SpinSolution
+    window: Any
+    latitude_deg: float
+    latitude_source: str = ""
+
+
+def find_north_spin(
+    device: Any,
+    rate_dps: float,
+    spin_s: float,
+    latitude_deg: float,
+    *,
+    drift: bool = False,
+    warmup_timeout_s: float = 600.0,
+    latitude_source: str = "",
+) -> SpinFind:
+    """Find north with ``device`` turning at a constant rate: wait for READY, SPIN, acquire
+    ``spin_s`` seconds of steady-rate samples, STOP (and wait for READY), solve.
+
+    Parameters
+    ----------
+    device : Device
+        A driver :class:`~northfinder.driver.device.Device` (protocol 1.1).
+    rate_dps : float
+        Table rate, deg/s, either sign, within the table's rate limit.
+    spin_s : float
+        Seconds of samples at the steady rate; whole turns (``360 / |rate|`` s each) are best.
+    latitude_deg : float
+    drift : bool
+        Also fit a linear gyro and accelerometer drift.
+    warmup_timeout_s : float
+        Longest wait for READY, device seconds.
+
+    Raises
+    ------
+    HostError
+        Warm-up did not end in time, FAULT, or the spin gave too few usable samples.
+    DriverError
+        From the driver: refusals (protocol 1.0 units have no SPIN), timeouts, lost link.
+    """
+    spin.latitude_rad(latitude_deg, "the spin solution")
+    wait_until_ready(device, warmup_timeout_s)
+    device.spin(rate_dps, wait=True)
+    try:
+        window = device.acquire(spin_s, on_gap="report")
+    finally:
+        device.stop(wait=True)
+        device.stop_streaming()
+    data = spin.spin_samples(
+        window.gyro_dph, window.accel_mps2, window.table_deg, window.counter,
+        window.sample_rate_hz, window.validity,
+    )  # fmt: skip
+    return SpinFind(
+        spin.solve_spin(data, latitude_deg=latitude_deg, drift=drift),
+        window,
+        latitude_deg,
+        latitude_source,
+    )

@@ -13,7 +13,7 @@ import contextlib
 import sys
 import time
 
-from northfinder.cli import report
+from northfinder.cli import report, spinfind
 from northfinder.cli.common import (
     baud_rate,
     check_output_path,
@@ -23,8 +23,19 @@ from northfinder.cli.common import (
     result_status,
     whole_number,
 )
-from northfinder.cli.measure import Measured, add_arguments, run_plan, save_recording
+from northfinder.cli.measure import (
+    DEFAULT_POSITIONS_DEG,
+    Measured,
+    add_arguments,
+    run_plan,
+    save_recording,
+)
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
+
+#: The stop-and-go plan options and their defaults (refused with ``--spin`` when changed).
+_PLAN_DEFAULTS = {
+    "positions": list(DEFAULT_POSITIONS_DEG), "window": 10.0, "settle": 0.0, "denoise": "none",
+}  # fmt: skip
 
 
 def _count(text: str) -> int:
@@ -37,6 +48,7 @@ def _count(text: str) -> int:
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(sub, "find", "find true north", __doc__)
     add_arguments(p)
+    spinfind.add_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument(
         "--plot", metavar="FILE", help="plot the windows and per-pair azimuths (needs matplotlib)"
@@ -74,6 +86,11 @@ def send_nmea(args: argparse.Namespace, m: Measured, out: NmeaOutput) -> int:
         r.azimuth_deg, r.sigma_deg, r.pitch_deg, r.roll_deg, len(r.windows), args.nmea_max_sigma,
         consistent=r.consistent,
     )  # fmt: skip
+    return send_fix(args, fix, out)
+
+
+def send_fix(args: argparse.Namespace, fix: HeadingFix, out: NmeaOutput) -> int:
+    """Send ``fix`` ``--nmea-count`` times at ``--nmea-rate``; return how many were sent."""
     lines = (hdt_sentence(fix), nfdh_sentence(fix))
     period = 1.0 / args.nmea_rate
     n = 0
@@ -89,6 +106,7 @@ def send_nmea(args: argparse.Namespace, m: Measured, out: NmeaOutput) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    spinfind.check(args, _PLAN_DEFAULTS)
     if args.record:
         check_output_path(args.record, "--record", (".csv", ".npz"))
     if args.plot:
@@ -100,7 +118,23 @@ def run(args: argparse.Namespace) -> int:
             if args.nmea
             else None
         )
+        if args.spin is not None:
+            return _find_spin(args, nmea, to_stdout)
         return _find(args, nmea, to_stdout)
+
+
+def _find_spin(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
+    found, truth, identity = spinfind.run(args)
+    sol = found.solution
+    out = spinfind.as_json(found, truth, identity) if args.json else spinfind.text(found, truth)
+    print(out, file=sys.stderr if to_stdout else sys.stdout, flush=True)
+    if nmea is not None:
+        fix = HeadingFix(
+            sol.azimuth_deg, sol.sigma_deg, sol.pitch_deg, sol.roll_deg, 1, args.nmea_max_sigma,
+            consistent=sol.consistent,
+        )  # fmt: skip
+        send_fix(args, fix, nmea)
+    return result_status(sol.consistent)
 
 
 def _find(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
