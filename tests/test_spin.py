@@ -282,3 +282,22 @@ def test_find_spin_refuses_bad_input_in_one_line(capsys, args, message):
     assert main(["find", "--sim", "--warmup", "0", *args]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".csv"])
+def test_record_then_solve_a_spin_reproduces_find(tmp_path, capsys, suffix):
+    path = str(tmp_path / f"spin{suffix}")
+    common = ["--sim", "--warmup", "0", "--sensor", "nav-fog", "--seed", "4", "--spin", "-6"]
+    assert main(["find", *common, "--json"]) == 0
+    found = json.loads(capsys.readouterr().out)
+    assert main(["record", path, *common]) == 0
+    assert "wrote a spin of 12000 samples" in capsys.readouterr().out
+    assert main(["solve", path, "--json"]) == 0
+    solved = json.loads(capsys.readouterr().out)
+    assert solved["command"] == "solve" and solved["solver"] == "spin"
+    assert solved["azimuth_deg"] == pytest.approx(found["azimuth_deg"], abs=1e-9)
+    assert solved["sigma_deg"] == pytest.approx(found["sigma_deg"], rel=1e-9)
+    assert main(["solve", path, "--spin-drift", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["spin"]["drift"] is True
+    assert main(["solve", path, "--denoise", "hampel"]) == 2
+    assert "--denoise: not available for a spin recording" in capsys.readouterr().err

@@ -33,8 +33,9 @@ from northfinder.cli.measure import (
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
 
 #: The stop-and-go plan options and their defaults (refused with ``--spin`` when changed).
-_PLAN_DEFAULTS = {
+PLAN_DEFAULTS = {
     "positions": list(DEFAULT_POSITIONS_DEG), "window": 10.0, "settle": 0.0, "denoise": "none",
+    "solver": "auto",
 }  # fmt: skip
 
 
@@ -51,7 +52,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     spinfind.add_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument(
-        "--plot", metavar="FILE", help="plot the windows and per-pair azimuths (needs matplotlib)"
+        "--plot", metavar="FILE", help="plot the windows and pairwise azimuths (matplotlib)"
     )
     p.add_argument("--record", metavar="FILE", help="also write the raw windows (.csv or .npz)")
     g = p.add_argument_group("NMEA 0183 output")
@@ -66,7 +67,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )  # fmt: skip
     g.add_argument(
         "--nmea-count", type=_count, default=1, metavar="N",
-        help="how many times to send them (default 1; 0: until interrupted)",
+        help="times to send (default 1; 0: until interrupted)",
     )  # fmt: skip
     g.add_argument(
         "--nmea-baud", type=baud_rate, default=NMEA_BAUD,
@@ -74,7 +75,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )  # fmt: skip
     g.add_argument(
         "--nmea-max-sigma", type=positive_float, default=1.0, metavar="DEG",
-        help="above this 1-sigma the heading is sent as not valid (status V; default 1 deg)",
+        help="not valid (V) above this 1-sigma (default 1 deg)",
     )  # fmt: skip
     return p
 
@@ -106,7 +107,7 @@ def send_fix(args: argparse.Namespace, fix: HeadingFix, out: NmeaOutput) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    spinfind.check(args, _PLAN_DEFAULTS)
+    spinfind.check(args, PLAN_DEFAULTS)
     if args.record:
         check_output_path(args.record, "--record", (".csv", ".npz"))
     if args.plot:

@@ -1,6 +1,7 @@
 """``northfinder record FILE``: run a plan on a device and write the raw windows (.csv or .npz).
 
-The device, simulator and plan options are those of ``find``; ``northfinder solve FILE`` solves
+The device, simulator and plan options are those of ``find`` (``--spin RATE_DPS`` records a spin
+instead); ``northfinder solve FILE`` solves
 the recording offline.
 """
 
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 
+from northfinder.cli import spinfind
 from northfinder.cli.common import check_output_path, command_parser
 from northfinder.cli.measure import add_arguments, run_plan, save_recording
 
@@ -16,11 +18,22 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(sub, "record", "record raw windows to CSV or NPZ", __doc__)
     p.add_argument("file", help="output file, .csv or .npz")
     add_arguments(p)
+    spinfind.add_arguments(p)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     check_output_path(args.file, "file", (".csv", ".npz"))
+    if args.spin is not None or args.spin_time or args.spin_drift:
+        from northfinder.cli.find import PLAN_DEFAULTS
+
+        spinfind.check(args, PLAN_DEFAULTS)
+        found, truth, identity = spinfind.run(args)
+        rec = spinfind.save(args.file, args, found, truth, identity)
+        seed = f" (simulated, seed {truth['seed']})" if truth and "seed" in truth else ""
+        n = len(rec.windows[0].counter)
+        print(f"wrote a spin of {n} samples at {args.spin:+g} deg/s to {args.file}{seed}")
+        return 0
     recording = save_recording(args.file, run_plan(args))
     samples = sum(len(w.counter) for w in recording.windows)
     truth = recording.meta.get("truth")

@@ -13,7 +13,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from northfinder.cli import report
+from northfinder.cli import report, spinfind
 from northfinder.cli.common import (
     add_solver_argument,
     bounded_float,
@@ -72,6 +72,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     g.add_argument(
         "--strict", action="store_true",
         help="refuse a log with a damaged line, a gap or a cut (default: skip and warn)",
+    )  # fmt: skip
+    p.add_argument(
+        "--spin-drift", action="store_true",
+        help="spin recordings: also fit a linear drift of each gyro (default: as recorded)",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument(
@@ -160,7 +164,9 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
     if given or args.strict:
         option = "--" + (given[0] if given else "strict").replace("_", "-")
         raise HostConfigError(f"{option} applies to CAN logs only")
-    rec = Recording.load(path)
+    rec = Recording.load(path, min_windows=1)
+    if "spin" not in rec.meta and len(rec.windows) < 2:
+        rec = Recording.load(path)  # the stop-and-go reader's own error: a heading needs two
     return rec, {"file": str(path), "format": f"recording{path.suffix}"}
 
 
@@ -168,6 +174,10 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_plot_path(args.plot)
     rec, source = load(args)
+    if "spin" in rec.meta:
+        return _solve_spin(args, rec, source)
+    if args.spin_drift:
+        raise HostConfigError("--spin-drift: applies to spin recordings only")
     result = solve_recording(rec, args.latitude, args.denoise, args.solver)
     truth = rec.meta.get("truth")
     if args.plot:
@@ -181,3 +191,21 @@ def run(args: argparse.Namespace) -> int:
             if note not in source.get("warnings", []):
                 say(f"note: {note}")
     return result_status(result.consistent)
+
+
+def _solve_spin(args: argparse.Namespace, rec: Recording, source: dict[str, Any]) -> int:
+    """A spin recording (``record --spin``): the spin solution; the stop-and-go options are
+    refused, not ignored."""
+    for name in ("denoise", "plot"):
+        value = getattr(args, name)
+        if value not in (None, "none"):
+            raise HostConfigError(f"--{name}: not available for a spin recording")
+    if args.solver not in (None, "auto"):
+        raise HostConfigError("--solver: a spin recording has its own solver")
+    found = spinfind.solve_recording(rec, args.latitude, True if args.spin_drift else None)
+    truth = rec.meta.get("truth")
+    if args.json:
+        say(spinfind.as_json(found, truth, rec.meta.get("device"), "solve", source=source))
+    else:
+        say(spinfind.text(found, truth))
+    return result_status(found.solution.consistent)

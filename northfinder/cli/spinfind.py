@@ -34,19 +34,18 @@ def _rate(text: str) -> float:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("turning at a constant rate (protocol 1.1)")
+    """``--spin``, ``--spin-time``, ``--spin-drift``, in the parser's ``plan`` group."""
+    groups = [g for g in p._action_groups if g.title == "plan"]
+    g: Any = groups[0] if groups else p
     g.add_argument(
         "--spin", type=_rate, default=None, metavar="RATE_DPS",
-        help="find north with the table turning at RATE deg/s (negative: clockwise) instead of "
-        "the stop-and-go plan",
+        help="turn at RATE deg/s instead (protocol 1.1)",
     )  # fmt: skip
     g.add_argument(
         "--spin-time", type=bounded_float(0.0, MAX_SPIN_S, "s", open_lo=True), default=None,
-        metavar="SECONDS",
-        help=f"seconds of samples at the steady rate (default: the fewest whole turns lasting "
-        f"at least {DEFAULT_SPIN_MIN_S:g} s)",
+        metavar="SECONDS", help="spin seconds (default: whole turns, >= 60 s)",
     )  # fmt: skip
-    g.add_argument("--spin-drift", action="store_true", help="also fit a linear drift of each gyro")
+    g.add_argument("--spin-drift", action="store_true", help="spin: also fit a gyro drift")
 
 
 def spin_seconds(args: argparse.Namespace) -> float:
@@ -71,7 +70,10 @@ def check(args: argparse.Namespace, plan_defaults: dict[str, Any]) -> None:
             )
     for name in ("record", "plot"):
         if getattr(args, name, None):
-            raise HostConfigError(f"--{name}: not available with --spin in this version")
+            raise HostConfigError(
+                f"--{name}: not available with --spin in this version (northfinder record "
+                "--spin writes a spin recording)"
+            )
 
 
 def run(args: argparse.Namespace) -> tuple[Any, dict[str, Any] | None, dict[str, Any]]:
@@ -131,7 +133,13 @@ def text(found: Any, truth: dict[str, Any] | None) -> str:
     return plain_numbers("\n".join(lines))
 
 
-def as_json(found: Any, truth: dict[str, Any] | None, device: dict[str, Any] | None) -> str:
+def as_json(
+    found: Any,
+    truth: dict[str, Any] | None,
+    device: dict[str, Any] | None,
+    command: str = "find",
+    **extra: Any,
+) -> str:
     from northfinder.host.results import envelope
 
     sol = found.solution
@@ -150,4 +158,50 @@ def as_json(found: Any, truth: dict[str, Any] | None, device: dict[str, Any] | N
     if truth is not None:
         body["truth"] = truth
         body["error_deg"] = err
-    return dumps(envelope("find", device, body))
+    body.update(extra)
+    return dumps(envelope(command, device, body))
+
+
+def save(path: str, args: argparse.Namespace, found: Any, truth: Any, identity: Any) -> Any:
+    """Write a spin recording: its one window of samples, and in the metadata what solves it
+    again (latitude, sample rate, ``spin``: rate, time, drift)."""
+    from northfinder.host.recording import RecordedWindow, Recording
+    from northfinder.host.results import utc_now
+
+    w = found.window
+    meta: dict[str, Any] = {
+        "latitude_deg": found.latitude_deg,
+        "latitude_source": found.latitude_source,
+        "sample_rate_hz": float(w.sample_rate_hz),
+        "spin": {
+            "rate_dps": float(args.spin),
+            "spin_s": spin_seconds(args),
+            "drift": bool(args.spin_drift),
+        },
+        "created_utc": utc_now(),
+        "device": identity,
+    }
+    if truth is not None:
+        meta["truth"] = truth
+    recording = Recording((RecordedWindow.from_window(w, 0.0),), meta)
+    recording.save(path)
+    return recording
+
+
+def solve_recording(rec: Any, latitude: float | None, drift: bool | None) -> Any:
+    """The spin solution of a spin recording (``drift`` None: as recorded)."""
+    from northfinder.host.procedure import SpinFind
+    from northfinder.host.spin import solve_spin, spin_samples
+
+    if latitude is None and "latitude_deg" not in rec.meta:
+        raise HostConfigError("--latitude: the recording has no latitude_deg; give --latitude")
+    lat = float(rec.meta["latitude_deg"] if latitude is None else latitude)
+    spin = rec.meta.get("spin")
+    if not isinstance(spin, dict):
+        raise HostConfigError("the recording's spin entry must be a table of key = value")
+    fit_drift = bool(spin.get("drift", False)) if drift is None else drift
+    (w,) = rec.windows[:1]
+    data = spin_samples(w.gyro_dph, w.accel_mps2, w.table_deg, w.counter,
+                        float(rec.meta["sample_rate_hz"]), w.validity)  # fmt: skip
+    source = "--latitude" if latitude is not None else "the recording"
+    return SpinFind(solve_spin(data, latitude_deg=lat, drift=fit_drift), w, lat, source)

@@ -1,0 +1,122 @@
+"""North finding on a turning table: RMSE against the spin bound, spin against stop-and-go for the
+same time, and the time of ``find --sim --spin``.
+
+Run: ``.venv/bin/python benchmarks/bench_spin.py [--runs 10000] [--only ratio|budget|find]``.
+Prints markdown tables:
+
+1. RMSE / bound for white gyro (ARW 0.0015 deg/sqrt(h)) and accelerometer (20 ug/sqrt(Hz)) noise,
+   turn-on biases, 34 deg N, tilt within +-3 deg, 10 Hz samples (the bound does not depend on the
+   rate), for several table rates, spin times and with a drift fitted; the Monte Carlo's own
+   scatter is 1 / sqrt(2 runs).
+2. For time budgets of 60, 160 and 600 s with the default table (6 deg/s, 10 deg/s^2, 2 s settle):
+   the white-noise bound of a spin using the budget (less the acceleration to the rate) and of the
+   stop-and-go plans 0, 180 and 0, 180, 180, 0 whose windows fill the budget after their moves and
+   settling.
+3. Wall time of ``northfinder find --sim --warmup 0 --spin 6`` (one turn, virtual time): median of
+   three.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from northfinder.firmware_sim.batch import simulate_spin
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.accuracy import bound_deg, spin_bound_deg
+from northfinder.host.plan import Plan, TableModel, plan_time_s
+from northfinder.host.spin import solve_spin_batch
+
+LAT = 34.0
+ARW, VRW, FS = 0.0015, 20.0, 10.0
+
+
+def ratio_rows(runs: int) -> None:
+    spec = load_spec("ideal").with_values({
+        "gyro.arw_dpsh": ARW, "accel.vrw_ug_rthz": VRW,
+        "gyro.turn_on_bias_dph": 0.5, "accel.turn_on_bias_ug": 100.0,
+    })  # fmt: skip
+    print(
+        "| rate deg/s | spin s | turns | drift fitted | runs | RMSE deg | bound deg | RMSE/bound | MC scatter |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for rate, duration, drift in ((6.0, 60.0, False), (-6.0, 120.0, False), (20.0, 54.0, False),
+                                  (3.0, 60.0, False), (-9.0, 60.0, True)):  # fmt: skip
+        rng = np.random.default_rng(11)
+        errors = []
+        for _ in range(runs // 500):
+            truths = [Truth(azimuth_deg=a, pitch_deg=p, roll_deg=r, latitude_deg=LAT)
+                      for a, p, r in zip(rng.uniform(0, 360, 500), rng.uniform(-3, 3, 500),
+                                         rng.uniform(-3, 3, 500), strict=True)]  # fmt: skip
+            b = simulate_spin(spec, truths, rate, duration, n_runs=500, rng=rng, sample_rate_hz=FS)
+            az = solve_spin_batch(b.gyro_rps, b.accel_mps2, b.mu0_rad, b.mu1_rad,
+                                  latitude_deg=LAT, time_s=b.time_s, drift=drift)  # fmt: skip
+            errors.append((az - b.azimuth_deg + 180.0) % 360.0 - 180.0)
+        e = np.concatenate(errors)
+        bound = spin_bound_deg(duration, rate, ARW, LAT, sample_rate_hz=FS, vrw_ug_rthz=VRW,
+                               drift=drift)  # fmt: skip
+        rmse = math.sqrt(float(np.mean(e**2)))
+        print(f"| {rate:+g} | {duration:g} | {abs(rate) * duration / 360:.2f} | {'yes' if drift else 'no'} "
+              f"| {e.size} | {rmse:.4f} | {bound:.4f} | {rmse / bound:.3f} | {1 / math.sqrt(2 * e.size):.3f} |")  # fmt: skip
+
+
+def budget_rows() -> None:
+    table = TableModel(max_rate_dps=6.0, max_accel_dps2=10.0, settle_s=2.0)
+    print("| budget s | spin: steady s | spin bound deg | 0,180: window s | bound deg "
+          "| 0,180,180,0: window s | bound deg |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
+    for budget in (60.0, 160.0, 600.0):
+        steady = budget - 2 * table.max_rate_dps / table.max_accel_dps2  # spin up and brake
+        # All the steady time, or the whole turns within it: whichever is better.
+        turns = math.floor(steady * table.max_rate_dps / 360.0)
+        choices = {steady, turns * 360.0 / table.max_rate_dps} - {0.0}
+        b_spin, spin_s = min(
+            (spin_bound_deg(t, table.max_rate_dps, ARW, LAT, sample_rate_hz=FS), t) for t in choices
+        )
+        cells = []
+        for pos in ((0.0, 180.0), (0.0, 180.0, 180.0, 0.0)):
+            overhead = plan_time_s(Plan(pos, 1.0), table) - len(pos)
+            window = (budget - overhead) / len(pos)
+            if window <= 0:
+                cells += ["does not fit", "-"]
+            else:
+                cells += [f"{window:.1f}", f"{bound_deg(list(pos), window, ARW, LAT):.4f}"]
+        print(f"| {budget:g} | {spin_s:.1f} | {b_spin:.4f} | " + " | ".join(cells) + " |")
+
+
+def find_rows() -> None:
+    exe = Path(sys.executable).with_name("northfinder")
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        subprocess.run([str(exe), "find", "--sim", "--warmup", "0", "--spin", "6"], check=True,
+                       capture_output=True)  # fmt: skip
+        times.append(time.perf_counter() - t0)
+    print(
+        f"find --sim --warmup 0 --spin 6 (60 s of 200 Hz samples): median {statistics.median(times):.2f} s wall"
+    )
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=10_000)
+    p.add_argument("--only", choices=("ratio", "budget", "find"))
+    a = p.parse_args()
+    if a.only in (None, "ratio"):
+        ratio_rows(a.runs)
+    if a.only in (None, "budget"):
+        budget_rows()
+    if a.only in (None, "find"):
+        find_rows()
+
+
+if __name__ == "__main__":
+    main()
