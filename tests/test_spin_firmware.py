@@ -157,3 +157,29 @@ def test_encoder_error_and_wobble_are_off_by_default_and_do_what_they_say():
     g = np.linalg.norm(f)
     assert_allclose(f[0] / g, -math.sin(100e-6), atol=1e-12)
     assert_allclose(f[1], 0.0, atol=1e-12)
+
+
+def test_a_host_of_version_1_0_never_sees_what_1_1_added():
+    """Without SPIN, the 1.1 unit sends nothing a 1.0 host does not know: no state SPINNING and
+    no sample with the steady-rate pair, through moves, STOP during a move and settling (the
+    tick that overlaps the end of a move carries TABLE_MOVING alone)."""
+    spec = IDEAL.with_values({"table.overshoot_deg": 0.01, "table.settle_s": 0.5})
+    fw = make(spec=spec)
+    run(fw, 1.0)
+    ask(fw, StreamStart(1))
+    out = []
+    for seq, delta in enumerate((30_000_000, -170_000_000, 5_000, 0), start=2):
+        fw.handle(RotateBy(seq, delta))
+        out += run(fw, 20.0)
+    fw.handle(RotateBy(10, 90_000_000))
+    out += run(fw, 0.5)
+    fw.handle(Stop(11))
+    out += run(fw, 5.0)
+    samples = [m for m in out if isinstance(m, Sample)]
+    statuses = [m for m in out if isinstance(m, Status)]
+    assert len(samples) > 80 * 200 and statuses
+    assert all(s.state != DeviceState.SPINNING for s in statuses)
+    pair = int(VALIDITY_STEADY_RATE)
+    assert not any(int(s.validity) & pair == pair for s in samples)
+    assert any(s.validity & Validity.TABLE_MOVING for s in samples)
+    assert any(s.validity & Validity.TABLE_SETTLING for s in samples)
