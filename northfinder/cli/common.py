@@ -125,6 +125,12 @@ def say(*parts: Any, **options: Any) -> None:
     print(*(plain_numbers(str(p)) for p in parts), **options)
 
 
+def warn(command: str, text: str) -> None:
+    """``northfinder COMMAND: warning: TEXT`` on stderr: the work goes on, but the user should
+    know (lines skipped, windows left out)."""
+    print(plain_numbers(f"northfinder {command}: warning: {text}"), file=sys.stderr, flush=True)
+
+
 def _no_negative_zero(value: Any) -> Any:
     if isinstance(value, float):
         return 0.0 if value == 0.0 else value
