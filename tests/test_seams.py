@@ -247,3 +247,79 @@ def test_no_negative_zero_in_nmea_or_the_notes():
     from northfinder.cli.common import dumps
 
     assert "-0.0" not in dumps({"notes": ["shift -0.0000 deg"], "x": -0.0})
+
+
+# -- 4. solve: damaged lines skipped, complete windows of a cut log, a session picked ----------
+def _logged_find(path: Path, seed: int, azimuth: str = "42.5") -> dict[str, Any]:
+    return run_json(
+        "find", "--sim", "--warmup", "0", "--window", "2", "--seed", str(seed),
+        "--azimuth", azimuth, "--can-log", str(path),
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def candump(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    """A candump log of a four-window find, and find's result."""
+    path = tmp_path_factory.mktemp("solve") / "find.log"
+    return path, _logged_find(path, 11)
+
+
+def _sample_line(lines: list[str], fraction: float) -> int:
+    """Index of the first SAMPLE_X frame (id 101) at or after this fraction of the log."""
+    start = int(len(lines) * fraction)
+    return next(i for i in range(start, len(lines)) if " 101#" in lines[i])
+
+
+def test_solve_skips_a_damaged_line_with_a_warning_and_leaves_its_window_out(candump, tmp_path):
+    path, found = candump
+    lines = path.read_text().splitlines(keepends=True)
+    bad = _sample_line(lines, 0.6)
+    lines[bad] = "(17963.0) can0 1ZZ#GARBLED\n"
+    damaged = tmp_path / "damaged.log"
+    damaged.write_text("".join(lines))
+    code, out, err = run_cli("solve", str(damaged), "--latitude", "34", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["source"]["skipped_lines"] == 1
+    assert f"skipped 1 damaged line(s) of the log (first: line {bad + 1}" in err
+    assert "warning" in err and "left out" in err
+    assert len(doc["source"]["windows"]) == 3  # the window that lost a sample is left out
+    assert abs(doc["azimuth_deg"] - found["azimuth_deg"]) < 4 * found["sigma_deg"]
+    code, out, err = run_cli("solve", str(damaged), "--latitude", "34", "--strict")
+    assert code == 1 and out == "" and "cut short" in err
+
+
+def test_solve_takes_the_complete_windows_of_a_cut_log(candump, tmp_path):
+    path, _ = candump
+    text = path.read_text()
+    lines = text.splitlines(keepends=True)
+    cut = tmp_path / "cut.log"
+    cut.write_text("".join(lines[: _sample_line(lines, 0.9)]) + "(1796388094.28")  # mid-line
+    code, out, err = run_cli("solve", str(cut), "--latitude", "34", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["source"]["windows"] == [1, 2, 3]
+    assert "cut short" in err and "solving the complete windows 1, 2, 3" in err
+    assert run_cli("solve", str(cut), "--latitude", "34", "--strict")[0] == 1
+
+
+def test_solve_picks_a_session_and_windows_from_a_log_of_several(candump, tmp_path):
+    path, first = candump
+    second_log = tmp_path / "second.log"
+    second = _logged_find(second_log, 12, azimuth="200")
+    both = tmp_path / "both.log"
+    both.write_text(path.read_text() + second_log.read_text())
+    code, _, err = run_cli("solve", str(both), "--latitude", "34")
+    assert code == 2 and "2 host sessions (1: 4 window(s), 2: 4 window(s))" in err
+    assert "--session" in err
+    for n, expected in ((1, first), (2, second)):
+        doc = run_json("solve", str(both), "--latitude", "34", "--session", str(n))
+        assert doc["azimuth_deg"] == pytest.approx(expected["azimuth_deg"], abs=1e-9)
+        assert doc["source"]["session"] == n
+    picked = run_json("solve", str(both), "--latitude", "34", "--session", "2", "--windows", "1,2")
+    assert picked["source"]["windows"] == [1, 2] and len(picked["windows"]) == 2
+    assert picked["positions"] == pytest.approx(second["positions"][:2], abs=1e-9)
+    code, _, err = run_cli("solve", str(both), "--latitude", "34", "--session", "3")
+    assert code == 2 and "no session 3" in err
+    code, _, err = run_cli("solve", str(both), "--session", "2", "--windows", "1,9", "--latitude", "34")
+    assert code == 2 and "no window 9" in err

@@ -125,6 +125,12 @@ def say(*parts: Any, **options: Any) -> None:
     print(*(plain_numbers(str(p)) for p in parts), **options)
 
 
+def warn(command: str, text: str) -> None:
+    """``northfinder COMMAND: warning: TEXT`` on stderr: the work goes on, but the user should
+    know (lines skipped, windows left out)."""
+    print(plain_numbers(f"northfinder {command}: warning: {text}"), file=sys.stderr, flush=True)
+
+
 def _no_negative_zero(value: Any) -> Any:
     if isinstance(value, float):
         return 0.0 if value == 0.0 else value
@@ -457,11 +463,9 @@ def angle_list(text: str) -> list[float]:
     return [_table_angle(p) for p in parts]
 
 
-#: Latitude of a simulation when none is given (the source paper's site is near 34 deg N).
-DEFAULT_LATITUDE_DEG = 34.0
-
-
 def sim_latitude(args: argparse.Namespace) -> float:
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
+
     return DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
 
 
@@ -478,6 +482,8 @@ def latitude_source(args: argparse.Namespace, simulated: bool) -> str:
     """Where the latitude of a run comes from, as the result states it."""
     if args.latitude is not None:
         return "--latitude"
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
+
     return f"the simulated truth (default, {DEFAULT_LATITUDE_DEG:g} deg)" if simulated else ""
 
 
@@ -576,6 +582,8 @@ def add_sensor_argument(parser: argparse.ArgumentParser | argparse._ArgumentGrou
 
 def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     """The simulated truth: where the simulated instrument really stands."""
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
+
     g = common_group(parser, "simulated truth")
     g.add_argument(
         "--azimuth",
@@ -587,7 +595,8 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         "--latitude",
         type=bounded_float(-90.0, 90.0, "deg"),
         default=None,
-        help="deg, north positive (simulated: default 34; required for a real device)",
+        help=f"deg, north positive (simulated: default {DEFAULT_LATITUDE_DEG:g}; required for a "
+        "real device)",
     )
     from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
 

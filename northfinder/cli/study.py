@@ -32,6 +32,7 @@ from northfinder.cli.common import (
     seed_value,
     study_executor,
 )
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.denoise import METHODS, check_denoise
@@ -77,8 +78,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     g = p.add_argument_group("site")
     g.add_argument(
-        "--latitude", type=bounded_float(-90.0, 90.0, "deg"), default=34.0,
-        help="deg (default: 34)",
+        "--latitude", type=bounded_float(-90.0, 90.0, "deg"), default=DEFAULT_LATITUDE_DEG,
+        help=f"deg (default: {DEFAULT_LATITUDE_DEG:g})",
     )  # fmt: skip
     g.add_argument(
         "--azimuth",

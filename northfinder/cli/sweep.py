@@ -35,6 +35,7 @@ from northfinder.cli.study import (
     _plan_json,
     _settings,
 )
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
@@ -85,7 +86,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="sensor presets or TOML files (default: paper-rlg)",
     )
     g.add_argument(
-        "--latitudes", type=_floats, default=[34.0], metavar="DEG,...", help="(default: 34)"
+        "--latitudes",
+        type=_floats,
+        default=[DEFAULT_LATITUDE_DEG],
+        metavar="DEG,...",
+        help=f"(default: {DEFAULT_LATITUDE_DEG:g})",
     )
     g.add_argument(
         "--positions",
