@@ -480,10 +480,13 @@ class MonitorApp(App[int]):
 
     def action_stream(self) -> None:
         def toggle(d: Any) -> None:
-            if d.streaming:
-                d.stop_streaming()
-            else:
+            on = not d.streaming
+            if isinstance(self.session, ActiveSession):
+                self.session.stream_on_ready(on)  # kept as chosen after a find or a reset
+            if on:
                 d.start_streaming()
+            else:
+                d.stop_streaming()
 
         self._command("stream", toggle)
 

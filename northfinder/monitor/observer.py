@@ -473,7 +473,7 @@ def _command_text(c: Command, scales: CountScales) -> str:
     if isinstance(c, SetConfig):
         key = c.key.name.lower() if isinstance(c.key, ConfigKey) else str(c.key)
         return f"{name} {key}={c.value}"
-    fields = {f.name: getattr(c, f.name) for f in dataclasses.fields(c) if f.name != "seq"}  # type: ignore[arg-type]
+    fields = {f.name: getattr(c, f.name) for f in dataclasses.fields(c) if f.name != "seq"}
     if fields:
         return f"{name} " + " ".join(f"{k}={getattr(v, 'name', v)}" for k, v in fields.items())
     return name

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import threading
 from collections.abc import Callable
 from contextlib import AbstractContextManager
@@ -22,6 +23,7 @@ from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.device import Device
 from northfinder.driver.errors import DriverError, LinkError, LinkLost
 from northfinder.driver.framelog import FrameLog
+from northfinder.driver.protocol.constants import DeviceState
 from northfinder.host.errors import HostError
 from northfinder.host.plan import Plan
 from northfinder.host.procedure import FindResult, PositionWindow, Progress, find_north
@@ -134,6 +136,8 @@ class ActiveSession(Session):
         super().__init__()
         self._opener = opener
         self._stream = stream
+        self._starter: threading.Thread | None = None
+        self._next_stream_try = -math.inf
         self.description = description
         self._stack: contextlib.ExitStack | None = None
         self._reopening: threading.Thread | None = None
@@ -167,12 +171,6 @@ class ActiveSession(Session):
         except BaseException:
             stack.close()
             raise
-        try:
-            if self._stream and not device.streaming:
-                device.start_streaming()  # the traces need the stream
-        except BaseException:
-            stack.close()
-            raise
         with self._lock:
             self._stack, self.device, self.truth = stack, device, truth
             self.connected, self.lost_reason = True, None
@@ -195,6 +193,33 @@ class ActiveSession(Session):
             self._reopening = None
         if self.device is not None and self.connected:
             self.observer.expire(3.0 * max(self.device.reply_timeout, 0.25))
+            self._start_stream(self.device)
+
+    def _start_stream(self, device: Device) -> None:
+        """Start the stream once the unit is READY, if asked (a unit refuses it while it
+        warms up); in a thread, so that the screen never waits for the reply."""
+        st = self.observer.status
+        if not self._stream or device.streaming or st is None or st.state != DeviceState.READY:
+            return
+        if self._starter is not None and self._starter.is_alive():
+            return
+        if self.clock.now() < self._next_stream_try:
+            return
+        self._next_stream_try = self.clock.now() + REOPEN_EVERY_S
+
+        def start() -> None:
+            try:
+                device.start_streaming()
+            except DriverError as exc:
+                self.observer.note(f"stream not started: {exc}", "warn")
+
+        self._starter = threading.Thread(target=start, name="northfinder-monitor-stream")
+        self._starter.daemon = True
+        self._starter.start()
+
+    def stream_on_ready(self, on: bool) -> None:
+        """Whether the session starts the stream whenever the unit is READY and it is off."""
+        self._stream = on
 
     def _reopen(self) -> None:
         with self._lock:
