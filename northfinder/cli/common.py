@@ -125,19 +125,76 @@ def dumps(value: Any, **options: Any) -> str:
     return json.dumps(_no_negative_zero(value), **options)
 
 
+#: Where the command line is described at length (the help texts stay short and point there).
+CLI_DOCS = "docs/cli.md"
+
+_ROLE = re.compile(r":[\w:.-]+:`~?([^`]*?)(?:\s*<[^>]*>)?`")
+_LITERAL = re.compile(r"``(.+?)``", re.S)
+
+
+def plain_text(doc: str) -> str:
+    """A docstring as a terminal shows it: ``literals`` and :role:`targets` without their markup
+    (``~a.b.C`` shown as ``C``), a literal block's ``::`` as ``:``."""
+    text = _ROLE.sub(
+        lambda m: m.group(1).rsplit(".", 1)[-1] if "~" in m.group(0) else m.group(1), doc
+    )
+    return _LITERAL.sub(r"\1", text).replace("::\n", ":\n")
+
+
 def command_parser(
     sub: argparse._SubParsersAction, name: str, summary: str, doc: str | None, **options: Any
 ) -> argparse.ArgumentParser:
     """A subcommand's parser: ``summary`` is its line in the command list, the module docstring
-    ``doc`` its description, printed as written (paragraphs and lists kept)."""
+    ``doc`` its description, as plain text printed as written (paragraphs and lists kept), with
+    a last line that points to the page of the command line's docs."""
+    description = None
+    if doc:
+        description = f'{plain_text(doc).rstrip()}\n\nMore: {CLI_DOCS}, section "{name}".'
     parser: argparse.ArgumentParser = sub.add_parser(
         name,
         help=summary,
-        description=doc,
+        description=description,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         **options,
     )
     return parser
+
+
+#: Marks an argument group that several commands share (:func:`common_group`).
+_COMMON = "_northfinder_common"
+
+
+def common_group(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
+    """An argument group several commands share (the link, the simulated truth, execution,
+    logging): :func:`order_groups` shows it after the command's own options."""
+    group = parser.add_argument_group(title)
+    setattr(group, _COMMON, True)
+    return group
+
+
+def _group_rank(group: argparse._ArgumentGroup) -> int:
+    if (group.title or "").startswith("bus arguments"):  # python-can's add_bus_arguments
+        return 2
+    return 1 if getattr(group, _COMMON, False) else 0
+
+
+def order_groups(parser: argparse.ArgumentParser) -> None:
+    """Order a command's help: its own options and groups first, then the groups commands
+    share (:func:`common_group`), python-can's bus options last; the usage line names the
+    positionals only (``northfinder record [options] FILE``: the options follow it).
+
+    argparse prints groups and usage in the order of ``_action_groups`` and ``_actions`` and
+    has no public way to reorder them. A stable sort keeps the positionals' order, which is
+    the only order parsing depends on.
+    """
+    groups = sorted(parser._action_groups, key=_group_rank)
+    rank = {id(a): _group_rank(g) for g in groups for a in g._group_actions}
+    parser._action_groups[:] = groups
+    parser._actions.sort(key=lambda a: rank.get(id(a), 0))
+    formatter = parser._get_formatter()
+    formatter.add_usage(None, parser._get_positional_actions(), [], prefix="")
+    positionals = formatter.format_help().strip().removeprefix(parser.prog).strip()
+    parser.usage = f"%(prog)s [options]{' ' + positionals if positionals else ''}"
 
 
 def whole_number(text: str) -> int:
@@ -247,6 +304,23 @@ def _refuse_interfaces_off_the_machine(parser: argparse.ArgumentParser) -> None:
 
         action.type = interface
         action.choices = accepted
+        action.metavar = "INTERFACE"
+        action.help = "python-can interface, e.g. socketcan, slcan, virtual"
+
+
+#: Shorter help of python-can's bus options, by destination (its own run to 8 lines each).
+_BUS_HELP: Mapping[str, str] = {
+    "channel": "the bus channel, e.g. vcan0, can0, or /dev/ttyACM0 for SLCAN",
+    "timing": "bit timing as KEY=VALUE fields of python-can's BitTiming (see its docs)",
+    "bus_kwargs": "KEY=VALUE passed to the python-can bus, e.g. sleep_after_open=0 for SLCAN "
+    "on a pseudo-terminal",
+}
+
+
+def _short_bus_help(parser: argparse.ArgumentParser) -> None:
+    for action in parser._actions:
+        if action.dest in _BUS_HELP:
+            action.help = _BUS_HELP[action.dest]
 
 
 def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
@@ -257,7 +331,8 @@ def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse.
 
     can.cli.add_bus_arguments(parser)
     _refuse_interfaces_off_the_machine(parser)
-    group = parser.add_argument_group(title)
+    _short_bus_help(parser)
+    group = common_group(parser, title)
     group.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
     group.add_argument(
         "--baud",
@@ -458,7 +533,7 @@ def add_key_values(
     )
 
 
-def add_sensor_argument(parser: argparse.ArgumentParser) -> None:
+def add_sensor_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
     parser.add_argument(
         "--sensor",
         default="paper-rlg",
@@ -469,7 +544,7 @@ def add_sensor_argument(parser: argparse.ArgumentParser) -> None:
 
 def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     """The simulated truth: where the simulated instrument really stands."""
-    g = parser.add_argument_group("simulated truth")
+    g = common_group(parser, "simulated truth")
     g.add_argument(
         "--azimuth",
         type=bounded_float(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
@@ -558,7 +633,7 @@ def _dask_address(text: str) -> str:
 
 def add_execution_arguments(parser: argparse.ArgumentParser) -> None:
     """Where a Monte Carlo study runs: threads on this machine, or a Dask cluster."""
-    g = parser.add_argument_group("execution (results for a seed are the same everywhere)")
+    g = common_group(parser, "execution (results for a seed are the same everywhere)")
     x = g.add_mutually_exclusive_group()
     x.add_argument(
         "--workers",

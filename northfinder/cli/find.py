@@ -1,22 +1,8 @@
 """``northfinder find``: find true north with a device, or with the embedded simulator (``--sim``).
 
-Device links: python-can bus options as python-can's own tools spell them (``-i socketcan -c vcan0``),
-or ``--serial PORT``. With ``--sim`` an in-process simulated instrument on python-can's ``virtual``
-bus runs in virtual time (as fast as the CPU allows; the same result for a ``--seed`` whatever the
-machine's load), or paced at ``--speed S`` times real time, and its truth is printed beside the
-result.
-
-The plan: ``--positions`` any table angles (default 0,180,180,0), ``--window`` seconds per position,
-``--settle`` extra seconds after the device reports READY, ``--denoise`` a method of northfinder.host.denoise,
-``--solver`` the heading solver. A progress bar (wall-clock seconds) shows on a terminal;
-``--json`` prints the documented JSON result; ``--plot FILE`` draws the windows and per-pair
-azimuths (needs matplotlib); ``--can-log FILE`` logs every frame; ``--record FILE`` writes the
-raw windows.
-
-NMEA 0183: ``--nmea TARGET`` (``-`` for stdout, a file, a serial port or pty path) sends
-``$HEHDT`` and the proprietary ``$PNFDH`` (heading, sigma, status; README "NMEA 0183 output")
-once the heading is found, ``--nmea-count`` times (0: until interrupted) at ``--nmea-rate`` Hz.
-With ``--nmea -`` the result goes to stderr.
+With ``--sim`` the simulated instrument runs in this process in virtual time (the same result for
+a ``--seed`` whatever the machine's load); a real device needs ``--latitude``. ``--json`` prints the
+documented JSON result, ``--nmea TARGET`` sends the heading as NMEA 0183.
 """
 
 from __future__ import annotations

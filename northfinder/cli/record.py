@@ -1,7 +1,7 @@
 """``northfinder record FILE``: run a plan on a device and write the raw windows (.csv or .npz).
 
-Device and plan options are those of ``find``. The columns are documented in ``northfinder.host.recording``
-and the README; ``northfinder solve FILE`` solves the recording offline.
+The device, simulator and plan options are those of ``find``; ``northfinder solve FILE`` solves
+the recording offline.
 """
 
 from __future__ import annotations

@@ -1,14 +1,8 @@
 """``northfinder sim``: run the simulated instrument on a CAN bus, a serial port or a pty.
 
-Links (choose one):
-  -i/-c/-b          any python-can bus, e.g. ``-i socketcan -c vcan0`` or ``-i virtual -c nf``
-  --serial PORT     the protocol's serial frames on a serial port (path or pyserial URL)
-  --pty             serial frames on a pseudo-terminal the simulator creates (prints its path)
-  --slcan-pty       an SLCAN adapter on a pseudo-terminal (prints its path), so a host in another
-                    process reaches the simulated CAN node with ``can.Bus(interface="slcan", ...)``
-
-The simulator prints one line per fact a caller needs (``pty PATH``, ``control ADDRESS``,
-``truth ...``) on stdout, logs state changes on stderr, and stops cleanly on SIGINT or SIGTERM.
+One link: python-can bus options (``-i socketcan -c vcan0``), ``--serial PORT``, ``--pty`` or
+``--slcan-pty`` (a pseudo-terminal it creates). It prints ``pty PATH``, ``control ADDRESS`` and
+``truth ...`` lines on stdout and stops cleanly on SIGINT or SIGTERM.
 """
 
 from __future__ import annotations
@@ -119,8 +113,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--log",
         type=can_log_path,
         metavar="FILE",
-        help="log every frame received and sent to a CAN log; the ending picks python-can's "
-        f"format ({', '.join(LOG_SUFFIXES)}); a serial link logs the CAN frames of its messages",
+        help=f"log every frame to a CAN log, its format by the ending ({', '.join(LOG_SUFFIXES)})",
     )
     return p
 

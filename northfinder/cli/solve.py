@@ -1,15 +1,7 @@
 """``northfinder solve FILE``: solve a recording or a CAN log offline.
 
-FILE is a recording of ``northfinder record`` (``.csv``, ``.npz``) or a CAN log in any format
-python-can reads (``.log`` candump, ``.asc``, ``.blf``, ``.csv``, ``.db``, ``.trc``; written by
-``northfinder sim --log``, ``find/record --can-log``, python-can's logger or candump). From a log
-the windows are rebuilt from the frame stream: one per STREAM_START, at the angle of the last
-rotation command, in the scales of the log's IDENTIFY; ``--window SECONDS`` keeps the first
-seconds of each, as ``find``'s acquisition did (default: every sample streamed at the position).
-Missing ticks are reported and stop the solution.
-
-A recording carries its latitude; a log does not: give ``--latitude``. ``--denoise`` and
-``--solver`` are those of ``find``, so a session can be solved again with other settings.
+FILE is a recording of ``northfinder record`` (.csv, .npz) or a CAN log in a format python-can
+reads. A log carries no latitude: give ``--latitude``.
 """
 
 from __future__ import annotations

@@ -1,24 +1,8 @@
 """``northfinder study``: Monte Carlo accuracy of a north-finding plan, and a planner.
 
-Study mode draws N seeded runs of the simulated instrument at once (whole arrays of runs, in
-chunks), solves every run, and reports the azimuth bias and RMSE beside the white-noise bound of
-the same plan (notes, section 4), their ratio, the predicted error from the datasheet figures,
-and the time the plan takes. A ratio below 1 beyond its statistical spread would be a bug.
-
-Planning mode (``--plan-budget SECONDS`` or ``--plan-target DEG``) searches position patterns and
-window lengths, counting moves (trapezoidal profile at the preset's table limits) and settling,
-and lists the plans with the smallest predicted error; ``--runs`` > 0 verifies the best one by
-Monte Carlo.
-
-Plan time = windows + moves + settling (the warm-up before the first window is simulated but not
-counted; the total time including it is reported too).
-
-A run whose tilt, as the accelerometers measure it, exceeds the solvers' limit (15 deg) has no
-solution; such runs are counted in ``rejected`` and left out of the statistics, never clipped.
-
-The runs use every core (``--workers N`` threads) or a Dask cluster (``--dask tcp://HOST:PORT``
-or ``--dask local:N``); the results for a seed are the same wherever they run. ``northfinder
-sweep`` runs many studies at once.
+Study mode solves N seeded simulated runs and reports the azimuth bias and RMSE beside the
+white-noise bound of the same plan; planning mode (``--plan-budget`` or ``--plan-target``) lists
+the plans with the smallest predicted error. The results for a seed are the same wherever they run.
 """
 
 from __future__ import annotations

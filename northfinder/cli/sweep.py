@@ -1,10 +1,7 @@
 """``northfinder sweep``: Monte Carlo studies over sensor presets, latitudes, plans and windows.
 
-Every combination of ``--sensors``, ``--latitudes``, plans (each ``--positions`` and ``--plan``)
-and ``--windows`` is one study of ``--runs`` runs with the same ``--seed``; its row is what
-``northfinder study`` prints for the same sensor, latitude, plan, window and seed. The chunks of
-all studies are handed out at once, to the threads of this machine (``--workers``) or to a Dask
-cluster (``--dask tcp://HOST:PORT``), so that a long sweep keeps every worker busy to its end.
+Every combination of ``--sensors``, ``--latitudes``, plans and ``--windows`` is one study; its row
+is what ``northfinder study`` prints for the same settings and seed.
 """
 
 from __future__ import annotations
