@@ -18,6 +18,7 @@ from northfinder.cli.common import (
     command_parser,
     dumps,
     load_sensor,
+    say,
 )
 from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
@@ -85,13 +86,13 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         Path(args.output).write_text(text)
     if args.json:
-        print(dumps(cal.to_json_dict(name)))
+        say(dumps(cal.to_json_dict(name)))
         return 0
     if not args.report:
-        print(report)
+        say(report)
     if args.output:
-        print(f"wrote {args.output}")
+        say(f"wrote {args.output}")
     else:
-        print()
-        print(text, end="")
+        say()
+        say(text, end="")
     return 0

@@ -26,6 +26,7 @@ from northfinder.cli.common import (
     latitude_source,
     load_sensor,
     open_can_bus,
+    run_seed,
     sim_latitude,
     sim_truth,
 )
@@ -232,7 +233,8 @@ def embedded_simulator(
     """
     from northfinder.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 
-    rng = np.random.default_rng(args.seed)
+    seed = run_seed(args)
+    rng = np.random.default_rng(seed)
     truth = sim_truth(args, rng)
     paced = args.speed is not None
     sim = SimulatedInstrument(
@@ -249,7 +251,7 @@ def embedded_simulator(
         tap.use_clock(sim.clock)  # the log's times are the instrument's, not the CPU's
     with sim, sim.open_device(tap=tap, **options) as device:
         try:
-            yield device, sim.describe()
+            yield device, {**sim.describe(), "seed": seed}
         except DriverError:
             sim.check()  # a simulator that failed is the cause, not the link: say so
             raise
