@@ -8,37 +8,20 @@ on 127.0.0.1 only.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import re
 import socket
-from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Any
 
 import pynmea2
 import pytest
-
-from northfinder.cli import main
+from clirun import run_cli, run_json
 
 #: A number printed as a negative zero (-0, -0.000), not -0.0001.
 NEGATIVE_ZERO = re.compile(r"(?<![\w.])-0(\.0*)?(?![\d.])")
 FAST = ["--sim", "--warmup", "0", "--window", "2", "--positions", "0,180"]
-
-
-def run_cli(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
-
-
-def run_json(*argv: str) -> dict[str, Any]:
-    code, out, err = run_cli(*argv, "--json")
-    assert code == 0, err
-    doc: dict[str, Any] = json.loads(out)
-    return doc
 
 
 # -- 1. outputs checked before any work; NMEA to UDP and TCP ----------------------------------
@@ -321,5 +304,7 @@ def test_solve_picks_a_session_and_windows_from_a_log_of_several(candump, tmp_pa
     assert picked["positions"] == pytest.approx(second["positions"][:2], abs=1e-9)
     code, _, err = run_cli("solve", str(both), "--latitude", "34", "--session", "3")
     assert code == 2 and "no session 3" in err
-    code, _, err = run_cli("solve", str(both), "--session", "2", "--windows", "1,9", "--latitude", "34")
+    code, _, err = run_cli(
+        "solve", str(both), "--session", "2", "--windows", "1,9", "--latitude", "34"
+    )
     assert code == 2 and "no window 9" in err
