@@ -321,5 +321,55 @@ def test_solve_picks_a_session_and_windows_from_a_log_of_several(candump, tmp_pa
     assert picked["positions"] == pytest.approx(second["positions"][:2], abs=1e-9)
     code, _, err = run_cli("solve", str(both), "--latitude", "34", "--session", "3")
     assert code == 2 and "no session 3" in err
-    code, _, err = run_cli("solve", str(both), "--session", "2", "--windows", "1,9", "--latitude", "34")
+    code, _, err = run_cli(
+        "solve", str(both), "--session", "2", "--windows", "1,9", "--latitude", "34"
+    )
     assert code == 2 and "no window 9" in err
+
+
+# -- 5. -v link statistics, -vv traffic -----------------------------------------------------------
+def _link_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.startswith("link: ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_v_prints_the_link_statistics_at_the_end():
+    code, _, err = run_cli("find", *FAST, "--seed", "1", "-v")
+    assert code == 0
+    line = _link_line(err)
+    m = re.search(r"(\d+) commands sent \((\d+) resent\), (\d+) replies \((\d+) refused", line)
+    assert m is not None, line
+    sent, resent, replies, refused = map(int, m.groups())
+    assert sent == replies > 5 and resent == refused == 0
+    assert "0 rejected, 0 foreign, 0 lost" in line and "samples" in line
+    assert "the device counted 0 malformed, 0 dropped, 0 rejected" in line
+    code, _, err = run_cli("find", *FAST, "--seed", "1")
+    assert code == 0 and "link: " not in err  # only with -v
+
+
+def test_the_link_summary_names_every_counter():
+    from northfinder.driver.link import LinkStats
+
+    stats = LinkStats(10, 1, 2, 3, 4, 5, 6, 7, 8, 9, 0, commands_sent=20, replies_received=11)
+    assert stats.summary().startswith(
+        "20 commands sent (8 resent), 11 replies (0 refused, 7 stray)"
+    )
+    assert (
+        "9 reply timeouts" in stats.summary() and "1 rejected, 2 foreign, 3 lost" in stats.summary()
+    )
+
+
+def test_vv_logs_every_command_and_reply_with_its_delay(caplog):
+    import logging
+
+    caplog.set_level(logging.DEBUG, logger="northfinder.driver")
+    code, _, err = run_cli("find", *FAST, "--seed", "1", "-vv")
+    assert code == 0
+    sent = [r.getMessage() for r in caplog.records if r.getMessage().startswith("-> ")]
+    replies = [r.getMessage() for r in caplog.records if r.getMessage().startswith("<- ")]
+    assert sent and len(sent) == len(replies)
+    assert any("RotateTo" in s for s in sent)
+    assert all(re.search(r"<- [A-Z_]+ OK \(seq \d+\) after \d+\.\d ms$", r) for r in replies)
+    n = int(re.search(r"(\d+) commands sent", _link_line(err)).group(1))  # type: ignore[union-attr]
+    assert n == len(sent)

@@ -341,9 +341,24 @@ def run_plan(args: argparse.Namespace, *, progress: bool = True) -> Measured:
             )
         finally:
             bar.close()
+            if getattr(args, "verbose", 0):
+                print(link_statistics(device), file=sys.stderr, flush=True)
         return Measured(
             result, windows, plan, latitude, device.sample_rate_hz, truth, identity, created
         )
+
+
+def link_statistics(device: Device) -> str:
+    """``-v``'s line about the link: what the driver counted, and what the device counted in
+    its last status (malformed frames it received, frames it dropped, commands it rejected)."""
+    line = f"link: {device.stats().summary()}"
+    status = device.last_status
+    if status is not None:
+        line += (
+            f"; the device counted {status.rx_malformed} malformed, {status.tx_dropped} dropped, "
+            f"{status.cmd_rejected} rejected"
+        )
+    return line
 
 
 def save_recording(path: str, measured: Measured) -> Recording:
