@@ -373,3 +373,73 @@ def test_vv_logs_every_command_and_reply_with_its_delay(caplog):
     assert all(re.search(r"<- [A-Z_]+ OK \(seq \d+\) after \d+\.\d ms$", r) for r in replies)
     n = int(re.search(r"(\d+) commands sent", _link_line(err)).group(1))  # type: ignore[union-attr]
     assert n == len(sent)
+
+
+# -- 6. progress on every long command, plain where a bar cannot work -----------------------------
+def _pty_with_width(columns: int) -> tuple[Any, int]:
+    import fcntl
+    import struct
+    import termios
+
+    master, slave = os.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, columns, 0, 0))
+    return os.fdopen(slave, "w"), master
+
+
+def test_a_bar_needs_a_terminal_that_reports_its_width():
+    from northfinder.cli.progress import progress_mode
+
+    assert progress_mode(io.StringIO()) == "lines"
+    assert progress_mode(io.StringIO(), enabled=False) == "off"
+    for columns, mode in ((0, "lines"), (80, "bar")):
+        stream, master = _pty_with_width(columns)
+        try:
+            assert progress_mode(stream) == mode
+        finally:
+            stream.close()
+            os.close(master)
+
+
+def test_progress_on_a_terminal_of_no_width_is_plain_lines():
+    from northfinder.cli.progress import Progress
+
+    stream, master = _pty_with_width(0)
+    try:
+        with Progress("study", unit="chunks", stream=stream) as bar:
+            for done in range(1, 21):
+                bar.count(done, 20)
+        stream.flush()
+        text = os.read(master, 65536).decode()
+    finally:
+        stream.close()
+        os.close(master)
+    lines = [line for line in text.replace("\r\n", "\n").split("\n") if line]
+    assert lines[0] == "study: 1/20 chunks (5%)" and lines[-1] == "study: 20/20 chunks (100%)"
+    assert len(lines) == 11 and "\r" not in "".join(lines)  # a line at each tenth, no redraws
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["study", "--runs", "300", "--window", "1"], "study: 1/1 chunks (100%)"),
+        (["sweep", "--runs", "300", "--windows", "1,2"], "sweep: 2 studies of 300 runs"),
+        (["find", *FAST, "--seed", "1"], "find: acquire position 2/2"),
+    ],
+)
+def test_long_commands_show_progress_off_a_terminal(argv, expected):
+    code, out, err = run_cli(*argv)
+    assert code == 0, err
+    assert expected in err.splitlines() or any(
+        line.startswith(expected) for line in err.splitlines()
+    ), err
+    assert "\r" not in err  # no bar redraws in a log
+    code, out, err = run_cli(*argv, "--json")
+    assert code == 0 and expected.split(":")[0] + ": " not in err  # --json: quiet
+
+
+def test_calibrate_shows_its_steps(tmp_path):
+    rec = tmp_path / "run.npz"
+    assert run_cli("record", str(rec), *FAST, "--seed", "1")[0] == 0
+    code, _, err = run_cli("calibrate", str(rec))
+    assert code == 0, err
+    assert "calibrate: reading 1 recording(s)" in err and "calibrate: done" in err
