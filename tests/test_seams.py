@@ -427,13 +427,13 @@ def test_progress_on_a_terminal_of_no_width_is_plain_lines():
     ],
 )
 def test_long_commands_show_progress_off_a_terminal(argv, expected):
-    code, out, err = run_cli(*argv)
+    code, _, err = run_cli(*argv)
     assert code == 0, err
     assert expected in err.splitlines() or any(
         line.startswith(expected) for line in err.splitlines()
     ), err
     assert "\r" not in err  # no bar redraws in a log
-    code, out, err = run_cli(*argv, "--json")
+    code, _, err = run_cli(*argv, "--json")
     assert code == 0 and expected.split(":")[0] + ": " not in err  # --json: quiet
 
 
