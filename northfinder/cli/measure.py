@@ -54,7 +54,7 @@ SIM_WARMUP_S = 120.0
 #: positions give the most heading per second (notes 4); the symmetric order cancels a linear
 #: drift; and the two redundant windows let the solver test the windows against their noise, so
 #: a bias step or drift between windows is flagged instead of giving a silently wrong heading
-#: (a two-position plan cannot check itself). README, "Finding north", says more.
+#: (a two-position plan cannot check itself). docs/find.md, "The plan", says more.
 DEFAULT_POSITIONS_DEG = (0.0, 180.0, 180.0, 0.0)
 #: Longest wait of a run, wall s (warm-up timeout, --link-timeout), and longest simulated warm-up.
 MAX_WAIT_S = 86_400.0
