@@ -8,6 +8,7 @@ on 127.0.0.1 only.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
