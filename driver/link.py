@@ -293,6 +293,12 @@ class DeviceLink:
         return self._closed
 
     @property
+    def lost(self) -> DriverError | None:
+        """The error that ended the link (the bus or port failed under the reader), None while
+        it is up. A lost link stays lost: open the device again."""
+        return self._dead
+
+    @property
     def link_kind(self) -> str:
         """``"can"`` or ``"serial"``."""
         return self._transport.kind
