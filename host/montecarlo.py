@@ -31,7 +31,7 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
@@ -308,6 +308,7 @@ def monte_carlo(
     seed: int,
     *,
     executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> NDArray[np.float64]:
     """Azimuth errors of ``runs`` seeded runs, deg: shape (runs,), or (runs, P - 1) pairwise.
 
@@ -328,8 +329,12 @@ def monte_carlo(
         The study's seed (non-negative).
     executor : concurrent.futures.Executor, optional
         Where the chunks run: :func:`local_executor`, a Dask client's executor, any other.
+    progress : callable, optional
+        Called with (chunks done, chunks in all) as each chunk's result comes in.
     """
-    return monte_carlo_many([(generator, plan, settings, runs, seed)], executor=executor)[0]
+    return monte_carlo_many(
+        [(generator, plan, settings, runs, seed)], executor=executor, progress=progress
+    )[0]
 
 
 #: One study of :func:`monte_carlo_many`: generator, plan, settings, runs, seed.
@@ -337,22 +342,28 @@ Study = tuple[WindowGenerator, Plan, StudySettings, int, int]
 
 
 def monte_carlo_many(
-    studies: Sequence[Study], *, executor: Executor | None = None
+    studies: Sequence[Study],
+    *,
+    executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[NDArray[np.float64]]:
     """:func:`monte_carlo` of several studies, their chunks all handed out at once.
 
     A sweep keeps every worker busy to its end this way; each study's errors are those
-    :func:`monte_carlo` gives it alone.
+    :func:`monte_carlo` gives it alone. ``progress`` is called with (chunks done, chunks in
+    all) as results come in.
     """
     tasks = [chunk_tasks(*study) for study in studies]
     flat = [t for ts in tasks for t in ts]
     # Small products inside: BLAS threads would only contend with the study's own workers (and
     # make results depend on them).
+    done: list[NDArray[np.float64]] = []
     with _one_blas_thread():
-        if executor is None:
-            done = [run_chunk(t) for t in flat]
-        else:
-            done = list(executor.map(run_chunk, flat))
+        results = map(run_chunk, flat) if executor is None else executor.map(run_chunk, flat)
+        for result in results:
+            done.append(result)
+            if progress is not None:
+                progress(len(done), len(flat))
     out, k = [], 0
     for ts in tasks:
         out.append(np.concatenate(done[k : k + len(ts)]))
@@ -439,6 +450,7 @@ def verify_plan(
     max_rounds: int = 4,
     *,
     executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Plan, dict[str, Any]]:
     """Monte Carlo of a plan; with a target, lengthen the window until the simulated RMSE meets it.
 
@@ -447,7 +459,9 @@ def verify_plan(
     """
     row: dict[str, Any] = {}
     for _ in range(max_rounds):
-        errors = monte_carlo(generator, plan, settings, runs, seed, executor=executor)
+        errors = monte_carlo(
+            generator, plan, settings, runs, seed, executor=executor, progress=progress
+        )
         row = study_rows(model, plan, settings, errors)[0]
         if target_deg is None or row["rmse_deg"] <= target_deg:
             row["meets_target"] = True
