@@ -548,7 +548,7 @@ def paced_unit(request, sensor_file) -> Iterator[tuple[list[str], ControlClient,
             yield link, ctl, speed
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(judge_host=False)
 @pytest.mark.subprocess
 @pytest.mark.parametrize("load", list(LOAD))
 @pytest.mark.parametrize("defect", list(DEFECTS))
@@ -572,7 +572,7 @@ def test_a_unit_really_off_fails_idle_and_under_load(paced_unit, defect, load, c
     assert evidence in outcomes[check][1], out
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(judge_host=False)
 @pytest.mark.subprocess
 def test_a_correct_unit_is_never_failed_under_load(paced_unit, capsys, tmp_path):
     """Two CPU-bound processes beside the suite, the simulator and the suite on two cores: every
