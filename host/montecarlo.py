@@ -31,7 +31,7 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import ThreadpoolController
 
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, bound_deg, predict
 from northfinder.host.errors import HostConfigError, check_choice
 from northfinder.host.plan import Plan
@@ -169,7 +170,7 @@ class StudySettings:
         One gyro bias step per run, deg/h.
     """
 
-    latitude_deg: float = 34.0
+    latitude_deg: float = DEFAULT_LATITUDE_DEG
     azimuth_deg: float | None = None
     pitch_deg: float = 0.0
     roll_deg: float = 0.0
@@ -300,6 +301,7 @@ def monte_carlo(
     seed: int,
     *,
     executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> NDArray[np.float64]:
     """Azimuth errors of ``runs`` seeded runs, deg: shape (runs,), or (runs, P - 1) pairwise.
 
@@ -320,8 +322,12 @@ def monte_carlo(
         The study's seed (non-negative).
     executor : concurrent.futures.Executor, optional
         Where the chunks run: :func:`local_executor`, a Dask client's executor, any other.
+    progress : callable, optional
+        Called with (chunks done, chunks in all) as each chunk's result comes in.
     """
-    return monte_carlo_many([(generator, plan, settings, runs, seed)], executor=executor)[0]
+    return monte_carlo_many(
+        [(generator, plan, settings, runs, seed)], executor=executor, progress=progress
+    )[0]
 
 
 #: One study of :func:`monte_carlo_many`: generator, plan, settings, runs, seed.
@@ -329,22 +335,28 @@ Study = tuple[WindowGenerator, Plan, StudySettings, int, int]
 
 
 def monte_carlo_many(
-    studies: Sequence[Study], *, executor: Executor | None = None
+    studies: Sequence[Study],
+    *,
+    executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[NDArray[np.float64]]:
     """:func:`monte_carlo` of several studies, their chunks all handed out at once.
 
     A sweep keeps every worker busy to its end this way; each study's errors are those
-    :func:`monte_carlo` gives it alone.
+    :func:`monte_carlo` gives it alone. ``progress`` is called with (chunks done, chunks in
+    all) as results come in.
     """
     tasks = [chunk_tasks(*study) for study in studies]
     flat = [t for ts in tasks for t in ts]
     # Small products inside: BLAS threads would only contend with the study's own workers (and
     # make results depend on them).
+    done: list[NDArray[np.float64]] = []
     with _one_blas_thread():
-        if executor is None:
-            done = [run_chunk(t) for t in flat]
-        else:
-            done = list(executor.map(run_chunk, flat))
+        results = map(run_chunk, flat) if executor is None else executor.map(run_chunk, flat)
+        for result in results:
+            done.append(result)
+            if progress is not None:
+                progress(len(done), len(flat))
     out, k = [], 0
     for ts in tasks:
         out.append(np.concatenate(done[k : k + len(ts)]))
@@ -422,6 +434,7 @@ def verify_plan(
     max_rounds: int = 4,
     *,
     executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Plan, dict[str, Any]]:
     """Monte Carlo of a plan; with a target, lengthen the window until the simulated RMSE meets it.
 
@@ -430,7 +443,9 @@ def verify_plan(
     """
     row: dict[str, Any] = {}
     for _ in range(max_rounds):
-        errors = monte_carlo(generator, plan, settings, runs, seed, executor=executor)
+        errors = monte_carlo(
+            generator, plan, settings, runs, seed, executor=executor, progress=progress
+        )
         row = study_rows(model, plan, settings, errors)[0]
         if target_deg is None or row["rmse_deg"] <= target_deg:
             row["meets_target"] = True

@@ -166,7 +166,7 @@ def test_a_log_cut_short_is_reported_and_not_solved(logged_runs, suffix, tmp_pat
 
 
 def test_python_can_player_replays_a_log_onto_a_bus(logged_runs, monkeypatch):
-    """``python -m can.player`` (README): the replayed frames rebuild the same samples."""
+    """``python -m can.player`` (docs/recordings.md): the replayed frames rebuild the same samples."""
     import uuid
 
     import can.player

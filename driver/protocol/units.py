@@ -6,7 +6,7 @@ multiply a datasheet value by the factor to get SI, divide an SI value by it to 
 unit.
 
 This module lives beside the codec because the wire format is the one package that the simulated
-firmware, the driver and the host all may import (see the README's "Architecture").
+firmware, the driver and the host all may import (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -49,6 +49,10 @@ def normal_gravity(latitude_rad: ArrayLike) -> NDArray[np.float64] | float:
     g = 9.7803253359 * (1.0 + 0.00193185265241 * s2) / np.sqrt(1.0 - 6.69437999013e-3 * s2)
     return float(g) if np.ndim(g) == 0 else g
 
+
+#: Latitude of a simulation or a study when none is given, deg (the source paper's site is near
+#: 34 deg N). A real device's latitude is never assumed.
+DEFAULT_LATITUDE_DEG = 34.0
 
 #: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
 MAX_LATITUDE_DEG = 89.0

@@ -9,6 +9,10 @@ Exit status
 - 2 (:data:`EXIT_USAGE`): the request is wrong: a command-line argument or option, a combination of
   them, or the content of a file named on the command line (a sensor TOML, a recording). Fix the
   command and run it again. argparse's own errors exit 2 as well.
+- 3 (:data:`EXIT_INCONSISTENT`): ``find`` and ``solve`` found a heading, but its windows failed
+  their consistency check (they disagree beyond their noise: a bias step, a drift, a table angle
+  error, a wrong latitude). The result is printed (JSON, plot, record) with the warning, its
+  sigma scaled; NMEA sends it as not valid. A script must not take it as a good heading.
 - 130: interrupted (Ctrl-C).
 
 :func:`exit_status` maps an exception to its status by :data:`EXIT_STATUS` (the most specific
@@ -49,6 +53,7 @@ from northfinder.host.errors import (
 
 EXIT_RUNTIME = 1
 EXIT_USAGE = 2
+EXIT_INCONSISTENT = 3
 EXIT_INTERRUPTED = 130
 
 #: Exception class -> exit status. The first class of an error's MRO found here decides, so a
@@ -67,6 +72,12 @@ EXIT_STATUS: Mapping[type[BaseException], int] = {
     DriverError: EXIT_RUNTIME,
     OSError: EXIT_RUNTIME,
 }
+
+
+def result_status(consistent: bool | None) -> int:
+    """The exit status of a heading: :data:`EXIT_INCONSISTENT` when its consistency check failed,
+    else 0 (passed, or not checked: a two-position plan)."""
+    return EXIT_INCONSISTENT if consistent is False else 0
 
 
 def exit_status(exc: BaseException) -> int | None:
@@ -109,9 +120,22 @@ def plain_numbers(text: str) -> str:
     return _NEGATIVE_ZERO.sub(r"\1", text)
 
 
+def say(*parts: Any, **options: Any) -> None:
+    """``print`` for a command's text: every negative zero written as zero (:func:`plain_numbers`)."""
+    print(*(plain_numbers(str(p)) for p in parts), **options)
+
+
+def warn(command: str, text: str) -> None:
+    """``northfinder COMMAND: warning: TEXT`` on stderr: the work goes on, but the user should
+    know (lines skipped, windows left out)."""
+    print(plain_numbers(f"northfinder {command}: warning: {text}"), file=sys.stderr, flush=True)
+
+
 def _no_negative_zero(value: Any) -> Any:
     if isinstance(value, float):
         return 0.0 if value == 0.0 else value
+    if isinstance(value, str):
+        return plain_numbers(value)
     if isinstance(value, Mapping):
         return {k: _no_negative_zero(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
@@ -120,7 +144,8 @@ def _no_negative_zero(value: Any) -> Any:
 
 
 def dumps(value: Any, **options: Any) -> str:
-    """JSON of a command's result (indented by 2), with no negative zero (``-0.0`` is 0.0)."""
+    """JSON of a command's result (indented by 2), with no negative zero (``-0.0`` is 0.0, in
+    numbers and in the texts of notes)."""
     options.setdefault("indent", 2)
     return json.dumps(_no_negative_zero(value), **options)
 
@@ -257,6 +282,17 @@ def bounded_int(lo: int, hi: int) -> Any:
 MAX_SEED = 2**63 - 1
 seed_value = bounded_int(0, MAX_SEED)
 """argparse type: a random seed, a whole number 0 .. 2**63 - 1."""
+
+
+def run_seed(args: argparse.Namespace) -> int:
+    """The seed of a simulated run: ``--seed``, or a fresh one drawn now (and kept in ``args``)
+    when none was given, so that every run can state its seed and be run again with it."""
+    if getattr(args, "seed", None) is None:
+        import secrets
+
+        args.seed = secrets.randbelow(2**32)  # short to type; any seed up to MAX_SEED is taken
+    seed: int = args.seed
+    return seed
 
 
 def node_id(text: str) -> int:
@@ -427,11 +463,9 @@ def angle_list(text: str) -> list[float]:
     return [_table_angle(p) for p in parts]
 
 
-#: Latitude of a simulation when none is given (the source paper's site is near 34 deg N).
-DEFAULT_LATITUDE_DEG = 34.0
-
-
 def sim_latitude(args: argparse.Namespace) -> float:
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
+
     return DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
 
 
@@ -448,6 +482,8 @@ def latitude_source(args: argparse.Namespace, simulated: bool) -> str:
     """Where the latitude of a run comes from, as the result states it."""
     if args.latitude is not None:
         return "--latitude"
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
+
     return f"the simulated truth (default, {DEFAULT_LATITUDE_DEG:g} deg)" if simulated else ""
 
 
@@ -471,11 +507,13 @@ def load_sensor(name_or_path: str, overrides: Mapping[str, Any] | None = None) -
 
 def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) -> str:
     """Refuse, before any work, an output file that cannot be written: a missing folder, a
-    folder in its place, or (with ``suffixes``) a name of another kind."""
-    import os
-
+    folder in its place, a path under /dev that does not exist, or (with ``suffixes``) a name
+    of another kind."""
     if suffixes and not path.endswith(suffixes):
         raise HostConfigError(f"{option} {path}: the file name must end in {' or '.join(suffixes)}")
+    if os.path.abspath(path).startswith("/dev/") and not os.path.exists(path):
+        # A mistyped port name must not become a regular file under /dev.
+        raise HostConfigError(f"{option} {path}: no such device (a path under /dev must exist)")
     if os.path.isdir(path):
         raise HostConfigError(f"{option} {path}: is a folder; give a file name")
     folder = os.path.dirname(path) or "."
@@ -544,6 +582,8 @@ def add_sensor_argument(parser: argparse.ArgumentParser | argparse._ArgumentGrou
 
 def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     """The simulated truth: where the simulated instrument really stands."""
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
+
     g = common_group(parser, "simulated truth")
     g.add_argument(
         "--azimuth",
@@ -555,7 +595,8 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         "--latitude",
         type=bounded_float(-90.0, 90.0, "deg"),
         default=None,
-        help="deg, north positive (simulated: default 34; required for a real device)",
+        help=f"deg, north positive (simulated: default {DEFAULT_LATITUDE_DEG:g}; required for a "
+        "real device)",
     )
     from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
 
@@ -563,7 +604,10 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--pitch", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument("--roll", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument(
-        "--seed", type=seed_value, default=None, help="random seed (default: fresh each run)"
+        "--seed",
+        type=seed_value,
+        default=None,
+        help="random seed (default: a fresh one, reported)",
     )
 
 

@@ -2,12 +2,14 @@
 
 With ``--sim`` the simulated instrument runs in this process in virtual time (the same result for
 a ``--seed`` whatever the machine's load); a real device needs ``--latitude``. ``--json`` prints the
-documented JSON result, ``--nmea TARGET`` sends the heading as NMEA 0183.
+documented JSON result, ``--nmea TARGET`` sends the heading as NMEA 0183. Exit status 3: the
+windows failed their consistency check.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 
@@ -18,6 +20,7 @@ from northfinder.cli.common import (
     check_plot_path,
     command_parser,
     positive_float,
+    result_status,
     whole_number,
 )
 from northfinder.cli.measure import Measured, add_arguments, run_plan, save_recording
@@ -41,7 +44,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--record", metavar="FILE", help="also write the raw windows (.csv or .npz)")
     g = p.add_argument_group("NMEA 0183 output")
     g.add_argument(
-        "--nmea", metavar="TARGET", help="send $HEHDT and $PNFDH to - (stdout), a file or a port"
+        "--nmea",
+        metavar="TARGET",
+        help="-, a file, a port, udp://HOST:PORT or tcp://HOST:PORT",
     )
     g.add_argument(
         "--nmea-rate", type=positive_float, default=1.0, metavar="HZ",
@@ -62,7 +67,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def send_nmea(args: argparse.Namespace, m: Measured) -> int:
+def send_nmea(args: argparse.Namespace, m: Measured, out: NmeaOutput) -> int:
     """Send the heading ``--nmea-count`` times at ``--nmea-rate``; return how many were sent."""
     r = m.result
     fix = HeadingFix(
@@ -71,16 +76,15 @@ def send_nmea(args: argparse.Namespace, m: Measured) -> int:
     )  # fmt: skip
     lines = (hdt_sentence(fix), nfdh_sentence(fix))
     period = 1.0 / args.nmea_rate
-    with NmeaOutput(args.nmea, baudrate=args.nmea_baud) as out:
-        n = 0
-        next_at = time.monotonic()
-        while args.nmea_count == 0 or n < args.nmea_count:
-            out.send(*lines)
-            n += 1
-            if args.nmea_count and n >= args.nmea_count:
-                break
-            next_at += period
-            time.sleep(max(0.0, next_at - time.monotonic()))
+    n = 0
+    next_at = time.monotonic()
+    while args.nmea_count == 0 or n < args.nmea_count:
+        out.send(*lines)
+        n += 1
+        if args.nmea_count and n >= args.nmea_count:
+            break
+        next_at += period
+        time.sleep(max(0.0, next_at - time.monotonic()))
     return n
 
 
@@ -90,6 +94,16 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_plot_path(args.plot)
     to_stdout = args.nmea == "-"
+    with contextlib.ExitStack() as stack:
+        nmea = (
+            stack.enter_context(NmeaOutput(args.nmea, baudrate=args.nmea_baud))
+            if args.nmea
+            else None
+        )
+        return _find(args, nmea, to_stdout)
+
+
+def _find(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
     m = run_plan(args, progress=not (args.json or to_stdout))
     if args.record:
         save_recording(args.record, m)
@@ -101,6 +115,6 @@ def run(args: argparse.Namespace) -> int:
         else report.text(m.result, m.truth)
     )
     print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
-    if args.nmea:
-        send_nmea(args, m)
-    return 0
+    if nmea is not None:
+        send_nmea(args, m, nmea)
+    return result_status(m.result.consistent)

@@ -23,5 +23,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(args.file, "file", (".csv", ".npz"))
     recording = save_recording(args.file, run_plan(args))
     samples = sum(len(w.counter) for w in recording.windows)
-    print(f"wrote {len(recording.windows)} windows ({samples} samples) to {args.file}")
+    truth = recording.meta.get("truth")
+    seed = f" (simulated, seed {truth['seed']})" if truth and "seed" in truth else ""
+    print(f"wrote {len(recording.windows)} windows ({samples} samples) to {args.file}{seed}")
     return 0

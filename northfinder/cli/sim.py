@@ -29,6 +29,7 @@ from northfinder.cli.common import (
     load_sensor,
     open_can_bus,
     open_serial_port,
+    run_seed,
     sim_truth,
 )
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
@@ -140,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr
     )
-    rng = np.random.default_rng(args.seed)
+    seed = run_seed(args)
+    rng = np.random.default_rng(seed)
     truth = sim_truth(args, rng)
     spec = load_sensor(args.sensor)
     closers: list[Callable[[], None]] = []
@@ -217,7 +219,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"control {server.address}", flush=True)
     print(
         f"truth azimuth {truth.azimuth_deg:.6f} latitude {truth.latitude_deg:g} pitch {truth.pitch_deg:g} "
-        f"roll {truth.roll_deg:g} sensor {spec.name} warmup {args.warmup:g} speed {args.speed:g}",
+        f"roll {truth.roll_deg:g} sensor {spec.name} warmup {args.warmup:g} speed {args.speed:g} "
+        f"seed {seed}",
         flush=True,
     )
     try:

@@ -28,9 +28,12 @@ from northfinder.cli.common import (
     dumps,
     finite_float,
     load_sensor,
+    say,
     seed_value,
     study_executor,
 )
+from northfinder.cli.progress import Progress
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.denoise import METHODS, check_denoise
@@ -76,8 +79,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     g = p.add_argument_group("site")
     g.add_argument(
-        "--latitude", type=bounded_float(-90.0, 90.0, "deg"), default=34.0,
-        help="deg (default: 34)",
+        "--latitude", type=bounded_float(-90.0, 90.0, "deg"), default=DEFAULT_LATITUDE_DEG,
+        help=f"deg (default: {DEFAULT_LATITUDE_DEG:g})",
     )  # fmt: skip
     g.add_argument(
         "--azimuth",
@@ -265,7 +268,7 @@ def _candidate_json(c: PlanCandidate, model: ErrorModel, warmup_s: float) -> dic
 
 def _print_rows(rows: list[dict[str, Any]]) -> None:
     first = "mu deg" if "mu_deg" in rows[0] else "positions"
-    print(
+    say(
         f"{first:>14} {'bias deg':>10} {'RMSE deg':>10} {'+-':>6} {'bound deg':>10} "
         f"{'RMSE/bound':>10} {'predicted':>10}"
     )
@@ -273,7 +276,7 @@ def _print_rows(rows: list[dict[str, Any]]) -> None:
         label = (
             f"{r['mu_deg']:g}" if "mu_deg" in r else ",".join(f"{p:g}" for p in r["positions_deg"])
         )
-        print(
+        say(
             f"{label:>14} {r['bias_deg']:10.4f} {r['rmse_deg']:10.4f} "
             f"{100 * r['rmse_rel_se']:5.1f}% {r['bound_deg']:10.4f} {r['ratio']:10.3f} "
             f"{r['predicted_deg']:10.4f}"
@@ -306,7 +309,8 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         best_plan = None if cand is None else cand.plan
     if best_plan is not None and args.runs > 0:
         t0 = time.perf_counter()
-        with study_executor(args) as executor:
+        with study_executor(args) as executor, _progress(args) as bar:
+            bar.step("Monte Carlo of the best plan")
             plan, row = verify_plan(
                 SimulatedWindows(spec),
                 model,
@@ -316,6 +320,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
                 args.seed,
                 args.plan_target,
                 executor=executor,
+                progress=bar.count,
             )
         report["verified"] = {
             **_plan_json(plan, model, args.warmup),
@@ -332,31 +337,31 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
     # (empty) result on stdout.
     failed = not report["plans"]
     if failed:
-        print(
+        say(
             f"northfinder study: error: no plan reaches {what} (within 4 h, or the budget "
             "is shorter than one move)",
             file=sys.stderr,
         )
     if args.json:
-        print(dumps(envelope("study", simulator_identity(spec.name), report)))
+        say(dumps(envelope("study", simulator_identity(spec.name), report)))
         return EXIT_RUNTIME if failed else 0
-    print(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}")
+    say(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}")
     if failed:
         return EXIT_RUNTIME
-    print(
+    say(
         f"{'positions':>34} {'window s':>9} {'plan s':>8} {'predicted deg':>14} "
         f"{'bound deg':>10}  note"
     )
     for c in report["plans"]:
         pos = ",".join(f"{p:g}" for p in c["positions_deg"])
         note = "longer windows stop helping (Allan limit)" if c["allan_limited"] else ""
-        print(
+        say(
             f"{pos:>34} {c['window_s']:9.1f} {c['plan_time_s']:8.1f} "
             f"{c['predicted_deg']:14.4f} {c['bound_deg']:10.4f}  {note}"
         )
     if "verified" in report:
         v = report["verified"]
-        print(
+        say(
             f"Monte Carlo of the first plan ({v['runs']} runs, window {v['window_s']:.1f} s, plan "
             f"{v['plan_time_s']:.1f} s): RMSE {v['rmse_deg']:.4f} deg "
             f"(+-{100 * v['rmse_rel_se']:.1f}%), bound {v['bound_deg']:.4f}, ratio {v['ratio']:.3f}"
@@ -373,18 +378,26 @@ def _sweep(
     runs: int,
     seed: int,
     executor: Executor | None,
+    bar: Progress | None = None,
 ) -> list[dict[str, Any]]:
     model = error_model(spec)
     generator = SimulatedWindows(spec)
     subs = [replace(plan, window_s=w) for w in windows]
     errors = monte_carlo_many(
-        [(generator, sub, settings, runs, seed) for sub in subs], executor=executor
+        [(generator, sub, settings, runs, seed) for sub in subs],
+        executor=executor,
+        progress=None if bar is None else bar.count,
     )
     out = []
     for w, sub, e in zip(windows, subs, errors, strict=True):
         rows = study_rows(model, sub, settings, e)
         out.append({"window_s": w, **_plan_json(sub, model, settings.warmup_s), **rows[0]})
     return out
+
+
+def _progress(args: argparse.Namespace) -> Progress:
+    """The study's progress in chunks of runs (off with --json)."""
+    return Progress("study", unit="chunks", enabled=not args.json)
 
 
 def _plot(path: str, sweep: list[dict[str, Any]], title: str) -> None:
@@ -445,18 +458,20 @@ def run(args: argparse.Namespace) -> int:
         return _run_planner(args, spec, settings)
     plan = _plan(args)
     model = error_model(spec)
-    with study_executor(args) as executor:
+    with study_executor(args) as executor, _progress(args) as bar:
         t0 = time.perf_counter()
         errors = monte_carlo(
-            SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor
-        )
+            SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor,
+            progress=bar.count,
+        )  # fmt: skip
         wall = time.perf_counter() - t0
         sweep = None
         if args.plot:
             windows = args.sweep or [plan.window_s * f for f in (0.25, 0.5, 1.0, 2.0, 4.0)]
             if any(w <= 0 for w in windows):
                 raise HostConfigError(f"--sweep: windows must be positive, got {windows}")
-            sweep = _sweep(spec, plan, settings, windows, args.runs, args.seed, executor)
+            bar.step(f"window sweep for the plot ({len(windows)} studies)")
+            sweep = _sweep(spec, plan, settings, windows, args.runs, args.seed, executor, bar)
     rows = study_rows(model, plan, settings, errors)
     report: dict[str, Any] = {
         "kind": "monte-carlo",
@@ -482,25 +497,25 @@ def run(args: argparse.Namespace) -> int:
         )
         report["plot"] = args.plot
     if args.json:
-        print(dumps(envelope("study", simulator_identity(spec.name), report)))
+        say(dumps(envelope("study", simulator_identity(spec.name), report)))
         return 0
     p = report["plan"]
-    print(
+    say(
         f"sensor {spec.name}, latitude {args.latitude:g} deg, positions {plan.label()} deg, "
         f"window {plan.window_s:g} s, denoise {args.denoise}, solver {args.solver}, "
         f"tilt {args.tilt}, {args.runs} runs (seed {args.seed})"
     )
-    print(
+    say(
         f"plan time {p['plan_time_s']:.1f} s (windows, moves, settling; "
         f"{p['total_time_s']:.1f} s with {args.warmup:g} s warm-up); Monte Carlo {wall:.2f} s"
     )
     _print_rows(rows)
     rejected = max(r["rejected"] for r in rows)
     if rejected:
-        print(
+        say(
             f"{rejected} of {args.runs} runs had no solution (tilt beyond +-{MAX_TILT_DEG:g} deg "
             "or a fit that did not converge); the statistics are over the others"
         )
     if args.plot:
-        print(f"plot of error versus time to north: {args.plot}")
+        say(f"plot of error versus time to north: {args.plot}")
     return 0
