@@ -27,7 +27,7 @@ import subprocess
 import sys
 import tempfile
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -348,9 +348,11 @@ _PACE = pytest.StashKey[Any]()
 
 
 @pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+def pytest_runtest_makereport(
+    item: pytest.Item, call: pytest.CallInfo[None]
+) -> Generator[None, Any, None]:
     """A ``realtime`` test that failed while the host starved is reported not judged: skipped,
-    with the failure's last line and the host's figures."""
+    with the failure's first line and the host's figures."""
     outcome = yield
     report = outcome.get_result()
     pace = item.stash.get(_PACE, None)
