@@ -15,7 +15,9 @@ in worker processes).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,7 +31,7 @@ from northfinder.host.accuracy import ErrorModel
 from northfinder.host.montecarlo import RunRequest
 from northfinder.host.plan import TableModel
 
-__all__ = ["SimulatedWindows", "SpecDrift", "error_model", "simulator_identity"]
+__all__ = ["SimulatedWindows", "SpecDrift", "error_model", "simulator_identity", "write_recordings"]
 
 
 def simulator_identity(sensor: str | None = None) -> dict[str, Any]:
@@ -114,3 +116,35 @@ def error_model(spec: SensorSpec) -> ErrorModel:
         ),
         drift_rps=SpecDrift(spec) if has_drift else None,
     )
+
+
+def write_recordings(
+    spec: SensorSpec,
+    truth: Truth,
+    positions_deg: Sequence[float],
+    window_s: float,
+    runs: int,
+    seed: int,
+    folder: str | Path,
+    *,
+    sample_rate_hz: float = 20.0,
+    warmup_s: float = 120.0,
+) -> list[str]:
+    """Simulated power-ons written as recordings, one file per run (``folder/run{seed}-{r}.npz``,
+    as ``northfinder record`` writes them), for calibration; returns their paths.
+
+    The runs are drawn at once by :func:`~northfinder.firmware_sim.batch.simulate_windows` with
+    ``numpy.random.default_rng(seed)``; ``folder`` must exist.
+    """
+    from northfinder.host.recording import Recording
+
+    batch = simulate_windows(
+        spec, truth, list(positions_deg), window_s, n_runs=runs, rng=np.random.default_rng(seed),
+        sample_rate_hz=sample_rate_hz, warmup_s=warmup_s,
+    )  # fmt: skip
+    paths = []
+    for r in range(runs):
+        path = Path(folder) / f"run{seed}-{r}.npz"
+        Recording.from_batch(batch, r, truth.latitude_deg).save(path)
+        paths.append(str(path))
+    return paths
