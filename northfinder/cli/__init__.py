@@ -42,6 +42,7 @@ COMMANDS: dict[str, str] = {
     "find": "northfinder.cli.find",
     "record": "northfinder.cli.record",
     "calibrate": "northfinder.cli.calibrate",
+    "monitor": "northfinder.cli.monitor",
 }
 
 #: The one-line help of each command, for the command list (the same text as each module's).
@@ -56,6 +57,7 @@ SUMMARIES: dict[str, str] = {
     "find": "find true north",
     "record": "record raw windows to CSV or NPZ",
     "calibrate": "fit sensor terms to recordings and write a sensor TOML",
+    "monitor": "live terminal view of a unit (Textual)",
 }
 
 
