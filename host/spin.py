@@ -54,6 +54,7 @@ from northfinder.host.kernels import (
 
 __all__ = [
     "BATCHES",
+    "MIN_SWEEP_DEG",
     "SpinSamples",
     "SpinSolution",
     "heading_weights",
@@ -62,6 +63,7 @@ __all__ = [
     "solve_spin",
     "solve_spin_batch",
     "spin_samples",
+    "spin_weights_level",
 ]
 
 Array = NDArray[np.float64]
