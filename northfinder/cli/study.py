@@ -35,7 +35,7 @@ from northfinder.cli.common import (
 from northfinder.cli.progress import Progress
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.sensors import SensorSpec
-from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
+from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, budget_bound_deg
 from northfinder.host.denoise import METHODS, check_denoise
 from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
@@ -303,6 +303,10 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
     if args.plan_budget is not None:
         cands = search_plans(model, args.latitude, args.plan_budget, **common)
         report["budget_s"] = args.plan_budget
+        # What no plan of this budget can beat: all of it spent recording, white noise only.
+        report["budget_bound_deg"] = budget_bound_deg(
+            args.plan_budget, model.arw_dpsh, args.latitude
+        )
         report["plans"] = [_candidate_json(c, model, args.warmup) for c in cands[: args.top]]
         best_plan = cands[0].plan if cands else None
     else:
@@ -348,7 +352,12 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
     if args.json:
         say(dumps(envelope("study", simulator_identity(spec.name), report)))
         return EXIT_RUNTIME if failed else 0
-    say(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}")
+    bound = (
+        f" (physical bound of the budget {report['budget_bound_deg']:.4f} deg)"
+        if "budget_bound_deg" in report
+        else ""
+    )
+    say(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}{bound}")
     if failed:
         return EXIT_RUNTIME
     say(
