@@ -41,9 +41,9 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from simprocess import sim_process  # noqa: E402
+from simprocess import sim_process
 
-from northfinder.firmware_sim.control import ControlClient  # noqa: E402
+from northfinder.firmware_sim.control import ControlClient
 
 PYTHON = sys.executable
 SIM_ARGS = {"slcan": "--slcan-pty", "serial": "--pty"}
@@ -135,7 +135,9 @@ def run_bare(kind: str, path: str, seconds: float) -> dict[str, Any]:
 
 
 def one(kind: str, host: str, seconds: float) -> dict[str, Any]:
-    with sim_process(SIM_ARGS[kind], "--warmup", "0", "--control", "127.0.0.1:0", ready=True) as facts:
+    with sim_process(
+        SIM_ARGS[kind], "--warmup", "0", "--control", "127.0.0.1:0", ready=True
+    ) as facts:
         if host == "bare":
             r = run_bare(kind, facts["pty"], seconds)
         else:
@@ -148,7 +150,9 @@ def one(kind: str, host: str, seconds: float) -> dict[str, Any]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--duration", type=float, default=60.0, help="wall seconds per run")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--links", default="slcan,serial")
