@@ -137,7 +137,7 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
             warn(
                 "solve",
                 f"{path}: {len(session.windows) - len(complete.windows)} window(s) with samples "
-                f"missing left out; solving the complete windows {left or '(none)'}"
+                f"missing left out; solving the complete windows {left or '(none)'}",
             )
         if len(complete.windows) < 2:
             raise QualityError(
