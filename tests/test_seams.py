@@ -172,6 +172,7 @@ def test_simulate_reports_its_seed_and_repeats_with_it():
     first = json.loads(run_cli("simulate", "--window", "1", "--json")[1])
     seed = first["seed"]
     again = json.loads(run_cli("simulate", "--window", "1", "--json", "--seed", str(seed))[1])
+    first.pop("created_utc"), again.pop("created_utc")
     assert again == first
 
 
@@ -443,3 +444,39 @@ def test_calibrate_shows_its_steps(tmp_path):
     code, _, err = run_cli("calibrate", str(rec))
     assert code == 0, err
     assert "calibrate: reading 1 recording(s)" in err and "calibrate: done" in err
+
+
+# -- 7. one versioned envelope on every --json ----------------------------------------------------
+@pytest.fixture(scope="module")
+def validator() -> Any:
+    import jsonschema
+
+    from northfinder.host.results import schema
+
+    s = schema()
+    jsonschema.Draft202012Validator.check_schema(s)
+    return jsonschema.Draft202012Validator(s)
+
+
+def test_every_json_output_has_the_envelope_and_meets_the_schema(tmp_path, validator):
+    from northfinder.host.results import SCHEMA, SCHEMA_VERSION
+
+    rec = tmp_path / "run.npz"
+    assert run_cli("record", str(rec), *FAST, "--seed", "1")[0] == 0
+    commands = {
+        "find": ["find", *FAST, "--seed", "1"],
+        "solve": ["solve", str(rec)],
+        "study": ["study", "--runs", "100", "--window", "1"],
+        "sweep": ["sweep", "--runs", "100", "--windows", "1"],
+        "simulate": ["simulate", "--window", "1", "--seed", "1"],
+        "calibrate": ["calibrate", str(rec)],
+        "conformance": ["conformance", "--sim", "--only", "identify"],
+    }
+    for command, argv in commands.items():
+        code, out, err = run_cli(*argv, "--json")
+        assert code == 0, (command, err)
+        doc = json.loads(out)
+        assert (doc["schema"], doc["schema_version"], doc["command"]) == (
+            SCHEMA, SCHEMA_VERSION, command,
+        )  # fmt: skip
+        validator.validate(doc)

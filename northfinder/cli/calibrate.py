@@ -24,6 +24,7 @@ from northfinder.cli.progress import Progress
 from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
 from northfinder.host.calibrate.readers import READERS
+from northfinder.host.results import envelope
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         Path(args.output).write_text(text)
     if args.json:
-        say(dumps(cal.to_json_dict(name)))
+        say(dumps(envelope("calibrate", None, cal.to_json_dict(name))))
         return 0
     if not args.report:
         say(report)

@@ -43,7 +43,8 @@ from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
 from northfinder.host.montecarlo import monte_carlo_many, study_rows
 from northfinder.host.plan import PLANS, SOLVERS, Plan
-from northfinder.simwindows import SimulatedWindows, error_model
+from northfinder.host.results import envelope
+from northfinder.simwindows import SimulatedWindows, error_model, simulator_identity
 
 
 def _names(text: str) -> list[str]:
@@ -225,7 +226,9 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": wall,
     }
     if args.json:
-        say(dumps(report))
+        names = {spec.name for spec in specs}
+        device = simulator_identity(names.pop()) if len(names) == 1 else simulator_identity()
+        say(dumps(envelope("sweep", device, report)))
         return 0
     say(
         f"{len(studies)} studies of {args.runs} runs (seed {args.seed}), denoise {args.denoise}: "
