@@ -480,3 +480,45 @@ def test_every_json_output_has_the_envelope_and_meets_the_schema(tmp_path, valid
             SCHEMA, SCHEMA_VERSION, command,
         )  # fmt: skip
         validator.validate(doc)
+
+
+# -- 8. consistent defaults and wording ------------------------------------------------------------
+def test_study_sweep_and_simulate_plan_by_default_as_find_does():
+    from northfinder.host.plan import DEFAULT_POSITIONS_DEG
+
+    assert DEFAULT_POSITIONS_DEG == (0.0, 180.0, 180.0, 0.0)
+    find = run_json("find", "--sim", "--warmup", "0", "--window", "1", "--seed", "1")
+    assert [w["commanded_deg"] for w in find["windows"]] == list(DEFAULT_POSITIONS_DEG)
+    study = run_json("study", "--runs", "100", "--window", "1")
+    assert study["plan"]["positions_deg"] == list(DEFAULT_POSITIONS_DEG)
+    sweep = run_json("sweep", "--runs", "100", "--windows", "1")
+    assert sweep["studies"][0]["plan"]["positions_deg"] == list(DEFAULT_POSITIONS_DEG)
+    simulate = run_json("simulate", "--window", "1", "--seed", "1")
+    assert len(simulate["windows"]) == 4
+
+
+def test_the_text_says_solver_as_the_option_does():
+    code, out, _ = run_cli("find", *FAST, "--seed", "1", "--solver", "least-squares")
+    assert code == 0 and "solver least-squares" in out and "method " not in out
+
+
+@pytest.mark.parametrize("command", ["find", "study", "solve", "sim"])
+def test_version_after_the_command(command):
+    from northfinder.host.results import package_version
+
+    code, out, _ = run_cli(command, "--version")
+    assert code == 0 and out.strip() == f"northfinder {package_version()}"
+
+
+def test_latitude_is_among_the_options_a_device_needs():
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["find", "--help"]) == 0
+    text = out.getvalue()
+    own = next(part for part in text.split("\n\n") if part.startswith("options:"))
+    assert "--latitude" in own and "required with a device" in " ".join(own.split())
+    truth = text[text.index("simulated truth:") :].split("\n\n")[0]
+    assert "--latitude" not in truth
+    # Still refused when a real device is given without it (never assumed).
+    code, _, err = run_cli("find", "--serial", "loop://")
+    assert code == 2 and "--latitude" in err

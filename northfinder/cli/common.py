@@ -580,10 +580,29 @@ def add_sensor_argument(parser: argparse.ArgumentParser | argparse._ArgumentGrou
     )
 
 
-def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
-    """The simulated truth: where the simulated instrument really stands."""
+def add_latitude_argument(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, *, device: bool
+) -> None:
+    """``--latitude``: with ``device`` the site's latitude a real device needs (and the
+    simulated truth's with ``--sim``), else the simulated truth's only."""
     from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
 
+    parser.add_argument(
+        "--latitude",
+        type=bounded_float(-90.0, 90.0, "deg"),
+        default=None,
+        help=(
+            "site latitude, deg north positive: required with a device "
+            f"(--sim: the truth's, default {DEFAULT_LATITUDE_DEG:g})"
+            if device
+            else f"deg, north positive (default {DEFAULT_LATITUDE_DEG:g})"
+        ),
+    )
+
+
+def add_truth_arguments(parser: argparse.ArgumentParser, *, latitude: bool = True) -> None:
+    """The simulated truth: where the simulated instrument really stands (``latitude`` False:
+    the command takes ``--latitude`` among its own options, as a real device needs it)."""
     g = common_group(parser, "simulated truth")
     g.add_argument(
         "--azimuth",
@@ -591,13 +610,8 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="deg clockwise from north, -360 to 360 (default: random)",
     )
-    g.add_argument(
-        "--latitude",
-        type=bounded_float(-90.0, 90.0, "deg"),
-        default=None,
-        help=f"deg, north positive (simulated: default {DEFAULT_LATITUDE_DEG:g}; required for a "
-        "real device)",
-    )
+    if latitude:
+        add_latitude_argument(g, device=False)
     from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
 
     tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")

@@ -26,6 +26,7 @@ from northfinder.cli.common import (
 from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, body_rates
+from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 from northfinder.host.results import envelope
 from northfinder.simwindows import simulator_identity
 
@@ -37,8 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--positions",
         type=angle_list,
-        default=[0.0, 180.0],
-        help="table angles, deg (default: 0,180)",
+        default=list(DEFAULT_POSITIONS_DEG),
+        help="table angles, deg (default 0,180,180,0, as find)",
     )
     p.add_argument(
         "--window",
