@@ -502,7 +502,7 @@ def test_the_text_says_solver_as_the_option_does():
     assert code == 0 and "solver least-squares" in out and "method " not in out
 
 
-@pytest.mark.parametrize("command", ["find", "study", "solve", "sim"])
+@pytest.mark.parametrize("command", ["find", "study", "solve", "sim", "dump"])
 def test_version_after_the_command(command):
     from northfinder.host.results import package_version
 
@@ -522,3 +522,111 @@ def test_latitude_is_among_the_options_a_device_needs():
     # Still refused when a real device is given without it (never assumed).
     code, _, err = run_cli("find", "--serial", "loop://")
     assert code == 2 and "--latitude" in err
+
+
+# -- 9. dump: a CAN log or a live bus decoded with the DBC ----------------------------------------
+DUMP_LINE = re.compile(
+    r"^\((\d+\.\d{6})\) (\S+) ([0-9A-F]{3})#([0-9A-F]*) :: (\w+)(?: node \d+)?\((.*)\)$"
+)
+
+
+def test_dump_decodes_every_frame_of_a_log_with_the_dbc(candump):
+    import can
+
+    from northfinder.driver.protocol.can import decode_can
+    from northfinder.driver.protocol.messages import SampleX
+
+    path, _ = candump
+    code, out, err = run_cli("dump", str(path))
+    assert code == 0, err
+    lines = out.splitlines()
+    with can.LogReader(str(path)) as reader:
+        frames = list(reader)
+    assert len(lines) == len(frames)
+    names = set()
+    for line, msg in zip(lines, frames, strict=True):
+        m = DUMP_LINE.match(line)
+        assert m is not None, line
+        assert int(m.group(3), 16) == msg.arbitration_id and bytes.fromhex(m.group(4)) == msg.data
+        names.add(m.group(5))
+        if m.group(5) == "SAMPLE_X":
+            ours = decode_can(msg.arbitration_id, bytes(msg.data)).message
+            assert isinstance(ours, SampleX)
+            gyro = float(re.search(r"GyroX: (\S+) deg/h", line).group(1))  # type: ignore[union-attr]
+            assert gyro == pytest.approx(ours.gyro * 1e-4, rel=1e-5, abs=1e-9)
+    assert names == {"COMMAND", "REPLY", "SAMPLE_X", "SAMPLE_Y", "SAMPLE_Z", "SAMPLE_AUX",
+                     "STATUS", "STATUS_COUNTERS", "IDENTIFY"}  # fmt: skip
+
+
+def test_dump_filters_by_id_time_and_session(candump, tmp_path):
+    path, _ = candump
+    code, out, _ = run_cli("dump", str(path), "--id", "COMMAND,51")
+    assert code == 0
+    kinds = {line.split(" :: ")[1].split("(")[0] for line in out.splitlines()}
+    assert kinds == {"COMMAND", "REPLY"}
+    assert "Opcode: ROTATE_TO" in out
+    out = run_cli("dump", str(path), "--time-from", "1", "--time-to", "2")[1]
+    times = [float(DUMP_LINE.match(line).group(1)) for line in out.splitlines()]  # type: ignore[union-attr]
+    first = float(DUMP_LINE.match(run_cli("dump", str(path), "--count", "1")[1].strip()).group(1))  # type: ignore[union-attr]
+    assert times and all(1.0 <= t - first <= 2.0 for t in times)
+    second_log = tmp_path / "second.log"
+    _logged_find(second_log, 13)
+    both = tmp_path / "both.log"
+    both.write_text(path.read_text() + second_log.read_text())
+    n_first = len(path.read_text().splitlines())
+    n_second = len(second_log.read_text().splitlines())
+    assert len(run_cli("dump", str(both), "--session", "1")[1].splitlines()) == n_first
+    assert len(run_cli("dump", str(both), "--session", "2")[1].splitlines()) == n_second
+    assert run_cli("dump", str(both), "--session", "3")[1] == ""
+
+
+def test_dump_skips_a_damaged_line_with_a_warning(candump, tmp_path):
+    path, _ = candump
+    lines = path.read_text().splitlines(keepends=True)
+    lines[100] = "garbage\n"
+    damaged = tmp_path / "damaged.log"
+    damaged.write_text("".join(lines))
+    code, out, err = run_cli("dump", str(damaged))
+    assert code == 0 and len(out.splitlines()) == len(lines) - 1
+    assert "skipped 1 damaged line(s) (first: line 101" in err
+    code, out, err = run_cli("dump", str(damaged), "--strict")
+    assert code == 2 and "breaks off after frame 100" in err and len(out.splitlines()) == 100
+
+
+def test_dump_reads_a_live_bus():
+    import threading
+
+    import can
+
+    from northfinder.driver.protocol.can import encode_can
+    from northfinder.driver.protocol.messages import RotateTo
+
+    channel = f"nf-dump-{os.getpid()}"
+    stop = threading.Event()
+
+    def send() -> None:
+        with can.Bus(interface="virtual", channel=channel) as bus:
+            frame = encode_can(RotateTo(7, 90_000_000))[0]
+            while not stop.wait(0.01):
+                bus.send(can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
+                                     is_extended_id=False))  # fmt: skip
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    try:
+        code, out, err = run_cli("dump", "-i", "virtual", "-c", channel, "--count", "3",
+                                 "--duration", "30")  # fmt: skip
+    finally:
+        stop.set()
+        sender.join()
+    assert code == 0, err
+    lines = out.splitlines()
+    assert len(lines) == 3 and all("COMMAND(Seq: 7, Opcode: ROTATE_TO" in line for line in lines)
+
+
+def test_dump_refuses_what_it_cannot_do(tmp_path):
+    assert run_cli("dump")[0] == 2
+    code, _, err = run_cli("dump", str(tmp_path / "missing.log"))
+    assert code == 2 and "no such file" in err
+    code, _, err = run_cli("dump", str(tmp_path / "x.log"), "--id", "NOPE")
+    assert code == 2 and "SAMPLE_X" in err

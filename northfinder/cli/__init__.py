@@ -43,6 +43,7 @@ COMMANDS: dict[str, str] = {
     "record": "northfinder.cli.record",
     "calibrate": "northfinder.cli.calibrate",
     "monitor": "northfinder.cli.monitor",
+    "dump": "northfinder.cli.dump",
 }
 
 #: The one-line help of each command, for the command list (the same text as each module's).
@@ -58,6 +59,7 @@ SUMMARIES: dict[str, str] = {
     "record": "record raw windows to CSV or NPZ",
     "calibrate": "fit sensor terms to recordings and write a sensor TOML",
     "monitor": "live terminal view of a unit (Textual)",
+    "dump": "decode a CAN log or a live bus with protocol.dbc",
 }
 
 

@@ -359,15 +359,21 @@ def _short_bus_help(parser: argparse.ArgumentParser) -> None:
             action.help = _BUS_HELP[action.dest]
 
 
-def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
-    """The links every command speaks: python-can bus options (``-i/-c/-b``, as python-can's own
-    tools spell them), ``--serial PORT``, ``--baud`` and ``--node-id``. Returns the serial group so
-    a command can add its own links to it."""
+def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """python-can's bus options (``-i/-c/-b``, as python-can's own tools spell them), without
+    the interfaces that would send off the machine."""
     import can.cli
 
     can.cli.add_bus_arguments(parser)
     _refuse_interfaces_off_the_machine(parser)
     _short_bus_help(parser)
+
+
+def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
+    """The links every command speaks: python-can bus options (``-i/-c/-b``, as python-can's own
+    tools spell them), ``--serial PORT``, ``--baud`` and ``--node-id``. Returns the serial group so
+    a command can add its own links to it."""
+    add_bus_arguments(parser)
     group = common_group(parser, title)
     group.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
     group.add_argument(
