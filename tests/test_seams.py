@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import re
 import socket
@@ -630,3 +631,62 @@ def test_dump_refuses_what_it_cannot_do(tmp_path):
     assert code == 2 and "no such file" in err
     code, _, err = run_cli("dump", str(tmp_path / "x.log"), "--id", "NOPE")
     assert code == 2 and "SAMPLE_X" in err
+
+
+# -- 10. calibrate: an unresolved term at its bound, or refused, with the record it needs -------
+@pytest.fixture(scope="module")
+def short_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cal") / "short.npz"
+    code, _, err = run_cli(
+        "record", str(path), "--sim", "--warmup", "0", "--window", "20", "--seed", "4",
+        "--sensor", "paper-rlg", "--positions", "0,180",
+    )  # fmt: skip
+    assert code == 0, err
+    return path
+
+
+def _toml(text: str) -> dict[str, Any]:
+    import tomllib
+
+    return tomllib.loads(text[text.index("# calibrated from") :])
+
+
+def test_an_unresolved_term_is_written_at_its_bound_not_as_zero(short_recording):
+    from northfinder.host.calibrate import calibrate, read_runs
+
+    code, out, err = run_cli("calibrate", str(short_recording))
+    assert code == 0, err
+    cal = calibrate(read_runs([short_recording]))
+    assert not cal.triad_fits["gyro"].resolved["bias_instability"]
+    _, _, bound = cal.field_value(0, "bias_instability")
+    written = _toml(out)["gyro"]["bias_instability_dph"]
+    assert written == pytest.approx(bound, rel=1e-12) and written > 0
+    assert "written at the bound" in out and "stretches of about" in out
+    code, out, _ = run_cli("calibrate", str(short_recording), "--unresolved", "zero")
+    assert code == 0 and _toml(out)["gyro"]["bias_instability_dph"] == 0.0
+    # The simulator takes the conservative file.
+    code, out, _ = run_cli("calibrate", str(short_recording), "--json")
+    assert json.loads(out)["sensor"]["gyro"]["bias_instability_dph"] == pytest.approx(bound)
+
+
+def test_calibrate_refuses_on_request_and_says_what_record_resolves_it(short_recording, tmp_path):
+    out_toml = tmp_path / "cal.toml"
+    code, out, err = run_cli(
+        "calibrate", str(short_recording), "--unresolved", "refuse", "-o", str(out_toml)
+    )
+    assert code == 1 and not out_toml.exists()
+    assert "do not resolve gyro.bias_instability_dph" in err and "stretches of about" in err
+
+
+def test_the_record_that_resolves_a_bias_instability_is_the_closed_form(short_recording):
+    """paper-rlg (ARW 0.0015 deg/sqrt(h)), B = 0.005 deg/h: the white noise's Allan deviation
+    60 N / sqrt(tau) meets the floor 0.664 B at tau = (60 N / 0.664 B)^2 = 751 s; thirty times
+    that is 6.1 h, so the 2 h recipe cannot resolve it."""
+    from northfinder.host.calibrate import calibrate, read_runs
+
+    cal = calibrate(read_runs([short_recording]))
+    arw = cal.triad_fits["gyro"].coefficients["arw"] / 60.0  # deg/sqrt(h)
+    assert arw == pytest.approx(0.0015, rel=0.1)  # the preset's, within the fit's scatter
+    expected = 30 * (60 * arw) ** 2 / (2 * math.log(2) / math.pi * 0.005**2)
+    assert cal.resolving_record_s(0.005) == pytest.approx(expected, rel=1e-12)
+    assert 5.0 * 3600 < cal.resolving_record_s(0.005) < 7.5 * 3600  # far beyond 2 h
