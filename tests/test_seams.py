@@ -671,7 +671,7 @@ def test_an_unresolved_term_is_written_at_its_bound_not_as_zero(short_recording)
 
 def test_calibrate_refuses_on_request_and_says_what_record_resolves_it(short_recording, tmp_path):
     out_toml = tmp_path / "cal.toml"
-    code, out, err = run_cli(
+    code, _, err = run_cli(
         "calibrate", str(short_recording), "--unresolved", "refuse", "-o", str(out_toml)
     )
     assert code == 1 and not out_toml.exists()
