@@ -42,7 +42,13 @@ from numpy.typing import NDArray
 from threadpoolctl import ThreadpoolController
 
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
-from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, bound_deg, predict
+from northfinder.host.accuracy import (
+    ANGLE_SOURCES,
+    TILT_SOURCES,
+    ErrorModel,
+    bound_deg,
+    predict_solutions,
+)
 from northfinder.host.errors import HostConfigError, check_choice
 from northfinder.host.plan import Plan
 from northfinder.host.study import Summary, chunk_errors, summarize, summarize_columns
@@ -60,6 +66,7 @@ __all__ = [
     "local_executor",
     "monte_carlo",
     "monte_carlo_many",
+    "prediction_options",
     "run_chunk",
     "study_rows",
     "verify_plan",
@@ -398,17 +405,10 @@ def study_rows(
         stats: list[Summary] = summarize_columns(errors)
     else:
         subplans, stats = [plan], [summarize(errors)]
+    preds = predict_solutions(model, plan, **prediction_options(settings))
     rows = []
-    for sub, s in zip(subplans, stats, strict=True):
+    for sub, s, pred in zip(subplans, stats, preds, strict=True):
         b = bound_deg(sub.positions_deg, plan.window_s, model.arw_dpsh, settings.latitude_deg)
-        pred = predict(
-            model,
-            sub,
-            settings.latitude_deg,
-            warmup_s=settings.warmup_s,
-            tilt=settings.tilt,
-            angles=settings.angles,
-        )
         row: dict[str, Any] = {
             "positions_deg": list(sub.positions_deg),
             **asdict(s),
@@ -421,6 +421,22 @@ def study_rows(
             row["mu_deg"] = sub.positions_deg[1] - sub.positions_deg[0]
         rows.append(row)
     return rows
+
+
+def prediction_options(settings: StudySettings) -> dict[str, Any]:
+    """The keyword arguments of :func:`~northfinder.host.accuracy.predict` that describe the
+    runs of a study with these settings (latitude, warm-up, tilt, angles, rate, truth, step)."""
+    return {
+        "latitude_deg": settings.latitude_deg,
+        "warmup_s": settings.warmup_s,
+        "tilt": settings.tilt,
+        "angles": settings.angles,
+        "sample_rate_hz": settings.sample_rate_hz,
+        "pitch_deg": settings.pitch_deg,
+        "roll_deg": settings.roll_deg,
+        "azimuth_deg": settings.azimuth_deg,
+        "bias_step_dph": settings.bias_step_dph,
+    }
 
 
 def verify_plan(

@@ -14,32 +14,16 @@ import math
 import os
 import re
 import socket
-from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Any
 
 import pynmea2
 import pytest
-
-from northfinder.cli import main
+from clirun import run_cli, run_json
 
 #: A number printed as a negative zero (-0, -0.000), not -0.0001.
 NEGATIVE_ZERO = re.compile(r"(?<![\w.])-0(\.0*)?(?![\d.])")
 FAST = ["--sim", "--warmup", "0", "--window", "2", "--positions", "0,180"]
-
-
-def run_cli(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
-
-
-def run_json(*argv: str) -> dict[str, Any]:
-    code, out, err = run_cli(*argv, "--json")
-    assert code == 0, err
-    doc: dict[str, Any] = json.loads(out)
-    return doc
 
 
 # -- 1. outputs checked before any work; NMEA to UDP and TCP ----------------------------------

@@ -299,6 +299,9 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         "warmup_s": args.warmup,
         "tilt": args.tilt,
         "angles": args.angles,
+        "sample_rate_hz": args.rate,
+        "pitch_deg": args.pitch,
+        "roll_deg": args.roll,
     }
     report: dict[str, Any] = {
         "kind": "plan-search",
