@@ -484,10 +484,14 @@ class _Timeline:
 
     def mean_of_exp(self, t0: float, rate: complex) -> NDArray[np.complex128]:
         """Mean over each window's samples of ``exp(rate (t - t0))``, (P,) (sample ``k`` at
-        ``start + (k + 1) / fs``)."""
+        ``start + (k + 1) / fs``); a decay (real ``rate`` < 0) only for windows after ``t0``
+        (0 before: it has not started)."""
         z = rate / self.fs
         factor = self.n if z == 0 else np.expm1(self.n * z) / np.expm1(z)
-        return np.exp(rate * (self.starts + 1.0 / self.fs - t0)) * factor / self.n
+        dt = self.starts + 1.0 / self.fs - t0
+        if rate.real < 0:
+            return np.where(dt >= 0, np.exp(rate * np.maximum(dt, 0.0)) * factor / self.n, 0.0)
+        return np.exp(rate * dt) * factor / self.n
 
 
 def _timeline(plan: Plan, table: TableModel, warmup_s: float, fs: float) -> _Timeline:
@@ -510,7 +514,7 @@ def _move_cov(tl: _Timeline, ch: _Channel, heat_tau_s: float) -> NDArray[np.floa
     q = move_heat(tl.move_start, tl.move_deg, heat_tau_s)
     for t0, size, first in zip(tl.move_start, q, tl.move_window, strict=True):
         after = np.arange(p) >= first
-        decay = np.where(after, tl.mean_of_exp(t0, -1.0 / ch.move_tau_s).real, 0.0)
+        decay = tl.mean_of_exp(t0, -1.0 / ch.move_tau_s).real
         cov += size * (
             ch.move_walk**2 * np.outer(after, after) + ch.move_transient**2 * np.outer(decay, decay)
         )

@@ -98,3 +98,15 @@ def test_the_site_builds_without_warnings(tmp_path):
         check=False,
     )
     assert build.returncode == 0, build.stderr
+
+
+def test_the_readme_python_example_prints_what_the_readme_says(capsys):
+    """The tour's Python example runs as written and prints the figures in its last comment
+    (virtual time and a seed: the same digits on any machine)."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+    assert len(blocks) == 1
+    expected = re.search(r"# (.*)$", blocks[0].strip().splitlines()[-1])
+    assert expected is not None
+    exec(compile(blocks[0], "README.md", "exec"), {})
+    assert capsys.readouterr().out.strip() == expected.group(1).strip()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -65,6 +66,14 @@ def test_indexing_error_with_commanded_angles_is_half_the_stop_error_for_two_pos
     assert predict(model, Plan((0, 180), 10.0), LAT, angles="commanded").sigma_deg == pytest.approx(
         0.005, rel=1e-6
     )
+
+
+def test_a_fast_move_transient_is_nothing_before_its_move():
+    model = ErrorModel(0.001, move_transient_dph_per_rtdeg=0.01, move_transient_tau_s=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow for the windows before a move
+        pred = predict(model, Plan((0.0, 90.0, 180.0, 270.0), 60.0), LAT)
+    assert pred.parts_deg["moves"] < 1e-9 < pred.sigma_deg
 
 
 def test_move_heat_is_the_instrument_s():

@@ -29,9 +29,7 @@ from northfinder.host.results import envelope
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(
-        sub, "calibrate", "fit sensor terms to recordings and write a sensor TOML", __doc__
-    )
+    p = command_parser(sub, "calibrate", __doc__)
     p.add_argument(
         "recordings", nargs="+", metavar="RECORDING",
         help=f"recordings, one per power-on ({', '.join(sorted(READERS))})",

@@ -67,7 +67,7 @@ def _id_list(text: str) -> list[str]:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "dump", "decode a CAN log or a live bus with protocol.dbc", __doc__)
+    p = command_parser(sub, "dump", __doc__)
     p.add_argument(
         "log", nargs="?", default=None, metavar="LOG",
         help="CAN log to decode (or give a bus with -i/-c)",

@@ -73,7 +73,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(
         sub,
         "study",
-        "Monte Carlo accuracy of a plan against the physical bound; plan search",
         __doc__,
     )
     add_sensor_argument(p)

@@ -76,7 +76,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(
         sub,
         "sweep",
-        "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
         __doc__,
     )
     g = p.add_argument_group("what to sweep (every combination is one study)")
