@@ -46,7 +46,14 @@ from northfinder.host.montecarlo import (
     study_rows,
     verify_plan,
 )
-from northfinder.host.plan import PLANS, SOLVERS, Plan, plan_time_s, settle_time_s
+from northfinder.host.plan import (
+    DEFAULT_POSITIONS_DEG,
+    PLANS,
+    SOLVERS,
+    Plan,
+    plan_time_s,
+    settle_time_s,
+)
 from northfinder.host.planner import PlanCandidate, search_plans, shortest_plan
 from northfinder.host.results import envelope
 from northfinder.simwindows import SimulatedWindows, error_model, simulator_identity
@@ -95,7 +102,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--positions",
         type=angle_list,
         default=None,
-        help="table angles, deg (default: 0,180)",
+        help="table angles, deg (default 0,180,180,0, as find)",
     )
     g.add_argument(
         "--plan",
@@ -223,7 +230,9 @@ def _plan(args: argparse.Namespace) -> Plan:
         named = PLANS[args.named_plan]
         plan = replace(named, window_s=args.window or named.window_s, settle_s=args.settle)
     else:
-        plan = Plan(tuple(args.positions or (0.0, 180.0)), args.window or 10.0, args.settle)
+        plan = Plan(
+            tuple(args.positions or DEFAULT_POSITIONS_DEG), args.window or 10.0, args.settle
+        )
     return _processing(args, plan)
 
 
