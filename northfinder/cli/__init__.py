@@ -19,6 +19,7 @@ from northfinder.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_RUNTIME,
     EXIT_USAGE,
+    SUMMARIES,
     common_group,
     order_groups,
     report_error,
@@ -43,21 +44,7 @@ COMMANDS: dict[str, str] = {
     "record": "northfinder.cli.record",
     "calibrate": "northfinder.cli.calibrate",
     "monitor": "northfinder.cli.monitor",
-}
-
-#: The one-line help of each command, for the command list (the same text as each module's).
-SUMMARIES: dict[str, str] = {
-    "simulate": "summarise simulated windows (physics only)",
-    "sim": "run the simulated instrument on a link",
-    "simctl": "control a running simulator",
-    "conformance": "check a unit on a link against protocol.md",
-    "study": "Monte Carlo accuracy of a plan against the physical bound; plan search",
-    "sweep": "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
-    "solve": "solve a recording or CAN log offline",
-    "find": "find true north",
-    "record": "record raw windows to CSV or NPZ",
-    "calibrate": "fit sensor terms to recordings and write a sensor TOML",
-    "monitor": "live terminal view of a unit (Textual)",
+    "dump": "northfinder.cli.dump",
 }
 
 
@@ -76,10 +63,18 @@ def _log_level(text: str) -> str:
 
 
 def add_global_options(parser: argparse.ArgumentParser, *, sub: bool = False) -> None:
-    """``--debug``, ``-v`` and ``--log-level``, before or after the subcommand. On a
+    """``--debug``, ``-v`` and ``--log-level`` (and ``--version``), before or after the
+    subcommand. On a
     subcommand their defaults are left out, so that an option given before it stays."""
     default: dict[str, Any] = {"default": argparse.SUPPRESS} if sub else {}
     g = common_group(parser, "logging and debugging") if sub else parser
+    if sub:  # the top-level parser has its own --version
+        from northfinder.host.results import package_version
+
+        g.add_argument(
+            "--version", action="version", version=f"northfinder {package_version()}",
+            help="print the version and exit",
+        )  # fmt: skip
     g.add_argument(
         "--debug", action="store_true", help="show tracebacks on errors", **default
     )  # fmt: skip

@@ -76,7 +76,7 @@ _FLAGS: tuple[tuple[str, str, Callable[[str], Any], str | None, str], ...] = (
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "conformance", "check a unit on a link against protocol.md", __doc__)
+    p = command_parser(sub, "conformance", __doc__)
     group = add_link_arguments(p, "serial link and simulation")
     group.add_argument(
         "--sim",

@@ -44,7 +44,7 @@ SIM_ONLY = ("warmup", "sensor", "azimuth", "pitch", "roll", "seed")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "monitor", "live terminal view of a unit (Textual)", __doc__)
+    p = command_parser(sub, "monitor", __doc__)
     add_device_arguments(p)
     add_plan_arguments(p)
     g = p.add_argument_group("monitor")

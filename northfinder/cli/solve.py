@@ -40,7 +40,7 @@ from northfinder.host.recording import Recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "solve", "solve a recording or CAN log offline", __doc__)
+    p = command_parser(sub, "solve", __doc__)
     p.add_argument("file", help="recording (.csv, .npz) or CAN log (.log, .asc, .blf, ...)")
     p.add_argument(
         "--latitude",
