@@ -39,6 +39,7 @@ from northfinder.driver.clock import Clock
 from northfinder.driver.errors import (
     ArgumentError,
     DeviceFault,
+    DeviceRefused,
     DeviceReset,
     DriverTimeout,
     LinkError,
@@ -53,6 +54,7 @@ from northfinder.driver.link import (
     REPLY_TIMEOUT_S,
     RETRIES,
     RETRYABLE,
+    AtRest,
     DeviceLink,
     DeviceStatus,
     LinkStats,
@@ -92,6 +94,7 @@ from northfinder.driver.window import OnGap, Window, WindowCollector
 __all__ = [
     "HEARTBEATS_UNTIL_LOST",
     "RETRYABLE",
+    "AtRest",
     "Device",
     "DeviceStatus",
     "LinkStats",
@@ -399,6 +402,8 @@ class Device(DeviceLink):
             self._config[k] = in_effect
             if k == ConfigKey.STREAMING:
                 self._streaming = bool(in_effect)
+                if command is SetConfig:
+                    self._stream_owned = bool(in_effect)
         return in_effect
 
     @_on_clock
@@ -446,13 +451,20 @@ class Device(DeviceLink):
         if not self._streaming:
             self._prepare_stream_start()
         self._request(StreamStart)
-        self._streaming = True
+        self._streaming = self._stream_owned = True
 
     @_on_clock
     def stop_streaming(self) -> None:
-        """Stop the sample stream (STREAM_STOP)."""
+        """Stop the sample stream (STREAM_STOP), whoever started it."""
         self._request(StreamStop)
-        self._streaming = False
+        self._streaming = self._stream_owned = False
+
+    @_on_clock
+    def release_stream(self) -> None:
+        """Stop the sample stream if this object started it (STREAM_STOP); leave another
+        host's stream running."""
+        if self._stream_owned:
+            self.stop_streaming()
 
     # -- motion -------------------------------------------------------------------------------
     @_on_clock
@@ -539,6 +551,7 @@ class Device(DeviceLink):
             n0, epoch = self._status_count, self._boot_epoch
         t0 = self._clock.now()
         self._request(Stop)
+        self._move_open = False
         if not wait:
             return None
         self._refresh_config_if_stale()
@@ -603,12 +616,21 @@ class Device(DeviceLink):
         expected = self.move_duration_s(distance_deg)
         with self._lock:
             n0, epoch = self._status_count, self._boot_epoch
+            # Open from before it is sent: an interrupt between the send and its reply must
+            # still leave the table stopped.
+            self._move_open, self._move_n0 = True, n0
         t0 = self._clock.now()
-        self._request(command, *args)
+        try:
+            self._request(command, *args)
+        except DeviceRefused:
+            self._move_open = False  # refused: nothing moves
+            raise
         if not wait:
             return None
         limit = expected * 1.5 + 2.0 if timeout is None else timeout
-        return self._wait_settled(n0, epoch, t0, expected, limit, command.OPCODE.name)
+        st = self._wait_settled(n0, epoch, t0, expected, limit, command.OPCODE.name)
+        self._move_open = False
+        return st
 
     def _wait_settled(
         self, n0: int, epoch: int, t0: float, min_s: float, limit: float, what: str
@@ -656,7 +678,7 @@ class Device(DeviceLink):
         t0 = self._clock.now()
         self._request(Reset)
         with self._lock:
-            self._streaming = False
+            self._streaming = self._stream_owned = self._move_open = False
             self._config_stale = True
         if not wait:
             return None

@@ -41,10 +41,12 @@ from northfinder.driver.protocol.constants import (
 )
 from northfinder.driver.protocol.messages import (
     Command,
+    GetStatus,
     Identify,
     Reply,
     Sample,
     Status,
+    Stop,
     StreamStop,
 )
 from northfinder.driver.transport import READ_POLL_S, Received, Transport
@@ -55,6 +57,7 @@ __all__ = [
     "REPLY_TIMEOUT_S",
     "RETRIES",
     "RETRYABLE",
+    "AtRest",
     "DeviceLink",
     "DeviceStatus",
     "LinkStats",
@@ -82,6 +85,9 @@ during the move is refused BUSY, and ROTATE_BY would add up), nor RESET and SELF
 """
 
 REPLY_TIMEOUT_S = 0.25
+#: Longest wait, s, after the STOP of :meth:`DeviceLink.leave_at_rest` for the table to be seen
+#: leaving ROTATING (a table at 6 deg/s and 10 deg/s^2 stops in 0.6 s).
+STOP_WAIT_S = 2.0
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
@@ -163,6 +169,46 @@ class LinkStats:
     resets_detected: int
 
 
+@dataclass(frozen=True, slots=True)
+class AtRest:
+    """What :meth:`DeviceLink.leave_at_rest` did to leave the unit at rest and quiet.
+
+    Attributes
+    ----------
+    sent : tuple of str
+        Commands sent and accepted, in order (``"STOP"``, ``"STREAM_STOP"``).
+    failed : tuple of str
+        Commands that were needed but could not be sent or were not answered (a lost link).
+    state : str or None
+        The device state read afterwards (``"READY"``, ``"SETTLING"``, ...), None if unknown.
+    """
+
+    sent: tuple[str, ...] = ()
+    failed: tuple[str, ...] = ()
+    state: str | None = None
+
+    @property
+    def needed(self) -> bool:
+        """Whether this host had anything to undo."""
+        return bool(self.sent or self.failed)
+
+    def summary(self) -> str:
+        """One clause: ``sent STOP and STREAM_STOP; the unit reads READY``."""
+        parts = []
+        if self.sent:
+            parts.append(f"sent {' and '.join(self.sent)}")
+        if self.failed:
+            parts.append(
+                f"could not send {' and '.join(self.failed)} (the unit may still move or stream)"
+            )
+        if not parts:
+            parts.append("nothing to stop")
+        text = "; ".join(parts)
+        if self.state is not None:
+            text += f"; the unit reads {self.state}"
+        return text
+
+
 @dataclass
 class _Waiter:
     opcode: Opcode
@@ -231,6 +277,14 @@ class DeviceLink:
         self._config: dict[ConfigKey, int] = {}
         self._config_stale = True
         self._streaming = False
+        # What this host started and has not seen end: a stream (STREAM_START or SET_CONFIG
+        # STREAMING=1 sent by this object) and a move (ROTATE_TO/BY or HOME sent, its settling
+        # not yet seen). Only these are undone on leaving (:meth:`leave_at_rest`): another host's
+        # stream or move on the same bus is never stopped.
+        self._stream_owned = False
+        self._move_open = False
+        self._move_n0 = 0  # _status_count when the open move was commanded
+        self.at_rest: AtRest | None = None
         self._dead: DriverError | None = None
         self._closed = False
         self._stop = threading.Event()
@@ -254,20 +308,81 @@ class DeviceLink:
         """What to read from the device once the reader runs (``Device``: identify, status and
         configuration); an error closes the link again."""
 
+    def leave_at_rest(self) -> AtRest:
+        """Undo what this host started, nothing else: STOP a move it commanded that has not been
+        seen to settle, STREAM_STOP a stream it started; then read the state once.
+
+        Called by :meth:`close` (so a ``with`` block left by an exception or Ctrl-C leaves the
+        unit at rest and quiet); callable before it to learn what was done. Never raises: what
+        could not be sent is listed in :attr:`AtRest.failed`. Idempotent: a second call sends
+        nothing and returns the first call's report.
+        """
+        if self.at_rest is not None and not (self._move_open or self._stream_owned):
+            return self.at_rest
+        sent: list[str] = []
+        failed: list[str] = []
+        state: str | None = None
+        reading = self._reader.is_alive() if self._reader is not None else True
+        usable = not self._closed and self._dead is None and reading
+        todo: list[tuple[type[Command], str]] = [(Stop, "STOP")] if self._move_open else []
+        if self._stream_owned:
+            todo.append((StreamStop, "STREAM_STOP"))
+        for command, name in todo:
+            if not usable:
+                failed.append(name)
+                continue
+            try:
+                with self._clock.participant():
+                    self._request(command, attempts=1 + self.retries)
+                sent.append(name)
+            except DriverError as exc:
+                log.info("%s not sent on leaving: %s", name, exc)
+                failed.append(name)
+        with self._lock:
+            if "STOP" in sent:
+                self._move_open = False
+            if "STREAM_STOP" in sent:
+                self._stream_owned = self._streaming = False
+        if usable and todo:
+            state = self._read_state("STOP" in sent)
+        elif self._status is not None:
+            state = self._status.state.name
+        self.at_rest = AtRest(tuple(sent), tuple(failed), state)
+        return self.at_rest
+
+    def _read_state(self, stopping: bool) -> str | None:
+        """The state from one fresh status (GET_STATUS once), else the latest one received.
+        After a STOP (``stopping``), wait up to :data:`STOP_WAIT_S` for the table to leave
+        ROTATING (it decelerates at its acceleration limit) on the heartbeats."""
+        with self._lock:
+            n0 = self._status_count
+        try:
+            with self._clock.participant():
+                self._request(GetStatus, attempts=1)
+                self._clock.wait_until(
+                    lambda: self._status_count > n0, self._clock.now() + self.reply_timeout
+                )
+                if stopping:
+                    self._clock.wait_until(
+                        lambda: (
+                            self._status is not None and self._status.state != DeviceState.ROTATING
+                        ),
+                        self._clock.now() + STOP_WAIT_S,
+                    )
+        except DriverError:
+            pass
+        return self._status.state.name if self._status is not None else None
+
     def close(self) -> None:
-        """Stop the stream if this driver started it, stop the reader, release the bus or port.
+        """Leave the unit at rest (:meth:`leave_at_rest`: STOP a move and STREAM_STOP a stream
+        this object started, nothing another host started), stop the reader, release the bus
+        or port.
 
         Idempotent; never raises for a device that stopped answering.
         """
         if self._closed:
             return
-        reading = self._reader.is_alive() if self._reader is not None else True
-        if self._streaming and self._dead is None and reading:
-            try:
-                with self._clock.participant():
-                    self._request(StreamStop, attempts=1)
-            except DriverError as exc:
-                log.info("stream not stopped on close: %s", exc)
+        self.leave_at_rest()
         self._closed = True
         self._stop.set()
         if self._reader is None:
@@ -402,6 +517,12 @@ class DeviceLink:
         self._status_count += 1
         if status.state in (DeviceState.ROTATING, DeviceState.SETTLING):
             self._motion_count = self._status_count
+        elif (
+            status.state == DeviceState.READY
+            and self._move_open
+            and self._motion_count > self._move_n0
+        ):
+            self._move_open = False  # the move this host commanded has settled
         if status.state == DeviceState.BOOT and previous is not None:
             if previous.state != DeviceState.BOOT:
                 self._note_reset("the device reports state BOOT")
@@ -420,7 +541,7 @@ class DeviceLink:
         self._boot_epoch += 1
         self._counts["resets"] += 1
         self._reset_reason = reason
-        self._streaming = False
+        self._streaming = self._stream_owned = self._move_open = False
         self._config_stale = True
         self._transport.restart_stream()
         log.warning("device restart detected: %s", reason)

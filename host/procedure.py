@@ -609,7 +609,9 @@ def find_north(
             sleep(extra)
         report(Progress("acquire", i + 1, n, target % 360.0, seconds_left(i, None) - extra))
         window = device.acquire(plan.window_s, on_gap="raise")
-        device.stop_streaming()
+        # Stop the stream between windows, but only one this host started (another host on
+        # the bus may be using it): a Device has release_stream for that.
+        getattr(device, "release_stream", device.stop_streaming)()
         raw.append(window)
         summary = summarise_window(window, target, plan.denoise, options)
         windows.append(summary)

@@ -9,7 +9,8 @@ Exit status
 - 2 (:data:`EXIT_USAGE`): the request is wrong: a command-line argument or option, a combination of
   them, or the content of a file named on the command line (a sensor TOML, a recording). Fix the
   command and run it again. argparse's own errors exit 2 as well.
-- 130: interrupted (Ctrl-C).
+- 130, 143, 129: interrupted by SIGINT (Ctrl-C), SIGTERM, SIGHUP (128 + the signal's number);
+  a device the command opened is left at rest first (:class:`SignalInterrupt`).
 
 :func:`exit_status` maps an exception to its status by :data:`EXIT_STATUS` (the most specific
 class of the error's MRO decides); :func:`report_error` prints the one line. An exception of no
@@ -50,6 +51,38 @@ from northfinder.host.errors import (
 EXIT_RUNTIME = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class SignalInterrupt(KeyboardInterrupt):
+    """SIGTERM, SIGHUP (or SIGINT) turned into the interrupt Ctrl-C raises, so that every
+    ending runs the same clean-up; ``signum`` names the signal."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = int(signum)
+
+
+def note_at_rest(exc: BaseException, rest: Any) -> None:
+    """Remember on ``exc`` what was done to leave the device at rest (an
+    :class:`~northfinder.driver.link.AtRest`), for the line that reports ``exc``."""
+    with contextlib.suppress(AttributeError, TypeError):
+        exc.northfinder_at_rest = rest  # type: ignore[attr-defined]
+
+
+def at_rest_of(exc: BaseException) -> Any:
+    """What :func:`note_at_rest` remembered on ``exc`` or on an error in its chain, if it had
+    anything to undo; else None."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        rest = getattr(current, "northfinder_at_rest", None)
+        if rest is not None:
+            return rest if rest.needed else None
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return None
+
 
 #: Exception class -> exit status. The first class of an error's MRO found here decides, so a
 #: subclass listed overrides its base (a HostConfigError is a HostError, and exits 2).
@@ -92,8 +125,13 @@ def error_line(command: str, exc: BaseException) -> str:
 
 
 def report_error(command: str, exc: BaseException, stream: TextIO | None = None) -> int:
-    """Print the one line for ``exc`` and return the exit status (internal errors: 1)."""
-    print(error_line(command, exc), file=stream or sys.stderr)
+    """Print the one line for ``exc`` and return the exit status (internal errors: 1); what was
+    done to leave a device at rest (:func:`note_at_rest`) ends the line."""
+    line = error_line(command, exc)
+    rest = at_rest_of(exc)
+    if rest is not None:
+        line += f" ({rest.summary()})"
+    print(line, file=stream or sys.stderr)
     status = exit_status(exc)
     return EXIT_RUNTIME if status is None else status
 

@@ -24,6 +24,7 @@ from northfinder.cli.common import (
     can_log_path,
     latitude_source,
     load_sensor,
+    note_at_rest,
     open_can_bus,
     sim_latitude,
     sim_truth,
@@ -213,8 +214,19 @@ def _open_unit(args: argparse.Namespace, tap: FrameLog | None) -> Iterator[Devic
     else:
         bus = open_can_bus(args)
         device = Device.from_bus(bus, node_id=args.node_id, own_bus=True, **options)
-    with device:
+    with device, leaving_at_rest(device):
         yield device
+
+
+@contextlib.contextmanager
+def leaving_at_rest(device: Device) -> Iterator[None]:
+    """On any exception, Ctrl-C or an ending signal: leave the device at rest now (STOP, STREAM_STOP
+    for what this host started) and note on the exception what was done, for its one line."""
+    try:
+        yield
+    except BaseException as exc:
+        note_at_rest(exc, device.leave_at_rest())
+        raise
 
 
 def device_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -253,7 +265,7 @@ def embedded_simulator(
     options = {**(RELAXED_DEVICE_OPTIONS if paced else {}), **device_options(args)}
     if tap is not None and not paced:
         tap.use_clock(sim.clock)  # the log's times are the instrument's, not the CPU's
-    with sim, sim.open_device(tap=tap, **options) as device:
+    with sim, sim.open_device(tap=tap, **options) as device, leaving_at_rest(device):
         try:
             yield device, sim.describe()
         except DriverError:
