@@ -510,6 +510,7 @@ def find_north(
     sleep: Callable[[float], None] | None = None,
     clock: Callable[[], float] | None = None,
     latitude_source: str = "",
+    on_window: Callable[[int, Any], None] | None = None,
 ) -> tuple[FindResult, list[Any]]:
     """Run the plan on ``device`` and solve; return the result and the raw windows.
 
@@ -532,6 +533,9 @@ def find_north(
         the wall clock).
     latitude_source : str
         Where the latitude came from, stated in the result.
+    on_window : callable, optional
+        Called with the 0-based index and the raw window as soon as each window is measured
+        (before its checks), e.g. to write it to disk while the run goes on.
 
     Raises
     ------
@@ -613,6 +617,8 @@ def find_north(
         # the bus may be using it): a Device has release_stream for that.
         getattr(device, "release_stream", device.stop_streaming)()
         raw.append(window)
+        if on_window is not None:
+            on_window(i, window)
         summary = summarise_window(window, target, plan.denoise, options)
         windows.append(summary)
         here = summary.encoder_deg

@@ -29,7 +29,7 @@ from northfinder.cli.common import (
     EXIT_RUNTIME,
     EXIT_USAGE,
     SignalInterrupt,
-    at_rest_of,
+    ending_of,
     report_error,
 )
 from northfinder.driver.errors import DriverError
@@ -252,9 +252,9 @@ def _interrupted(command: str, exc: BaseException | None = None) -> int:
     what = (
         "interrupted" if signum == signal.SIGINT else f"interrupted ({signal.Signals(signum).name})"
     )
-    rest = at_rest_of(exc) if exc is not None else None
-    if rest is not None:
-        what += f": {rest.summary()}"
+    ending = ending_of(exc) if exc is not None else None
+    if ending is not None:
+        what += f": {ending}"
     try:
         print(f"northfinder{' ' + command if command else ''}: {what}", file=sys.stderr, flush=True)
     except (OSError, ValueError):

@@ -63,25 +63,32 @@ class SignalInterrupt(KeyboardInterrupt):
         self.signum = int(signum)
 
 
-def note_at_rest(exc: BaseException, rest: Any) -> None:
-    """Remember on ``exc`` what was done to leave the device at rest (an
-    :class:`~northfinder.driver.link.AtRest`), for the line that reports ``exc``."""
+def note_ending(exc: BaseException, clause: str) -> None:
+    """Remember on ``exc`` a clause of what was done as the command ended (the device left at
+    rest, the windows kept), for the one line that reports ``exc``."""
     with contextlib.suppress(AttributeError, TypeError):
-        exc.northfinder_at_rest = rest  # type: ignore[attr-defined]
+        clauses = exc.__dict__.setdefault("northfinder_ending", [])
+        clauses.append(clause)
 
 
-def at_rest_of(exc: BaseException) -> Any:
-    """What :func:`note_at_rest` remembered on ``exc`` or on an error in its chain, if it had
-    anything to undo; else None."""
+def note_at_rest(exc: BaseException, rest: Any) -> None:
+    """:func:`note_ending` with what was done to leave the device at rest (an
+    :class:`~northfinder.driver.link.AtRest`), if there was anything to undo."""
+    if rest.needed:
+        note_ending(exc, rest.summary())
+
+
+def ending_of(exc: BaseException) -> str | None:
+    """The clauses :func:`note_ending` remembered on ``exc`` and the errors in its chain, joined
+    (``sent STOP; the unit reads SETTLING; kept 3 of 4 windows in run.csv``); None if none."""
+    clauses: list[str] = []
     seen: set[int] = set()
     current: BaseException | None = exc
     while current is not None and id(current) not in seen:
-        rest = getattr(current, "northfinder_at_rest", None)
-        if rest is not None:
-            return rest if rest.needed else None
+        clauses += getattr(current, "northfinder_ending", [])
         seen.add(id(current))
         current = current.__cause__ or current.__context__
-    return None
+    return "; ".join(clauses) if clauses else None
 
 
 #: Exception class -> exit status. The first class of an error's MRO found here decides, so a
@@ -128,9 +135,9 @@ def report_error(command: str, exc: BaseException, stream: TextIO | None = None)
     """Print the one line for ``exc`` and return the exit status (internal errors: 1); what was
     done to leave a device at rest (:func:`note_at_rest`) ends the line."""
     line = error_line(command, exc)
-    rest = at_rest_of(exc)
-    if rest is not None:
-        line += f" ({rest.summary()})"
+    ending = ending_of(exc)
+    if ending is not None:
+        line += f" ({ending})"
     print(line, file=stream or sys.stderr)
     status = exit_status(exc)
     return EXIT_RUNTIME if status is None else status

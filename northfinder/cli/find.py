@@ -34,7 +34,7 @@ from northfinder.cli.common import (
     positive_float,
     whole_number,
 )
-from northfinder.cli.measure import Measured, add_arguments, run_plan, save_recording
+from northfinder.cli.measure import Measured, add_arguments, run_plan
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
 
 
@@ -104,9 +104,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_plot_path(args.plot)
     to_stdout = args.nmea == "-"
-    m = run_plan(args, progress=not (args.json or to_stdout))
-    if args.record:
-        save_recording(args.record, m)
+    m = run_plan(args, progress=not (args.json or to_stdout), record_to=args.record)
     if args.plot:
         report.plot(args.plot, m.result, m.windows, m.plan.denoise, m.truth)
     text = (
@@ -115,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
         else report.text(m.result, m.truth)
     )
     print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
+    if m.errors:  # the heading is out; now what could not be written (exit 1)
+        raise m.errors[0]
     if args.nmea:
         send_nmea(args, m)
     return 0

@@ -94,6 +94,7 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
     """The recording named by the arguments (read from a CAN log if it is one) and where it
     came from."""
     path = Path(args.file)
+    source: dict[str, Any]
     if is_can_log(path):
         session = read_can_log(path, node_id=args.node_id, window_s=args.window)
         source = {
@@ -107,7 +108,11 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
     if args.window is not None or args.node_id is not None:
         raise HostConfigError("--window and --node-id apply to CAN logs only")
     rec = Recording.load(path)
-    return rec, {"file": str(path), "format": f"recording{path.suffix}"}
+    source = {"file": str(path), "format": f"recording{path.suffix}"}
+    if rec.partial is not None:
+        source["partial"] = rec.partial
+        source["notes"] = [f"partial recording ({rec.partial}): solved from the windows it holds"]
+    return rec, source
 
 
 def run(args: argparse.Namespace) -> int:
