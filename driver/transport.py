@@ -34,6 +34,8 @@ except ImportError:  # pragma: no cover - not Linux
 
 from northfinder.driver.errors import LinkError, LinkLost, ProtocolError
 from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
+from northfinder.driver.protocol.constants import UINT32_MAX
+from northfinder.driver.protocol.counters import counter_diff
 from northfinder.driver.protocol.messages import Command, Identify, Reply, Sample, Status
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
 
@@ -54,7 +56,6 @@ Received = Reply | Status | Identify | Sample | TickLoss
 READ_POLL_S = 0.05
 #: Most CAN frames one :meth:`CanTransport.recv` call drains, so the caller keeps control.
 MAX_FRAMES_PER_RECV = 512
-_U32 = 0xFFFFFFFF
 
 
 class Transport(Protocol):
@@ -500,16 +501,16 @@ class SerialTransport:
         last, self._last_counter = self._last_counter, counter
         if last is None:
             return []
-        step = (counter - last) & _U32
+        step = counter_diff(counter, last)
         if step == 1:
             return []
-        if step == 0 or step >= 1 << 31:
+        if step <= 0:
             # Repeated or earlier counter: the device restarted. The device decides what that
             # means; nothing is lost on this side.
             self.counter_restarts += 1
             return []
         self.ticks_lost += step - 1
-        return [TickLoss((last + 1) & _U32, step - 1, False)]
+        return [TickLoss((last + 1) & UINT32_MAX, step - 1, False)]
 
     def restart_stream(self) -> list[TickLoss]:
         """The stream was off: the next sample does not continue the previous one (any thread)."""

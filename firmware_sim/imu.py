@@ -18,6 +18,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numpy.typing import NDArray
 
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.earth import body_rates, check_latitude
 from northfinder.firmware_sim.error_terms import (
     FLICKER_GRID_S,
@@ -52,7 +53,7 @@ class Truth:
     """Where the instrument really stands: azimuth clockwise from north, latitude, pitch, roll (deg)."""
 
     azimuth_deg: float = 0.0
-    latitude_deg: float = 34.0
+    latitude_deg: float = DEFAULT_LATITUDE_DEG
     pitch_deg: float = 0.0
     roll_deg: float = 0.0
 

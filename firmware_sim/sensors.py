@@ -15,6 +15,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from northfinder.driver.protocol.motion import (
+    DEFAULT_MAX_ACCEL_DPS2,
+    DEFAULT_MAX_RATE_DPS,
+    DEFAULT_SETTLE_S,
+)
 from northfinder.firmware_sim.errors import SimConfigError
 
 _VEC3 = "vec3"
@@ -129,9 +134,9 @@ class DisturbanceSpec:
 class TableSpec:
     """Turntable about body z."""
 
-    max_rate_dps: float = _f(10.0, _POSITIVE, "speed limit, deg/s")
-    max_accel_dps2: float = _f(20.0, _POSITIVE, "acceleration limit, deg/s^2")
-    settle_s: float = _f(2.0, doc="settling time after the motion profile ends, s")
+    max_rate_dps: float = _f(DEFAULT_MAX_RATE_DPS, _POSITIVE, "speed limit, deg/s")
+    max_accel_dps2: float = _f(DEFAULT_MAX_ACCEL_DPS2, _POSITIVE, "acceleration limit, deg/s^2")
+    settle_s: float = _f(DEFAULT_SETTLE_S, doc="settling time after the motion profile ends, s")
     encoder_resolution_deg: float = _f(360.0 / 2**24, doc="encoder resolution, deg; 0 = exact")
     indexing_error_deg: float = _f(0.0, doc="stop-position error per move, 1 sigma, deg")
     overshoot_deg: float = _f(0.0, doc="amplitude of the damped oscillation after a stop, deg")

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.driver.protocol.motion import shortest_delta_deg
+from northfinder.driver.protocol.motion import move_phases_s, shortest_delta_deg
 from northfinder.firmware_sim.errors import SimError
 from northfinder.firmware_sim.sensors import TableSpec
 
@@ -123,10 +123,7 @@ class Turntable:
             self._overshoot = 0.0  # no move, no ring-down
             return t
         self._moves.append((float(t), float(commanded_deg)))
-        if dist <= v * v / a:
-            ta, tc = math.sqrt(dist / a), 0.0
-        else:
-            ta, tc = v / a, (dist - v * v / a) / v
+        ta, tc = move_phases_s(dist, v, a)
         vp = a * ta
         a1 = float(start) + s * 0.5 * a * ta * ta
         a2 = a1 + s * vp * tc

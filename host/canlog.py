@@ -26,11 +26,12 @@ sent and received. :func:`read_can_log` decodes it with the protocol's own recei
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sqlite3
 import struct
 import zlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -51,6 +52,7 @@ from northfinder.driver.protocol.messages import (
     Home,
     Identify,
     Reply,
+    RequestIdentify,
     Reset,
     RotateBy,
     RotateTo,
@@ -138,6 +140,28 @@ class CanLogSession:
     #: The notes that say samples are missing (a gap, a window the log ends early, a log cut
     #: short): the data cannot vouch for a heading solved from it.
     incomplete: tuple[str, ...] = ()
+    #: Indices into :attr:`windows` (0-based) of the windows with samples missing.
+    incomplete_windows: tuple[int, ...] = ()
+    #: Damaged lines skipped (``skip_damaged``).
+    skipped_lines: int = 0
+    #: (session, windows) of every host session with windows in the log.
+    sessions: tuple[tuple[int, int], ...] = ()
+    #: The session read (None: the log's only one).
+    session: int | None = None
+    #: The number (1-based, in its session) of each window of :attr:`windows`.
+    window_numbers: tuple[int, ...] = ()
+
+    def complete(self) -> CanLogSession:
+        """The session without its windows that have samples missing (a gap, a cut)."""
+        keep = [i for i in range(len(self.windows)) if i not in self.incomplete_windows]
+        return dataclasses.replace(
+            self,
+            windows=tuple(self.windows[i] for i in keep),
+            window_numbers=tuple(self.window_numbers[i] for i in keep)
+            if self.window_numbers
+            else (),
+            incomplete_windows=(),
+        )
 
     def recording(self, **meta: Any) -> Recording:
         """The windows as a :class:`~northfinder.host.recording.Recording` (with ``meta``)."""
@@ -153,7 +177,8 @@ class CanLogSession:
 
 
 class _Segment:
-    def __init__(self, commanded_deg: float, requested: int, t: float) -> None:
+    def __init__(self, commanded_deg: float, requested: int, t: float, session: int = 1) -> None:
+        self.session = session
         self.commanded_deg = commanded_deg
         self.collector = WindowCollector(requested, on_gap="report")
         self.requested = requested
@@ -161,10 +186,110 @@ class _Segment:
         self.stopped = False
 
 
-def _messages(path: Path, cut: list[str] | None = None) -> Iterator[can.Message]:
+#: python-can's readers of text logs whose lines each hold one frame after a header: a damaged
+#: line among them can be skipped and the rest read on.
+_TEXT_READERS: dict[str, type[Any]] = {
+    ".log": can.CanutilsLogReader,
+    ".asc": can.ASCReader,
+    ".csv": can.CSVReader,
+    ".trc": can.TRCReader,
+}
+#: Most damaged lines skipped before a log counts as unreadable.
+MAX_SKIPPED_LINES = 10_000
+
+
+class _Feed:
+    """The lines of a text log handed to a python-can reader one at a time, so that the line a
+    reader fails on is known (the readers take a line and parse it before the next)."""
+
+    def __init__(self, lines: list[str]) -> None:
+        self.lines = lines
+        self.pos = 0
+
+    def read(self, *_: Any) -> str:  # pragma: no cover - the readers iterate
+        return "".join(self.lines[self.pos :])
+
+    def readline(self) -> str:
+        return next(self, "")
+
+    def __iter__(self) -> _Feed:
+        return self
+
+    def __next__(self) -> str:
+        if self.pos >= len(self.lines):
+            raise StopIteration
+        self.pos += 1
+        return self.lines[self.pos - 1]
+
+    def close(self) -> None:
+        pass
+
+
+def _text_lines(path: Path) -> list[str] | None:
+    """The lines of a text log whose reader can skip a damaged line (None for other formats)."""
+    suffixes = [s.lower() for s in path.suffixes]
+    gz = bool(suffixes) and suffixes[-1] == ".gz"
+    if gz:
+        suffixes = suffixes[:-1]
+    if not suffixes or suffixes[-1] not in _TEXT_READERS:
+        return None
+    try:
+        if gz:
+            import gzip
+
+            with gzip.open(path, "rt", errors="replace", newline="") as fh:
+                return fh.read().splitlines(keepends=True)
+        with path.open(errors="replace", newline="") as fh:
+            return fh.read().splitlines(keepends=True)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise RecordingError(f"{path}: cannot read as a CAN log ({exc})") from exc
+
+
+def _tolerant_messages(
+    path: Path, lines: list[str], skipped: list[tuple[int, str]], cut: list[str] | None
+) -> Iterator[can.Message]:
+    """The frames of a text log, each damaged line skipped and noted in ``skipped`` as (line
+    number, error): a new reader goes on after it, given the header again. A damaged last line
+    without its line end is a log cut short (noted in ``cut``), not a damaged line."""
+    reader_class = _TEXT_READERS[
+        [s.lower() for s in path.suffixes if s.lower() != ".gz"][-1]
+    ]
+    header: list[str] | None = None
+    start = 0
+    while True:
+        prefix = header or []
+        feed = _Feed(prefix + lines[start:])
+        try:
+            for msg in reader_class(feed):
+                if header is None:
+                    header = lines[: start + feed.pos - 1]  # before the line of the first frame
+                yield msg
+            return
+        except _READ_ERRORS as exc:
+            bad = start + feed.pos - 1 - len(prefix)
+            skipped.append((bad + 1, f"{type(exc).__name__}: {exc}"))
+            if header is None:
+                header = lines[:bad]  # no frame yet: what came before the damaged line
+            if len(skipped) > MAX_SKIPPED_LINES:
+                raise RecordingError(
+                    f"{path}: more than {MAX_SKIPPED_LINES} damaged lines (line {skipped[0][0]}: "
+                    f"{skipped[0][1]}): not a CAN log python-can reads"
+                ) from exc
+            start = bad + 1
+
+
+def _messages(
+    path: Path, cut: list[str] | None = None, skipped: list[tuple[int, str]] | None = None
+) -> Iterator[can.Message]:
     """The log's frames. A file that breaks off after some frames (a copy cut short: a partial
     last line, a truncated BLF container) ends the frames there and says so in ``cut`` when it
-    is given; without ``cut``, or before any frame, it is an error."""
+    is given; without ``cut``, or before any frame, it is an error. With ``skipped`` a damaged
+    line of a text log is skipped and noted there (line number, error), and the lines after it
+    are read."""
+    lines = _text_lines(path) if skipped is not None else None
+    if lines is not None and skipped is not None:
+        yield from _tolerant_messages(path, lines, skipped, cut)
+        return
     try:
         reader = can.LogReader(str(path))
     except _OPEN_ERRORS as exc:
@@ -184,9 +309,9 @@ def _messages(path: Path, cut: list[str] | None = None) -> Iterator[can.Message]
         cut.append(f"the log breaks off after frame {n} ({what}): it is cut short")
 
 
-def _pick_node(path: Path) -> int:
+def _pick_node(path: Path, skip_damaged: bool = False) -> int:
     nodes: dict[int, int] = {}
-    for msg in _messages(path, []):  # a log cut short is read to its break (read_can_log says so)
+    for msg in _messages(path, [], [] if skip_damaged else None):  # a log cut short is read to its break (read_can_log says so)
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             continue
         try:
@@ -209,6 +334,9 @@ def read_can_log(
     node_id: int | None = None,
     window_s: float | None = None,
     min_windows: int = 2,
+    skip_damaged: bool = False,
+    session: int | None = None,
+    windows: Sequence[int] | None = None,
 ) -> CanLogSession:
     """Rebuild a session's windows from a CAN log (see the module docstring).
 
@@ -223,17 +351,26 @@ def read_can_log(
         streamed at the position).
     min_windows : int
         Fewer windows is an error (north finding needs two).
+    skip_damaged : bool
+        Skip a damaged line of a text log (``.log``, ``.asc``, ``.csv``, ``.trc``) and read on;
+        :attr:`CanLogSession.skipped_lines` counts them (default: the log ends there, as cut).
+    session : int, optional
+        The host session to read, 1-based (see :attr:`CanLogSession.sessions`); required when
+        the log holds windows of several sessions.
+    windows : sequence of int, optional
+        Keep only these windows of the session, 1-based, in this order.
 
     Raises
     ------
     RecordingError
-        Not a readable CAN log, no protocol frame, several nodes and none chosen, fewer windows
-        than ``min_windows``.
+        Not a readable CAN log, no protocol frame, several nodes and none chosen, windows of
+        several sessions and none chosen, a session or window that is not in the log, fewer
+        windows than ``min_windows``.
     """
     p = Path(path)
     if window_s is not None and not (math.isfinite(window_s) and window_s > 0):
         raise RecordingError(f"window: must be a positive number of seconds, got {window_s!r}")
-    node = _pick_node(p) if node_id is None else node_id
+    node = _pick_node(p, skip_damaged) if node_id is None else node_id
     receiver = CanReceiver(node_id=node)
     scales = CountScales()
     identity: Identify | None = None
@@ -247,12 +384,18 @@ def read_can_log(
     saw_stream_start = False
     frames = 0
     t0: float | None = None
+    # Host sessions: each host that connects asks IDENTIFY first; an IDENTIFY command after a
+    # window of the session before begins a new one (retries of the first do not).
+    session_no = 1
+    session_started: list[float] = []
+    session_has_window = False
 
     def requested() -> int:
         return _UNBOUNDED if window_s is None else max(1, round(window_s * rate))
 
     cut: list[str] = []
-    for msg in _messages(p, cut):
+    skipped: list[tuple[int, str]] = []
+    for msg in _messages(p, cut, skipped if skip_damaged else None):
         frames += 1
         if t0 is None:
             t0 = msg.timestamp
@@ -289,6 +432,13 @@ def read_can_log(
                         rate = float(value)
             elif isinstance(item, Command):
                 commands.append((msg.timestamp - (t0 or 0.0), repr(item)))
+                if isinstance(item, RequestIdentify):
+                    if session_has_window:
+                        session_no += 1
+                        session_has_window = False
+                        current = None
+                    if len(session_started) < session_no:
+                        session_started.append(msg.timestamp - (t0 or 0.0))
                 if isinstance(item, RotateTo):
                     commanded = item.angle * scales.angle_deg
                 elif isinstance(item, RotateBy):
@@ -303,23 +453,53 @@ def read_can_log(
                     saw_stream_start = True
                     free = None
                     receiver.ticks.restart()  # as the driver does: a new stream
-                    current = _Segment(commanded, requested(), msg.timestamp)
+                    current = _Segment(commanded, requested(), msg.timestamp, session_no)
                     segments.append(current)
+                    session_has_window = True
     chosen = segments if saw_stream_start else free_segments
+    chosen = [seg for seg in chosen if seg.collector.received > 0]
+    counts: dict[int, int] = {}
+    for seg in chosen:
+        counts[seg.session] = counts.get(seg.session, 0) + 1
+    listing = ", ".join(f"{k}: {v} window(s)" for k, v in sorted(counts.items()))
+    if session is None and len(counts) > 1:
+        raise RecordingError(
+            f"{p}: windows of {len(counts)} host sessions ({listing}); choose one (--session N)"
+        )
+    if session is not None:
+        if session not in counts:
+            raise RecordingError(
+                f"{p}: no session {session} with windows in the log (sessions: {listing or 'none'})"
+            )
+        chosen = [seg for seg in chosen if seg.session == session]
+    numbered = list(enumerate(chosen, start=1))
+    if windows is not None:
+        wanted = list(windows)
+        missing = [i for i in wanted if not 1 <= i <= len(chosen)]
+        if missing:
+            raise RecordingError(
+                f"{p}: no window {missing[0]}: the session holds windows 1..{len(chosen)}"
+            )
+        numbered = [(i, chosen[i - 1]) for i in wanted]
     incomplete: list[str] = list(cut)
     notes: list[str] = []
+    if skipped:
+        first_line, first_error = skipped[0]
+        notes.append(
+            f"skipped {len(skipped)} damaged line(s) of the log (first: line {first_line}, "
+            f"{first_error})"
+        )
     if receiver.malformed:
         notes.append(
             f"{receiver.malformed} frame(s) of node {node} did not decode "
             f"(last: {receiver.last_error})"
         )
-    windows: list[RecordedWindow] = []
-    for seg in chosen:
-        if seg.collector.received == 0:
-            continue
+    out: list[RecordedWindow] = []
+    short: list[int] = []
+    for i, seg in numbered:
         w = seg.collector.window(rate, scales)
         rec = RecordedWindow.from_window(w, seg.commanded_deg)
-        i = len(windows) + 1
+        before = len(incomplete)
         for first, count in w.gaps:
             incomplete.append(
                 f"window {i} ({seg.commanded_deg:g} deg): {count} tick(s) missing from counter {first}"
@@ -337,13 +517,18 @@ def read_can_log(
                 f"{seg.collector.received + seg.collector.missing} ticks, before its STREAM_STOP: "
                 "the log is cut short"
             )
-        windows.append(rec)
-    if len(windows) < min_windows:
+        if len(incomplete) > before:
+            short.append(len(out))
+        out.append(rec)
+    if len(out) < min_windows:
         raise RecordingError(
-            f"{p}: {len(windows)} window(s) of node {node} in the log; need at least {min_windows} "
+            f"{p}: {len(out)} window(s) of node {node} in the log; need at least {min_windows} "
             "(a window is the samples streamed at one position)"
         )
     return CanLogSession(
-        str(p), node, rate, tuple(windows), identity, tuple(commands),
+        str(p), node, rate, tuple(out), identity, tuple(commands),
         tuple(incomplete + notes), frames, t0, incomplete=tuple(incomplete),
+        incomplete_windows=tuple(short), skipped_lines=len(skipped),
+        sessions=tuple(sorted(counts.items())), session=session,
+        window_numbers=tuple(i for i, _ in numbered),
     )  # fmt: skip

@@ -25,8 +25,9 @@ When it fails
 The residuals are compared with the patterns the usual causes leave (each a few extra columns of
 the fit, tested by the drop in chi-square they give): a linear drift of the gyro biases, a bias
 step between two consecutive windows, and a table angle error at one window. Every pattern that
-leaves a remainder passing at a tenth of the false-alarm rate is listed, the one that explains most first, with the azimuth the
-fit would give if it were the cause. With few windows several patterns often explain the same
+leaves a remainder passing at a tenth of the false-alarm rate is listed, the one that explains
+most first, with the shift of the azimuth that fitting it gives (what the heading would move by if
+it were the cause). With few windows several patterns often explain the same
 residuals: the list says which are possible, not which one happened. The sigma of an
 inconsistent result is scaled by the Birge ratio ``sqrt(T / dof)``, so that it reflects the
 scatter the windows show, and the result carries the warning.
@@ -133,7 +134,8 @@ class ConsistencyCheck:
         if self.consistent:
             return f"consistency check passed: the windows agree within their noise ({head})"
         causes = "; ".join(
-            f"{e.label} (azimuth {e.azimuth_shift_deg:+.4f} deg if so)" for e in self.explanations
+            f"{e.label} (fitting it shifts the azimuth by {_shift(e.azimuth_shift_deg)} deg)"
+            for e in self.explanations
         )
         return (
             f"CONSISTENCY CHECK FAILED: the windows disagree beyond their noise ({head}); the "
@@ -151,6 +153,12 @@ class ConsistencyCheck:
         out["explanations"] = [e.to_dict() for e in self.explanations]
         out["summary"] = self.summary()
         return out
+
+
+def _shift(deg: float) -> str:
+    """A signed shift with four decimals; one that rounds to zero is written 0.0000, unsigned."""
+    text = f"{deg:+.4f}"
+    return "0.0000" if float(text) == 0.0 else text
 
 
 def pooled_sem(sem: NDArray[np.float64], samples: Sequence[int]) -> NDArray[np.float64]:

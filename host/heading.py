@@ -49,7 +49,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.driver.protocol.units import DPH, DPS, DPSH, G0, OMEGA_IE, UG, normal_gravity
+from northfinder.driver.protocol.units import DPH, DPS, G0, OMEGA_IE, UG, normal_gravity
+from northfinder.host.accuracy import bound_deg
 from northfinder.host.errors import GeometryError, HostConfigError, InputError, TiltError
 from northfinder.host.kernels import (
     MAX_LATITUDE_DEG,
@@ -462,7 +463,8 @@ def two_position_bound_deg(
 
     sigma = N / (Omega cos(lat) |sin(mu/2)| sqrt(T)), with the angle random walk
     N = arw_dpsh * pi/180 / 60 rad/sqrt(s), both horizontal gyros, and the total dwell T split
-    equally over the two positions.
+    equally over the two positions: the plan bound :func:`northfinder.host.accuracy.bound_deg`
+    of the positions (0, mu).
 
     Parameters
     ----------
@@ -475,11 +477,7 @@ def two_position_bound_deg(
     latitude_deg : float
         Latitude, deg.
     """
-    lat = latitude_rad(latitude_deg, "the bound")
-    mu = math.radians(_check_mu(mu_deg))
-    arw = arw_dpsh * DPSH
-    omega_h = OMEGA_IE * math.cos(lat)
-    return math.degrees(arw / (omega_h * abs(math.sin(mu / 2.0)) * math.sqrt(total_time_s)))
+    return bound_deg((0.0, _check_mu(mu_deg)), total_time_s / 2.0, arw_dpsh, latitude_deg)
 
 
 # ----------------------------------------------------------------------------------------------

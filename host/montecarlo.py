@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import ThreadpoolController
 
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, bound_deg, predict
 from northfinder.host.errors import HostConfigError, check_choice
 from northfinder.host.plan import Plan
@@ -169,7 +170,7 @@ class StudySettings:
         One gyro bias step per run, deg/h.
     """
 
-    latitude_deg: float = 34.0
+    latitude_deg: float = DEFAULT_LATITUDE_DEG
     azimuth_deg: float | None = None
     pitch_deg: float = 0.0
     roll_deg: float = 0.0

@@ -22,15 +22,21 @@ pynmea2 parses both (``pynmea2.parse(line, check=True)``); importing this module
 
 :class:`NmeaOutput` writes them to a target: ``-`` (standard output), a serial port or
 pseudo-terminal (a character device, opened with pyserial at ``baudrate``, 4800 by default as
-NMEA 0183 says), or a file.
+NMEA 0183 says), ``udp://HOST:PORT`` (one datagram per sentence, as chart plotters and OpenCPN
+listen for it; 10110 is the usual port), ``tcp://HOST:PORT`` (a TCP client, pyserial's
+``socket://``), another pyserial URL (``socket://``, ``rfc2217://``, ...), or a file. A path
+under ``/dev`` that does not exist is refused, never created as a regular file.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import socket
 import stat
 import sys
+import urllib.parse
 from dataclasses import dataclass
 from functools import reduce
 from typing import IO, Any, ClassVar
@@ -48,6 +54,7 @@ __all__ = [
     "checksum",
     "hdt_sentence",
     "nfdh_sentence",
+    "parse_network_target",
     "sentence",
 ]
 
@@ -93,6 +100,13 @@ class HeadingFix:
         )
 
 
+def _fixed(value: float, digits: int) -> str:
+    """``value`` with ``digits`` decimals, a value that rounds to zero without its sign (a
+    consumer reads ``-0.000`` as a tilt the other way)."""
+    text = f"{value:.{digits}f}"
+    return text[1:] if text.startswith("-") and float(text) == 0.0 else text
+
+
 def hdt_sentence(fix: HeadingFix) -> str:
     """``$HEHDT,x.xx,T*hh`` (empty heading when the fix is not valid)."""
     heading = f"{fix.azimuth_deg % 360.0:.2f}" if fix.valid else ""
@@ -109,7 +123,8 @@ def nfdh_sentence(fix: HeadingFix) -> str:
     heading = f"{fix.azimuth_deg % 360.0:.4f}" if fix.valid else ""
     status = "A" if fix.valid else "V"
     return sentence(
-        f"PNFDH,{heading},{sigma},{status},{fix.pitch_deg:.3f},{fix.roll_deg:.3f},{fix.positions}"
+        f"PNFDH,{heading},{sigma},{status},{_fixed(fix.pitch_deg, 3)},{_fixed(fix.roll_deg, 3)},"
+        f"{fix.positions}"
     )
 
 
@@ -148,8 +163,44 @@ def _is_character_device(path: str) -> bool:
         return False
 
 
+#: The network schemes of a target: ours (udp, tcp) and pyserial's URL handlers.
+NETWORK_SCHEMES = ("udp", "tcp")
+_PYSERIAL_SCHEMES = ("socket", "rfc2217", "loop", "spy", "hwgrep", "alt", "cp2110")
+
+
+def parse_network_target(target: str) -> tuple[str, str, int] | None:
+    """``(scheme, host, port)`` of ``udp://HOST:PORT`` or ``tcp://HOST:PORT`` (IPv6 in
+    brackets), None for another kind of target.
+
+    Raises
+    ------
+    HostConfigError
+        The scheme is ours but the host or port is missing or out of range.
+    """
+    scheme, sep, _ = target.partition("://")
+    if not sep or scheme.lower() not in NETWORK_SCHEMES:
+        return None
+    url = urllib.parse.urlsplit(target)
+    try:
+        port = url.port
+    except ValueError:
+        port = None
+    if not url.hostname or port is None or not 1 <= port <= 65535:
+        raise HostConfigError(
+            f"--nmea {target}: give {scheme.lower()}://HOST:PORT with a port 1..65535 "
+            "(for example udp://127.0.0.1:10110)"
+        )
+    return scheme.lower(), url.hostname, port
+
+
+def _under_dev(path: str) -> bool:
+    return os.path.abspath(path).startswith("/dev/")
+
+
 class NmeaOutput:
-    """Where the sentences go: ``-``, a serial port or pty (a character device), or a file.
+    """Where the sentences go: ``-``, ``udp://HOST:PORT``, ``tcp://HOST:PORT``, a pyserial URL,
+    a serial port or pty (a character device), or a file (see the module docstring). The target
+    is opened here, so that a command can open it before it measures.
 
     Raises
     ------
@@ -161,17 +212,40 @@ class NmeaOutput:
         self.target = target
         self._port: serial.SerialBase | None = None
         self._file: IO[str] | None = None
+        self._socket: socket.socket | None = None
         self.sent = 0
+        self._own = True
+        network = parse_network_target(target)
         try:
             if target == "-":
                 self._file = sys.stdout
                 self._own = False
+            elif network is not None and network[0] == "udp":
+                _, host, port = network
+                family, kind, proto, _, address = socket.getaddrinfo(
+                    host, port, type=socket.SOCK_DGRAM
+                )[0]
+                self._socket = socket.socket(family, kind, proto)
+                self._socket.connect(address)  # no packet: fixes the peer of every send
+            elif network is not None:
+                _, host, port = network
+                bracketed = f"[{host}]" if ":" in host else host
+                self._port = serial.serial_for_url(
+                    f"socket://{bracketed}:{port}", write_timeout=2.0
+                )
+            elif target.split("://", 1)[0].lower() in _PYSERIAL_SCHEMES:
+                self._port = serial.serial_for_url(target, baudrate=baudrate, write_timeout=2.0)
             elif _is_character_device(target):
                 self._port = serial.serial_for_url(target, baudrate=baudrate, write_timeout=2.0)
-                self._own = True
+            elif _under_dev(target):
+                why = "no such device" if not os.path.exists(target) else "not a character device"
+                raise HostConfigError(f"--nmea {target}: {why} (a port under /dev must exist)")
             else:
+                if os.path.isdir(target):
+                    raise HostConfigError(f"--nmea {target}: is a folder; give a file name")
                 self._file = open(target, "w", newline="")
-                self._own = True
+        except HostConfigError:
+            raise
         except (OSError, serial.SerialException, ValueError) as exc:
             raise HostConfigError(f"--nmea {target}: cannot open ({exc})") from exc
 
@@ -185,7 +259,13 @@ class NmeaOutput:
         """
         data = "".join(f"{line}\r\n" for line in lines)
         try:
-            if self._port is not None:
+            if self._socket is not None:
+                for line in lines:  # one sentence a datagram
+                    with contextlib.suppress(ConnectionRefusedError):
+                        # Nobody listening (yet): a datagram is sent to whoever listens, as a
+                        # compass on a network sends it; the next one may be heard.
+                        self._socket.send(f"{line}\r\n".encode("ascii"))
+            elif self._port is not None:
                 self._port.write(data.encode("ascii"))
                 self._port.flush()
             else:
@@ -197,7 +277,9 @@ class NmeaOutput:
         self.sent += len(lines)
 
     def close(self) -> None:
-        if self._port is not None:
+        if self._socket is not None:
+            self._socket.close()
+        elif self._port is not None:
             self._port.close()
         elif self._file is not None and self._own:
             self._file.close()

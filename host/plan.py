@@ -33,12 +33,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.driver.protocol.motion import move_time_s, shortest_delta_deg
+from northfinder.driver.protocol.motion import TableLimits, shortest_delta_deg
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import GeometryError, HostConfigError, InputError, check_choice
 from northfinder.host.kernels import MIN_MU_SEPARATION_DEG
 
 __all__ = [
+    "HEADING_SOLVERS",
     "PAPER_SWEEP",
     "PLANS",
     "SOLVERS",
@@ -46,6 +47,7 @@ __all__ = [
     "TableModel",
     "moves_deg",
     "plan_time_s",
+    "resolve_solver",
     "settle_time_s",
     "window_starts_s",
 ]
@@ -57,11 +59,32 @@ SOLVERS: Mapping[str, str] = {
     "least-squares": "multi-position least squares, gyro biases estimated",
     "pairwise": "every position against the first by eq. 14 (the paper's Table 2; studies only)",
 }
+#: The solvers of :data:`SOLVERS` that give one heading (``pairwise`` gives one per pair).
+HEADING_SOLVERS = ("auto", "two-position", "least-squares")
+
+
+def resolve_solver(name: str, positions: int, field: str = "method") -> str:
+    """The solver of :data:`SOLVERS` that ``name`` stands for with ``positions`` windows
+    (``auto``: two-position for two, least-squares for more).
+
+    Raises
+    ------
+    HostConfigError
+        An unknown name, or ``two-position`` with other than two positions.
+    """
+    check_choice(name, SOLVERS, field)
+    if name == "auto":
+        return "two-position" if positions == 2 else "least-squares"
+    if name == "two-position" and positions != 2:
+        raise HostConfigError(f"{field} two-position needs exactly two positions, got {positions}")
+    return name
 
 
 @dataclass(frozen=True)
-class TableModel:
-    """What plans need to know about the turntable.
+class TableModel(TableLimits):
+    """What plans need to know about the turntable: its motion limits and settle time
+    (:class:`~northfinder.driver.protocol.motion.TableLimits`, whose defaults are the
+    simulated table's), and how well it stops.
 
     Attributes
     ----------
@@ -73,9 +96,6 @@ class TableModel:
         Stop-position error per move, 1 sigma, deg.
     """
 
-    max_rate_dps: float = 10.0
-    max_accel_dps2: float = 20.0
-    settle_s: float = 2.0
     indexing_error_deg: float = 0.0
 
 
@@ -137,11 +157,7 @@ class Plan:
         if self.settle_s is not None and not (math.isfinite(self.settle_s) and self.settle_s >= 0):
             raise InputError(f"settle_s: must be >= 0 s, got {self.settle_s}")
         check_choice(self.denoise, METHODS, "denoise", "method")
-        check_choice(self.method, SOLVERS, "method")
-        if self.method == "two-position" and len(pos) != 2:
-            raise HostConfigError(
-                f"method two-position needs exactly two positions, got {len(pos)}"
-            )
+        resolve_solver(self.method, len(pos))
         pairs = tuple(self.denoise_options)
         if not all(
             isinstance(kv, tuple | list) and len(kv) == 2 and isinstance(kv[0], str) for kv in pairs
@@ -155,9 +171,7 @@ class Plan:
     @property
     def solver(self) -> str:
         """The solver ``method`` stands for (``auto`` resolved by the number of positions)."""
-        if self.method == "auto":
-            return "two-position" if len(self.positions_deg) == 2 else "least-squares"
-        return self.method
+        return resolve_solver(self.method, len(self.positions_deg))
 
     def label(self) -> str:
         """The positions as ``0,90,180``."""
@@ -197,7 +211,7 @@ def window_starts_s(plan: Plan, table: TableModel) -> NDArray[np.float64]:
     settle = settle_time_s(plan, table)
     starts = [0.0]
     for d in moves_deg(plan):
-        move = move_time_s(d, table.max_rate_dps, table.max_accel_dps2)
+        move = table.move_time_s(d)
         starts.append(starts[-1] + plan.window_s + (move + settle if d != 0.0 else 0.0))
     return np.array(starts)
 

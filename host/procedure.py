@@ -41,7 +41,7 @@ from northfinder.host.heading import (
     solve_multi_position,
     solve_two_position,
 )
-from northfinder.host.plan import Plan
+from northfinder.host.plan import HEADING_SOLVERS, Plan
 
 __all__ = [
     "BAD_BITS",
@@ -76,7 +76,7 @@ BAD_BITS = VALIDITY_UNFIT
 #: at least one output step).
 OUTLIER_SIGMAS = 8.0
 #: Solvers the procedure offers (a plan's ``pairwise`` is for studies: it gives no one heading).
-METHOD_CHOICES = ("auto", "two-position", "least-squares")
+METHOD_CHOICES = HEADING_SOLVERS
 #: Window and settle-time limits of a run on a device, s.
 WINDOW_RANGE_S = (0.5, 3600.0)
 MAX_SETTLE_S = 600.0

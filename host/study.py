@@ -23,13 +23,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from northfinder.host.denoise import METHODS, denoised_mean
-from northfinder.host.errors import GeometryError, InputError, check_choice
+from northfinder.host.errors import InputError, check_choice
 from northfinder.host.kernels import (
     MAX_TILT_DEG,
     solve_least_squares_batch,
     solve_two_position_batch,
 )
-from northfinder.host.plan import SOLVERS
+from northfinder.host.plan import resolve_solver
 
 __all__ = [
     "Summary",
@@ -104,7 +104,7 @@ def chunk_errors(
         True azimuth of each run.
     latitude_deg : float
     solver : str
-        A key of :data:`SOLVERS`.
+        A key of :data:`northfinder.host.plan.SOLVERS`.
     denoise_method : str
         A key of :data:`northfinder.host.denoise.METHODS`, applied to every window of gyro x and y.
     denoise_options : mapping, optional
@@ -117,14 +117,10 @@ def chunk_errors(
     ndarray
         Shape (R,), or (R, P - 1) for ``pairwise``, deg; NaN for a run without a solution.
     """
-    check_choice(solver, SOLVERS, "solver")
     if gyro.ndim != 4 or gyro.shape[-1] < 2:
         raise InputError(f"gyro: expected shape (runs, positions, samples, 3), got {gyro.shape}")
     p = gyro.shape[1]
-    if solver == "auto":
-        solver = "two-position" if p == 2 else "least-squares"
-    if solver == "two-position" and p != 2:
-        raise GeometryError(f"solver two-position needs exactly 2 positions, got {p}")
+    solver = resolve_solver(solver, p, "solver")
     # Channels first and samples last, (2, R, P, n): the simulator's channel-major memory is then
     # read in order. Means come back as (R, P, 2).
     gm = np.moveaxis(

@@ -154,7 +154,7 @@ def test_a_failed_check_names_a_given_latitude_as_a_possible_cause(tmp_path, cap
     capsys.readouterr()
     assert main(["solve", rec]) == 0
     assert "wrong latitude" not in capsys.readouterr().out
-    assert main(["solve", rec, "--latitude", "60"]) == 0
+    assert main(["solve", rec, "--latitude", "60"]) == 3  # a heading that failed its check
     out = capsys.readouterr().out
     assert "CONSISTENCY CHECK FAILED" in out
     assert "wrong latitude: 60 deg (from --latitude)" in out

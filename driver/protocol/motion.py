@@ -14,11 +14,28 @@ from dataclasses import dataclass
 
 from northfinder.driver.protocol.constants import ConfigKey
 
-__all__ = ["TableLimits", "move_time_s", "shortest_delta_deg"]
+__all__ = [
+    "DEFAULT_MAX_ACCEL_DPS2",
+    "DEFAULT_MAX_RATE_DPS",
+    "DEFAULT_SETTLE_S",
+    "TableLimits",
+    "move_phases_s",
+    "move_time_s",
+    "shortest_delta_deg",
+]
+
+#: The table's limits when none are configured: the simulated table's and the plans' defaults.
+DEFAULT_MAX_RATE_DPS = 10.0
+DEFAULT_MAX_ACCEL_DPS2 = 20.0
+DEFAULT_SETTLE_S = 2.0
 
 
-def move_time_s(distance_deg: float, max_rate_dps: float, max_accel_dps2: float) -> float:
-    """Duration of a rest-to-rest move over ``|distance_deg|``, s.
+def move_phases_s(
+    distance_deg: float, max_rate_dps: float, max_accel_dps2: float
+) -> tuple[float, float]:
+    """The phases of a rest-to-rest move over ``|distance_deg|``: the time of the acceleration
+    (and of the deceleration, as long) and the time at the rate limit, s (0 for a triangular
+    profile). The move takes ``2 * accel_s + cruise_s``; :func:`move_time_s` says how long.
 
     Parameters
     ----------
@@ -30,11 +47,16 @@ def move_time_s(distance_deg: float, max_rate_dps: float, max_accel_dps2: float)
         Acceleration limit, deg/s^2 (> 0).
     """
     d, v, a = abs(distance_deg), max_rate_dps, max_accel_dps2
-    if d == 0.0:
-        return 0.0
     if d <= v * v / a:
-        return 2.0 * math.sqrt(d / a)
-    return v / a + d / v
+        return math.sqrt(d / a), 0.0
+    return v / a, (d - v * v / a) / v
+
+
+def move_time_s(distance_deg: float, max_rate_dps: float, max_accel_dps2: float) -> float:
+    """Duration of a rest-to-rest move over ``|distance_deg|``, s: the profile of
+    :func:`move_phases_s` (the parameters are its)."""
+    accel_s, cruise_s = move_phases_s(distance_deg, max_rate_dps, max_accel_dps2)
+    return 2.0 * accel_s + cruise_s
 
 
 def shortest_delta_deg(from_deg: float, to_deg: float) -> float:
@@ -56,9 +78,9 @@ class TableLimits:
         Time from the end of the motion to READY, s.
     """
 
-    max_rate_dps: float
-    max_accel_dps2: float
-    settle_s: float
+    max_rate_dps: float = DEFAULT_MAX_RATE_DPS
+    max_accel_dps2: float = DEFAULT_MAX_ACCEL_DPS2
+    settle_s: float = DEFAULT_SETTLE_S
 
     @classmethod
     def from_config(cls, config: Mapping[ConfigKey, int]) -> TableLimits:

@@ -50,6 +50,10 @@ def normal_gravity(latitude_rad: ArrayLike) -> NDArray[np.float64] | float:
     return float(g) if np.ndim(g) == 0 else g
 
 
+#: Latitude of a simulation or a study when none is given, deg (the source paper's site is near
+#: 34 deg N). A real device's latitude is never assumed.
+DEFAULT_LATITUDE_DEG = 34.0
+
 #: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
 MAX_LATITUDE_DEG = 89.0
 

@@ -29,7 +29,9 @@ from northfinder.cli.common import (
     EXIT_RUNTIME,
     EXIT_USAGE,
     SignalInterrupt,
+    common_group,
     ending_of,
+    order_groups,
     report_error,
 )
 from northfinder.driver.errors import DriverError
@@ -86,7 +88,7 @@ def add_global_options(parser: argparse.ArgumentParser, *, sub: bool = False) ->
     """``--debug``, ``-v`` and ``--log-level``, before or after the subcommand. On a
     subcommand their defaults are left out, so that an option given before it stays."""
     default: dict[str, Any] = {"default": argparse.SUPPRESS} if sub else {}
-    g = parser.add_argument_group("output") if sub else parser
+    g = common_group(parser, "logging and debugging") if sub else parser
     g.add_argument(
         "--debug", action="store_true", help="show tracebacks on errors", **default
     )  # fmt: skip
@@ -134,6 +136,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         module = importlib.import_module(module_name)
         p = module.add_parser(sub)
         add_global_options(p, sub=True)
+        order_groups(p)
         p.set_defaults(_run=module.run)
     return parser
 

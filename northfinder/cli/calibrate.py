@@ -1,16 +1,7 @@
 """``northfinder calibrate RECORDING...``: the sensor terms of an instrument from its recordings.
 
-Static windows give the overlapping Allan deviation per axis and an IEEE 952 fit (quantisation,
-angle random walk, bias instability, rate random walk, rate ramp); recordings of several windows
-with table moves between them give the between-position terms (turn-on repeatability over
-recordings, a lasting bias step and a transient per move) and the table's stop error. Each
-recording is one power-on. The result is a sensor TOML file that ``--sensor FILE`` takes
-(``--output``; printed when not given), a report (printed, or ``--report FILE``) and a plot of
-the Allan deviation and the fitted terms (``--plot FILE``, needs matplotlib).
-
-Readable recordings: those of ``northfinder record`` and ``find --record`` (.csv, .npz), and CAN
-logs in python-can's formats (``find/record --can-log``, ``sim --log``: .log, .asc, .blf, .db,
-.trc, .mf4), the windows rebuilt from the frame stream.
+Allan deviation and an IEEE 952 fit from static windows, the between-position terms from windows
+with table moves between them; the result is a sensor TOML file that ``--sensor FILE`` takes.
 """
 
 from __future__ import annotations
@@ -27,6 +18,7 @@ from northfinder.cli.common import (
     command_parser,
     dumps,
     load_sensor,
+    say,
 )
 from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
@@ -94,13 +86,13 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         Path(args.output).write_text(text)
     if args.json:
-        print(dumps(cal.to_json_dict(name)))
+        say(dumps(cal.to_json_dict(name)))
         return 0
     if not args.report:
-        print(report)
+        say(report)
     if args.output:
-        print(f"wrote {args.output}")
+        say(f"wrote {args.output}")
     else:
-        print()
-        print(text, end="")
+        say()
+        say(text, end="")
     return 0

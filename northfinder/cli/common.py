@@ -9,6 +9,10 @@ Exit status
 - 2 (:data:`EXIT_USAGE`): the request is wrong: a command-line argument or option, a combination of
   them, or the content of a file named on the command line (a sensor TOML, a recording). Fix the
   command and run it again. argparse's own errors exit 2 as well.
+- 3 (:data:`EXIT_INCONSISTENT`): ``find`` and ``solve`` found a heading, but its windows failed
+  their consistency check (they disagree beyond their noise: a bias step, a drift, a table angle
+  error, a wrong latitude). The result is printed (JSON, plot, record) with the warning, its
+  sigma scaled; NMEA sends it as not valid. A script must not take it as a good heading.
 - 130, 143, 129: interrupted by SIGINT (Ctrl-C), SIGTERM, SIGHUP (128 + the signal's number);
   a device the command opened is left at rest first (:class:`SignalInterrupt`).
 
@@ -50,6 +54,7 @@ from northfinder.host.errors import (
 
 EXIT_RUNTIME = 1
 EXIT_USAGE = 2
+EXIT_INCONSISTENT = 3
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 
@@ -109,6 +114,12 @@ EXIT_STATUS: Mapping[type[BaseException], int] = {
 }
 
 
+def result_status(consistent: bool | None) -> int:
+    """The exit status of a heading: :data:`EXIT_INCONSISTENT` when its consistency check failed,
+    else 0 (passed, or not checked: a two-position plan)."""
+    return EXIT_INCONSISTENT if consistent is False else 0
+
+
 def exit_status(exc: BaseException) -> int | None:
     """The exit status of an error of a known kind (:data:`EXIT_STATUS`), None for a bug."""
     for cls in type(exc).__mro__:
@@ -154,9 +165,22 @@ def plain_numbers(text: str) -> str:
     return _NEGATIVE_ZERO.sub(r"\1", text)
 
 
+def say(*parts: Any, **options: Any) -> None:
+    """``print`` for a command's text: every negative zero written as zero (:func:`plain_numbers`)."""
+    print(*(plain_numbers(str(p)) for p in parts), **options)
+
+
+def warn(command: str, text: str) -> None:
+    """``northfinder COMMAND: warning: TEXT`` on stderr: the work goes on, but the user should
+    know (lines skipped, windows left out)."""
+    print(plain_numbers(f"northfinder {command}: warning: {text}"), file=sys.stderr, flush=True)
+
+
 def _no_negative_zero(value: Any) -> Any:
     if isinstance(value, float):
         return 0.0 if value == 0.0 else value
+    if isinstance(value, str):
+        return plain_numbers(value)
     if isinstance(value, Mapping):
         return {k: _no_negative_zero(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
@@ -165,24 +189,82 @@ def _no_negative_zero(value: Any) -> Any:
 
 
 def dumps(value: Any, **options: Any) -> str:
-    """JSON of a command's result (indented by 2), with no negative zero (``-0.0`` is 0.0)."""
+    """JSON of a command's result (indented by 2), with no negative zero (``-0.0`` is 0.0, in
+    numbers and in the texts of notes)."""
     options.setdefault("indent", 2)
     return json.dumps(_no_negative_zero(value), **options)
+
+
+#: Where the command line is described at length (the help texts stay short and point there).
+CLI_DOCS = "docs/cli.md"
+
+_ROLE = re.compile(r":[\w:.-]+:`~?([^`]*?)(?:\s*<[^>]*>)?`")
+_LITERAL = re.compile(r"``(.+?)``", re.S)
+
+
+def plain_text(doc: str) -> str:
+    """A docstring as a terminal shows it: ``literals`` and :role:`targets` without their markup
+    (``~a.b.C`` shown as ``C``), a literal block's ``::`` as ``:``."""
+    text = _ROLE.sub(
+        lambda m: m.group(1).rsplit(".", 1)[-1] if "~" in m.group(0) else m.group(1), doc
+    )
+    return _LITERAL.sub(r"\1", text).replace("::\n", ":\n")
 
 
 def command_parser(
     sub: argparse._SubParsersAction, name: str, summary: str, doc: str | None, **options: Any
 ) -> argparse.ArgumentParser:
     """A subcommand's parser: ``summary`` is its line in the command list, the module docstring
-    ``doc`` its description, printed as written (paragraphs and lists kept)."""
+    ``doc`` its description, as plain text printed as written (paragraphs and lists kept), with
+    a last line that points to the page of the command line's docs."""
+    description = None
+    if doc:
+        description = f'{plain_text(doc).rstrip()}\n\nMore: {CLI_DOCS}, section "{name}".'
     parser: argparse.ArgumentParser = sub.add_parser(
         name,
         help=summary,
-        description=doc,
+        description=description,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         **options,
     )
     return parser
+
+
+#: Marks an argument group that several commands share (:func:`common_group`).
+_COMMON = "_northfinder_common"
+
+
+def common_group(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
+    """An argument group several commands share (the link, the simulated truth, execution,
+    logging): :func:`order_groups` shows it after the command's own options."""
+    group = parser.add_argument_group(title)
+    setattr(group, _COMMON, True)
+    return group
+
+
+def _group_rank(group: argparse._ArgumentGroup) -> int:
+    if (group.title or "").startswith("bus arguments"):  # python-can's add_bus_arguments
+        return 2
+    return 1 if getattr(group, _COMMON, False) else 0
+
+
+def order_groups(parser: argparse.ArgumentParser) -> None:
+    """Order a command's help: its own options and groups first, then the groups commands
+    share (:func:`common_group`), python-can's bus options last; the usage line names the
+    positionals only (``northfinder record [options] FILE``: the options follow it).
+
+    argparse prints groups and usage in the order of ``_action_groups`` and ``_actions`` and
+    has no public way to reorder them. A stable sort keeps the positionals' order, which is
+    the only order parsing depends on.
+    """
+    groups = sorted(parser._action_groups, key=_group_rank)
+    rank = {id(a): _group_rank(g) for g in groups for a in g._group_actions}
+    parser._action_groups[:] = groups
+    parser._actions.sort(key=lambda a: rank.get(id(a), 0))
+    formatter = parser._get_formatter()
+    formatter.add_usage(None, parser._get_positional_actions(), [], prefix="")
+    positionals = formatter.format_help().strip().removeprefix(parser.prog).strip()
+    parser.usage = f"%(prog)s [options]{' ' + positionals if positionals else ''}"
 
 
 def whole_number(text: str) -> int:
@@ -247,6 +329,17 @@ seed_value = bounded_int(0, MAX_SEED)
 """argparse type: a random seed, a whole number 0 .. 2**63 - 1."""
 
 
+def run_seed(args: argparse.Namespace) -> int:
+    """The seed of a simulated run: ``--seed``, or a fresh one drawn now (and kept in ``args``)
+    when none was given, so that every run can state its seed and be run again with it."""
+    if getattr(args, "seed", None) is None:
+        import secrets
+
+        args.seed = secrets.randbelow(2**32)  # short to type; any seed up to MAX_SEED is taken
+    seed: int = args.seed
+    return seed
+
+
 def node_id(text: str) -> int:
     """argparse type: a CAN node id, 1..15 (protocol.md 2.1)."""
     value = whole_number(text)
@@ -292,6 +385,23 @@ def _refuse_interfaces_off_the_machine(parser: argparse.ArgumentParser) -> None:
 
         action.type = interface
         action.choices = accepted
+        action.metavar = "INTERFACE"
+        action.help = "python-can interface, e.g. socketcan, slcan, virtual"
+
+
+#: Shorter help of python-can's bus options, by destination (its own run to 8 lines each).
+_BUS_HELP: Mapping[str, str] = {
+    "channel": "the bus channel, e.g. vcan0, can0, or /dev/ttyACM0 for SLCAN",
+    "timing": "bit timing as KEY=VALUE fields of python-can's BitTiming (see its docs)",
+    "bus_kwargs": "KEY=VALUE passed to the python-can bus, e.g. sleep_after_open=0 for SLCAN "
+    "on a pseudo-terminal",
+}
+
+
+def _short_bus_help(parser: argparse.ArgumentParser) -> None:
+    for action in parser._actions:
+        if action.dest in _BUS_HELP:
+            action.help = _BUS_HELP[action.dest]
 
 
 def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
@@ -302,7 +412,8 @@ def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse.
 
     can.cli.add_bus_arguments(parser)
     _refuse_interfaces_off_the_machine(parser)
-    group = parser.add_argument_group(title)
+    _short_bus_help(parser)
+    group = common_group(parser, title)
     group.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
     group.add_argument(
         "--baud",
@@ -397,11 +508,9 @@ def angle_list(text: str) -> list[float]:
     return [_table_angle(p) for p in parts]
 
 
-#: Latitude of a simulation when none is given (the source paper's site is near 34 deg N).
-DEFAULT_LATITUDE_DEG = 34.0
-
-
 def sim_latitude(args: argparse.Namespace) -> float:
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
+
     return DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
 
 
@@ -418,6 +527,8 @@ def latitude_source(args: argparse.Namespace, simulated: bool) -> str:
     """Where the latitude of a run comes from, as the result states it."""
     if args.latitude is not None:
         return "--latitude"
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
+
     return f"the simulated truth (default, {DEFAULT_LATITUDE_DEG:g} deg)" if simulated else ""
 
 
@@ -441,11 +552,13 @@ def load_sensor(name_or_path: str, overrides: Mapping[str, Any] | None = None) -
 
 def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) -> str:
     """Refuse, before any work, an output file that cannot be written: a missing folder, a
-    folder in its place, or (with ``suffixes``) a name of another kind."""
-    import os
-
+    folder in its place, a path under /dev that does not exist, or (with ``suffixes``) a name
+    of another kind."""
     if suffixes and not path.endswith(suffixes):
         raise HostConfigError(f"{option} {path}: the file name must end in {' or '.join(suffixes)}")
+    if os.path.abspath(path).startswith("/dev/") and not os.path.exists(path):
+        # A mistyped port name must not become a regular file under /dev.
+        raise HostConfigError(f"{option} {path}: no such device (a path under /dev must exist)")
     if os.path.isdir(path):
         raise HostConfigError(f"{option} {path}: is a folder; give a file name")
     folder = os.path.dirname(path) or "."
@@ -503,7 +616,7 @@ def add_key_values(
     )
 
 
-def add_sensor_argument(parser: argparse.ArgumentParser) -> None:
+def add_sensor_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
     parser.add_argument(
         "--sensor",
         default="paper-rlg",
@@ -514,7 +627,9 @@ def add_sensor_argument(parser: argparse.ArgumentParser) -> None:
 
 def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     """The simulated truth: where the simulated instrument really stands."""
-    g = parser.add_argument_group("simulated truth")
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
+
+    g = common_group(parser, "simulated truth")
     g.add_argument(
         "--azimuth",
         type=bounded_float(-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
@@ -525,7 +640,8 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         "--latitude",
         type=bounded_float(-90.0, 90.0, "deg"),
         default=None,
-        help="deg, north positive (simulated: default 34; required for a real device)",
+        help=f"deg, north positive (simulated: default {DEFAULT_LATITUDE_DEG:g}; required for a "
+        "real device)",
     )
     from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
 
@@ -533,7 +649,10 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--pitch", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument("--roll", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument(
-        "--seed", type=seed_value, default=None, help="random seed (default: fresh each run)"
+        "--seed",
+        type=seed_value,
+        default=None,
+        help="random seed (default: a fresh one, reported)",
     )
 
 
@@ -603,7 +722,7 @@ def _dask_address(text: str) -> str:
 
 def add_execution_arguments(parser: argparse.ArgumentParser) -> None:
     """Where a Monte Carlo study runs: threads on this machine, or a Dask cluster."""
-    g = parser.add_argument_group("execution (results for a seed are the same everywhere)")
+    g = common_group(parser, "execution (results for a seed are the same everywhere)")
     x = g.add_mutually_exclusive_group()
     x.add_argument(
         "--workers",

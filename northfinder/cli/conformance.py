@@ -1,22 +1,8 @@
 """``northfinder conformance``: check a unit on any link against protocol.md.
 
-Links (choose one):
-  -i/-c/-b          any python-can bus, e.g. ``-i socketcan -c vcan0``, or an SLCAN adapter
-                    ``-i slcan -c /dev/ttyACM0 -b 500000`` (for a pseudo-terminal add
-                    ``--bus-kwargs sleep_after_open=0``)
-  --serial PORT     the protocol's serial frames on a serial port (path or pyserial URL)
-  --sim             the simulated instrument in this process, in virtual time: the whole suite
-                    runs as fast as the CPU allows and its timing checks are exact (a rehearsal
-                    of the suite, and a check of the simulator itself)
-
-The report (one row per check: result, measured figures, message) goes to stdout as the checks
-run (``--json``: the documented JSON result at the end instead); ``--junit FILE`` also writes
-JUnit XML. Exit status: 0 all checks passed (skips allowed),
-1 a check failed, 2 bad arguments.
-
-Timing is judged in the unit's time: for a simulator running at ``--speed S`` give
-``--time-scale S``. Against a real instrument keep the defaults (time scale 1, a 30 s stream).
-With ``--sim`` the unit's time is the virtual clock's (no time scale).
+One link: python-can bus options, ``--serial PORT``, or ``--sim`` (the simulated instrument in this
+process, in virtual time). Exit status: 0 all checks passed (skips allowed), 1 a check failed,
+2 bad arguments. For a simulator at ``--speed S`` give ``--time-scale S``.
 """
 
 from __future__ import annotations
@@ -94,7 +80,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_true",
         help="check the simulated instrument in this process, in virtual time",
     )
-    add_sensor_argument(p)
+    add_sensor_argument(group)
     group.add_argument("--seed", type=int, default=None, help="--sim random seed")
     g = p.add_argument_group("what to check and how strictly")
     for flag, field, kind, metavar, text in _FLAGS:

@@ -1,27 +1,15 @@
 """``northfinder find``: find true north with a device, or with the embedded simulator (``--sim``).
 
-Device links: python-can bus options as python-can's own tools spell them (``-i socketcan -c vcan0``),
-or ``--serial PORT``. With ``--sim`` an in-process simulated instrument on python-can's ``virtual``
-bus runs in virtual time (as fast as the CPU allows; the same result for a ``--seed`` whatever the
-machine's load), or paced at ``--speed S`` times real time, and its truth is printed beside the
-result.
-
-The plan: ``--positions`` any table angles (default 0,180,180,0), ``--window`` seconds per position,
-``--settle`` extra seconds after the device reports READY, ``--denoise`` a method of northfinder.host.denoise,
-``--solver`` the heading solver. A progress bar (wall-clock seconds) shows on a terminal;
-``--json`` prints the documented JSON result; ``--plot FILE`` draws the windows and per-pair
-azimuths (needs matplotlib); ``--can-log FILE`` logs every frame; ``--record FILE`` writes the
-raw windows.
-
-NMEA 0183: ``--nmea TARGET`` (``-`` for stdout, a file, a serial port or pty path) sends
-``$HEHDT`` and the proprietary ``$PNFDH`` (heading, sigma, status; README "NMEA 0183 output")
-once the heading is found, ``--nmea-count`` times (0: until interrupted) at ``--nmea-rate`` Hz.
-With ``--nmea -`` the result goes to stderr.
+With ``--sim`` the simulated instrument runs in this process in virtual time (the same result for
+a ``--seed`` whatever the machine's load); a real device needs ``--latitude``. ``--json`` prints the
+documented JSON result, ``--nmea TARGET`` sends the heading as NMEA 0183. Exit status 3: the
+windows failed their consistency check.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 
@@ -32,6 +20,7 @@ from northfinder.cli.common import (
     check_plot_path,
     command_parser,
     positive_float,
+    result_status,
     whole_number,
 )
 from northfinder.cli.measure import Measured, add_arguments, run_plan
@@ -55,7 +44,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--record", metavar="FILE", help="also write the raw windows (.csv or .npz)")
     g = p.add_argument_group("NMEA 0183 output")
     g.add_argument(
-        "--nmea", metavar="TARGET", help="send $HEHDT and $PNFDH to - (stdout), a file or a port"
+        "--nmea",
+        metavar="TARGET",
+        help="-, a file, a port, udp://HOST:PORT or tcp://HOST:PORT",
     )
     g.add_argument(
         "--nmea-rate", type=positive_float, default=1.0, metavar="HZ",
@@ -76,7 +67,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def send_nmea(args: argparse.Namespace, m: Measured) -> int:
+def send_nmea(args: argparse.Namespace, m: Measured, out: NmeaOutput) -> int:
     """Send the heading ``--nmea-count`` times at ``--nmea-rate``; return how many were sent."""
     r = m.result
     fix = HeadingFix(
@@ -85,16 +76,15 @@ def send_nmea(args: argparse.Namespace, m: Measured) -> int:
     )  # fmt: skip
     lines = (hdt_sentence(fix), nfdh_sentence(fix))
     period = 1.0 / args.nmea_rate
-    with NmeaOutput(args.nmea, baudrate=args.nmea_baud) as out:
-        n = 0
-        next_at = time.monotonic()
-        while args.nmea_count == 0 or n < args.nmea_count:
-            out.send(*lines)
-            n += 1
-            if args.nmea_count and n >= args.nmea_count:
-                break
-            next_at += period
-            time.sleep(max(0.0, next_at - time.monotonic()))
+    n = 0
+    next_at = time.monotonic()
+    while args.nmea_count == 0 or n < args.nmea_count:
+        out.send(*lines)
+        n += 1
+        if args.nmea_count and n >= args.nmea_count:
+            break
+        next_at += period
+        time.sleep(max(0.0, next_at - time.monotonic()))
     return n
 
 
@@ -104,6 +94,16 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_plot_path(args.plot)
     to_stdout = args.nmea == "-"
+    with contextlib.ExitStack() as stack:
+        nmea = (
+            stack.enter_context(NmeaOutput(args.nmea, baudrate=args.nmea_baud))
+            if args.nmea
+            else None
+        )
+        return _find(args, nmea, to_stdout)
+
+
+def _find(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
     m = run_plan(args, progress=not (args.json or to_stdout), record_to=args.record)
     if args.plot:
         report.plot(args.plot, m.result, m.windows, m.plan.denoise, m.truth)
@@ -115,6 +115,6 @@ def run(args: argparse.Namespace) -> int:
     print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
     if m.errors:  # the heading is out; now what could not be written (exit 1)
         raise m.errors[0]
-    if args.nmea:
-        send_nmea(args, m)
-    return 0
+    if nmea is not None:
+        send_nmea(args, m, nmea)
+    return result_status(m.result.consistent)

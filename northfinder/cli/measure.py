@@ -23,11 +23,13 @@ from northfinder.cli.common import (
     bounded_float,
     bus_given,
     can_log_path,
+    common_group,
     latitude_source,
     load_sensor,
     note_at_rest,
     note_ending,
     open_can_bus,
+    run_seed,
     sim_latitude,
     sim_truth,
 )
@@ -69,41 +71,36 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--link-timeout", type=bounded_float(0.0, MAX_WAIT_S, "s", open_lo=True), default=None,
         metavar="SECONDS",
-        help="seconds without a status before the link counts as lost (default: 3 heartbeat periods, "
-        "0.3 s, as protocol.md says; raise it on a slow or busy host; with --sim too)",
+        help="seconds without a status before the link counts as lost (default 0.3: three "
+        "heartbeats; paced --sim: 3)",
     )  # fmt: skip
     g.add_argument(
         "--reply-timeout",
         type=bounded_float(*REPLY_TIMEOUT_RANGE_S, "s"),
         default=None,
         metavar="SECONDS",
-        help="seconds to wait for each reply before resending a safe command, "
-        f"{REPLY_TIMEOUT_RANGE_S[0]:g} to {REPLY_TIMEOUT_RANGE_S[1]:g} (default: the driver's "
-        "0.25, safe commands sent 3 times in all; with a paced --sim --speed 2, for a simulator "
-        "sharing this process; given, it applies to --sim too)",
+        help="seconds to wait for a reply before resending a safe command, "
+        f"{REPLY_TIMEOUT_RANGE_S[0]:g} to {REPLY_TIMEOUT_RANGE_S[1]:g} (default 0.25; "
+        "paced --sim: 2)",
     )
     g.add_argument(
         "--can-log",
         type=can_log_path,
         metavar="FILE",
-        help="log every frame the driver sends and receives to a CAN log; the ending picks "
-        f"python-can's format ({', '.join(LOG_SUFFIXES)}); a serial link logs the CAN frames "
-        "of its messages; `northfinder solve FILE` solves it again",
+        help=f"log every frame to a CAN log, its format by the ending ({', '.join(LOG_SUFFIXES)})",
     )
-    g = p.add_argument_group("embedded simulator (--sim only)")
+    g = common_group(p, "embedded simulator (--sim only)")
     g.add_argument(
         "--sim",
         action="store_true",
-        help="use the embedded simulated instrument (in virtual time: as fast as the CPU allows, "
-        "the same result for a --seed whatever the machine's load)",
+        help="use the simulated instrument in this process, in virtual time",
     )
     g.add_argument(
         "--speed",
         type=bounded_float(0.0, 10_000.0, open_lo=True),
         default=None,
         metavar="S",
-        help="--sim paced instead, S simulated seconds per wall second (1 = real time, up to "
-        "10000), to watch it",
+        help="pace --sim at S simulated seconds per wall second (up to 10000)",
     )
     g.add_argument(
         "--warmup",
@@ -112,11 +109,11 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help=f"--sim warm-up time (default {SIM_WARMUP_S:g})",
     )
-    p.add_argument(
+    g.add_argument(
         "--sensor",
         default=None,
         metavar="PRESET|FILE",
-        help="sensor preset name or TOML file of the simulated instrument (default: paper-rlg)",
+        help="sensor preset name or TOML file (default: paper-rlg)",
     )
     add_truth_arguments(p)
 
@@ -127,8 +124,7 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
         "--positions",
         type=angle_list,
         default=list(DEFAULT_POSITIONS_DEG),
-        help="table angles, deg (default 0,180,180,0: redundant, so the result is checked; "
-        "0,180 is the shortest plan, unchecked)",
+        help="table angles, deg (default 0,180,180,0)",
     )
     g.add_argument(
         "--window",
@@ -151,8 +147,7 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
         "--timeout",
         type=bounded_float(0.0, MAX_WAIT_S, "s", open_lo=True),
         default=600.0,
-        help="longest wait, s, for the device to finish its warm-up and report READY (the "
-        "device's clock: with --sim, simulated seconds; default 600)",
+        help="longest wait for READY after the warm-up, device seconds (default 600)",
     )
 
 
@@ -273,7 +268,8 @@ def embedded_simulator(
     """
     from northfinder.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
 
-    rng = np.random.default_rng(args.seed)
+    seed = run_seed(args)
+    rng = np.random.default_rng(seed)
     truth = sim_truth(args, rng)
     paced = args.speed is not None
     sim = SimulatedInstrument(
@@ -290,7 +286,7 @@ def embedded_simulator(
         tap.use_clock(sim.clock)  # the log's times are the instrument's, not the CPU's
     with sim, sim.open_device(tap=tap, **options) as device, leaving_at_rest(device):
         try:
-            yield device, sim.describe()
+            yield device, {**sim.describe(), "seed": seed}
         except DriverError:
             sim.check()  # a simulator that failed is the cause, not the link: say so
             raise

@@ -1,8 +1,8 @@
 """``northfinder record FILE``: run a plan on a device and write the raw windows (.csv or .npz).
 
-Device and plan options are those of ``find``. Each window is written as soon as it is measured;
-an interrupted run keeps every complete window, marked ``interrupted`` (``solve`` says so). The columns are documented in ``northfinder.host.recording``
-and the README; ``northfinder solve FILE`` solves the recording offline.
+The device, simulator and plan options are those of ``find``; ``northfinder solve FILE`` solves
+the recording offline. Each window is written as soon as it is measured; an interrupted run keeps
+every complete window, marked ``interrupted`` (``solve`` says so).
 """
 
 from __future__ import annotations
@@ -25,7 +25,10 @@ def run(args: argparse.Namespace) -> int:
     m = run_plan(args, record_to=args.file)
     if m.errors:
         raise m.errors[0]
-    assert m.recording is not None
-    samples = sum(len(w.counter) for w in m.recording.windows)
-    print(f"wrote {len(m.recording.windows)} windows ({samples} samples) to {args.file}")
+    recording = m.recording
+    assert recording is not None
+    samples = sum(len(w.counter) for w in recording.windows)
+    truth = recording.meta.get("truth")
+    seed = f" (simulated, seed {truth['seed']})" if truth and "seed" in truth else ""
+    print(f"wrote {len(recording.windows)} windows ({samples} samples) to {args.file}{seed}")
     return 0

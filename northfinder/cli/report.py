@@ -37,6 +37,11 @@ def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
         lines.append(
             f"truth   {truth['azimuth_deg']:.4f} deg (pitch {truth['pitch_deg']:g}, roll {truth['roll_deg']:g}); "
             f"error {err:+.4f} deg"
+            + (
+                f"; seed {truth['seed']} (--seed {truth['seed']} repeats the run)"
+                if "seed" in truth
+                else ""
+            )
         )
     lines += [f"note: {n}" for n in result.notes]
     return plain_numbers("\n".join(lines))
@@ -113,7 +118,11 @@ def plot(
         3, 1, figsize=(10, 8.5), gridspec_kw={"height_ratios": [1, 1, 1.1]}, constrained_layout=True
     )
     sub = "\n".join(textwrap.wrap(_subtitle(result, truth), 135))
-    fig.suptitle(_title(result, truth) + "\n" + sub, fontsize=10.5)
+    failed = result.consistent is False
+    head = ("CONSISTENCY CHECK FAILED: " if failed else "") + _title(result, truth)
+    fig.suptitle(
+        plain_numbers(head + "\n" + sub), fontsize=10.5, color="tab:red" if failed else "black"
+    )
     t0 = min(float(np.asarray(w.time_s)[0]) for w in windows) if windows else 0.0
     colours = plt.get_cmap("tab10")
     for j, name in enumerate("xy"):
@@ -175,7 +184,15 @@ def plot(
         ax.axhline(tv, color="tab:red", lw=1.0, ls="--", label="simulated truth")
     ax.set_xlabel("pair of consecutive windows (positions, encoder angles)")
     ax.set_ylabel("azimuth, deg")
-    ax.set_title("azimuth of each pair of consecutive windows", fontsize=9)
+    if failed:
+        ax.set_title(
+            "azimuth of each pair of consecutive windows: they disagree beyond their noise, "
+            "the heading is not vouched for",
+            fontsize=9,
+            color="tab:red",
+        )
+    else:
+        ax.set_title("azimuth of each pair of consecutive windows", fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="best")
     try:

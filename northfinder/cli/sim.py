@@ -1,14 +1,8 @@
 """``northfinder sim``: run the simulated instrument on a CAN bus, a serial port or a pty.
 
-Links (choose one):
-  -i/-c/-b          any python-can bus, e.g. ``-i socketcan -c vcan0`` or ``-i virtual -c nf``
-  --serial PORT     the protocol's serial frames on a serial port (path or pyserial URL)
-  --pty             serial frames on a pseudo-terminal the simulator creates (prints its path)
-  --slcan-pty       an SLCAN adapter on a pseudo-terminal (prints its path), so a host in another
-                    process reaches the simulated CAN node with ``can.Bus(interface="slcan", ...)``
-
-The simulator prints one line per fact a caller needs (``pty PATH``, ``control ADDRESS``,
-``truth ...``) on stdout, logs state changes on stderr, and stops cleanly on SIGINT or SIGTERM.
+One link: python-can bus options (``-i socketcan -c vcan0``), ``--serial PORT``, ``--pty`` or
+``--slcan-pty`` (a pseudo-terminal it creates). It prints ``pty PATH``, ``control ADDRESS`` and
+``truth ...`` lines on stdout and stops cleanly on SIGINT or SIGTERM.
 """
 
 from __future__ import annotations
@@ -35,6 +29,7 @@ from northfinder.cli.common import (
     load_sensor,
     open_can_bus,
     open_serial_port,
+    run_seed,
     sim_truth,
 )
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
@@ -119,8 +114,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--log",
         type=can_log_path,
         metavar="FILE",
-        help="log every frame received and sent to a CAN log; the ending picks python-can's "
-        f"format ({', '.join(LOG_SUFFIXES)}); a serial link logs the CAN frames of its messages",
+        help=f"log every frame to a CAN log, its format by the ending ({', '.join(LOG_SUFFIXES)})",
     )
     return p
 
@@ -147,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr
     )
-    rng = np.random.default_rng(args.seed)
+    seed = run_seed(args)
+    rng = np.random.default_rng(seed)
     truth = sim_truth(args, rng)
     spec = load_sensor(args.sensor)
     closers: list[Callable[[], None]] = []
@@ -224,7 +219,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"control {server.address}", flush=True)
     print(
         f"truth azimuth {truth.azimuth_deg:.6f} latitude {truth.latitude_deg:g} pitch {truth.pitch_deg:g} "
-        f"roll {truth.roll_deg:g} sensor {spec.name} warmup {args.warmup:g} speed {args.speed:g}",
+        f"roll {truth.roll_deg:g} sensor {spec.name} warmup {args.warmup:g} speed {args.speed:g} "
+        f"seed {seed}",
         flush=True,
     )
     try:

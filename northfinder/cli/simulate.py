@@ -19,6 +19,8 @@ from northfinder.cli.common import (
     command_parser,
     dumps,
     load_sensor,
+    run_seed,
+    say,
     sim_truth,
 )
 from northfinder.driver.protocol.units import DPH, UG
@@ -59,7 +61,8 @@ MAX_RATE_HZ = 1000.0
 
 
 def run(args: argparse.Namespace) -> int:
-    rng = np.random.default_rng(args.seed)
+    seed = run_seed(args)
+    rng = np.random.default_rng(seed)
     truth = sim_truth(args, rng)
     spec = load_sensor(args.sensor)
     ins = Instrument(spec, truth, rng, sample_rate_hz=args.rate)
@@ -84,18 +87,19 @@ def run(args: argparse.Namespace) -> int:
             }
         )
     if args.json:
-        print(dumps({"sensor": spec.name, "truth": truth.__dict__, "windows": rows}))
+        say(dumps({"sensor": spec.name, "seed": seed, "truth": truth.__dict__, "windows": rows}))
         return 0
-    print(
+    say(
         f"sensor {spec.name}; truth azimuth {truth.azimuth_deg:.4f} deg, latitude {truth.latitude_deg:g} deg, "
-        f"pitch {truth.pitch_deg:g} deg, roll {truth.roll_deg:g} deg; {args.window:g} s windows at {args.rate:g} Hz"
+        f"pitch {truth.pitch_deg:g} deg, roll {truth.roll_deg:g} deg; {args.window:g} s windows at {args.rate:g} Hz; "
+        f"seed {seed}"
     )
-    print(f"{'table deg':>10} {'gyro x/y/z deg/h (noise-free)':>50} {'accel x/y/z ug':>36}")
+    say(f"{'table deg':>10} {'gyro x/y/z deg/h (noise-free)':>50} {'accel x/y/z ug':>36}")
     for r in rows:
         g = " ".join(
             f"{m:8.4f}({t:8.4f})" for m, t in zip(r["gyro_dph"], r["gyro_true_dph"], strict=True)
         )
         a = " ".join(f"{m:11.1f}" for m in r["accel_ug"])
-        print(f"{r['table_deg']:10.4f} {g} {a}")
-    print(f"simulated {ins.time_s:.1f} s")
+        say(f"{r['table_deg']:10.4f} {g} {a}")
+    say(f"simulated {ins.time_s:.1f} s")
     return 0

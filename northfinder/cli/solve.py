@@ -1,15 +1,10 @@
 """``northfinder solve FILE``: solve a recording or a CAN log offline.
 
-FILE is a recording of ``northfinder record`` (``.csv``, ``.npz``) or a CAN log in any format
-python-can reads (``.log`` candump, ``.asc``, ``.blf``, ``.csv``, ``.db``, ``.trc``; written by
-``northfinder sim --log``, ``find/record --can-log``, python-can's logger or candump). From a log
-the windows are rebuilt from the frame stream: one per STREAM_START, at the angle of the last
-rotation command, in the scales of the log's IDENTIFY; ``--window SECONDS`` keeps the first
-seconds of each, as ``find``'s acquisition did (default: every sample streamed at the position).
-Missing ticks are reported and stop the solution.
-
-A recording carries its latitude; a log does not: give ``--latitude``. ``--denoise`` and
-``--solver`` are those of ``find``, so a session can be solved again with other settings.
+FILE is a recording of ``northfinder record`` (.csv, .npz) or a CAN log in a format python-can
+reads. A log carries no latitude: give ``--latitude``. From a log, damaged lines are skipped and
+windows with samples missing left out, each with a warning (``--strict`` refuses such a log);
+``--session N`` and ``--windows 1,2`` pick what to solve. Exit status 3: the windows failed their
+consistency check.
 """
 
 from __future__ import annotations
@@ -22,10 +17,14 @@ from northfinder.cli import report
 from northfinder.cli.common import (
     add_solver_argument,
     bounded_float,
+    bounded_int,
     check_plot_path,
     command_parser,
     node_id,
     positive_float,
+    result_status,
+    say,
+    warn,
 )
 from northfinder.host.canlog import is_can_log, read_can_log
 from northfinder.host.denoise import METHODS
@@ -62,11 +61,39 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--node-id", type=node_id, default=None,
         help="the device's node id (default: the only node in the log)",
     )  # fmt: skip
+    g.add_argument(
+        "--session", type=bounded_int(1, 1_000_000), default=None, metavar="N",
+        help="the host session to solve, 1-based (required when the log holds several)",
+    )  # fmt: skip
+    g.add_argument(
+        "--windows", type=_window_list, default=None, metavar="I,J,...",
+        help="solve only these windows of the session, 1-based (e.g. 1,2)",
+    )  # fmt: skip
+    g.add_argument(
+        "--strict", action="store_true",
+        help="refuse a log with a damaged line, a gap or a cut (default: skip and warn)",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument(
         "--plot", metavar="FILE", help="plot the windows and per-pair azimuths (needs matplotlib)"
     )
     return p
+
+
+def _window_list(text: str) -> list[int]:
+    """argparse type: 1-based window numbers, comma-separated (``1,2``)."""
+    parts = [part.strip() for part in text.split(",")]
+    try:
+        numbers = [int(part) for part in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected window numbers such as 1,2, got {text!r}"
+        ) from None
+    if any(n < 1 for n in numbers) or len(set(numbers)) != len(numbers):
+        raise argparse.ArgumentTypeError(
+            f"window numbers are 1, 2, ... each at most once, got {text!r}"
+        )
+    return numbers
 
 
 def solve_recording(
@@ -96,17 +123,44 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
     path = Path(args.file)
     source: dict[str, Any]
     if is_can_log(path):
-        session = read_can_log(path, node_id=args.node_id, window_s=args.window)
+        session = read_can_log(
+            path, node_id=args.node_id, window_s=args.window, skip_damaged=not args.strict,
+            session=args.session, windows=args.windows, min_windows=1,
+        )  # fmt: skip
+        if args.strict and session.incomplete:
+            raise QualityError(f"{path}: " + "; ".join(session.incomplete))
+        complete = session.complete()
+        warned = [n for n in session.notes if n in session.incomplete or n.startswith("skipped ")]
+        for note in warned:
+            warn("solve", f"{path}: {note}")
+        if len(complete.windows) < len(session.windows):
+            left = ", ".join(str(n) for n in complete.window_numbers)
+            warn(
+                "solve",
+                f"{path}: {len(session.windows) - len(complete.windows)} window(s) with samples "
+                f"missing left out; solving the complete windows {left or '(none)'}"
+            )
+        if len(complete.windows) < 2:
+            raise QualityError(
+                f"{path}: {len(complete.windows)} complete window(s); a heading needs two"
+                + ("" if args.strict else " (windows with samples missing are left out)")
+            )
         source = {
             "file": str(path), "format": "can-log", "node_id": session.node_id,
             "frames": session.frames, "sample_rate_hz": session.sample_rate_hz,
             "window_s": args.window, "notes": list(session.notes),
+            "session": session.session, "sessions": [list(s) for s in session.sessions],
+            "windows": list(complete.window_numbers), "skipped_lines": session.skipped_lines,
+            "warnings": warned,
         }  # fmt: skip
-        if session.incomplete:
-            raise QualityError(f"{path}: " + "; ".join(session.incomplete))
-        return session.recording(), source
-    if args.window is not None or args.node_id is not None:
-        raise HostConfigError("--window and --node-id apply to CAN logs only")
+        return complete.recording(), source
+    given = [
+        name for name in ("window", "node_id", "session", "windows")
+        if getattr(args, name) is not None
+    ]  # fmt: skip
+    if given or args.strict:
+        option = "--" + (given[0] if given else "strict").replace("_", "-")
+        raise HostConfigError(f"{option} applies to CAN logs only")
     rec = Recording.load(path)
     source = {"file": str(path), "format": f"recording{path.suffix}"}
     if rec.partial is not None:
@@ -125,9 +179,10 @@ def run(args: argparse.Namespace) -> int:
         report.plot(args.plot, result, list(rec.windows), args.denoise, truth)
     device = rec.meta.get("device")
     if args.json:
-        print(report.as_json("solve", result, truth, device, source=source))
+        say(report.as_json("solve", result, truth, device, source=source))
     else:
-        print(report.text(result, truth))
+        say(report.text(result, truth))
         for note in source.get("notes", []):
-            print(f"note: {note}")
-    return 0
+            if note not in source.get("warnings", []):
+                say(f"note: {note}")
+    return result_status(result.consistent)

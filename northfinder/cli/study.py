@@ -1,24 +1,8 @@
 """``northfinder study``: Monte Carlo accuracy of a north-finding plan, and a planner.
 
-Study mode draws N seeded runs of the simulated instrument at once (whole arrays of runs, in
-chunks), solves every run, and reports the azimuth bias and RMSE beside the white-noise bound of
-the same plan (notes, section 4), their ratio, the predicted error from the datasheet figures,
-and the time the plan takes. A ratio below 1 beyond its statistical spread would be a bug.
-
-Planning mode (``--plan-budget SECONDS`` or ``--plan-target DEG``) searches position patterns and
-window lengths, counting moves (trapezoidal profile at the preset's table limits) and settling,
-and lists the plans with the smallest predicted error; ``--runs`` > 0 verifies the best one by
-Monte Carlo.
-
-Plan time = windows + moves + settling (the warm-up before the first window is simulated but not
-counted; the total time including it is reported too).
-
-A run whose tilt, as the accelerometers measure it, exceeds the solvers' limit (15 deg) has no
-solution; such runs are counted in ``rejected`` and left out of the statistics, never clipped.
-
-The runs use every core (``--workers N`` threads) or a Dask cluster (``--dask tcp://HOST:PORT``
-or ``--dask local:N``); the results for a seed are the same wherever they run. ``northfinder
-sweep`` runs many studies at once.
+Study mode solves N seeded simulated runs and reports the azimuth bias and RMSE beside the
+white-noise bound of the same plan; planning mode (``--plan-budget`` or ``--plan-target``) lists
+the plans with the smallest predicted error. The results for a seed are the same wherever they run.
 """
 
 from __future__ import annotations
@@ -44,9 +28,11 @@ from northfinder.cli.common import (
     dumps,
     finite_float,
     load_sensor,
+    say,
     seed_value,
     study_executor,
 )
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
 from northfinder.host.denoise import METHODS, check_denoise
@@ -92,8 +78,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     g = p.add_argument_group("site")
     g.add_argument(
-        "--latitude", type=bounded_float(-90.0, 90.0, "deg"), default=34.0,
-        help="deg (default: 34)",
+        "--latitude", type=bounded_float(-90.0, 90.0, "deg"), default=DEFAULT_LATITUDE_DEG,
+        help=f"deg (default: {DEFAULT_LATITUDE_DEG:g})",
     )  # fmt: skip
     g.add_argument(
         "--azimuth",
@@ -281,7 +267,7 @@ def _candidate_json(c: PlanCandidate, model: ErrorModel, warmup_s: float) -> dic
 
 def _print_rows(rows: list[dict[str, Any]]) -> None:
     first = "mu deg" if "mu_deg" in rows[0] else "positions"
-    print(
+    say(
         f"{first:>14} {'bias deg':>10} {'RMSE deg':>10} {'+-':>6} {'bound deg':>10} "
         f"{'RMSE/bound':>10} {'predicted':>10}"
     )
@@ -289,7 +275,7 @@ def _print_rows(rows: list[dict[str, Any]]) -> None:
         label = (
             f"{r['mu_deg']:g}" if "mu_deg" in r else ",".join(f"{p:g}" for p in r["positions_deg"])
         )
-        print(
+        say(
             f"{label:>14} {r['bias_deg']:10.4f} {r['rmse_deg']:10.4f} "
             f"{100 * r['rmse_rel_se']:5.1f}% {r['bound_deg']:10.4f} {r['ratio']:10.3f} "
             f"{r['predicted_deg']:10.4f}"
@@ -348,31 +334,31 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
     # (empty) result on stdout.
     failed = not report["plans"]
     if failed:
-        print(
+        say(
             f"northfinder study: error: no plan reaches {what} (within 4 h, or the budget "
             "is shorter than one move)",
             file=sys.stderr,
         )
     if args.json:
-        print(dumps(envelope("study", simulator_identity(spec.name), report)))
+        say(dumps(envelope("study", simulator_identity(spec.name), report)))
         return EXIT_RUNTIME if failed else 0
-    print(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}")
+    say(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}")
     if failed:
         return EXIT_RUNTIME
-    print(
+    say(
         f"{'positions':>34} {'window s':>9} {'plan s':>8} {'predicted deg':>14} "
         f"{'bound deg':>10}  note"
     )
     for c in report["plans"]:
         pos = ",".join(f"{p:g}" for p in c["positions_deg"])
         note = "longer windows stop helping (Allan limit)" if c["allan_limited"] else ""
-        print(
+        say(
             f"{pos:>34} {c['window_s']:9.1f} {c['plan_time_s']:8.1f} "
             f"{c['predicted_deg']:14.4f} {c['bound_deg']:10.4f}  {note}"
         )
     if "verified" in report:
         v = report["verified"]
-        print(
+        say(
             f"Monte Carlo of the first plan ({v['runs']} runs, window {v['window_s']:.1f} s, plan "
             f"{v['plan_time_s']:.1f} s): RMSE {v['rmse_deg']:.4f} deg "
             f"(+-{100 * v['rmse_rel_se']:.1f}%), bound {v['bound_deg']:.4f}, ratio {v['ratio']:.3f}"
@@ -498,25 +484,25 @@ def run(args: argparse.Namespace) -> int:
         )
         report["plot"] = args.plot
     if args.json:
-        print(dumps(envelope("study", simulator_identity(spec.name), report)))
+        say(dumps(envelope("study", simulator_identity(spec.name), report)))
         return 0
     p = report["plan"]
-    print(
+    say(
         f"sensor {spec.name}, latitude {args.latitude:g} deg, positions {plan.label()} deg, "
         f"window {plan.window_s:g} s, denoise {args.denoise}, solver {args.solver}, "
         f"tilt {args.tilt}, {args.runs} runs (seed {args.seed})"
     )
-    print(
+    say(
         f"plan time {p['plan_time_s']:.1f} s (windows, moves, settling; "
         f"{p['total_time_s']:.1f} s with {args.warmup:g} s warm-up); Monte Carlo {wall:.2f} s"
     )
     _print_rows(rows)
     rejected = max(r["rejected"] for r in rows)
     if rejected:
-        print(
+        say(
             f"{rejected} of {args.runs} runs had no solution (tilt beyond +-{MAX_TILT_DEG:g} deg "
             "or a fit that did not converge); the statistics are over the others"
         )
     if args.plot:
-        print(f"plot of error versus time to north: {args.plot}")
+        say(f"plot of error versus time to north: {args.plot}")
     return 0

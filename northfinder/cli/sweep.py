@@ -1,10 +1,7 @@
 """``northfinder sweep``: Monte Carlo studies over sensor presets, latitudes, plans and windows.
 
-Every combination of ``--sensors``, ``--latitudes``, plans (each ``--positions`` and ``--plan``)
-and ``--windows`` is one study of ``--runs`` runs with the same ``--seed``; its row is what
-``northfinder study`` prints for the same sensor, latitude, plan, window and seed. The chunks of
-all studies are handed out at once, to the threads of this machine (``--workers``) or to a Dask
-cluster (``--dask tcp://HOST:PORT``), so that a long sweep keeps every worker busy to its end.
+Every combination of ``--sensors``, ``--latitudes``, plans and ``--windows`` is one study; its row
+is what ``northfinder study`` prints for the same settings and seed.
 """
 
 from __future__ import annotations
@@ -24,6 +21,7 @@ from northfinder.cli.common import (
     command_parser,
     dumps,
     finite_float,
+    say,
     seed_value,
     study_executor,
 )
@@ -37,6 +35,7 @@ from northfinder.cli.study import (
     _plan_json,
     _settings,
 )
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
@@ -87,7 +86,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="sensor presets or TOML files (default: paper-rlg)",
     )
     g.add_argument(
-        "--latitudes", type=_floats, default=[34.0], metavar="DEG,...", help="(default: 34)"
+        "--latitudes",
+        type=_floats,
+        default=[DEFAULT_LATITUDE_DEG],
+        metavar="DEG,...",
+        help=f"(default: {DEFAULT_LATITUDE_DEG:g})",
     )
     g.add_argument(
         "--positions",
@@ -218,20 +221,20 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": wall,
     }
     if args.json:
-        print(dumps(report))
+        say(dumps(report))
         return 0
-    print(
+    say(
         f"{len(studies)} studies of {args.runs} runs (seed {args.seed}), denoise {args.denoise}: "
         f"Monte Carlo {wall:.2f} s"
     )
-    print(
+    say(
         f"{'sensor':>14} {'lat deg':>8} {'positions':>22} {'window s':>9} {'plan s':>8} "
         f"{'RMSE deg':>10} {'+-':>6} {'bound deg':>10} {'RMSE/bound':>10} {'predicted':>10}"
     )
     for s in studies:
         for r in s["results"]:
             pos = ",".join(f"{a:g}" for a in r["positions_deg"])
-            print(
+            say(
                 f"{s['sensor']:>14} {s['latitude_deg']:8g} {pos:>22} "
                 f"{s['plan']['window_s']:9g} {s['plan']['plan_time_s']:8.1f} "
                 f"{r['rmse_deg']:10.4f} {100 * r['rmse_rel_se']:5.1f}% {r['bound_deg']:10.4f} "
@@ -239,5 +242,5 @@ def run(args: argparse.Namespace) -> int:
             )
     rejected = sum(max(r["rejected"] for r in s["results"]) for s in studies)
     if rejected:
-        print(f"{rejected} runs had no solution (tilt beyond the limit); left out of their rows")
+        say(f"{rejected} runs had no solution (tilt beyond the limit); left out of their rows")
     return 0

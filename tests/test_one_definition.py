@@ -1,0 +1,87 @@
+"""Concepts written once: the simulator, the driver and the host agree because they share one
+definition (table limits, the move profile, the counter wrap, the default latitude, solver names,
+the white-noise bound)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import serial
+
+from northfinder.driver.protocol.motion import TableLimits, move_phases_s, move_time_s
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
+from northfinder.driver.transport import SerialTransport
+from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.sensors import TableSpec
+from northfinder.firmware_sim.turntable import Turntable
+from northfinder.host.accuracy import bound_deg
+from northfinder.host.errors import HostConfigError
+from northfinder.host.heading import two_position_bound_deg
+from northfinder.host.montecarlo import StudySettings
+from northfinder.host.plan import HEADING_SOLVERS, SOLVERS, Plan, TableModel, resolve_solver
+from northfinder.host.procedure import METHOD_CHOICES
+from northfinder.host.study import chunk_errors
+
+
+def test_the_table_defaults_are_the_same_on_every_side():
+    limits, model, spec = TableLimits(), TableModel(), TableSpec()
+    for name in ("max_rate_dps", "max_accel_dps2", "settle_s"):
+        assert getattr(limits, name) == getattr(model, name) == getattr(spec, name), name
+    assert isinstance(model, TableLimits) and model.indexing_error_deg == spec.indexing_error_deg
+
+
+@pytest.mark.parametrize("distance", [0.25, 0.6, 3.0, 30.0, 179.9, 187.3])
+def test_the_simulated_table_ends_its_move_when_the_plans_say(distance):
+    spec = TableSpec(max_rate_dps=6.0, max_accel_dps2=60.0, encoder_resolution_deg=0.0)
+    table = Turntable(spec, np.random.default_rng(0))
+    end = table.move_by(1.5, distance)
+    assert end - 1.5 == pytest.approx(move_time_s(distance, 6.0, 60.0), abs=1e-12)
+    accel_s, cruise_s = move_phases_s(distance, 6.0, 60.0)
+    triangular = distance <= 6.0 * 6.0 / 60.0
+    assert (cruise_s == 0.0) == triangular
+    rate = table.state(1.5 + accel_s + cruise_s / 2)[1]
+    assert float(rate) == pytest.approx(6.0 if not triangular else 60.0 * accel_s)
+
+
+def _serial_transport_fed(counters):
+    """The tick losses a serial transport reports for samples with these counters."""
+    transport = SerialTransport(serial.serial_for_url("loop://", timeout=0))
+    try:
+        losses = [loss for c in counters for loss in transport._check_counter(c)]
+        return losses, transport.counter_restarts
+    finally:
+        transport.close()
+
+
+def test_the_serial_sample_counter_wraps_as_the_protocol_counts():
+    losses, restarts = _serial_transport_fed([0xFFFFFFFE, 0xFFFFFFFF, 0, 3])
+    assert [(x.first_counter, x.count) for x in losses] == [(1, 2)] and restarts == 0
+    losses, restarts = _serial_transport_fed([5, 4, 4])
+    assert losses == [] and restarts == 2
+
+
+def test_one_default_latitude():
+    assert Truth().latitude_deg == StudySettings().latitude_deg == DEFAULT_LATITUDE_DEG == 34.0
+
+
+def test_solver_names_come_from_one_table():
+    assert set(HEADING_SOLVERS) < set(SOLVERS) and METHOD_CHOICES == HEADING_SOLVERS
+    assert resolve_solver("auto", 2) == Plan((0, 180)).solver == "two-position"
+    assert resolve_solver("auto", 4) == Plan((0, 90, 180, 270)).solver == "least-squares"
+    gyro = np.zeros((1, 3, 4, 3))
+    with pytest.raises(HostConfigError, match="needs exactly two positions"):
+        chunk_errors(gyro, None, [0, 90, 180], [0.0], 34.0, solver="two-position")
+    with pytest.raises(HostConfigError, match="unknown"):
+        chunk_errors(gyro, None, [0, 90, 180], [0.0], 34.0, solver="fastest")
+
+
+@pytest.mark.parametrize("mu", [30.0, 90.0, 180.0, 210.0])
+def test_the_two_position_bound_is_the_plan_bound(mu):
+    assert two_position_bound_deg(0.0015, 20.0, mu, 34.0) == bound_deg(
+        (0.0, mu), 10.0, 0.0015, 34.0
+    )
+    # the closed form of notes section 4
+    n = 0.0015 * np.pi / 180 / 60
+    omega_h = 7.292115e-5 * np.cos(np.radians(34.0))
+    closed = np.degrees(n / (omega_h * abs(np.sin(np.radians(mu) / 2)) * np.sqrt(20.0)))
+    assert two_position_bound_deg(0.0015, 20.0, mu, 34.0) == pytest.approx(closed, rel=1e-12)

@@ -1,0 +1,325 @@
+"""The seams a user trips on: every output checked before the work, NMEA to the network,
+reproducible runs, a failed consistency check that says so, logs that forgive, link statistics,
+progress, one JSON envelope, ``dump``, and a calibration that bounds what it cannot resolve.
+
+Everything runs in-process against the embedded simulator in virtual time; network sockets are
+on 127.0.0.1 only.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+import socket
+from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
+from typing import Any
+
+import pynmea2
+import pytest
+
+from northfinder.cli import main
+
+#: A number printed as a negative zero (-0, -0.000), not -0.0001.
+NEGATIVE_ZERO = re.compile(r"(?<![\w.])-0(\.0*)?(?![\d.])")
+FAST = ["--sim", "--warmup", "0", "--window", "2", "--positions", "0,180"]
+
+
+def run_cli(*argv: str) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        code = main(list(argv))
+    return code, out.getvalue(), err.getvalue()
+
+
+def run_json(*argv: str) -> dict[str, Any]:
+    code, out, err = run_cli(*argv, "--json")
+    assert code == 0, err
+    doc: dict[str, Any] = json.loads(out)
+    return doc
+
+
+# -- 1. outputs checked before any work; NMEA to UDP and TCP ----------------------------------
+@pytest.mark.parametrize(
+    ("option", "value", "says"),
+    [
+        ("--nmea", "/dev/ttyNOSUCHPORT", "no such device"),
+        ("--nmea", "udp://127.0.0.1", "udp://HOST:PORT"),
+        ("--nmea", "tcp://127.0.0.1:99999", "tcp://HOST:PORT"),
+        ("--nmea", "/no/such/folder/heading.nmea", "cannot open"),
+        ("--record", "/dev/nosuchdevice.csv", "no such device"),
+        ("--record", "/no/such/folder/run.csv", "does not exist"),
+        ("--can-log", "/dev/nosuchdevice.log", "no such device"),
+        ("--plot", "/no/such/folder/find.png", "does not exist"),
+        ("--plot", "find.nosuchformat", "no plot format"),
+    ],
+)
+def test_a_bad_output_stops_find_before_it_measures(option, value, says, monkeypatch):
+    """Exit 2 with one line (argparse's usage before it for a malformed option), and the
+    device is never opened (no measuring first)."""
+    import northfinder.cli.measure as measure
+
+    def never(*_: Any, **__: Any) -> Any:
+        raise AssertionError("the device was opened")
+
+    monkeypatch.setattr(measure, "open_device", never)
+    code, out, err = run_cli("find", *FAST, option, value)
+    assert code == 2, err
+    assert out == "" and says in err.strip().splitlines()[-1], err
+    assert not os.path.exists(value) or not value.startswith("/dev/")
+
+
+def test_nmea_over_udp_reaches_a_listener_on_loopback():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        rx.settimeout(5.0)
+        port = rx.getsockname()[1]
+        found = run_json(
+            "find", *FAST, "--seed", "3", "--nmea", f"udp://127.0.0.1:{port}",
+            "--nmea-count", "2", "--nmea-rate", "100",
+        )  # fmt: skip
+        datagrams = [rx.recv(4096).decode("ascii") for _ in range(4)]
+    assert all(d.endswith("\r\n") and d.count("$") == 1 for d in datagrams)  # one sentence each
+    parsed = [pynmea2.parse(d.strip(), check=True) for d in datagrams]
+    assert isinstance(parsed[0], pynmea2.HDT)
+    assert float(parsed[0].heading) == pytest.approx(found["azimuth_deg"] % 360, abs=0.005)
+    assert parsed[1].manufacturer == "NFD" and parsed[1].status == "A"
+    assert [str(p) for p in parsed[2:]] == [str(p) for p in parsed[:2]]
+
+
+def test_nmea_over_udp_with_nobody_listening_is_not_an_error():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    code, _, err = run_cli(
+        "find", *FAST, "--nmea", f"udp://127.0.0.1:{port}", "--nmea-count", "3",
+        "--nmea-rate", "100",
+    )  # fmt: skip
+    assert code == 0, err
+
+
+def test_nmea_over_tcp_is_sent_to_the_server():
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)
+        server.settimeout(5.0)
+        port = server.getsockname()[1]
+        code, _, err = run_cli("find", *FAST, "--nmea", f"tcp://127.0.0.1:{port}")
+        assert code == 0, err
+        conn, _ = server.accept()  # the connection waited in the backlog
+        with conn:
+            conn.settimeout(5.0)
+            data = b""
+            while data.count(b"\r\n") < 2:
+                chunk = conn.recv(4096)
+                if not chunk:
+                    break
+                data += chunk
+    lines = data.decode("ascii").split("\r\n")
+    assert pynmea2.parse(lines[0], check=True).sentence_type == "HDT"
+    assert pynmea2.parse(lines[1], check=True).manufacturer == "NFD"
+
+
+def test_tcp_nmea_with_no_server_stops_before_measuring():
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]  # closed again: nobody listens there
+    code, out, err = run_cli("find", *FAST, "--nmea", f"tcp://127.0.0.1:{port}")
+    assert code == 2 and "refused" in err.lower() and out == ""
+
+
+def test_an_output_path_under_dev_is_never_created(tmp_path):
+    for option in ("--record", "--can-log"):
+        path = "/dev/northfinder-no-such-device" + (".csv" if option == "--record" else ".log")
+        code, _, err = run_cli("find", *FAST, option, path)
+        assert code == 2 and "no such device" in err
+        assert not Path(path).exists()
+    code, _, err = run_cli("record", "/dev/northfinder-no-such.npz", *FAST)
+    assert code == 2 and not Path("/dev/northfinder-no-such.npz").exists()
+
+
+# -- 2. the seed reported and taken back --------------------------------------------------------
+def test_an_unseeded_find_reports_its_seed_and_the_seed_repeats_it_exactly():
+    first = run_json("find", *FAST)
+    seed = first["truth"]["seed"]
+    assert isinstance(seed, int) and seed >= 0
+    again = run_json("find", *FAST, "--seed", str(seed))
+    for doc in (first, again):
+        doc.pop("created_utc")
+    assert again == first
+    code, out, _ = run_cli("find", *FAST, "--seed", str(seed))
+    assert code == 0 and f"seed {seed}" in out
+
+
+def test_an_unseeded_recording_keeps_its_seed_and_the_seed_repeats_it(tmp_path):
+    from northfinder.host.recording import Recording
+
+    code, out, err = run_cli("record", str(tmp_path / "a.npz"), *FAST)
+    assert code == 0, err
+    seed = Recording.load(tmp_path / "a.npz").meta["truth"]["seed"]
+    assert f"seed {seed}" in out
+    code, _, err = run_cli("record", str(tmp_path / "b.npz"), *FAST, "--seed", str(seed))
+    assert code == 0, err
+    a, b = Recording.load(tmp_path / "a.npz"), Recording.load(tmp_path / "b.npz")
+    for wa, wb in zip(a.windows, b.windows, strict=True):
+        assert (wa.gyro_dph == wb.gyro_dph).all() and (wa.counter == wb.counter).all()
+    assert a.meta["truth"] == b.meta["truth"]
+
+
+def test_simulate_reports_its_seed_and_repeats_with_it():
+    first = json.loads(run_cli("simulate", "--window", "1", "--json")[1])
+    seed = first["seed"]
+    again = json.loads(run_cli("simulate", "--window", "1", "--json", "--seed", str(seed))[1])
+    assert again == first
+
+
+# -- 3. a failed consistency check: its own exit status, said as a shift, shown in the plot ----
+def _stepped_recording(tmp_path: Path, step_dph: float = 2.0) -> Path:
+    """A four-window recording whose last two windows carry a gyro x bias step."""
+    import dataclasses
+
+    from northfinder.host.recording import Recording
+
+    path = tmp_path / "run.npz"
+    code, _, err = run_cli(
+        "record", str(path), "--sim", "--warmup", "0", "--window", "2", "--seed", "5",
+        "--azimuth", "30",
+    )  # fmt: skip
+    assert code == 0, err
+    rec = Recording.load(path)
+    windows = list(rec.windows)
+    for i in (2, 3):
+        gyro = windows[i].gyro_dph.copy()
+        gyro[:, 0] += step_dph
+        windows[i] = dataclasses.replace(windows[i], gyro_dph=gyro)
+    stepped = tmp_path / "stepped.npz"
+    Recording(tuple(windows), rec.meta).save(stepped)
+    return stepped
+
+
+def test_a_heading_that_failed_its_check_exits_3_and_says_so_as_a_shift(tmp_path):
+    from northfinder.cli.common import EXIT_INCONSISTENT
+
+    assert EXIT_INCONSISTENT == 3
+    stepped = _stepped_recording(tmp_path)
+    plot = tmp_path / "failed.png"
+    code, out, err = run_cli("solve", str(stepped), "--plot", str(plot))
+    assert code == 3, err
+    assert "CONSISTENCY CHECK FAILED" in out and "fitting it shifts the azimuth by" in out
+    assert "if so" not in out and not NEGATIVE_ZERO.search(out)
+    assert plot.stat().st_size > 0
+    doc = json.loads(run_cli("solve", str(stepped), "--json")[1])
+    assert doc["consistent"] is False and doc["check"]["consistent"] is False
+    # The same recording without the step passes and exits 0.
+    code, out, _ = run_cli("solve", str(tmp_path / "run.npz"))
+    assert code == 0 and "consistency check passed" in out
+
+
+def test_the_plot_of_a_failed_check_says_so_in_its_title(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    titles: list[tuple[str, str]] = []
+    real = matplotlib.figure.Figure.suptitle
+
+    def spy(self: Any, t: str, **kw: Any) -> Any:
+        titles.append((t, kw.get("color", "")))
+        return real(self, t, **kw)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "suptitle", spy)
+    stepped = _stepped_recording(tmp_path)
+    assert run_cli("solve", str(stepped), "--plot", str(tmp_path / "a.png"))[0] == 3
+    assert run_cli("solve", str(tmp_path / "run.npz"), "--plot", str(tmp_path / "b.png"))[0] == 0
+    (failed, colour), (passed, _) = titles
+    assert failed.startswith("CONSISTENCY CHECK FAILED") and colour == "tab:red"
+    assert "FAILED" not in passed
+    assert not NEGATIVE_ZERO.search(failed + passed)
+
+
+def test_no_negative_zero_in_nmea_or_the_notes():
+    from northfinder.host.nmea import HeadingFix, nfdh_sentence
+
+    fix = HeadingFix(42.0, 0.01, -0.0001, -0.0004, 4)
+    body = nfdh_sentence(fix)
+    assert ",0.000,0.000," in body and "-0.000" not in body
+    assert pynmea2.parse(body, check=True).pitch == 0.0
+    from northfinder.cli.common import dumps
+
+    assert "-0.0" not in dumps({"notes": ["shift -0.0000 deg"], "x": -0.0})
+
+
+# -- 4. solve: damaged lines skipped, complete windows of a cut log, a session picked ----------
+def _logged_find(path: Path, seed: int, azimuth: str = "42.5") -> dict[str, Any]:
+    return run_json(
+        "find", "--sim", "--warmup", "0", "--window", "2", "--seed", str(seed),
+        "--azimuth", azimuth, "--can-log", str(path),
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def candump(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    """A candump log of a four-window find, and find's result."""
+    path = tmp_path_factory.mktemp("solve") / "find.log"
+    return path, _logged_find(path, 11)
+
+
+def _sample_line(lines: list[str], fraction: float) -> int:
+    """Index of the first SAMPLE_X frame (id 101) at or after this fraction of the log."""
+    start = int(len(lines) * fraction)
+    return next(i for i in range(start, len(lines)) if " 101#" in lines[i])
+
+
+def test_solve_skips_a_damaged_line_with_a_warning_and_leaves_its_window_out(candump, tmp_path):
+    path, found = candump
+    lines = path.read_text().splitlines(keepends=True)
+    bad = _sample_line(lines, 0.6)
+    lines[bad] = "(17963.0) can0 1ZZ#GARBLED\n"
+    damaged = tmp_path / "damaged.log"
+    damaged.write_text("".join(lines))
+    code, out, err = run_cli("solve", str(damaged), "--latitude", "34", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["source"]["skipped_lines"] == 1
+    assert f"skipped 1 damaged line(s) of the log (first: line {bad + 1}" in err
+    assert "warning" in err and "left out" in err
+    assert len(doc["source"]["windows"]) == 3  # the window that lost a sample is left out
+    assert abs(doc["azimuth_deg"] - found["azimuth_deg"]) < 4 * found["sigma_deg"]
+    code, out, err = run_cli("solve", str(damaged), "--latitude", "34", "--strict")
+    assert code == 1 and out == "" and "cut short" in err
+
+
+def test_solve_takes_the_complete_windows_of_a_cut_log(candump, tmp_path):
+    path, _ = candump
+    text = path.read_text()
+    lines = text.splitlines(keepends=True)
+    cut = tmp_path / "cut.log"
+    cut.write_text("".join(lines[: _sample_line(lines, 0.9)]) + "(1796388094.28")  # mid-line
+    code, out, err = run_cli("solve", str(cut), "--latitude", "34", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["source"]["windows"] == [1, 2, 3]
+    assert "cut short" in err and "solving the complete windows 1, 2, 3" in err
+    assert run_cli("solve", str(cut), "--latitude", "34", "--strict")[0] == 1
+
+
+def test_solve_picks_a_session_and_windows_from_a_log_of_several(candump, tmp_path):
+    path, first = candump
+    second_log = tmp_path / "second.log"
+    second = _logged_find(second_log, 12, azimuth="200")
+    both = tmp_path / "both.log"
+    both.write_text(path.read_text() + second_log.read_text())
+    code, _, err = run_cli("solve", str(both), "--latitude", "34")
+    assert code == 2 and "2 host sessions (1: 4 window(s), 2: 4 window(s))" in err
+    assert "--session" in err
+    for n, expected in ((1, first), (2, second)):
+        doc = run_json("solve", str(both), "--latitude", "34", "--session", str(n))
+        assert doc["azimuth_deg"] == pytest.approx(expected["azimuth_deg"], abs=1e-9)
+        assert doc["source"]["session"] == n
+    picked = run_json("solve", str(both), "--latitude", "34", "--session", "2", "--windows", "1,2")
+    assert picked["source"]["windows"] == [1, 2] and len(picked["windows"]) == 2
+    assert picked["positions"] == pytest.approx(second["positions"][:2], abs=1e-9)
+    code, _, err = run_cli("solve", str(both), "--latitude", "34", "--session", "3")
+    assert code == 2 and "no session 3" in err
+    code, _, err = run_cli("solve", str(both), "--session", "2", "--windows", "1,9", "--latitude", "34")
+    assert code == 2 and "no window 9" in err
