@@ -637,9 +637,15 @@ class Device(DeviceLink):
     ) -> DeviceStatus:
         """READY after having seen ROTATING or SETTLING since the command (or after ``min_s``)."""
 
+        foreign0 = self._foreign_disruptive[0]
+
         def check() -> DeviceStatus | None:
             if self._boot_epoch != epoch:
                 raise DeviceReset(f"the device restarted during {what}: {self._reset_reason}")
+            count, op = self._foreign_disruptive
+            if count != foreign0 and op != Opcode.RESET:
+                self._move_open = False  # the other host has the table now
+                raise self._another_host(op, f"during {what}")
             st = self._status
             if st is None or self._status_count <= n0:
                 return None
@@ -794,6 +800,10 @@ class Device(DeviceLink):
                     raise DeviceReset(
                         f"the device restarted during the window after {collector.received} of "
                         f"{n} samples ({item}); its configuration and stream are back to defaults"
+                    )
+                if kind == "foreign":
+                    raise self._another_host(
+                        item, f"during the window, after {collector.received} of {n} samples"
                     )
                 if kind == "loss":
                     collector.add_loss(item)

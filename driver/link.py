@@ -22,6 +22,7 @@ from typing import Any, TypeVar
 
 from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.errors import (
+    AnotherHost,
     ArgumentError,
     DeviceRefused,
     DriverError,
@@ -154,6 +155,8 @@ class LinkStats:
         Commands that failed with :class:`~northfinder.driver.errors.ReplyTimeout`.
     resets_detected : int
         Device restarts noticed (BOOT status, unrequested IDENTIFY).
+    foreign_commands : int
+        CAN only: commands to this unit from another host on the bus.
     """
 
     frames_received: int
@@ -167,6 +170,23 @@ class LinkStats:
     retries: int
     reply_timeouts: int
     resets_detected: int
+    foreign_commands: int = 0
+
+
+#: Another host's commands that break a window or a move of this host (queries and STREAM_START
+#: do not).
+DISRUPTIVE = frozenset(
+    {
+        Opcode.STREAM_STOP,
+        Opcode.STOP,
+        Opcode.ROTATE_TO,
+        Opcode.ROTATE_BY,
+        Opcode.HOME,
+        Opcode.RESET,
+        Opcode.SET_CONFIG,
+        Opcode.SELF_TEST,
+    }
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -289,6 +309,13 @@ class DeviceLink:
         self._closed = False
         self._stop = threading.Event()
         self._counts = {"samples": 0, "stray": 0, "retries": 0, "timeouts": 0, "resets": 0}
+        # Another host's commands seen on the bus (CAN): how many, and the latest disruptive one
+        # (count, opcode); its IDENTIFY's answer is expected until _foreign_identify_until; its
+        # RESET explains the restart that follows.
+        self._foreign_count = 0
+        self._foreign_disruptive: tuple[int, Opcode | None] = (0, None)
+        self._foreign_identify_until = -math.inf
+        self._foreign_reset_until = -math.inf
         self._reader: threading.Thread | None = None
         if self._clock.virtual:
             self._clock.add_poller(self._pump)
@@ -488,9 +515,38 @@ class DeviceLink:
                     self._on_status(item, mono)
                 elif isinstance(item, Identify):
                     self._on_identify(item, mono)
+                elif isinstance(item, Command):
+                    self._on_foreign_command(item, mono)
             self._events += 1
         if self._reader is not None:
             self._clock.notify()  # a virtual clock looks at its waiters after every poll anyway
+
+    def _on_foreign_command(self, cmd: Command, mono: float) -> None:
+        """Another host's command to this unit (seen on a shared CAN bus)."""
+        self._foreign_count += 1
+        op = cmd.OPCODE
+        # Its answers may come up to its own retries later; a second host's IDENTIFY answered
+        # is not a restart of the device.
+        answered_by = mono + (1 + RETRIES) * REPLY_TIMEOUT_S + 1.0
+        if op == Opcode.IDENTIFY:
+            self._foreign_identify_until = answered_by
+        elif op == Opcode.RESET:
+            self._foreign_reset_until = answered_by + 1.0
+        if op in DISRUPTIVE:
+            self._foreign_disruptive = (self._foreign_disruptive[0] + 1, op)
+            log.warning("another host sent %s to this unit", op.name)
+            if self._inbox is not None and op != Opcode.RESET:  # a reset shows as a restart
+                self._inbox.append(("foreign", op, mono, self._clock.wall()))
+                self._inbox_alerts += 1
+        else:
+            log.info("another host sent %s to this unit", op.name)
+
+    def _another_host(self, op: Opcode | None, during: str) -> AnotherHost:
+        name = op.name if op is not None else "a command"
+        return AnotherHost(
+            f"another host is commanding this unit: it sent {name} {during}; "
+            "one host at a time should command a unit (protocol.md 13)"
+        )
 
     def _on_reply(self, reply: Reply) -> None:
         waiter = self._waiters.get(reply.seq)
@@ -532,7 +588,8 @@ class DeviceLink:
         self._identify_count += 1
         self._scales = CountScales.of(ident)
         booting = self._status is not None and self._status.state == DeviceState.BOOT
-        if mono > self._identify_expected_until and self._status is not None and not booting:
+        asked = max(self._identify_expected_until, self._foreign_identify_until)
+        if mono > asked and self._status is not None and not booting:
             # protocol.md 5: a device announces itself in BOOT; nobody asked, so it restarted.
             self._note_reset("the device sent IDENTIFY unrequested, as it does after a restart")
 
@@ -540,6 +597,8 @@ class DeviceLink:
         """Called with the lock held, in the reader thread."""
         self._boot_epoch += 1
         self._counts["resets"] += 1
+        if self._clock.now() <= self._foreign_reset_until:
+            reason = f"another host sent RESET ({reason})"
         self._reset_reason = reason
         self._streaming = self._stream_owned = self._move_open = False
         self._config_stale = True
@@ -708,4 +767,5 @@ class DeviceLink:
             retries=c["retries"],
             reply_timeouts=c["timeouts"],
             resets_detected=c["resets"],
+            foreign_commands=self._foreign_count,
         )

@@ -317,11 +317,15 @@ class CanTransport:
         with self._rx_lock:
             for msg in frames:
                 if not (msg.is_error_frame or msg.is_remote_frame):
-                    out += self.receiver.feed(
+                    got = self.receiver.feed(
                         msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id
                     )
-        # Commands on the bus are another host's (or our own, echoed): not for us.
-        return [m for m in out if not isinstance(m, Command)]
+                    if not msg.is_rx:  # this host's own frame, echoed by the interface
+                        got = [m for m in got if not isinstance(m, Command)]
+                    out += got
+        # Commands on the bus are another host's (this host's own echoes were dropped above):
+        # the link notes them.
+        return out
 
     def restart_stream(self) -> list[TickLoss]:
         """The stream was off: the next tick does not continue the previous one (any thread)."""

@@ -192,7 +192,11 @@ class RealTimeClock:
 
 
 class LockstepClock:
-    """A clock that moves only when told: ``advance(dt)``."""
+    """A clock that moves only when told: ``advance(dt)``. Any step is carried out in full by the
+    runner's next :meth:`Runner.step` (in steps of at most ``Runner.MAX_STEP_S``, the link polled
+    between them): nothing is behind a clock that waits for the simulator."""
+
+    lockstep = True
 
     def __init__(self) -> None:
         self._t = 0.0
@@ -392,12 +396,20 @@ class Runner:
             # out as a burst, so the clock slips instead.
             late = now - self.firmware.next_output_s()
             self.lag.behind_s = max(0.0, late)
-            if late > MAX_LAG_WALL_S * clock.speed and not clock.paused:
+            lockstep = getattr(clock, "lockstep", False)
+            if late > MAX_LAG_WALL_S * clock.speed and not clock.paused and not lockstep:
                 self._slip(clock, late)
                 now -= late
             dt = min(now - self.firmware.now, self.MAX_STEP_S)
             if dt > 0:
                 out = self.firmware.process(dt)
+                self.sent += len(out)
+                self.link.send(out)
+            # A lockstep clock stepped further than one step: catch up to it now, answering
+            # commands between the steps as a paced runner would.
+            while lockstep and self.firmware.now < now - 1e-12:
+                self.link.poll(0.0)
+                out = self.firmware.process(min(now - self.firmware.now, self.MAX_STEP_S))
                 self.sent += len(out)
                 self.link.send(out)
 

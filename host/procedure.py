@@ -582,7 +582,8 @@ def find_north(
             break
         if state == "FAULT":
             raise HostError(
-                f"the device is in FAULT (faults {getattr(status, 'faults', '?')!r}); reset it"
+                f"the device is in FAULT (faults {getattr(status, 'faults', '?')!r}); reset it "
+                "(northfinder reset, or Device.reset())"
             )
         if clock() > deadline:
             raise HostError(

@@ -53,6 +53,7 @@ COMMANDS: dict[str, str] = {
     "find": "northfinder.cli.find",
     "record": "northfinder.cli.record",
     "calibrate": "northfinder.cli.calibrate",
+    "reset": "northfinder.cli.reset",
 }
 
 #: The one-line help of each command, for the command list (the same text as each module's).
@@ -67,6 +68,7 @@ SUMMARIES: dict[str, str] = {
     "find": "find true north",
     "record": "record raw windows to CSV or NPZ",
     "calibrate": "fit sensor terms to recordings and write a sensor TOML",
+    "reset": "restart a unit (clears FAULT)",
 }
 
 
