@@ -40,7 +40,9 @@ def test_another_hosts_stream_stop_is_named(sim):
     with sim.open_device() as first, sim.open_device() as second:
         first.wait_ready(5.0)
         with (
-            pytest.raises(AnotherHost, match=r"another host is commanding this unit: it sent STREAM_STOP"),
+            pytest.raises(
+                AnotherHost, match=r"another host is commanding this unit: it sent STREAM_STOP"
+            ),
             later_on(first.clock, 1.0, second.stop_streaming),
         ):
             first.acquire(3.0)

@@ -39,8 +39,10 @@ from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.procedure import (
+    MAX_REMEASURE,
     MAX_SETTLE_S,
     METHOD_CHOICES,
+    ON_GAP_CHOICES,
     WINDOW_RANGE_S,
     FindResult,
     Plan,
@@ -143,6 +145,14 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
         "--denoise", default="none", choices=list(METHODS), help="denoising method (default none)"
     )
     add_solver_argument(g, METHOD_CHOICES)
+    g.add_argument(
+        "--on-gap",
+        choices=ON_GAP_CHOICES,
+        default="remeasure",
+        help="a window with sample ticks missing (a damaged or lost frame): measure it again "
+        f"(up to {MAX_REMEASURE} times; default), keep it and report the gap in the result, "
+        "or stop the run (fail)",
+    )
     g.add_argument(
         "--timeout",
         type=bounded_float(0.0, MAX_WAIT_S, "s", open_lo=True),
@@ -424,6 +434,7 @@ def run_plan(
                 clock=clock.now,
                 latitude_source=source,
                 on_window=on_window,
+                on_gap=args.on_gap,
             )
         except BaseException as exc:
             if writer is not None:
