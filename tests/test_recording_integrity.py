@@ -219,3 +219,26 @@ def test_a_padded_recording_is_named(tmp_path):
     Recording(tuple(window(k, a) for k, a in enumerate(ANGLES[:3])), meta).save(path)
     with pytest.raises(RecordingError, match="padded: 3 windows, its plan has 2"):
         Recording.load(path)
+
+
+def test_calibrates_duplicate_guard_sees_one_session_in_two_formats(tmp_path):
+    from northfinder.host.calibrate.readers import read_runs
+
+    windows = tuple(window(k, a) for k, a in enumerate(ANGLES))
+    npz = tmp_path / "run.npz"
+    Recording(windows, dict(META)).save(npz)
+    # The same session as another tool would write it: floats that differ in the last digits.
+    nudged = tuple(
+        RecordedWindow(
+            w.commanded_deg, w.counter, w.time_s, w.gyro_dph * (1 + 1e-13), w.accel_mps2 + 1e-15,
+            w.table_deg, w.temperature_c, w.validity,
+        )
+        for w in windows
+    )  # fmt: skip
+    csv = tmp_path / "run.csv"
+    Recording(nudged, dict(META)).save(csv)
+    with pytest.raises(RecordingError, match="holds the same samples as"):
+        read_runs([npz, csv])
+    other = tmp_path / "other.csv"  # another power-on
+    Recording(tuple(window(k + 10, a) for k, a in enumerate(ANGLES)), dict(META)).save(other)
+    assert len(read_runs([npz, other])) == 2

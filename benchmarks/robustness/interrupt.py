@@ -31,6 +31,8 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 def interrupt_runs(args: argparse.Namespace) -> dict[str, Any]:
     n = args.interrupt_runs
     links = [x for x in LINKS if x != "socketcan" or os.path.exists(f"/sys/class/net/{VCAN}")]
+    if args.interrupt_links:
+        links = [x for x in args.interrupt_links.split(",") if x]
     print(f"find interrupted during a move ({n} runs per link and signal; the unit's state read "
           "through the control channel after the host exited)")  # fmt: skip
     print(f"{'link':<11} {'signal':<8} {'runs':>4} {'moving':>6} {'status ok':>9} {'at rest':>7} "

@@ -39,7 +39,6 @@ from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.procedure import (
-    MAX_REMEASURE,
     MAX_SETTLE_S,
     METHOD_CHOICES,
     ON_GAP_CHOICES,
@@ -149,9 +148,8 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
         "--on-gap",
         choices=ON_GAP_CHOICES,
         default="remeasure",
-        help="a window with sample ticks missing (a damaged or lost frame): measure it again "
-        f"(up to {MAX_REMEASURE} times; default), keep it and report the gap in the result, "
-        "or stop the run (fail)",
+        metavar="MODE",
+        help="lost ticks: remeasure (default), report or fail",
     )
     g.add_argument(
         "--timeout",
