@@ -49,6 +49,9 @@ def main() -> int:
     parser.add_argument(
         "--interrupt-runs", type=int, default=20, help="interrupt: per link, signal"
     )
+    parser.add_argument(
+        "--interrupt-links", default="", help="interrupt: comma-separated links (default: all here)"
+    )
     parser.add_argument("--json", metavar="FILE", help="also write the summaries as JSON")
     args = parser.parse_args()
     names = [s for s in args.sections.split(",") if s]

@@ -407,11 +407,15 @@ class Runner:
                 self.link.send(out)
             # A lockstep clock stepped further than one step: catch up to it now, answering
             # commands between the steps as a paced runner would.
-            while lockstep and self.firmware.now < now - 1e-12:
+            # (The firmware keeps time in whole nanoseconds: a remainder below that is no step.)
+            while lockstep and now - self.firmware.now > 1e-6:
                 self.link.poll(0.0)
+                before = self.firmware.now
                 out = self.firmware.process(min(now - self.firmware.now, self.MAX_STEP_S))
                 self.sent += len(out)
                 self.link.send(out)
+                if self.firmware.now <= before:
+                    break
 
     def _slip(self, clock: Clock, behind: float) -> None:
         """Fallen too far behind: the clock slips back to the oldest message due (no burst)."""

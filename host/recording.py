@@ -221,6 +221,7 @@ class Recording:
         p = Path(path)
         if p.suffix not in (".csv", ".npz"):
             raise RecordingError(f"{p}: the file name must end in .csv or .npz")
+        _check_readable(p)
         try:
             if p.suffix == ".npz":
                 arrays, meta = _read_npz(p)
@@ -415,6 +416,29 @@ def _read_npz(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
     except json.JSONDecodeError as exc:
         raise RecordingError(f"{p}: meta_json is not JSON ({exc})") from exc
     return arrays, meta
+
+
+#: Largest recording read, bytes (a day of 200 Hz samples in CSV is about 2 GB; beyond this the
+#: reader would exhaust memory rather than say what is wrong).
+MAX_RECORDING_BYTES = 4 << 30
+
+
+def _check_readable(p: Path) -> None:
+    """Refuse what is no regular file (a FIFO would block, a device never end) or is larger
+    than :data:`MAX_RECORDING_BYTES`."""
+    import stat
+
+    try:
+        st = p.stat()
+    except OSError as exc:
+        raise RecordingError(f"{p}: cannot read ({exc.strerror or exc})") from exc
+    if not stat.S_ISREG(st.st_mode):
+        raise RecordingError(f"{p}: not a regular file (a folder, a FIFO or a device)")
+    if st.st_size > MAX_RECORDING_BYTES:
+        raise RecordingError(
+            f"{p}: {st.st_size / 2**30:.1f} GiB; recordings up to {MAX_RECORDING_BYTES >> 30} GiB "
+            "are read (split a longer session)"
+        )
 
 
 def _recording_path(path: str | Path) -> Path:
