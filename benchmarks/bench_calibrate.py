@@ -34,10 +34,10 @@ import numpy as np
 
 from northfinder.cli import main as cli
 from northfinder.driver.protocol.units import DPH
-from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import SensorSpec, load_spec
 from northfinder.host.recording import RecordedWindow, Recording
+from northfinder.simwindows import write_recordings
 
 TRUTH = Truth(azimuth_deg=75.0, latitude_deg=34.0)
 #: (label, preset, overrides, hours, sample rate Hz)
@@ -152,17 +152,7 @@ def run_static(seeds: int, tmp: Path) -> None:
 
 def position_recordings(spec: SensorSpec, runs: int, seed: int, tmp: Path) -> list[str]:
     positions = [float(a) for a in range(0, 240, 30)]
-    fs = 20.0
-    batch = simulate_windows(
-        spec, TRUTH, positions, 10.0, n_runs=runs, rng=np.random.default_rng(seed),
-        sample_rate_hz=fs, warmup_s=120.0,
-    )  # fmt: skip
-    paths = []
-    for r in range(runs):
-        path = tmp / f"run-{seed}-{r}.npz"
-        Recording.from_batch(batch, r, 34.0).save(path)
-        paths.append(str(path))
-    return paths
+    return write_recordings(spec, TRUTH, positions, 10.0, runs, seed, tmp, sample_rate_hz=20.0)
 
 
 def run_positions(seeds: int, tmp: Path) -> None:

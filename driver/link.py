@@ -155,6 +155,12 @@ class LinkStats:
         Commands that failed with :class:`~northfinder.driver.errors.ReplyTimeout`.
     resets_detected : int
         Device restarts noticed (BOOT status, unrequested IDENTIFY).
+    commands_sent : int
+        Commands sent, each resend counted.
+    replies_received : int
+        Replies matched to the command that waited for them.
+    commands_refused : int
+        Replies with a result other than OK (the device refused the command).
     foreign_commands : int
         CAN only: commands to this unit from another host on the bus.
     """
@@ -170,7 +176,23 @@ class LinkStats:
     retries: int
     reply_timeouts: int
     resets_detected: int
+    commands_sent: int = 0
+    replies_received: int = 0
+    commands_refused: int = 0
     foreign_commands: int = 0
+
+    def summary(self) -> str:
+        """One line for people: commands and replies, then what was lost or rejected."""
+        return (
+            f"{self.commands_sent} commands sent ({self.retries} resent), "
+            f"{self.replies_received} replies ({self.commands_refused} refused, "
+            f"{self.stray_replies} stray), {self.reply_timeouts} reply timeouts; "
+            f"frames {self.frames_received} received, {self.frames_rejected} rejected, "
+            f"{self.frames_foreign} foreign, {self.frames_lost} lost; "
+            f"{self.samples_received} samples, ticks {self.ticks_lost} lost, "
+            f"{self.ticks_incomplete} incomplete; {self.resets_detected} device restarts; "
+            f"{self.foreign_commands} commands of other hosts"
+        )
 
 
 #: Another host's commands that break a window or a move of this host (queries and STREAM_START
@@ -308,7 +330,10 @@ class DeviceLink:
         self._dead: DriverError | None = None
         self._closed = False
         self._stop = threading.Event()
-        self._counts = {"samples": 0, "stray": 0, "retries": 0, "timeouts": 0, "resets": 0}
+        self._counts = {
+            "samples": 0, "stray": 0, "retries": 0, "timeouts": 0, "resets": 0,
+            "sent": 0, "replies": 0, "refused": 0,
+        }  # fmt: skip
         # Another host's commands seen on the bus (CAN): how many, and the latest disruptive one
         # (count, opcode); its IDENTIFY's answer is expected until _foreign_identify_until; its
         # RESET explains the restart that follows.
@@ -433,6 +458,12 @@ class DeviceLink:
     def closed(self) -> bool:
         """True after :meth:`close`."""
         return self._closed
+
+    @property
+    def lost(self) -> DriverError | None:
+        """The error that ended the link (the bus or port failed under the reader), None while
+        it is up. A lost link stays lost: open the device again."""
+        return self._dead
 
     @property
     def link_kind(self) -> str:
@@ -677,15 +708,19 @@ class DeviceLink:
             self._check_open()
             waiter = _Waiter(opcode)
             with self._lock:
+                self._counts["sent"] += 1
                 seq = self._next_seq()
                 self._waiters[seq] = waiter
                 if opcode == Opcode.IDENTIFY:
                     self._identify_expected_until = self._clock.now() + per + 1.0
             try:
-                self._transport.send(command(seq, *args))
+                sent_at = self._clock.now()
+                message = command(seq, *args)
+                self._transport.send(message)
+                log.debug("-> %r", message)
                 if self._reader is None:
                     self._clock.notify()  # the virtual clock: the device takes it now
-                answered = self._clock.wait_until(waiter.is_done, self._clock.now() + per)
+                answered = self._clock.wait_until(waiter.is_done, sent_at + per)
             finally:
                 with self._lock:
                     self._waiters.pop(seq, None)
@@ -693,6 +728,14 @@ class DeviceLink:
                 raise type(waiter.error)(str(waiter.error)) from waiter.error
             if answered and waiter.reply is not None:
                 reply = waiter.reply
+                with self._lock:
+                    self._counts["replies"] += 1
+                    self._counts["refused"] += reply.result != Result.OK
+                log.debug(
+                    "<- %s %s (seq %d) after %.1f ms", opcode.name,
+                    getattr(reply.result, "name", reply.result), reply.seq,
+                    1e3 * (self._clock.now() - sent_at),
+                )  # fmt: skip
                 if reply.result != Result.OK:
                     raise DeviceRefused(opcode, reply.result, result_meaning(reply.result))
                 return reply
@@ -768,4 +811,7 @@ class DeviceLink:
             reply_timeouts=c["timeouts"],
             resets_detected=c["resets"],
             foreign_commands=self._foreign_count,
+            commands_sent=c["sent"],
+            replies_received=c["replies"],
+            commands_refused=c["refused"],
         )

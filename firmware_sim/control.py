@@ -171,6 +171,19 @@ OPS: dict[str, Op] = {
         "send every reply SECONDS late (0 ends it)",
         {"seconds": Key("number", lo=0, hi=3600, unit="s")},
     ),
+    "drop_replies": Op(
+        "send no reply to the next COUNT commands (they are still carried out)",
+        {"count": Key("int", 1, 0, 100_000)},
+    ),
+    "slow_heartbeat": Op(
+        "send the heartbeat every HEARTBEAT_PERIOD_MS times FACTOR (1 ends it)",
+        {"factor": Key("number", lo=0.1, hi=100.0)},
+    ),
+    "slow_stream": Op(
+        "make each sample tick last FACTOR configured tick periods: the stream runs at "
+        "SAMPLE_RATE_HZ / FACTOR (1 ends it)",
+        {"factor": Key("number", lo=0.1, hi=100.0)},
+    ),
     "silent": Op("stop sending anything (on=false ends it)", {"on": _ON}),
     "skip_counter": Op(
         "advance the sample counter by COUNT ticks once", {"count": Key("int", 1, 0, 1_000_000)}
@@ -301,6 +314,9 @@ class Controller:
             "drop": lambda a: self._set_fault("drop_frames", a["count"]),
             "corrupt": lambda a: self._set_fault("corrupt_frames", a["count"]),
             "delay_replies": lambda a: self._set_fault("reply_delay_s", a["seconds"]),
+            "drop_replies": lambda a: self._set_fault("drop_replies", a["count"]),
+            "slow_heartbeat": lambda a: self._set_fault("heartbeat_factor", a["factor"]),
+            "slow_stream": lambda a: self._set_fault("tick_factor", a["factor"]),
             "silent": lambda a: self._set_fault("silent", a["on"]),
             "skip_counter": lambda a: self._set_fault("skip_counter", a["count"]),
             "wrong_result": lambda a: self._set_fault("wrong_result", a["code"]),

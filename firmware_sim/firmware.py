@@ -163,6 +163,13 @@ class FaultInjection:
     silent: bool = False
     skip_counter: int = 0
     wrong_result: int | None = None
+    drop_replies: int = 0
+    """The next this many replies are never sent (the command is still carried out)."""
+    heartbeat_factor: float = 1.0
+    """The heartbeat comes every HEARTBEAT_PERIOD_MS times this (a unit whose timer is off)."""
+    tick_factor: float = 1.0
+    """A sample tick takes this many configured tick periods (rounded to whole physics samples):
+    a unit that streams slower (or faster) than SAMPLE_RATE_HZ, its counters counting its ticks."""
 
 
 class Outgoing(NamedTuple):
@@ -467,6 +474,9 @@ class Firmware:
             self._restart(self._pending[-1].time_s)
 
     def _reply(self, reply: Reply) -> None:
+        if self.faults.drop_replies > 0:
+            self.faults.drop_replies -= 1
+            return
         if self.faults.wrong_result is not None:
             reply = replace(reply, result=self.faults.wrong_result, data=b"")
             self.faults.wrong_result = None
@@ -737,7 +747,9 @@ class Firmware:
             self._ticks(block) if len(block) else ([], np.empty(0), np.empty(0, dtype=np.int64))
         )
 
-        period_ns = self.config[ConfigKey.HEARTBEAT_PERIOD_MS] * 1_000_000
+        period_ns = round(
+            self.config[ConfigKey.HEARTBEAT_PERIOD_MS] * 1_000_000 * self.faults.heartbeat_factor
+        )
         times = []
         while self._next_heartbeat_ns <= until_ns:
             times.append(self._next_heartbeat_ns / NS_PER_S)
@@ -809,7 +821,7 @@ class Firmware:
     def _ticks(self, block: SampleBlock) -> tuple[list[Outgoing], np.ndarray, np.ndarray]:
         """The sample ticks completed by ``block``; also each tick's end time and the counter
         of each tick (for statuses computed between them)."""
-        per_tick = round(BASE_RATE_HZ / self.sample_rate_hz)
+        per_tick = max(1, round(BASE_RATE_HZ / self.sample_rate_hz * self.faults.tick_factor))
         self._tick.gyro.append(block.gyro_rps)
         self._tick.accel.append(block.accel_mps2)
         self._tick.gyro_saturated.append(block.gyro_saturated)

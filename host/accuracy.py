@@ -4,15 +4,41 @@
 dwell T, ``N / (Omega_H |sin(mu/2)| sqrt(T))``; for N positions the least-squares covariance of
 the heading with both horizontal gyro biases estimated (the same as
 :func:`northfinder.host.heading.solve_multi_position` with known noise). A simulated result that
-beats it is a bug. :func:`predict` adds what a datasheet predicts beyond white noise: bias
-instability (flicker, as Gauss-Markov components from 1 s to 10^4 s), rate random walk, the
-covariance of window means across the gaps of the plan, a deterministic drift, table indexing
-error (when the commanded angles are used), accelerometer noise through the tilt (``tan(lat)``)
-and axis misalignment. It is what the planner minimises; the Monte Carlo checks it.
+beats it is a bug. :func:`budget_bound_deg` is the limit of a whole time budget (all of it spent
+recording).
+
+:func:`predict` is the planner's prediction: the RMSE of a plan's azimuth over runs, from every
+error term an :class:`ErrorModel` can hold, propagated through the plan's own solver.
+
+How the prediction is made
+--------------------------
+The solver (two-position, least squares or pairwise, with the tilt from the accelerometers or
+level) is linearised around the truth: ``g``, the gradient of the azimuth with respect to each
+window mean (gyro x and y, accelerometer x and y) and each table angle the solver is given, is
+taken by central differences of the solver itself on noise-free window means, for twelve true
+azimuths (a study draws the azimuth uniformly; its RMSE is the mean over azimuths). The
+predicted variance is ``g^T C g`` plus the square of the deterministic error ``g . d``:
+
+- ``C``, the covariance of the window-mean errors over the plan's actual timeline (the windows,
+  the moves between them and the settling; time counted from power-on): white noise (ARW, VRW),
+  flicker bias instability (as the simulator builds it, Gauss-Markov components from 1 s to
+  10^4 s), random walks, the bias walk and decaying transient that each move starts (sized by
+  the heat the drive holds, as :mod:`northfinder.firmware_sim.error_terms` defines it), output
+  quantisation with carry, a vibration line of random phase, Poisson impulses and a bias step at
+  a random time; table indexing error (commanded angles) and encoder resolution; scale-factor and
+  misalignment draws of both triads (through the true rates and forces at each position);
+- ``d``, the deterministic bias of each window mean: warm-up transient, temperature and ramp of
+  both triads over the plan's timeline, plus the solver's own error on noise-free data (a level
+  solver on a tilted instrument).
+
+Constant biases and the turn-on bias are the same in every window and cancel in every solver
+(``g`` sums to zero over the windows of each channel). The prediction is exact to first order;
+it is what the planner minimises, and seeded Monte Carlo studies check it for every preset.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -22,7 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from northfinder.driver.protocol.units import DPH, DPH_PSH, DPSH, OMEGA_IE, UG, normal_gravity
 from northfinder.host.errors import GeometryError, check_choice
-from northfinder.host.kernels import latitude_rad
+from northfinder.host.kernels import MAX_TILT_DEG, earth_rate_body, latitude_rad, table_rotation
 from northfinder.host.plan import Plan, TableModel, moves_deg, plan_time_s, window_starts_s
 
 __all__ = [
@@ -30,8 +56,12 @@ __all__ = [
     "TILT_SOURCES",
     "ErrorModel",
     "Prediction",
+    "angle_rms",
     "bound_deg",
+    "budget_bound_deg",
+    "move_heat",
     "predict",
+    "predict_solutions",
 ]
 
 #: Where the tilt comes from.
@@ -97,9 +127,27 @@ def bound_deg(
     return math.degrees(s * math.sqrt(float(np.sum(c * c))))
 
 
+def budget_bound_deg(budget_s: float, arw_dpsh: float, latitude_deg: float) -> float:
+    """White-noise limit of a whole time budget, 1 sigma, deg: ``N / (Omega_H sqrt(T))``.
+
+    What any plan of ``budget_s`` could reach if every second of it were spent recording (no
+    moves, no settling) with both horizontal gyros: two positions 180 deg apart and any set of
+    equally spaced positions reach it at equal total dwell. No plan of that budget beats it.
+    """
+    omega_h = OMEGA_IE * math.cos(latitude_rad(latitude_deg, "the bound"))
+    return math.degrees(arw_dpsh * DPSH / (omega_h * math.sqrt(budget_s)))
+
+
+Drift = Callable[[NDArray[np.float64]], NDArray[np.float64]]
+
+
 @dataclass(frozen=True)
 class ErrorModel:
-    """Datasheet figures of a gyro north finder, as the planner uses them.
+    """Datasheet figures of a gyro north finder, as the planner's prediction uses them.
+
+    Every figure is 0 (absent) unless given, except the time constants. Gyro figures apply to
+    the x and y gyros, accelerometer figures (``accel_``) to the x and y accelerometers (they
+    enter through the tilt).
 
     Attributes
     ----------
@@ -110,14 +158,37 @@ class ErrorModel:
     rrw_dphpsh : float
         Gyro rate random walk, deg/h/sqrt(h).
     misalignment_urad, scale_factor_ppm : float
-        Gyro axis misalignment and scale-factor error, 1 sigma.
+        Gyro axis misalignment (per off-diagonal) and scale-factor error (per axis), 1 sigma.
     vrw_ug_rthz : float
-        Accelerometer white noise, ug/sqrt(Hz) (enters through the tilt).
+        Accelerometer white noise, ug/sqrt(Hz).
     table : TableModel
-        Turntable limits, settle time, indexing error.
+        Turntable limits, settle time, indexing error, encoder, motor heat.
     drift_rps : callable or None
         Deterministic gyro bias of time since power-on, ``f(t_s (k,)) -> (k, 2)`` rad/s for the
-        x and y gyros (warm-up transient, temperature); None when there is none.
+        x and y gyros (warm-up transient, temperature, ramp); None when there is none.
+    lsb_dph : float
+        Gyro output quantum, deg/h (quantised with carry).
+    move_walk_dph_per_rtdeg, move_transient_dph_per_rtdeg : float
+        Lasting bias step and initial amplitude of the decaying transient each table move
+        starts, 1 sigma per sqrt(deg) of the heat the drive holds, deg/h/sqrt(deg).
+    move_transient_tau_s : float
+        Time constant of that transient, s.
+    vibration_dph, impulse_dph : float
+        Vibration amplitude and impulse peak seen by each gyro axis, deg/h.
+    accel_bias_instability_ug, accel_random_walk_ug_rts : float
+        Accelerometer flicker (ug) and bias random walk (ug/sqrt(s)).
+    accel_scale_factor_ppm, accel_misalignment_urad, accel_lsb_ug : float
+        Accelerometer scale factor, misalignment and output quantum.
+    accel_move_walk_ug_per_rtdeg, accel_move_transient_ug_per_rtdeg, accel_move_transient_tau_s
+        The accelerometers' move terms, ug/sqrt(deg) and s.
+    accel_vibration_ug, accel_impulse_ug : float
+        Vibration amplitude and impulse peak seen by each accelerometer axis, ug.
+    vibration_hz : float
+        Frequency of the vibration line, Hz (0: none).
+    impulse_rate_hz, impulse_duration_s : float
+        Mean rate of half-sine impulses (Poisson) and their duration.
+    accel_drift_mps2 : callable or None
+        Deterministic accelerometer bias of time since power-on, ``f(t_s (k,)) -> (k, 2)`` m/s^2.
     """
 
     arw_dpsh: float
@@ -127,14 +198,41 @@ class ErrorModel:
     scale_factor_ppm: float = 0.0
     vrw_ug_rthz: float = 0.0
     table: TableModel = field(default_factory=TableModel)
-    drift_rps: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = field(
-        default=None, repr=False, compare=False
-    )
+    drift_rps: Drift | None = field(default=None, repr=False, compare=False)
+    lsb_dph: float = 0.0
+    move_walk_dph_per_rtdeg: float = 0.0
+    move_transient_dph_per_rtdeg: float = 0.0
+    move_transient_tau_s: float = 10.0
+    vibration_dph: float = 0.0
+    impulse_dph: float = 0.0
+    accel_bias_instability_ug: float = 0.0
+    accel_random_walk_ug_rts: float = 0.0
+    accel_scale_factor_ppm: float = 0.0
+    accel_misalignment_urad: float = 0.0
+    accel_lsb_ug: float = 0.0
+    accel_move_walk_ug_per_rtdeg: float = 0.0
+    accel_move_transient_ug_per_rtdeg: float = 0.0
+    accel_move_transient_tau_s: float = 10.0
+    accel_vibration_ug: float = 0.0
+    accel_impulse_ug: float = 0.0
+    vibration_hz: float = 0.0
+    impulse_rate_hz: float = 0.0
+    impulse_duration_s: float = 0.05
+    accel_drift_mps2: Drift | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
 class Prediction:
-    """Predicted 1-sigma heading error of a plan, deg, with its parts (rad^2 variances in deg)."""
+    """Predicted 1-sigma (RMS over runs) heading error of a plan, deg, with its parts.
+
+    ``sigma_deg`` is :func:`angle_rms` of the linear error (the same below a few degrees).
+    ``parts_deg`` holds the square root of each part's linear variance, deg (they add in squares):
+    ``white`` (gyro ARW; its value is ``bound_deg``), ``slow_noise`` (gyro flicker and rate
+    random walk), ``tilt`` (accelerometer noise), ``moves`` (move transients and walks),
+    ``drift`` (deterministic terms), ``quantisation``, ``misalignment`` (scale factor and
+    misalignment), ``indexing`` (commanded angles), ``encoder``, ``vibration``, ``impulses``,
+    ``bias_step``: each only when the model has that term.
+    """
 
     sigma_deg: float
     bound_deg: float
@@ -144,30 +242,457 @@ class Prediction:
 
 def _window_mean_cov(starts: NDArray[np.float64], tau: float, model: ErrorModel) -> NDArray:
     """Covariance of one gyro axis' window means, (N, N), (rad/s)^2 (white, flicker, walk)."""
-    n = starts.size
-    cov = np.eye(n) * (model.arw_dpsh * DPSH) ** 2 / tau
-    b = model.bias_instability_dph * DPH
-    if b:
-        d = np.abs(np.subtract.outer(starts, starts))
-        for tc in _FLICKER_TAUS:
-            v = b * b * _FLICKER_VAR
-            r = tau / tc
-            same = 2.0 * v * (r - 1.0 + math.exp(-r)) / (r * r)
-            # e^{-d/tc} (e^r - 2 + e^-r), written so that nothing overflows (d >= tau off the
-            # diagonal).
-            dd = np.maximum(d, tau)
-            cross = (
-                v
-                * (np.exp(-(dd - tau) / tc) - 2.0 * np.exp(-dd / tc) + np.exp(-(dd + tau) / tc))
-                / (r * r)
-            )
-            cov += np.where(d < tau * 0.5, same, cross)
-    k = model.rrw_dphpsh * DPH_PSH
-    if k:
-        lo = np.minimum.outer(starts, starts)
-        same = np.equal.outer(starts, starts)
-        cov += k * k * (lo + np.where(same, tau / 3.0, tau / 2.0))
+    cov = np.eye(starts.size) * (model.arw_dpsh * DPSH) ** 2 / tau
+    cov += _flicker_cov(starts, tau, model.bias_instability_dph * DPH)
+    cov += _walk_cov(starts, tau, model.rrw_dphpsh * DPH_PSH)
     return cov
+
+
+def _flicker_cov(starts: NDArray[np.float64], tau: float, b: float) -> NDArray[np.float64]:
+    """Covariance of window means of flicker noise ``b`` (SI) over windows of ``tau`` s."""
+    n = starts.size
+    cov = np.zeros((n, n))
+    if not b:
+        return cov
+    d = np.abs(np.subtract.outer(starts, starts))
+    v = b * b * _FLICKER_VAR
+    for tc in _FLICKER_TAUS:
+        r = tau / tc
+        same = 2.0 * v * (r - 1.0 + math.exp(-r)) / (r * r)
+        # e^{-d/tc} (e^r - 2 + e^-r), written so that nothing overflows (d >= tau off the
+        # diagonal).
+        dd = np.maximum(d, tau)
+        cross = (
+            v
+            * (np.exp(-(dd - tau) / tc) - 2.0 * np.exp(-dd / tc) + np.exp(-(dd + tau) / tc))
+            / (r * r)
+        )
+        cov += np.where(d < tau * 0.5, same, cross)
+    return cov
+
+
+def _walk_cov(starts: NDArray[np.float64], tau: float, k: float) -> NDArray[np.float64]:
+    """Covariance of window means of a random walk ``k`` (SI per sqrt(s)) from t = 0."""
+    if not k:
+        return np.zeros((starts.size, starts.size))
+    lo = np.minimum.outer(starts, starts)
+    same = np.equal.outer(starts, starts)
+    return k * k * (lo + np.where(same, tau / 3.0, tau / 2.0))
+
+
+# ----------------------------------------------------------------------------------------------
+# The solver, linearised
+# ----------------------------------------------------------------------------------------------
+
+#: True azimuths over which the prediction is averaged (a study draws them uniformly), deg.
+_AZIMUTHS_DEG: tuple[float, ...] = tuple(float(a) for a in np.arange(12) * 30.0)
+#: Central-difference steps of the inputs: gyro x, y (rad/s), accelerometer x, y (m/s^2), table
+#: angle (rad). Small enough to stay linear, large against the solver's own tolerance (1e-12 rad).
+_STEPS = np.array([1e-9, 1e-9, 1e-5, 1e-5, 1e-6])
+#: Inputs per window: gyro x, y, accelerometer x, y, table angle.
+_INPUTS = 5
+
+
+@dataclass(frozen=True, eq=False)
+class _Linearisation:
+    """The solver's azimuth error near the truth, per true azimuth (A) and solution (S).
+
+    ``grad`` (A, S, P, 5): rad per unit of each input of each window; ``offset`` (A, S): its error
+    on noise-free means, rad; ``gyro_matrix`` and ``accel_matrix`` (A, S, 2): summed squared
+    sensitivity to unit scale-factor draws (column 0) and unit misalignment draws (column 1).
+    """
+
+    grad: NDArray[np.float64]
+    offset: NDArray[np.float64]
+    gyro_matrix: NDArray[np.float64]
+    accel_matrix: NDArray[np.float64]
+
+
+def _matrix_sensitivity(grad: NDArray[np.float64], true: NDArray[np.float64]) -> NDArray:
+    """Summed squared sensitivity of the azimuth to a triad's scale-factor and misalignment draws.
+
+    ``grad`` (A, S, P, 2) over the x and y means, ``true`` (A, P, 3) what the triad would read
+    without errors; a triad reads ``M true`` with diagonal ``1 + sf`` and off-diagonals ``mis``.
+    """
+    sf = [np.einsum("asp,ap->as", grad[..., i], true[..., i]) for i in range(2)]
+    mis = [
+        np.einsum("asp,ap->as", grad[..., i], true[..., k])
+        for i in range(2)
+        for k in range(3)
+        if i != k
+    ]
+    return np.stack([sum(x * x for x in sf), sum(x * x for x in mis)], axis=-1)
+
+
+@functools.lru_cache(maxsize=256)
+def _linearise(
+    positions_deg: tuple[float, ...],
+    latitude_deg: float,
+    pitch_deg: float,
+    roll_deg: float,
+    azimuths_deg: tuple[float, ...],
+    method: str,
+    level: bool,
+) -> _Linearisation:
+    """Central differences of the plan's solver around noise-free window means."""
+    from northfinder.host.study import chunk_errors  # the solvers the studies run
+
+    lat = latitude_rad(latitude_deg, "the prediction")
+    grav = float(normal_gravity(lat))
+    az = np.radians(np.asarray(azimuths_deg, dtype=float))
+    alpha = -az
+    # On the solvers' tilt limit the noise-free solution may round beyond it: just inside.
+    limit = MAX_TILT_DEG - 1e-6
+    th = math.radians(min(max(pitch_deg, -limit), limit))
+    ga = math.radians(min(max(roll_deg, -limit), limit))
+    st, ct, sg, cg = math.sin(th), math.cos(th), math.sin(ga), math.cos(ga)
+    on, ou = OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)
+    h, _ = earth_rate_body(alpha, th, ga, on, ou)  # (A, 2)
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    omega_z = on * (sa * sg + ca * st * cg) + ou * ct * cg
+    omega_b = np.concatenate([h, omega_z[:, None]], axis=-1)  # (A, 3)
+    f_b = np.broadcast_to(np.array([-st, sg * ct, cg * ct]) * grav, omega_b.shape)
+    mu = np.radians(np.asarray(positions_deg, dtype=float))
+    rot = table_rotation(mu)  # (P, 2, 2)
+
+    def turn(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        xy = np.einsum("pij,aj->api", rot, v[:, :2])
+        return np.concatenate([xy, np.broadcast_to(v[:, None, 2:], (*xy.shape[:2], 1))], -1)
+
+    gyro, accel = turn(omega_b), turn(f_b)  # (A, P, 3)
+    a_count, p_count = gyro.shape[:2]
+    k_count = _INPUTS * p_count
+    base = np.concatenate(
+        [gyro[..., :2], accel[..., :2], np.broadcast_to(mu, (a_count, p_count))[..., None]], -1
+    )
+    runs = np.repeat(base[:, None], 2 * k_count + 1, axis=1)  # (A, 2K + 1, P, 5)
+    idx = np.arange(k_count)
+    pos, inp = np.divmod(idx, _INPUTS)
+    step = _STEPS[inp]
+    runs[:, 1 + 2 * idx, pos, inp] += step
+    runs[:, 2 + 2 * idx, pos, inp] -= step
+    flat = runs.reshape(-1, p_count, _INPUTS)
+    samples = np.zeros((flat.shape[0], p_count, 1, 3))
+    samples[:, :, 0, :2] = flat[..., :2]
+    acc = None
+    if not level:
+        acc = np.zeros_like(samples)
+        acc[:, :, 0, :2] = flat[..., 2:4]
+        acc[:, :, 0, 2] = np.repeat(accel[:, None, :, 2], 2 * k_count + 1, axis=1).reshape(
+            -1, p_count
+        )
+    truth = np.repeat(np.degrees(az), 2 * k_count + 1)
+    err = chunk_errors(samples, acc, np.degrees(flat[..., 4]), truth, latitude_deg, solver=method)
+    err = np.radians(err).reshape(a_count, 2 * k_count + 1, -1)  # (A, 2K + 1, S)
+    up, down, base = err[:, 1::2], err[:, 2::2], err[:, :1]
+    # At the solvers' tilt limit one side of a difference may have no solution: the other side.
+    grad = (
+        np.where(
+            np.isfinite(up) & np.isfinite(down),
+            (up - down) / 2.0,
+            np.where(np.isfinite(up), up - base, base - down),
+        )
+        / step[None, :, None]
+    )  # (A, K, S)
+    if not (np.all(np.isfinite(grad)) and np.all(np.isfinite(base))):
+        raise GeometryError(
+            f"positions {list(positions_deg)} at pitch {pitch_deg:g}, roll {roll_deg:g} deg: "
+            "the solver has no solution even without noise; no prediction"
+        )
+    grad = np.moveaxis(grad, 2, 1).reshape(a_count, -1, p_count, _INPUTS)
+    return _Linearisation(
+        grad=grad,
+        offset=err[:, 0],
+        gyro_matrix=_matrix_sensitivity(grad[..., 0:2], gyro),
+        accel_matrix=_matrix_sensitivity(grad[..., 2:4], accel),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# The window means' errors over the plan's timeline
+# ----------------------------------------------------------------------------------------------
+
+
+def move_heat(start_s: ArrayLike, angle_deg: ArrayLike, heat_tau_s: float) -> NDArray[np.float64]:
+    """Size of each move's disturbance, deg: ``sum over moves j <= m of |d_j| exp(-(t_m - t_j) /
+    heat_tau_s)`` (``|d_m|`` alone when ``heat_tau_s`` is 0), as the instrument defines it."""
+    t = np.asarray(start_s, dtype=float)
+    d = np.abs(np.asarray(angle_deg, dtype=float))
+    if heat_tau_s <= 0.0 or d.size < 2:
+        return d
+    lag = t[:, None] - t[None, :]
+    weight = np.where(lag >= 0.0, np.exp(-np.maximum(lag, 0.0) / heat_tau_s), 0.0)
+    return np.asarray((weight * d).sum(axis=1))
+
+
+@dataclass(frozen=True)
+class _Channel:
+    """One channel's random figures in SI (gyro rad/s, accelerometer m/s^2)."""
+
+    white: float
+    flicker: float
+    walk: float
+    lsb: float
+    move_walk: float
+    move_transient: float
+    move_tau_s: float
+    vibration: float
+    impulse: float
+
+
+def _channels(model: ErrorModel) -> tuple[_Channel, _Channel]:
+    gyro = _Channel(
+        model.arw_dpsh * DPSH,
+        model.bias_instability_dph * DPH,
+        model.rrw_dphpsh * DPH_PSH,
+        model.lsb_dph * DPH,
+        model.move_walk_dph_per_rtdeg * DPH,
+        model.move_transient_dph_per_rtdeg * DPH,
+        model.move_transient_tau_s,
+        model.vibration_dph * DPH,
+        model.impulse_dph * DPH,
+    )
+    accel = _Channel(
+        model.vrw_ug_rthz * UG,
+        model.accel_bias_instability_ug * UG,
+        model.accel_random_walk_ug_rts * UG,
+        model.accel_lsb_ug * UG,
+        model.accel_move_walk_ug_per_rtdeg * UG,
+        model.accel_move_transient_ug_per_rtdeg * UG,
+        model.accel_move_transient_tau_s,
+        model.accel_vibration_ug * UG,
+        model.accel_impulse_ug * UG,
+    )
+    return gyro, accel
+
+
+@dataclass(frozen=True)
+class _Timeline:
+    """Window starts (s since power-on), samples per window, the moves (start s, deg, first
+    window after each) and the sample rate."""
+
+    starts: NDArray[np.float64]
+    n: int
+    fs: float
+    move_start: NDArray[np.float64]
+    move_deg: NDArray[np.float64]
+    move_window: NDArray[np.int64]
+
+    @property
+    def length_s(self) -> float:
+        return self.n / self.fs
+
+    def mean_of_exp(self, t0: float, rate: complex) -> NDArray[np.complex128]:
+        """Mean over each window's samples of ``exp(rate (t - t0))``, (P,) (sample ``k`` at
+        ``start + (k + 1) / fs``); a decay (real ``rate`` < 0) only for windows after ``t0``
+        (0 before: it has not started)."""
+        z = rate / self.fs
+        factor = self.n if z == 0 else np.expm1(self.n * z) / np.expm1(z)
+        dt = self.starts + 1.0 / self.fs - t0
+        if rate.real < 0:
+            return np.where(dt >= 0, np.exp(rate * np.maximum(dt, 0.0)) * factor / self.n, 0.0)
+        return np.exp(rate * dt) * factor / self.n
+
+
+def _timeline(plan: Plan, table: TableModel, warmup_s: float, fs: float) -> _Timeline:
+    n = max(1, round(plan.window_s * fs))
+    starts = warmup_s + window_starts_s(plan, table)
+    d = np.array(moves_deg(plan))
+    moved = np.flatnonzero(d != 0.0)
+    # A move starts as the window before it ends.
+    return _Timeline(
+        starts, n, fs, starts[moved] + plan.window_s, d[moved], (moved + 1).astype(np.int64)
+    )
+
+
+def _move_cov(tl: _Timeline, ch: _Channel, heat_tau_s: float) -> NDArray[np.float64]:
+    """Window-mean covariance of the bias walk and transient that the moves start."""
+    p = tl.starts.size
+    cov = np.zeros((p, p))
+    if not (ch.move_walk or ch.move_transient) or not tl.move_start.size:
+        return cov
+    q = move_heat(tl.move_start, tl.move_deg, heat_tau_s)
+    for t0, size, first in zip(tl.move_start, q, tl.move_window, strict=True):
+        after = np.arange(p) >= first
+        decay = tl.mean_of_exp(t0, -1.0 / ch.move_tau_s).real
+        cov += size * (
+            ch.move_walk**2 * np.outer(after, after) + ch.move_transient**2 * np.outer(decay, decay)
+        )
+    return cov
+
+
+def _channel_covs(
+    tl: _Timeline, ch: _Channel, model: ErrorModel, step: float
+) -> dict[str, NDArray[np.float64]]:
+    """Window-mean covariances of one channel by cause, (P, P) each (only the causes present)."""
+    p, tau = tl.starts.size, tl.length_s
+    out: dict[str, NDArray[np.float64]] = {}
+    if ch.white:
+        out["white"] = np.eye(p) * ch.white**2 / tau
+    if ch.flicker or ch.walk:
+        out["slow_noise"] = _flicker_cov(tl.starts, tau, ch.flicker) + _walk_cov(
+            tl.starts, tau, ch.walk
+        )
+    if ch.move_walk or ch.move_transient:
+        out["moves"] = _move_cov(tl, ch, model.table.heat_tau_s)
+    if ch.lsb:
+        # Quantised with carry: the error of a window's sum is round(r + S) - S with the
+        # remainder r uniform, of variance x (1 - x) over the fraction x: 1/6 on average.
+        out["quantisation"] = np.eye(p) * ch.lsb**2 / (6.0 * tl.n**2)
+    if ch.vibration and model.vibration_hz > 0:
+        m = tl.mean_of_exp(0.0, 2j * math.pi * model.vibration_hz)
+        out["vibration"] = 0.5 * ch.vibration**2 * np.real(np.outer(m, np.conj(m)))
+    if ch.impulse and model.impulse_rate_hz > 0:
+        # Each half-sine adds its area (2 duration / pi) times a random direction's component
+        # (mean square 1/3) to one window mean.
+        area = ch.impulse * 2.0 * model.impulse_duration_s / math.pi
+        out["impulses"] = np.eye(p) * model.impulse_rate_hz * area**2 / (3.0 * tau)
+    if step:
+        # One step at a uniform time over the recorded span, in a random direction (1/3 per axis).
+        lo, hi = tl.starts[0], tl.starts[-1] + tau
+        ts = lo + (np.arange(4096) + 0.5) * (hi - lo) / 4096
+        frac = np.clip((tl.starts[:, None] + tau - ts[None, :]) / tau, 0.0, 1.0)
+        out["bias_step"] = step**2 / 3.0 * (frac @ frac.T) / ts.size
+    return out
+
+
+def _window_drift(tl: _Timeline, drift: Drift) -> NDArray[np.float64]:
+    """Mean of a deterministic drift over each window, (P, 2), by Gauss-Legendre quadrature."""
+    x, w = np.polynomial.legendre.leggauss(16)
+    t = tl.starts[:, None] + 0.5 / tl.fs + 0.5 * (x[None, :] + 1.0) * tl.length_s
+    values = np.asarray(drift(t.ravel()), dtype=float).reshape(*t.shape, 2)
+    return np.einsum("pkc,k->pc", values, 0.5 * w)
+
+
+# ----------------------------------------------------------------------------------------------
+# The prediction
+# ----------------------------------------------------------------------------------------------
+
+
+def angle_rms(sigma_rad: float) -> float:
+    """RMS of the angle of a noisy unit vector, rad: ``arg(1 + s (z1 + i z2))``, z unit normal.
+
+    A solver's azimuth is the direction of the horizontal Earth rate it estimates; its linear
+    error ``s`` (the gradient's) is that of the angle only while ``s`` is small. Beyond a few
+    degrees the angle's error grows faster (the vector's length shrinks in some runs) and, wrapped
+    to +-180 deg, tends to ``pi / sqrt(3)`` (uniform) as ``s`` grows. The density of the angle of
+    an isotropic normal vector about (1, 0) is
+    ``(exp(-1 / 2s^2) + sqrt(2 pi) (c / s) exp(-sin^2 / 2s^2) Phi(c / s)) / 2 pi``, c = cos.
+    """
+    s = float(sigma_rad)
+    if s < 0.02:  # the correction is below 0.05 %
+        return s
+    from scipy.special import ndtr  # imported when first needed
+
+    phi = np.linspace(-math.pi, math.pi, 8001)
+    c = np.cos(phi) / s
+    dens = (
+        math.exp(-0.5 / (s * s))
+        + math.sqrt(2 * math.pi) * c * np.exp(-0.5 * (np.sin(phi) / s) ** 2) * ndtr(c)
+    ) / (2 * math.pi)
+    f = phi * phi * dens
+    return math.sqrt(float(np.sum(f[1:] + f[:-1]) * 0.5 * (phi[1] - phi[0])))
+
+
+def predict_solutions(
+    model: ErrorModel,
+    plan: Plan,
+    latitude_deg: float,
+    *,
+    warmup_s: float = 0.0,
+    tilt: str = "accel",
+    angles: str = "encoder",
+    sample_rate_hz: float = 200.0,
+    pitch_deg: float = 0.0,
+    roll_deg: float = 0.0,
+    azimuth_deg: float | None = None,
+    bias_step_dph: float = 0.0,
+) -> list[Prediction]:
+    """Predicted error of every solution of a plan (one; one per pair with ``pairwise``).
+
+    See the module docstring for what the prediction holds; the parameters are those of
+    :func:`predict`.
+    """
+    check_choice(tilt, TILT_SOURCES, "tilt")
+    check_choice(angles, ANGLE_SOURCES, "angles")
+    azimuths = _AZIMUTHS_DEG if azimuth_deg is None else (float(azimuth_deg),)
+    lin = _linearise(
+        tuple(plan.positions_deg),
+        float(latitude_deg),
+        float(pitch_deg),
+        float(roll_deg),
+        azimuths,
+        plan.method,
+        tilt == "level",
+    )
+    tl = _timeline(plan, model.table, warmup_s, sample_rate_hz)
+    grad = lin.grad  # (A, S, P, 5)
+    gyro, accel = _channels(model)
+    parts: dict[str, NDArray[np.float64]] = {}
+
+    def add(name: str, var: NDArray[np.float64]) -> None:
+        parts[name] = parts.get(name, 0.0) + var
+
+    def quad(g: NDArray[np.float64], cov: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.einsum("asp,pq,asq->as", g, cov, g)
+
+    step = bias_step_dph * DPH
+    for channels, figures, gyro_triad in (((0, 1), gyro, True), ((2, 3), accel, False)):
+        covs = _channel_covs(tl, figures, model, step if gyro_triad else 0.0)
+        for cause, cov in covs.items():
+            name = cause
+            if not gyro_triad and cause in ("white", "slow_noise"):
+                name = "tilt"
+            for c in channels:
+                add(name, quad(grad[..., c], cov))
+    # Deterministic: the drifts over the timeline and the solver's own error on noise-free data.
+    det = lin.offset.copy()
+    has_drift = False
+    for drift, cols in ((model.drift_rps, (0, 1)), (model.accel_drift_mps2, (2, 3))):
+        if drift is not None:
+            d = _window_drift(tl, drift)  # (P, 2)
+            det += np.einsum("aspc,pc->as", grad[..., cols[0] : cols[1] + 1], d)
+            has_drift = True
+    if has_drift or np.any(np.abs(lin.offset) > 1e-9):
+        add("drift", det * det)
+    # Table angles: a stop error is shared by the windows of one stop (no move between them).
+    stops = np.concatenate([[0], np.cumsum(np.array(moves_deg(plan)) != 0.0)])
+    per_stop = np.zeros((stops.size, int(stops[-1]) + 1))
+    per_stop[np.arange(stops.size), stops] = 1.0
+    g_stop = (grad[..., 4] @ per_stop)[..., 1:]  # (A, S, stops after a move)
+    if angles == "commanded" and model.table.indexing_error_deg:
+        add("indexing", math.radians(model.table.indexing_error_deg) ** 2 * np.sum(g_stop**2, -1))
+    if angles == "encoder" and model.table.encoder_resolution_deg:
+        res = math.radians(model.table.encoder_resolution_deg)
+        add("encoder", res * res / 12.0 * np.sum(g_stop**2, -1))
+    sf, mis = model.scale_factor_ppm * 1e-6, model.misalignment_urad * 1e-6
+    sf_a, mis_a = model.accel_scale_factor_ppm * 1e-6, model.accel_misalignment_urad * 1e-6
+    if sf or mis or (tilt != "level" and (sf_a or mis_a)):
+        var = sf * sf * lin.gyro_matrix[..., 0] + mis * mis * lin.gyro_matrix[..., 1]
+        if tilt != "level":
+            var = var + sf_a * sf_a * lin.accel_matrix[..., 0] + mis_a**2 * lin.accel_matrix[..., 1]
+        add("misalignment", var)
+    if "white" not in parts:
+        parts["white"] = np.zeros(lin.offset.shape)
+    # Mean over the true azimuths, per solution.
+    mean_parts = {
+        k: np.mean(np.broadcast_to(v, lin.offset.shape), axis=0) for k, v in parts.items()
+    }
+    total = sum(mean_parts.values())
+    t_plan = plan_time_s(plan, model.table)
+    out = []
+    for s in range(lin.offset.shape[1]):
+        out.append(
+            Prediction(
+                sigma_deg=math.degrees(angle_rms(math.sqrt(max(float(total[s]), 0.0)))),
+                bound_deg=math.degrees(math.sqrt(float(mean_parts["white"][s]))),
+                plan_time_s=t_plan,
+                parts_deg={
+                    k: math.degrees(math.sqrt(max(float(v[s]), 0.0))) for k, v in mean_parts.items()
+                },
+            )
+        )
+    return out
 
 
 def predict(
@@ -178,74 +703,54 @@ def predict(
     warmup_s: float = 0.0,
     tilt: str = "accel",
     angles: str = "encoder",
+    sample_rate_hz: float = 200.0,
+    pitch_deg: float = 0.0,
+    roll_deg: float = 0.0,
+    azimuth_deg: float | None = None,
+    bias_step_dph: float = 0.0,
 ) -> Prediction:
-    """Predicted heading error of a plan from the datasheet figures (see the module docstring).
+    """Predicted RMS heading error of a plan over runs (see the module docstring).
 
     Parameters
     ----------
     model : ErrorModel
         Sensor and table figures.
     plan : Plan
-        Positions, window, settle.
+        Positions, window, settle and solver (the windows are reduced by their plain means).
     latitude_deg : float
         Latitude, deg.
     warmup_s : float
-        Time from power-on to the first window (for the drift term), s.
+        Time from power-on to the first window, s (for the drift and the random walks).
     tilt : {"accel", "level"}
-        With ``accel`` the accelerometer noise enters through the tilt.
+        With ``accel`` the accelerometer errors enter through the tilt.
     angles : {"encoder", "commanded"}
         With ``commanded`` the table indexing error enters (d_azimuth = -d_mu / 2 for two
-        positions).
+        positions), with ``encoder`` the encoder's resolution.
+    sample_rate_hz : float
+        Sample rate, Hz (samples per window, quantisation).
+    pitch_deg, roll_deg : float
+        Tilt of the instrument, deg.
+    azimuth_deg : float, optional
+        True azimuth; default the mean over azimuths (a study's uniform draw).
+    bias_step_dph : float
+        One gyro bias step of this size at a random time in a random direction, deg/h.
 
     Returns
     -------
     Prediction
-        ``sigma_deg`` (the root of the summed variances), ``bound_deg`` (white noise only).
+        ``sigma_deg`` (the root of the summed variances), ``bound_deg`` (gyro white noise only).
+        With the ``pairwise`` solver the first pair's; :func:`predict_solutions` gives all.
     """
-    check_choice(tilt, TILT_SOURCES, "tilt")
-    check_choice(angles, ANGLE_SOURCES, "angles")
-    lat = latitude_rad(latitude_deg, "the prediction")
-    omega_h = OMEGA_IE * math.cos(lat)
-    tau = plan.window_s
-    starts = window_starts_s(plan, model.table)
-    c = _weights(plan.positions_deg, omega_h)
-    cov = _window_mean_cov(starts, tau, model)
-    # Each axis has the same covariance, the axes are independent: sum over both.
-    parts = {
-        "white": (model.arw_dpsh * DPSH) ** 2 / tau * float(np.sum(c * c)),
-        "slow_noise": float(np.einsum("ia,ij,ja->", c, cov, c)),
-    }
-    parts["slow_noise"] -= parts["white"]
-    if model.drift_rps is not None:
-        # Exact effect of a known drift, averaged over the true azimuth (the weights turn with it).
-        t = (warmup_s + starts[:, None] + (np.arange(64) + 0.5)[None, :] * tau / 64).ravel()
-        means = np.asarray(model.drift_rps(t), dtype=float).reshape(starts.size, 64, 2).mean(1)
-        alphas = np.linspace(0.0, 2 * math.pi, 8, endpoint=False)
-        errs = [float(np.sum(_weights(plan.positions_deg, omega_h, a) * means)) for a in alphas]
-        parts["drift"] = float(np.mean(np.square(errs)))
-    if angles == "commanded" and model.table.indexing_error_deg:
-        # A stop error e_k at position k shifts its window mean by R'(mu_k) h e_k.
-        e = math.radians(model.table.indexing_error_deg)
-        moved = np.r_[False, np.array(moves_deg(plan)) != 0.0]
-        mu = np.radians(plan.positions_deg)
-        deriv = np.stack([-omega_h * np.sin(mu), -omega_h * np.cos(mu)], axis=-1)  # R'(mu) h(0)
-        # Positions that share one stop (no move between them) share its error.
-        stop = np.cumsum(moved)
-        sens = np.bincount(stop, weights=np.sum(c * deriv, axis=1))
-        parts["indexing"] = e * e * float(np.sum(sens[1:] ** 2))  # stop 0: no move, no error
-    if tilt == "accel" and model.vrw_ug_rthz:
-        # Tilt from f_i = R_i f0 + b: same projected design as the gyros; d_az ~ tan(lat) d_tilt.
-        s_a = model.vrw_ug_rthz * UG / math.sqrt(tau) / float(normal_gravity(lat))
-        ca = _weights(plan.positions_deg, 1.0)
-        parts["tilt"] = (s_a * math.tan(lat)) ** 2 * float(np.sum(ca * ca))
-    mis = model.misalignment_urad * 1e-6
-    sf = model.scale_factor_ppm * 1e-6
-    if mis or sf:
-        parts["misalignment"] = 0.75 * mis * mis + 0.25 * sf * sf
-    total = math.sqrt(max(sum(parts.values()), 0.0))
-    return Prediction(
-        sigma_deg=math.degrees(total),
-        bound_deg=math.degrees(math.sqrt(parts["white"])),
-        plan_time_s=plan_time_s(plan, model.table),
-        parts_deg={k: math.degrees(math.sqrt(max(v, 0.0))) for k, v in parts.items()},
-    )
+    return predict_solutions(
+        model,
+        plan,
+        latitude_deg,
+        warmup_s=warmup_s,
+        tilt=tilt,
+        angles=angles,
+        sample_rate_hz=sample_rate_hz,
+        pitch_deg=pitch_deg,
+        roll_deg=roll_deg,
+        azimuth_deg=azimuth_deg,
+        bias_step_dph=bias_step_dph,
+    )[0]

@@ -251,9 +251,7 @@ def _tolerant_messages(
     """The frames of a text log, each damaged line skipped and noted in ``skipped`` as (line
     number, error): a new reader goes on after it, given the header again. A damaged last line
     without its line end is a log cut short (noted in ``cut``), not a damaged line."""
-    reader_class = _TEXT_READERS[
-        [s.lower() for s in path.suffixes if s.lower() != ".gz"][-1]
-    ]
+    reader_class = _TEXT_READERS[[s.lower() for s in path.suffixes if s.lower() != ".gz"][-1]]
     header: list[str] | None = None
     start = 0
     while True:
@@ -311,7 +309,9 @@ def _messages(
 
 def _pick_node(path: Path, skip_damaged: bool = False) -> int:
     nodes: dict[int, int] = {}
-    for msg in _messages(path, [], [] if skip_damaged else None):  # a log cut short is read to its break (read_can_log says so)
+    for msg in _messages(
+        path, [], [] if skip_damaged else None
+    ):  # a log cut short is read to its break (read_can_log says so)
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             continue
         try:

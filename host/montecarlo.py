@@ -31,7 +31,7 @@ from __future__ import annotations
 import functools
 import math
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
@@ -42,7 +42,13 @@ from numpy.typing import NDArray
 from threadpoolctl import ThreadpoolController
 
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
-from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, bound_deg, predict
+from northfinder.host.accuracy import (
+    ANGLE_SOURCES,
+    TILT_SOURCES,
+    ErrorModel,
+    bound_deg,
+    predict_solutions,
+)
 from northfinder.host.errors import HostConfigError, check_choice
 from northfinder.host.plan import Plan
 from northfinder.host.study import Summary, chunk_errors, summarize, summarize_columns
@@ -60,6 +66,7 @@ __all__ = [
     "local_executor",
     "monte_carlo",
     "monte_carlo_many",
+    "prediction_options",
     "run_chunk",
     "study_rows",
     "verify_plan",
@@ -301,6 +308,7 @@ def monte_carlo(
     seed: int,
     *,
     executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> NDArray[np.float64]:
     """Azimuth errors of ``runs`` seeded runs, deg: shape (runs,), or (runs, P - 1) pairwise.
 
@@ -321,8 +329,12 @@ def monte_carlo(
         The study's seed (non-negative).
     executor : concurrent.futures.Executor, optional
         Where the chunks run: :func:`local_executor`, a Dask client's executor, any other.
+    progress : callable, optional
+        Called with (chunks done, chunks in all) as each chunk's result comes in.
     """
-    return monte_carlo_many([(generator, plan, settings, runs, seed)], executor=executor)[0]
+    return monte_carlo_many(
+        [(generator, plan, settings, runs, seed)], executor=executor, progress=progress
+    )[0]
 
 
 #: One study of :func:`monte_carlo_many`: generator, plan, settings, runs, seed.
@@ -330,22 +342,28 @@ Study = tuple[WindowGenerator, Plan, StudySettings, int, int]
 
 
 def monte_carlo_many(
-    studies: Sequence[Study], *, executor: Executor | None = None
+    studies: Sequence[Study],
+    *,
+    executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[NDArray[np.float64]]:
     """:func:`monte_carlo` of several studies, their chunks all handed out at once.
 
     A sweep keeps every worker busy to its end this way; each study's errors are those
-    :func:`monte_carlo` gives it alone.
+    :func:`monte_carlo` gives it alone. ``progress`` is called with (chunks done, chunks in
+    all) as results come in.
     """
     tasks = [chunk_tasks(*study) for study in studies]
     flat = [t for ts in tasks for t in ts]
     # Small products inside: BLAS threads would only contend with the study's own workers (and
     # make results depend on them).
+    done: list[NDArray[np.float64]] = []
     with _one_blas_thread():
-        if executor is None:
-            done = [run_chunk(t) for t in flat]
-        else:
-            done = list(executor.map(run_chunk, flat))
+        results = map(run_chunk, flat) if executor is None else executor.map(run_chunk, flat)
+        for result in results:
+            done.append(result)
+            if progress is not None:
+                progress(len(done), len(flat))
     out, k = [], 0
     for ts in tasks:
         out.append(np.concatenate(done[k : k + len(ts)]))
@@ -387,17 +405,10 @@ def study_rows(
         stats: list[Summary] = summarize_columns(errors)
     else:
         subplans, stats = [plan], [summarize(errors)]
+    preds = predict_solutions(model, plan, **prediction_options(settings))
     rows = []
-    for sub, s in zip(subplans, stats, strict=True):
+    for sub, s, pred in zip(subplans, stats, preds, strict=True):
         b = bound_deg(sub.positions_deg, plan.window_s, model.arw_dpsh, settings.latitude_deg)
-        pred = predict(
-            model,
-            sub,
-            settings.latitude_deg,
-            warmup_s=settings.warmup_s,
-            tilt=settings.tilt,
-            angles=settings.angles,
-        )
         row: dict[str, Any] = {
             "positions_deg": list(sub.positions_deg),
             **asdict(s),
@@ -412,6 +423,22 @@ def study_rows(
     return rows
 
 
+def prediction_options(settings: StudySettings) -> dict[str, Any]:
+    """The keyword arguments of :func:`~northfinder.host.accuracy.predict` that describe the
+    runs of a study with these settings (latitude, warm-up, tilt, angles, rate, truth, step)."""
+    return {
+        "latitude_deg": settings.latitude_deg,
+        "warmup_s": settings.warmup_s,
+        "tilt": settings.tilt,
+        "angles": settings.angles,
+        "sample_rate_hz": settings.sample_rate_hz,
+        "pitch_deg": settings.pitch_deg,
+        "roll_deg": settings.roll_deg,
+        "azimuth_deg": settings.azimuth_deg,
+        "bias_step_dph": settings.bias_step_dph,
+    }
+
+
 def verify_plan(
     generator: WindowGenerator,
     model: ErrorModel,
@@ -423,6 +450,7 @@ def verify_plan(
     max_rounds: int = 4,
     *,
     executor: Executor | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Plan, dict[str, Any]]:
     """Monte Carlo of a plan; with a target, lengthen the window until the simulated RMSE meets it.
 
@@ -431,7 +459,9 @@ def verify_plan(
     """
     row: dict[str, Any] = {}
     for _ in range(max_rounds):
-        errors = monte_carlo(generator, plan, settings, runs, seed, executor=executor)
+        errors = monte_carlo(
+            generator, plan, settings, runs, seed, executor=executor, progress=progress
+        )
         row = study_rows(model, plan, settings, errors)[0]
         if target_deg is None or row["rmse_deg"] <= target_deg:
             row["meets_target"] = True

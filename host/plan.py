@@ -94,9 +94,16 @@ class TableModel(TableLimits):
         The table's own settle time after a move, s (the plans' default).
     indexing_error_deg : float
         Stop-position error per move, 1 sigma, deg.
+    encoder_resolution_deg : float
+        Encoder resolution, deg (0: exact).
+    heat_tau_s : float
+        Time constant of the heat the drive holds, s: it sizes the bias disturbance of a move
+        (0: each move by its own angle).
     """
 
     indexing_error_deg: float = 0.0
+    encoder_resolution_deg: float = 0.0
+    heat_tau_s: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,6 @@
 """The planner: the plan with the smallest predicted error in a time budget, or the shortest plan
-that meets an accuracy, from the datasheet prediction of :mod:`northfinder.host.accuracy`.
+that meets an accuracy, from the datasheet prediction of :mod:`northfinder.host.accuracy` (every
+error term of the model over the plan's own timeline, through the plan's own solver).
 
 Plans are searched over position patterns (:data:`GEOMETRIES`) and window lengths; the plan time
 counts moves and settling (:mod:`northfinder.host.plan`). A Monte Carlo of the chosen plan
@@ -70,6 +71,9 @@ def search_plans(
     warmup_s: float = 0.0,
     tilt: str = "accel",
     angles: str = "encoder",
+    sample_rate_hz: float = 200.0,
+    pitch_deg: float = 0.0,
+    roll_deg: float = 0.0,
     min_window_s: float = 1.0,
     geometries: Sequence[tuple[float, ...]] = GEOMETRIES,
 ) -> list[PlanCandidate]:
@@ -87,8 +91,8 @@ def search_plans(
         Largest plan time (windows, moves, settling), s.
     settle_s : float, optional
         Settle time; default the table's.
-    warmup_s, tilt, angles
-        As for :func:`predict`.
+    warmup_s, tilt, angles, sample_rate_hz, pitch_deg, roll_deg
+        As for :func:`~northfinder.host.accuracy.predict` (the true azimuth is averaged over).
     min_window_s : float
         Shortest window considered, s.
     geometries : sequence of tuple of float
@@ -117,6 +121,9 @@ def search_plans(
                 warmup_s=warmup_s,
                 tilt=tilt,
                 angles=angles,
+                sample_rate_hz=sample_rate_hz,
+                pitch_deg=pitch_deg,
+                roll_deg=roll_deg,
             )
             if best is None or pred.sigma_deg < best[1].sigma_deg * (1 - 1e-9):
                 best = (float(w), pred)
@@ -137,6 +144,9 @@ def shortest_plan(
     warmup_s: float = 0.0,
     tilt: str = "accel",
     angles: str = "encoder",
+    sample_rate_hz: float = 200.0,
+    pitch_deg: float = 0.0,
+    roll_deg: float = 0.0,
     geometries: Sequence[tuple[float, ...]] = GEOMETRIES,
 ) -> PlanCandidate | None:
     """The plan with the shortest plan time whose predicted sigma meets ``target_deg``.
@@ -157,6 +167,9 @@ def shortest_plan(
             warmup_s=warmup_s,
             tilt=tilt,
             angles=angles,
+            sample_rate_hz=sample_rate_hz,
+            pitch_deg=pitch_deg,
+            roll_deg=roll_deg,
         )
 
     for pos in geometries:

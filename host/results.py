@@ -9,7 +9,8 @@ Each result is an object with an envelope and the command's own keys::
      "azimuth_deg": ..., ...}
 
 The JSON Schema ``schemas/result.schema.json`` beside this module (installed with the package;
-:func:`schema` loads it) states every key, unit and bound; README "JSON results" explains it.
+:func:`schema` loads it) states every key, unit and bound; docs/recordings.md, "JSON results",
+explains it.
 ``schema_version`` rises when a key changes meaning or goes away; new keys may appear at any
 version. Recordings carry the same ``device`` and ``created_utc`` in their metadata.
 """

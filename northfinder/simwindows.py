@@ -15,21 +15,23 @@ in worker processes).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from northfinder.firmware_sim.batch import BatchWindows, simulate_windows
-from northfinder.firmware_sim.error_terms import GYRO, ErrorTerms
+from northfinder.firmware_sim.error_terms import ACCEL, GYRO, ErrorTerms
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ErrorModel
 from northfinder.host.montecarlo import RunRequest
 from northfinder.host.plan import TableModel
 
-__all__ = ["SimulatedWindows", "SpecDrift", "error_model", "simulator_identity"]
+__all__ = ["SimulatedWindows", "SpecDrift", "error_model", "simulator_identity", "write_recordings"]
 
 
 def simulator_identity(sensor: str | None = None) -> dict[str, Any]:
@@ -80,37 +82,104 @@ class SimulatedWindows:
 
 @dataclass(frozen=True)
 class SpecDrift:
-    """Deterministic gyro x/y bias of a sensor spec against time since power-on, rad/s.
+    """Deterministic x/y bias of a sensor spec's gyros (or accelerometers) against time since
+    power-on, rad/s (m/s^2).
 
-    The warm-up transient plus the temperature sensitivity times the temperature rise over
-    ambient (self-heating and ramp).
+    The warm-up transient, the temperature sensitivity times the temperature rise over ambient
+    (self-heating and ramp), and the rate ramp.
     """
 
     spec: SensorSpec
+    triad: str = "gyro"
 
     def __call__(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
         # The simulator's own definition of its deterministic terms (firmware_sim.error_terms).
         drift = ErrorTerms.from_spec(self.spec).drift(np.asarray(t, dtype=float), self.spec.thermal)
-        out: NDArray[np.float64] = drift[..., GYRO][..., :2]
+        out: NDArray[np.float64] = drift[..., GYRO if self.triad == "gyro" else ACCEL][..., :2]
         return out
 
 
 def error_model(spec: SensorSpec) -> ErrorModel:
-    """The planner's view of a sensor spec (gyro x/y figures, table, deterministic drift)."""
-    g = spec.gyro
-    has_drift = any(g.warmup_bias_dph[:2]) or any(g.temp_coeff_dph_per_c[:2])
+    """The planner's view of a sensor spec: every error term of its x and y gyros and
+    accelerometers, its disturbances and its table."""
+    g, a, d = spec.gyro, spec.accel, spec.disturbance
+    thermal = spec.thermal.warmup_rise_c or spec.thermal.ramp_c_per_h
+    gyro_drift = (
+        any(g.warmup_bias_dph[:2])
+        or any(g.rate_ramp_dph_per_h[:2])
+        or (thermal and any(g.temp_coeff_dph_per_c[:2]))
+    )
+    accel_drift = (
+        any(a.warmup_bias_ug[:2])
+        or any(a.ramp_ug_per_h[:2])
+        or (thermal and any(a.temp_coeff_ug_per_c[:2]))
+    )
     return ErrorModel(
         arw_dpsh=g.arw_dpsh,
         bias_instability_dph=g.bias_instability_dph,
         rrw_dphpsh=g.rrw_dphpsh,
         misalignment_urad=g.misalignment_urad,
         scale_factor_ppm=g.scale_factor_ppm,
-        vrw_ug_rthz=spec.accel.vrw_ug_rthz,
+        vrw_ug_rthz=a.vrw_ug_rthz,
         table=TableModel(
             max_rate_dps=spec.table.max_rate_dps,
             max_accel_dps2=spec.table.max_accel_dps2,
             settle_s=spec.table.settle_s,
             indexing_error_deg=spec.table.indexing_error_deg,
+            encoder_resolution_deg=spec.table.encoder_resolution_deg,
+            heat_tau_s=spec.table.heat_tau_s,
         ),
-        drift_rps=SpecDrift(spec) if has_drift else None,
+        drift_rps=SpecDrift(spec) if gyro_drift else None,
+        lsb_dph=g.lsb_dph,
+        move_walk_dph_per_rtdeg=g.move_walk_dph_per_rtdeg,
+        move_transient_dph_per_rtdeg=g.move_transient_dph_per_rtdeg,
+        move_transient_tau_s=g.move_transient_tau_s,
+        vibration_dph=g.vibration_dph,
+        impulse_dph=g.impulse_dph,
+        accel_bias_instability_ug=a.bias_instability_ug,
+        accel_random_walk_ug_rts=a.random_walk_ug_rts,
+        accel_scale_factor_ppm=a.scale_factor_ppm,
+        accel_misalignment_urad=a.misalignment_urad,
+        accel_lsb_ug=a.lsb_ug,
+        accel_move_walk_ug_per_rtdeg=a.move_walk_ug_per_rtdeg,
+        accel_move_transient_ug_per_rtdeg=a.move_transient_ug_per_rtdeg,
+        accel_move_transient_tau_s=a.move_transient_tau_s,
+        accel_vibration_ug=a.vibration_ug,
+        accel_impulse_ug=a.impulse_ug,
+        vibration_hz=d.vibration_hz,
+        impulse_rate_hz=d.impulse_rate_hz,
+        impulse_duration_s=d.impulse_duration_s,
+        accel_drift_mps2=SpecDrift(spec, "accel") if accel_drift else None,
     )
+
+
+def write_recordings(
+    spec: SensorSpec,
+    truth: Truth,
+    positions_deg: Sequence[float],
+    window_s: float,
+    runs: int,
+    seed: int,
+    folder: str | Path,
+    *,
+    sample_rate_hz: float = 20.0,
+    warmup_s: float = 120.0,
+) -> list[str]:
+    """Simulated power-ons written as recordings, one file per run (``folder/run{seed}-{r}.npz``,
+    as ``northfinder record`` writes them), for calibration; returns their paths.
+
+    The runs are drawn at once by :func:`~northfinder.firmware_sim.batch.simulate_windows` with
+    ``numpy.random.default_rng(seed)``; ``folder`` must exist.
+    """
+    from northfinder.host.recording import Recording
+
+    batch = simulate_windows(
+        spec, truth, list(positions_deg), window_s, n_runs=runs, rng=np.random.default_rng(seed),
+        sample_rate_hz=sample_rate_hz, warmup_s=warmup_s,
+    )  # fmt: skip
+    paths = []
+    for r in range(runs):
+        path = Path(folder) / f"run{seed}-{r}.npz"
+        Recording.from_batch(batch, r, truth.latitude_deg).save(path)
+        paths.append(str(path))
+    return paths

@@ -18,7 +18,6 @@ from numpy.testing import assert_allclose
 from northfinder.cli import main as cli
 from northfinder.driver.protocol.motion import move_time_s
 from northfinder.driver.protocol.units import DPH
-from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec, load_spec
 from northfinder.host.allan import TERMS, AllanCurve, allan_curve, fit_ieee952, pool_curves
@@ -33,7 +32,8 @@ from northfinder.host.calibrate import (
     register_reader,
 )
 from northfinder.host.errors import HostConfigError, InputError, QualityError, RecordingError
-from northfinder.host.recording import RecordedWindow, Recording
+from northfinder.host.recording import RecordedWindow
+from northfinder.simwindows import write_recordings as simulated_recordings
 
 DATA = Path(__file__).parent / "data" / "prototype_tables.toml"
 TRUTH = Truth(azimuth_deg=75.0, latitude_deg=34.0)
@@ -49,16 +49,9 @@ def write_recordings(
     fs: float = 20.0,
 ) -> list[str]:
     """One recording file per simulated power-on (batch generator, 2 min warm-up)."""
-    batch = simulate_windows(
-        spec, TRUTH, positions, window_s, n_runs=runs, rng=np.random.default_rng(seed),
-        sample_rate_hz=fs, warmup_s=120.0,
-    )  # fmt: skip
-    paths = []
-    for r in range(runs):
-        path = folder / f"run{seed}-{r}.npz"
-        Recording.from_batch(batch, r, 34.0).save(path)
-        paths.append(str(path))
-    return paths
+    return simulated_recordings(
+        spec, TRUTH, positions, window_s, runs, seed, folder, sample_rate_hz=fs
+    )
 
 
 def calibrate_cli(*args: str) -> dict:

@@ -1,5 +1,5 @@
 """The command line's answers to interrupts, devices that cannot be opened and bad numbers:
-one line, the stated exit status (README, "Exit status"), never a traceback."""
+one line, the stated exit status (docs/cli.md, "Exit status"), never a traceback."""
 
 from __future__ import annotations
 

@@ -8,6 +8,8 @@ need no Sphinx.
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -66,3 +68,45 @@ def test_the_docs_extra_and_the_ci_build_use_warnings_as_errors():
     for package in ("sphinx", "myst-parser", "furo"):
         assert f'"{package}' in docs_extra.group(1)
     assert "sphinx-build -W --keep-going -b html docs build/docs" in ci
+
+
+@pytest.mark.slow
+def test_the_site_builds_without_warnings(tmp_path):
+    """The build of ``.ci/run`` (warnings as errors) without writing HTML, where the ``docs``
+    extra is installed (``dev`` includes it), so that a docstring or page that makes Sphinx warn
+    fails here before CI."""
+    pytest.importorskip("sphinx")
+    pytest.importorskip("myst_parser")
+    build = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sphinx",
+            "-W",
+            "--keep-going",
+            "-q",
+            "-b",
+            "dummy",
+            "-d",
+            str(tmp_path / "doctrees"),
+            str(DOCS),
+            str(tmp_path / "out"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    assert build.returncode == 0, build.stderr
+
+
+def test_the_readme_python_example_prints_what_the_readme_says(capsys):
+    """The tour's Python example runs as written and prints the figures in its last comment
+    (virtual time and a seed: the same digits on any machine)."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+    assert len(blocks) == 1
+    expected = re.search(r"# (.*)$", blocks[0].strip().splitlines()[-1])
+    assert expected is not None
+    exec(compile(blocks[0], "README.md", "exec"), {})
+    assert capsys.readouterr().out.strip() == expected.group(1).strip()

@@ -15,7 +15,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
-from contextlib import redirect_stderr, redirect_stdout
+from contextlib import redirect_stdout
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,7 @@ import jsonschema
 import numpy as np
 import pynmea2
 import pytest
+from clirun import run_cli, run_json
 from simprocess import sim_process
 
 from northfinder.cli import main
@@ -41,20 +42,6 @@ FORMATS = (".log", ".asc", ".blf", ".csv", ".db", ".trc")
 """Every CAN log format python-can both writes and reads without an extra library."""
 FAST = ["--sim", "--warmup", "0", "--window", "2", "--seed", "7"]  # virtual time
 FAST += ["--azimuth", "42.5", "--positions", "0,180"]
-
-
-def run_cli(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
-
-
-def run_json(*argv: str) -> dict[str, Any]:
-    code, out, err = run_cli(*argv, "--json")
-    assert code == 0, err
-    doc: dict[str, Any] = json.loads(out)
-    return doc
 
 
 @pytest.fixture(scope="module")
@@ -166,7 +153,7 @@ def test_a_log_cut_short_is_reported_and_not_solved(logged_runs, suffix, tmp_pat
 
 
 def test_python_can_player_replays_a_log_onto_a_bus(logged_runs, monkeypatch):
-    """``python -m can.player`` (README): the replayed frames rebuild the same samples."""
+    """``python -m can.player`` (docs/recordings.md): the replayed frames rebuild the same samples."""
     import uuid
 
     import can.player

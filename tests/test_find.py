@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
 import subprocess
 import sys
 
@@ -209,7 +210,7 @@ def test_window_quality_checks():
     assert "impulsive samples" in summarise_window(bumped, 90.0, "none").notes[0]
 
 
-def test_plan_validation_and_progress_line():
+def test_plan_validation_and_progress_line(monkeypatch):
     with pytest.raises(HostConfigError, match="unknown method"):
         Plan(denoise="magic")
     with pytest.raises(HostConfigError, match="needs exactly two positions"):
@@ -220,6 +221,10 @@ def test_plan_validation_and_progress_line():
         def isatty(self) -> bool:
             return True
 
+        def fileno(self) -> int:
+            return 99
+
+    monkeypatch.setattr(os, "get_terminal_size", lambda fd: os.terminal_size((100, 30)))
     out = Tty()
     bar = ProgressBar(stream=out)
     bar(Progress("acquire", 1, 2, 12.5, 40.0))
@@ -231,9 +236,15 @@ def test_plan_validation_and_progress_line():
     assert "acquire  position 1/2 table 12.500 deg" in text
     assert "solve    position 2/2 table 180.000 deg  75%" in text
     assert " elapsed, ~" in text and " left" in text
-    silent = io.StringIO()
-    ProgressBar(stream=silent)(Progress("rotate", 1, 2, None, None))
-    assert silent.getvalue() == ""
+    plain = io.StringIO()  # not a terminal: one line per step
+    bar = ProgressBar(stream=plain)
+    for p in (("rotate", 1), ("rotate", 1), ("acquire", 1), ("rotate", 2)):
+        bar(Progress(*p, 2, None, None))
+    assert plain.getvalue().splitlines() == [
+        "find: rotate position 1/2",
+        "find: acquire position 1/2",
+        "find: rotate position 2/2",
+    ]
     off = Tty()
     ProgressBar(stream=off, enabled=False)(Progress("rotate", 1, 2, None, None))
     assert off.getvalue() == ""

@@ -8,24 +8,20 @@ import can
 import numpy as np
 import pytest
 
-from northfinder.driver.protocol.can import CanReceiver, encode_can
-from northfinder.driver.protocol.constants import (
+from northfinder.driver.protocol import (
     ConfigKey,
     DeviceState,
     Direction,
     Fault,
-    Opcode,
-    Result,
-    Validity,
-)
-from northfinder.driver.protocol.messages import (
     GetConfig,
     GetStatus,
     Home,
     Identify,
+    Opcode,
     Reply,
     RequestIdentify,
     Reset,
+    Result,
     RotateBy,
     RotateTo,
     Sample,
@@ -35,7 +31,9 @@ from northfinder.driver.protocol.messages import (
     Stop,
     StreamStart,
     StreamStop,
+    Validity,
 )
+from northfinder.driver.protocol.can import CanReceiver, encode_can
 from northfinder.firmware_sim.firmware import Firmware, LinkInfo
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.links import CanLink

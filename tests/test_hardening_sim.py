@@ -173,6 +173,9 @@ def test_bad_requests_are_refused_before_they_act_and_the_stream_goes_on(request
 GIVEN: dict[str, dict[str, Any]] = {
     "set_sensor": {"values": {"gyro.arw_dpsh": 0.001}},
     "delay_replies": {"seconds": 0},
+    "drop_replies": {"count": 0},
+    "slow_heartbeat": {"factor": 1.0},
+    "slow_stream": {"factor": 1.0},
     "skip_counter": {"count": 0},
     "speed": {"value": 1.0},
 }
@@ -204,6 +207,38 @@ def test_every_operation_accepts_its_keys_at_their_defaults_and_bounds():
                     key.check(key_name, value(beyond))
     unit.run(2.0)
     assert np.all(np.diff(unit.counters()) == 1)
+
+
+def test_timing_defects_ordered_through_the_control_channel():
+    """A slow heartbeat, a slow stream and a dropped reply, in lockstep: exactly what was ordered,
+    the counters counting the unit's own ticks, and everything back at factor 1."""
+    unit = make_unit()
+    fw = unit.firmware
+    assert unit.control.handle({"op": "slow_heartbeat", "factor": 2.0})["ok"]
+    assert unit.control.handle({"op": "slow_stream", "factor": 2.0})["ok"]
+    unit.link.sent.clear()
+    unit.run(2.0)
+    statuses = [o.time_s for o in unit.link.sent if isinstance(o.message, Status)]
+    np.testing.assert_allclose(np.diff(statuses), 0.2, atol=1e-9)  # 100 ms configured
+    samples = [o.time_s for o in unit.link.sent if isinstance(o.message, Sample)]
+    np.testing.assert_allclose(np.diff(samples), 0.01, atol=1e-9)  # 200 Hz configured: 100 Hz
+    assert np.all(np.diff(unit.counters()) == 1)  # no gap: every tick the unit made is counted
+    counters = [o.message.sample_counter for o in unit.link.sent if isinstance(o.message, Status)]
+    assert set(np.diff(counters)) == {20}  # 20 of its ticks per heartbeat: 200 ms at 100 Hz
+    assert unit.control.handle({"op": "drop_replies", "count": 1})["ok"]
+    unit.link.sent.clear()
+    fw.handle(GetStatus(7))
+    fw.handle(GetStatus(8))
+    unit.run(0.1)
+    assert [r.seq for r in unit.link.messages(Reply)] == [8]  # the first one dropped
+    assert fw.faults.drop_replies == 0
+    assert unit.control.handle({"op": "slow_heartbeat", "factor": 1.0})["ok"]
+    assert unit.control.handle({"op": "slow_stream", "factor": 1.0})["ok"]
+    unit.link.sent.clear()
+    unit.run(1.0)
+    statuses = [o.time_s for o in unit.link.sent if isinstance(o.message, Status)]
+    np.testing.assert_allclose(np.diff(statuses), 0.1, atol=1e-9)
+    assert len(unit.link.messages(Sample)) in (199, 200, 201)
 
 
 def test_the_largest_impulse_burst_costs_constant_memory_and_arrives_on_time():

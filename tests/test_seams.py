@@ -13,32 +13,16 @@ import json
 import os
 import re
 import socket
-from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 from typing import Any
 
 import pynmea2
 import pytest
-
-from northfinder.cli import main
+from clirun import run_cli, run_json
 
 #: A number printed as a negative zero (-0, -0.000), not -0.0001.
 NEGATIVE_ZERO = re.compile(r"(?<![\w.])-0(\.0*)?(?![\d.])")
 FAST = ["--sim", "--warmup", "0", "--window", "2", "--positions", "0,180"]
-
-
-def run_cli(*argv: str) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
-
-
-def run_json(*argv: str) -> dict[str, Any]:
-    code, out, err = run_cli(*argv, "--json")
-    assert code == 0, err
-    doc: dict[str, Any] = json.loads(out)
-    return doc
 
 
 # -- 1. outputs checked before any work; NMEA to UDP and TCP ----------------------------------
@@ -321,5 +305,125 @@ def test_solve_picks_a_session_and_windows_from_a_log_of_several(candump, tmp_pa
     assert picked["positions"] == pytest.approx(second["positions"][:2], abs=1e-9)
     code, _, err = run_cli("solve", str(both), "--latitude", "34", "--session", "3")
     assert code == 2 and "no session 3" in err
-    code, _, err = run_cli("solve", str(both), "--session", "2", "--windows", "1,9", "--latitude", "34")
+    code, _, err = run_cli(
+        "solve", str(both), "--session", "2", "--windows", "1,9", "--latitude", "34"
+    )
     assert code == 2 and "no window 9" in err
+
+
+# -- 5. -v link statistics, -vv traffic -----------------------------------------------------------
+def _link_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.startswith("link: ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_v_prints_the_link_statistics_at_the_end():
+    code, _, err = run_cli("find", *FAST, "--seed", "1", "-v")
+    assert code == 0
+    line = _link_line(err)
+    m = re.search(r"(\d+) commands sent \((\d+) resent\), (\d+) replies \((\d+) refused", line)
+    assert m is not None, line
+    sent, resent, replies, refused = map(int, m.groups())
+    assert sent == replies > 5 and resent == refused == 0
+    assert "0 rejected, 0 foreign, 0 lost" in line and "samples" in line
+    assert "the device counted 0 malformed, 0 dropped, 0 rejected" in line
+    code, _, err = run_cli("find", *FAST, "--seed", "1")
+    assert code == 0 and "link: " not in err  # only with -v
+
+
+def test_the_link_summary_names_every_counter():
+    from northfinder.driver.link import LinkStats
+
+    stats = LinkStats(10, 1, 2, 3, 4, 5, 6, 7, 8, 9, 0, commands_sent=20, replies_received=11)
+    assert stats.summary().startswith(
+        "20 commands sent (8 resent), 11 replies (0 refused, 7 stray)"
+    )
+    assert (
+        "9 reply timeouts" in stats.summary() and "1 rejected, 2 foreign, 3 lost" in stats.summary()
+    )
+
+
+def test_vv_logs_every_command_and_reply_with_its_delay(caplog):
+    import logging
+
+    caplog.set_level(logging.DEBUG, logger="northfinder.driver")
+    code, _, err = run_cli("find", *FAST, "--seed", "1", "-vv")
+    assert code == 0
+    sent = [r.getMessage() for r in caplog.records if r.getMessage().startswith("-> ")]
+    replies = [r.getMessage() for r in caplog.records if r.getMessage().startswith("<- ")]
+    assert sent and len(sent) == len(replies)
+    assert any("RotateTo" in s for s in sent)
+    assert all(re.search(r"<- [A-Z_]+ OK \(seq \d+\) after \d+\.\d ms$", r) for r in replies)
+    n = int(re.search(r"(\d+) commands sent", _link_line(err)).group(1))  # type: ignore[union-attr]
+    assert n == len(sent)
+
+
+# -- 6. progress on every long command, plain where a bar cannot work -----------------------------
+def _pty_with_width(columns: int) -> tuple[Any, int]:
+    import fcntl
+    import struct
+    import termios
+
+    master, slave = os.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, columns, 0, 0))
+    return os.fdopen(slave, "w"), master
+
+
+def test_a_bar_needs_a_terminal_that_reports_its_width():
+    from northfinder.cli.progress import progress_mode
+
+    assert progress_mode(io.StringIO()) == "lines"
+    assert progress_mode(io.StringIO(), enabled=False) == "off"
+    for columns, mode in ((0, "lines"), (80, "bar")):
+        stream, master = _pty_with_width(columns)
+        try:
+            assert progress_mode(stream) == mode
+        finally:
+            stream.close()
+            os.close(master)
+
+
+def test_progress_on_a_terminal_of_no_width_is_plain_lines():
+    from northfinder.cli.progress import Progress
+
+    stream, master = _pty_with_width(0)
+    try:
+        with Progress("study", unit="chunks", stream=stream) as bar:
+            for done in range(1, 21):
+                bar.count(done, 20)
+        stream.flush()
+        text = os.read(master, 65536).decode()
+    finally:
+        stream.close()
+        os.close(master)
+    lines = [line for line in text.replace("\r\n", "\n").split("\n") if line]
+    assert lines[0] == "study: 1/20 chunks (5%)" and lines[-1] == "study: 20/20 chunks (100%)"
+    assert len(lines) == 11 and "\r" not in "".join(lines)  # a line at each tenth, no redraws
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["study", "--runs", "300", "--window", "1"], "study: 1/1 chunks (100%)"),
+        (["sweep", "--runs", "300", "--windows", "1,2"], "sweep: 2 studies of 300 runs"),
+        (["find", *FAST, "--seed", "1"], "find: acquire position 2/2"),
+    ],
+)
+def test_long_commands_show_progress_off_a_terminal(argv, expected):
+    code, _, err = run_cli(*argv)
+    assert code == 0, err
+    assert expected in err.splitlines() or any(
+        line.startswith(expected) for line in err.splitlines()
+    ), err
+    assert "\r" not in err  # no bar redraws in a log
+    code, _, err = run_cli(*argv, "--json")
+    assert code == 0 and expected.split(":")[0] + ": " not in err  # --json: quiet
+
+
+def test_calibrate_shows_its_steps(tmp_path):
+    rec = tmp_path / "run.npz"
+    assert run_cli("record", str(rec), *FAST, "--seed", "1")[0] == 0
+    code, _, err = run_cli("calibrate", str(rec))
+    assert code == 0, err
+    assert "calibrate: reading 1 recording(s)" in err and "calibrate: done" in err

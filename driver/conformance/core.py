@@ -10,9 +10,11 @@ from typing import Any, NoReturn
 from northfinder.driver.conformance.errors import (
     ConformanceError,
     LinkFault,
+    NoReply,
     Skipped,
     SuiteConfigError,
 )
+from northfinder.driver.conformance.pace import PaceFigures
 from northfinder.driver.conformance.session import Answer, Session, describe_result
 from northfinder.driver.protocol.constants import (
     NODE_ID_MAX,
@@ -23,6 +25,7 @@ from northfinder.driver.protocol.constants import (
 )
 
 __all__ = [
+    "OUTCOMES",
     "REGISTRY",
     "Check",
     "CheckResult",
@@ -30,11 +33,14 @@ __all__ = [
     "Outcome",
     "Report",
     "SuiteOptions",
+    "TimingProblem",
     "check",
 ]
 
 Outcome = str
-"""``"pass"``, ``"fail"`` or ``"skip"``."""
+"""``"pass"``, ``"fail"``, ``"not judged"`` (a timing check that failed while the host could not
+keep pace: :mod:`northfinder.driver.conformance.pace`) or ``"skip"``."""
+OUTCOMES = ("pass", "fail", "not judged", "skip")
 
 
 @dataclass(frozen=True)
@@ -117,9 +123,9 @@ class CheckResult:
     ----------
     name : str
     outcome : str
-        ``"pass"``, ``"fail"`` or ``"skip"``.
+        ``"pass"``, ``"fail"``, ``"not judged"`` or ``"skip"``.
     message : str
-        Why it failed or was skipped; for a pass, what was verified.
+        Why it failed, was not judged or was skipped; for a pass, what was verified.
     figures : dict
         Measured figures, name -> text with unit.
     duration_s : float
@@ -135,16 +141,24 @@ class CheckResult:
 
 @dataclass
 class Report:
-    """All results of one run, in order."""
+    """All results of one run, in order, and the host's pace over the run."""
 
     results: list[CheckResult]
     link: str
     options: SuiteOptions
     duration_s: float = 0.0
+    pace: PaceFigures | None = None
+    """The host's pace over the whole run (None in virtual time)."""
 
     @property
     def passed(self) -> bool:
+        """No check failed (checks not judged or skipped do not fail a run)."""
         return not any(r.outcome == "fail" for r in self.results)
+
+    @property
+    def judged(self) -> bool:
+        """Every check that ran was judged (none ``"not judged"``)."""
+        return not any(r.outcome == "not judged" for r in self.results)
 
     def count(self, outcome: Outcome) -> int:
         return sum(r.outcome == outcome for r in self.results)
@@ -154,6 +168,21 @@ class Report:
             if r.name == name:
                 return r
         raise KeyError(name)
+
+
+@dataclass(frozen=True)
+class TimingProblem:
+    """A failure about time, judged over ``[t0, t1]`` (session clock seconds).
+
+    ``excess_s``: how late the unit was beyond its limit, wall s; None for a check over the
+    observation window whose unit counters showed nothing wrong. The runner asks the host's pace
+    over the interval whether it excuses the failure (:func:`~.pace.excused`).
+    """
+
+    text: str
+    t0: float
+    t1: float
+    excess_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -192,6 +221,7 @@ class Ctx:
         self.shared = shared
         self.figures: dict[str, str] = {}
         self.problems: list[str] = []
+        self.timing_problems: list[TimingProblem] = []
         self.notes: list[str] = []
 
     # -- recording --------------------------------------------------------------------------------
@@ -200,6 +230,11 @@ class Ctx:
 
     def fail(self, problem: str) -> None:
         self.problems.append(problem)
+
+    def late(self, text: str, t0: float, t1: float, excess_s: float | None = None) -> None:
+        """Record a failure about time, judged over ``[t0, t1]`` (see :class:`TimingProblem`):
+        not judged if the host could not keep pace then, a failure otherwise."""
+        self.timing_problems.append(TimingProblem(text, t0, t1, excess_s))
 
     def note(self, text: str) -> None:
         self.notes.append(text)
@@ -219,10 +254,18 @@ class Ctx:
 
     # -- replies ----------------------------------------------------------------------------------
     def expect(self, a: Answer, result: Result, what: str | None = None) -> bool:
-        """Record a problem unless ``a`` got a reply with ``result`` (and no data if refused)."""
+        """Record a problem unless ``a`` got a reply with ``result`` (and no data if refused).
+
+        A reply that did not come within the wait is listened for as long again: if it comes,
+        it is late (a timing problem with its delay), not wrong; if not, it is missing (a timing
+        problem too: a host that stood still that long excuses it)."""
         what = what or a.name
         if a.reply is None:
-            wrong = [r for t, r in self.s.unsolicited if t >= a.sent and r.seq == a.seq]
+            self.s.await_late(a, self.s.reply_wait_s)
+        if a.reply is None:
+            wrong = [
+                r for t, r in self.s.unsolicited if t >= a.sent and r.seq == a.seq
+            ]  # the same seq, another opcode: a wrong echo
             if wrong:
                 r = wrong[0]
                 self.fail(
@@ -230,8 +273,9 @@ class Ctx:
                     f"instead of seq {a.seq} opcode 0x{a.opcode:02X}"
                 )
             else:
-                self.fail(f"{what}: no reply within {self.s.reply_wait_s:g} s (wall)")
+                self.missing(a, what)
             return False
+        self.judge_latency(a, what)
         got = a.reply.result
         if got != result:
             self.fail(
@@ -242,6 +286,43 @@ class Ctx:
             self.fail(f"{what}: a refusal must carry no data, got {a.reply.data.hex(' ')}")
             return False
         return True
+
+    @property
+    def reply_limit_wall(self) -> float:
+        """The reply limit in wall seconds."""
+        return self.s.wall(self.opt.reply_limit_ms / 1000.0)
+
+    def missing(self, a: Answer, what: str) -> None:
+        """No reply to ``a`` so far: a timing problem over the time since it was sent."""
+        now = self.s.now()
+        self.late(
+            f"{what}: no reply in {now - a.sent:.1f} s (wall)",
+            a.sent,
+            now,
+            now - a.sent - self.reply_limit_wall,
+        )
+
+    def judge_latency(self, a: Answer, what: str) -> None:
+        """A reply that came after the wait is late: a timing problem with its delay."""
+        if a.latency is not None and a.received is not None and a.latency > self.s.reply_wait_s:
+            self.late(
+                f"{what}: the reply came late, {self.ms(a.latency):.0f} ms after the command "
+                f"(waited {self.s.reply_wait_s:g} s, limit {self.opt.reply_limit_ms:g} ms)",
+                a.sent,
+                a.received,
+                a.latency - self.reply_limit_wall,
+            )
+
+    def no_reply(self, exc: NoReply) -> None:
+        """A command the check needed got no reply within twice the wait (:class:`NoReply`)."""
+        a = exc.answer
+        assert isinstance(a, Answer)
+        self.missing(a, exc.what)
+
+    def late_replies(self, since: int) -> None:
+        """Judge the replies :meth:`Session.ok` got late since ``session.late_answers[since]``."""
+        for a, what in self.s.late_answers[since:]:
+            self.judge_latency(a, what)
 
     # -- shared helpers ---------------------------------------------------------------------------
     def config(self) -> dict[ConfigKey, int]:

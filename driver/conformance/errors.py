@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from northfinder.driver.errors import ArgumentError, DriverError
 
-__all__ = ["ConformanceError", "LinkFault", "Skipped", "SuiteConfigError"]
+__all__ = ["ConformanceError", "LinkFault", "NoReply", "Skipped", "SuiteConfigError"]
 
 
 class ConformanceError(DriverError):
@@ -23,6 +23,19 @@ class SuiteConfigError(ConformanceError, ArgumentError):
 
 class LinkFault(ConformanceError):
     """The unit stopped answering in a way that makes the current check meaningless."""
+
+
+class NoReply(LinkFault):
+    """A command the check cannot go on without got no reply within the wait.
+
+    ``answer`` is the session's record of it (a reply that comes later is attached to it, late);
+    ``what`` names the command.
+    """
+
+    def __init__(self, answer: object, what: str) -> None:
+        super().__init__(f"no reply to {what}")
+        self.answer = answer
+        self.what = what
 
 
 class Skipped(Exception):

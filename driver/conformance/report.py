@@ -17,7 +17,7 @@ __all__ = [
     "write_junit",
 ]
 
-_MARK = {"pass": "PASS", "fail": "FAIL", "skip": "skip"}
+_MARK = {"pass": "PASS", "fail": "FAIL", "not judged": "NOT JUDGED", "skip": "skip"}
 
 
 def _figures(r: CheckResult) -> str:
@@ -51,13 +51,24 @@ def format_header(link: str, options: SuiteOptions) -> str:
 
 
 def format_summary(report: Report) -> str:
-    """One line: counts, duration and the names of the failed checks."""
+    """One line: counts, duration, the names of the failed checks and of those not judged; above
+    it a line with the host's pace over the run when it was measured."""
     failed = [r.name for r in report.results if r.outcome == "fail"]
-    return (
+    unjudged = [r.name for r in report.results if r.outcome == "not judged"]
+    line = (
         f"{report.count('pass')} passed, {report.count('fail')} failed, "
-        f"{report.count('skip')} skipped in {report.duration_s:.1f} s"
+        + (f"{len(unjudged)} not judged, " if unjudged else "")
+        + f"{report.count('skip')} skipped in {report.duration_s:.1f} s"
         + (f"; failed: {', '.join(failed)}" if failed else "")
+        + (
+            f"; not judged (the host could not keep pace): {', '.join(unjudged)}"
+            if unjudged
+            else ""
+        )
     )
+    if report.pace is not None:
+        line = f"host pace over the run: {report.pace.text()}\n{line}"
+    return line
 
 
 def format_report(report: Report) -> str:
@@ -76,12 +87,14 @@ def junit_xml(report: Report) -> ET.ElementTree:
         tests=str(len(report.results)),
         failures=str(report.count("fail")),
         errors="0",
-        skipped=str(report.count("skip")),
+        skipped=str(report.count("skip") + report.count("not judged")),
         time=f"{report.duration_s:.3f}",
     )
     props = ET.SubElement(suite, "properties")
     o = report.options
+    pace = [("host_pace", report.pace.text())] if report.pace is not None else []
     for name, value in (
+        *pace,
         ("link", report.link),
         ("node_id", o.node_id),
         ("time_scale", o.time_scale),
@@ -103,6 +116,10 @@ def junit_xml(report: Report) -> ET.ElementTree:
             el.text = f"{r.message}\n{_figures(r)}"
         elif r.outcome == "skip":
             ET.SubElement(case, "skipped", message=r.message)
+        elif r.outcome == "not judged":
+            # JUnit has no such verdict: skipped, with a message that says why.
+            el = ET.SubElement(case, "skipped", message=f"NOT JUDGED: {r.message}")
+            el.set("type", "not judged")
         if r.figures:
             out = ET.SubElement(case, "system-out")
             out.text = _figures(r)

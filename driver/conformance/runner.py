@@ -12,8 +12,9 @@ import serial
 from northfinder.driver.clock import Clock
 from northfinder.driver.conformance.checks import select_checks
 from northfinder.driver.conformance.core import CheckResult, Ctx, Report, SuiteOptions
-from northfinder.driver.conformance.errors import LinkFault, Skipped
+from northfinder.driver.conformance.errors import LinkFault, NoReply, Skipped
 from northfinder.driver.conformance.links import RawLink
+from northfinder.driver.conformance.pace import excused
 from northfinder.driver.conformance.session import Session
 from northfinder.driver.errors import DriverError
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState
@@ -68,7 +69,8 @@ def run_suite(
     reply_wait = max(1.0, 2 * options.reply_limit_ms / 1000.0)
     session = Session(link, options.time_scale, reply_wait, clock)
     try:
-        return _run(session, checks, options, progress)
+        with session.pace:
+            return _run(session, checks, options, progress)
     finally:
         session.close()
 
@@ -93,18 +95,21 @@ def _run(
             continue
         ctx = Ctx(session, options, shared)
         t0 = session.now()
+        late_before = len(session.late_answers)
         outcome, message = "pass", ""
         try:
             chk.fn(ctx)
         except Skipped as exc:
             outcome, message = "skip", str(exc)
+        except NoReply as exc:
+            ctx.no_reply(exc)
         except _LINK_ERRORS as exc:
             ctx.fail(f"{type(exc).__name__}: {exc}" if not isinstance(exc, LinkFault) else str(exc))
         except Exception as exc:  # a bug in a check must not hide the remaining checks
             ctx.fail(f"internal error: {type(exc).__name__}: {exc} ({_where(exc)})")
-        if ctx.problems:
-            outcome = "fail"
-            message = "; ".join(ctx.problems)
+        ctx.late_replies(late_before)
+        if ctx.problems or ctx.timing_problems:
+            outcome, message = judge(session, ctx)
         elif outcome == "pass":
             message = chk.summary
             if ctx.notes:
@@ -123,13 +128,49 @@ def _run(
             progress(result)
         if dead is not None:
             continue
-        if outcome == "fail":
+        if outcome in ("fail", "not judged"):
             note = restore(session, options, shared)
             if note:
                 result.message += f" (restore: {note})"
             if note.startswith(_NO_RECOVERY):
                 dead = f"the unit stopped answering after {chk.name}"
-    return Report(results, session.link.kind, options, session.now() - start)
+    end = session.now()
+    pace = session.pace.during(start, end) if session.pace.measuring else None
+    return Report(results, session.link.kind, options, end - start, pace)
+
+
+def judge(session: Session, ctx: Ctx) -> tuple[str, str]:
+    """The outcome and message of a check with problems: ``"fail"`` if any problem is not about
+    time or the host kept pace through a timing problem; ``"not judged"`` if every problem is
+    about time and the host's pace excuses each (:func:`~.pace.excused`). The host's figures
+    over the problems' span go into the check's figures, and into the message."""
+    texts = ctx.problems + [p.text for p in ctx.timing_problems if p.text]
+    message = "; ".join(texts)
+    if not ctx.timing_problems:
+        return "fail", message
+    pace = session.pace
+    if not pace.measuring:
+        return "fail", message
+    span = (
+        min(p.t0 for p in ctx.timing_problems),
+        max(p.t1 for p in ctx.timing_problems),
+    )
+    ctx.fig("host pace", pace.during(*span).text())
+    unexcused = [p for p in ctx.timing_problems if not excused(pace.during(p.t0, p.t1), p.excess_s)]
+    if ctx.problems or unexcused:
+        if not ctx.problems:
+            p = unexcused[0]
+            figures = pace.during(p.t0, p.t1).text()
+            message += (
+                f" (the host kept pace: {figures})"
+                if p.excess_s is None
+                else f" (more than the host explains: {p.excess_s:.2f} s beyond the limit, {figures})"
+            )
+        return "fail", message
+    worst = max(
+        (pace.during(p.t0, p.t1) for p in ctx.timing_problems), key=lambda f: f.lost_fraction
+    )
+    return "not judged", f"{message}; not judged: the host could not keep pace ({worst.text()})"
 
 
 def silent_link(session: Session, seconds: float) -> str:

@@ -21,8 +21,9 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from northfinder.driver.clock import Clock, WallClock
-from northfinder.driver.conformance.errors import LinkFault
+from northfinder.driver.conformance.errors import LinkFault, NoReply
 from northfinder.driver.conformance.links import Arrival, RawLink, TickParts
+from northfinder.driver.conformance.pace import HostPace
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
 from northfinder.driver.protocol.counters import TickCounter, counter_diff
 from northfinder.driver.protocol.messages import (
@@ -122,6 +123,8 @@ class Session:
     ) -> None:
         self.clock: Clock = WallClock() if clock is None else clock
         self.link = link
+        self.pace = HostPace(self.clock)
+        """The host's own pace beside the link (the runner starts and stops it)."""
         if self.clock.virtual:
             # The checks also send on the link directly: every send tells the clock, so that the
             # unit takes it at this instant.
@@ -142,6 +145,10 @@ class Session:
         self.streaming = False
         """Whether the suite believes the stream is on (it switched it on, or saw samples)."""
         self._pending: dict[tuple[int, int], Answer] = {}
+        self._overdue: dict[tuple[int, int], Answer] = {}
+        self.late_answers: list[tuple[Answer, str]] = []
+        """Replies :meth:`ok` got only after the wait, and what they answered (to be judged)."""
+        """Answers whose wait ended without a reply: a reply that comes later is theirs (late)."""
         self._last_counter: int | None = None
         self._ticks = TickCounter()  # CAN: the 8-bit tick extended to the full counter
         self.status_offsets: list[tuple[float, int]] = []
@@ -189,7 +196,10 @@ class Session:
             seen = self._arrived
             self.clock.wait_until(lambda: self._arrived != seen, self.now() + timeout)
             return
-        for arrival in self.link.receive(timeout):
+        t0 = self.now()
+        arrivals = self.link.receive(timeout)
+        self.pace.read(t0, timeout, self.now() - t0)
+        for arrival in arrivals:
             self._record(arrival)
 
     def wait_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
@@ -225,7 +235,8 @@ class Session:
         if isinstance(m, str):
             self.link_errors.append((a.t, m))
         elif isinstance(m, Reply):
-            answer = self._pending.pop((m.seq, int(m.opcode)), None)
+            key = (m.seq, int(m.opcode))
+            answer = self._pending.pop(key, None) or self._overdue.pop(key, None)
             if answer is None:
                 self.unsolicited.append((a.t, m))
             else:
@@ -330,6 +341,7 @@ class Session:
             payload = bytes(command)
         answer = Answer(payload, self.now())
         if len(payload) >= 2:
+            self._overdue.pop((payload[0], payload[1]), None)
             self._pending[(payload[0], payload[1])] = answer
             self.answers.append(answer)
         self.link.send_command(payload)
@@ -338,6 +350,7 @@ class Session:
     def track(self, payload: bytes) -> Answer:
         """Expect a reply to a command payload sent by other means (inside raw bytes)."""
         answer = Answer(bytes(payload), self.now())
+        self._overdue.pop((payload[0], payload[1]), None)
         self._pending[(payload[0], payload[1])] = answer
         self.answers.append(answer)
         return answer
@@ -349,8 +362,15 @@ class Session:
             lambda: answer.reply is not None, self.reply_wait_s if wait is None else wait
         )
         if answer.reply is None:
-            self._pending.pop((answer.seq, answer.opcode), None)
+            # Still listened for: a reply that comes after the wait is this answer's, late.
+            key = (answer.seq, answer.opcode)
+            self._pending.pop(key, None)
+            self._overdue[key] = answer
         return answer
+
+    def await_late(self, answer: Answer, wall_s: float) -> None:
+        """Listen up to ``wall_s`` more for the reply of an answer whose wait ended without one."""
+        self.wait_until(lambda: answer.reply is not None, wall_s)
 
     def raw(self, opcode: int, args: bytes = b"") -> bytes:
         """A command payload with the next seq, any opcode and any argument bytes."""
@@ -367,7 +387,12 @@ class Session:
         """
         a = self.request(command)
         if a.reply is None:
-            raise LinkFault(f"no reply to {what or a.name} within {self.reply_wait_s:g} s")
+            # Late is not wrong: listen as long again; a reply that comes goes on record (the
+            # check judges its delay), and the conversation goes on.
+            self.await_late(a, self.reply_wait_s)
+            if a.reply is None:
+                raise NoReply(a, what or a.name)
+            self.late_answers.append((a, what or a.name))
         if a.reply.result != Result.OK:
             raise LinkFault(f"{what or a.name} answered {describe_result(a.reply.result)}")
         return a

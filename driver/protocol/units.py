@@ -6,7 +6,7 @@ multiply a datasheet value by the factor to get SI, divide an SI value by it to 
 unit.
 
 This module lives beside the codec because the wire format is the one package that the simulated
-firmware, the driver and the host all may import (see the README's "Architecture").
+firmware, the driver and the host all may import (docs/architecture.md).
 """
 
 from __future__ import annotations

@@ -28,6 +28,7 @@ from northfinder.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_RUNTIME,
     EXIT_USAGE,
+    SUMMARIES,
     SignalInterrupt,
     common_group,
     ending_of,
@@ -53,22 +54,8 @@ COMMANDS: dict[str, str] = {
     "find": "northfinder.cli.find",
     "record": "northfinder.cli.record",
     "calibrate": "northfinder.cli.calibrate",
+    "monitor": "northfinder.cli.monitor",
     "reset": "northfinder.cli.reset",
-}
-
-#: The one-line help of each command, for the command list (the same text as each module's).
-SUMMARIES: dict[str, str] = {
-    "simulate": "summarise simulated windows (physics only)",
-    "sim": "run the simulated instrument on a link",
-    "simctl": "control a running simulator",
-    "conformance": "check a unit on a link against protocol.md",
-    "study": "Monte Carlo accuracy of a plan against the physical bound; plan search",
-    "sweep": "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
-    "solve": "solve a recording or CAN log offline",
-    "find": "find true north",
-    "record": "record raw windows to CSV or NPZ",
-    "calibrate": "fit sensor terms to recordings and write a sensor TOML",
-    "reset": "restart a unit (clears FAULT)",
 }
 
 

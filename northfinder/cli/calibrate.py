@@ -20,15 +20,14 @@ from northfinder.cli.common import (
     load_sensor,
     say,
 )
+from northfinder.cli.progress import Progress
 from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
 from northfinder.host.calibrate.readers import READERS
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(
-        sub, "calibrate", "fit sensor terms to recordings and write a sensor TOML", __doc__
-    )
+    p = command_parser(sub, "calibrate", __doc__)
     p.add_argument(
         "recordings", nargs="+", metavar="RECORDING",
         help=f"recordings, one per power-on ({', '.join(sorted(READERS))})",
@@ -70,8 +69,13 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_plot_path(args.plot)
     base: dict[str, Any] | None = load_sensor(args.base).to_dict() if args.base else None
-    runs = read_runs(args.recordings)
-    cal = calibrate(runs, tau_s=args.move_tau, heat_tau_s=args.heat_tau, design=args.between)
+    with Progress("calibrate", enabled=not args.json) as bar:
+        bar.step(f"reading {len(args.recordings)} recording(s)")
+        runs = read_runs(args.recordings)
+        samples = sum(len(w.counter) for run in runs for w in run.windows)
+        bar.step(f"fitting {samples} samples: Allan deviation, then the terms between positions")
+        cal = calibrate(runs, tau_s=args.move_tau, heat_tau_s=args.heat_tau, design=args.between)
+        bar.step("done")
     name = args.name or (Path(args.output).stem if args.output else "calibrated")
     text = cal.to_toml(name, base)
     # The simulator must take what is written: load it as --sensor FILE would.

@@ -195,6 +195,24 @@ def dumps(value: Any, **options: Any) -> str:
     return json.dumps(_no_negative_zero(value), **options)
 
 
+#: The one-line help of each command in the command list (:func:`command_parser` takes it from
+#: here; the list shows it without importing the command's module).
+SUMMARIES: dict[str, str] = {
+    "simulate": "summarise simulated windows (physics only)",
+    "sim": "run the simulated instrument on a link",
+    "simctl": "control a running simulator",
+    "conformance": "check a unit on a link against protocol.md",
+    "study": "Monte Carlo accuracy of a plan against the physical bound; plan search",
+    "sweep": "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
+    "solve": "solve a recording or CAN log offline",
+    "find": "find true north",
+    "record": "record raw windows to CSV or NPZ",
+    "calibrate": "fit sensor terms to recordings and write a sensor TOML",
+    "monitor": "live terminal view of a unit (Textual)",
+    "reset": "restart a unit (clears FAULT)",
+}
+
+
 #: Where the command line is described at length (the help texts stay short and point there).
 CLI_DOCS = "docs/cli.md"
 
@@ -212,11 +230,14 @@ def plain_text(doc: str) -> str:
 
 
 def command_parser(
-    sub: argparse._SubParsersAction, name: str, summary: str, doc: str | None, **options: Any
+    sub: argparse._SubParsersAction, name: str, doc: str | None, **options: Any
 ) -> argparse.ArgumentParser:
-    """A subcommand's parser: ``summary`` is its line in the command list, the module docstring
-    ``doc`` its description, as plain text printed as written (paragraphs and lists kept), with
-    a last line that points to the page of the command line's docs."""
+    """A subcommand's parser: its line in the command list is its summary in
+    :data:`SUMMARIES` (written there once: the list shows it without importing
+    the command's module), the module docstring ``doc`` its description, as plain text printed
+    as written (paragraphs and lists kept), with a last line that points to the page of the
+    command line's docs."""
+    summary = SUMMARIES[name]
     description = None
     if doc:
         description = f'{plain_text(doc).rstrip()}\n\nMore: {CLI_DOCS}, section "{name}".'

@@ -2,7 +2,8 @@
 
 One link: python-can bus options, ``--serial PORT``, or ``--sim`` (the simulated instrument in this
 process, in virtual time). Exit status: 0 all checks passed (skips allowed), 1 a check failed,
-2 bad arguments. For a simulator at ``--speed S`` give ``--time-scale S``.
+2 bad arguments, 3 no check failed but a timing check was not judged (it failed while the host
+could not keep pace: docs/conformance.md). For a simulator at ``--speed S`` give ``--time-scale S``.
 """
 
 from __future__ import annotations
@@ -41,12 +42,14 @@ from northfinder.driver.conformance import (
     select_checks,
     write_junit,
 )
-from northfinder.driver.conformance.core import Report
+from northfinder.driver.conformance.core import OUTCOMES, Report
 from northfinder.driver.conformance.errors import SuiteConfigError
 from northfinder.host.errors import HostConfigError
 from northfinder.host.results import SIMULATOR_MODEL, envelope
 
 _DEFAULTS = SuiteOptions()
+#: Exit status when no check failed but a timing check was not judged (the host starved).
+NOT_JUDGED = 3
 
 #: The suite's options as flags: (flag, :class:`SuiteOptions` field, type, metavar, help).
 _FLAGS: tuple[tuple[str, str, Callable[[str], Any], str | None, str], ...] = (
@@ -73,7 +76,7 @@ _FLAGS: tuple[tuple[str, str, Callable[[str], Any], str | None, str], ...] = (
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "conformance", "check a unit on a link against protocol.md", __doc__)
+    p = command_parser(sub, "conformance", __doc__)
     group = add_link_arguments(p, "serial link and simulation")
     group.add_argument(
         "--sim",
@@ -121,8 +124,9 @@ def as_json(report: Report) -> str:
     body = {
         "link": report.link,
         "passed": report.passed,
-        "counts": {k: report.count(k) for k in ("pass", "fail", "skip")},
+        "counts": {k: report.count(k) for k in OUTCOMES},
         "duration_s": report.duration_s,
+        "host_pace": None if report.pace is None else dataclasses.asdict(report.pace),
         "options": dataclasses.asdict(report.options),
         "checks": [
             {
@@ -213,7 +217,9 @@ def _finish(args: argparse.Namespace, report: Report) -> int:
         print(f"\n{format_summary(report)}", flush=True)
     if args.junit:
         write_junit(report, args.junit)
-    return 0 if report.passed else 1
+    if not report.passed:
+        return 1
+    return 0 if report.judged else NOT_JUDGED
 
 
 def _run_simulated(args: argparse.Namespace, options: SuiteOptions) -> int:

@@ -35,7 +35,7 @@ def _count(text: str) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "find", "find true north", __doc__)
+    p = command_parser(sub, "find", __doc__)
     add_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument(

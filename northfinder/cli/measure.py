@@ -33,6 +33,7 @@ from northfinder.cli.common import (
     sim_latitude,
     sim_truth,
 )
+from northfinder.cli.progress import progress_mode
 from northfinder.driver.device import Device
 from northfinder.driver.errors import DriverError
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
@@ -57,7 +58,7 @@ SIM_WARMUP_S = 120.0
 #: positions give the most heading per second (notes 4); the symmetric order cancels a linear
 #: drift; and the two redundant windows let the solver test the windows against their noise, so
 #: a bias step or drift between windows is flagged instead of giving a silently wrong heading
-#: (a two-position plan cannot check itself). README, "Finding north", says more.
+#: (a two-position plan cannot check itself). docs/find.md, "The plan", says more.
 DEFAULT_POSITIONS_DEG = (0.0, 180.0, 180.0, 0.0)
 #: Longest wait of a run, wall s (warm-up timeout, --link-timeout), and longest simulated warm-up.
 MAX_WAIT_S = 86_400.0
@@ -301,20 +302,31 @@ def embedded_simulator(
 
 
 class ProgressBar:
-    """Progress of a plan on stderr, drawn by tqdm in wall-clock seconds: the bar counts the
-    plan's device seconds done, so elapsed and remaining are what the user waits (an embedded
-    simulator at ``--speed 100`` finishes 100 times sooner than the plan's device time).
+    """Progress of a plan on stderr. On a terminal that reports its width, a tqdm bar in
+    wall-clock seconds: it counts the plan's device seconds done, so elapsed and remaining are
+    what the user waits (an embedded simulator at ``--speed 100`` finishes 100 times sooner than
+    the plan's device time). Elsewhere (a pipe, a log, a terminal of no width) one plain line
+    per step (:mod:`northfinder.cli.progress`): ``find: rotate position 2/4``.
 
-    Off when stderr is not a terminal or ``enabled`` is False (``--json``, ``--nmea -``).
+    Off when ``enabled`` is False (``--json``, ``--nmea -``).
     """
 
-    def __init__(self, *, enabled: bool = True, stream: Any = None) -> None:
+    def __init__(self, *, enabled: bool = True, stream: Any = None, label: str = "find") -> None:
         self.stream = sys.stderr if stream is None else stream
-        self.enabled = enabled and bool(getattr(self.stream, "isatty", lambda: False)())
+        self.mode = progress_mode(self.stream, enabled)
+        self.enabled = self.mode != "off"
+        self.label = label
         self._bar: Any = None
+        self._last: tuple[str, int] | None = None
 
     def __call__(self, p: Progress) -> None:
-        if not self.enabled:
+        if self.mode == "lines":
+            if (p.phase, p.position) != self._last:
+                self._last = (p.phase, p.position)
+                where = f" position {p.position}/{p.positions}" if p.position else ""
+                print(f"{self.label}: {p.phase}{where}", file=self.stream, flush=True)
+            return
+        if self.mode != "bar":
             return
         if self._bar is None:
             from tqdm import tqdm
@@ -419,7 +431,7 @@ def run_plan(
             def on_window(i: int, window: Any) -> None:
                 w.add(RecordedWindow.from_window(window, plan.positions_deg[i]))
 
-        bar = ProgressBar(enabled=progress)
+        bar = ProgressBar(enabled=progress, label=args.command or "find")
         try:
             clock = device.clock
             result, windows = find_north(
@@ -440,6 +452,8 @@ def run_plan(
             raise
         finally:
             bar.close()
+            if getattr(args, "verbose", 0):
+                print(link_statistics(device), file=sys.stderr, flush=True)
     recording = None
     if writer is not None:
         try:
@@ -450,6 +464,19 @@ def run_plan(
     return Measured(
         result, windows, plan, latitude, rate, truth, identity, created, tuple(deferred), recording
     )
+
+
+def link_statistics(device: Device) -> str:
+    """``-v``'s line about the link: what the driver counted, and what the device counted in
+    its last status (malformed frames it received, frames it dropped, commands it rejected)."""
+    line = f"link: {device.stats().summary()}"
+    status = device.last_status
+    if status is not None:
+        line += (
+            f"; the device counted {status.rx_malformed} malformed, {status.tx_dropped} dropped, "
+            f"{status.cmd_rejected} rejected"
+        )
+    return line
 
 
 def _close_interrupted(writer: RecordingWriter) -> str:

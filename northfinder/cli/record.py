@@ -14,7 +14,7 @@ from northfinder.cli.measure import add_arguments, run_plan
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "record", "record raw windows to CSV or NPZ", __doc__)
+    p = command_parser(sub, "record", __doc__)
     p.add_argument("file", help="output file, .csv or .npz")
     add_arguments(p)
     return p

@@ -26,7 +26,7 @@ from northfinder.host.errors import HostConfigError
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "reset", "restart a unit (clears FAULT)", __doc__)
+    p = command_parser(sub, "reset", __doc__)
     p.add_argument(
         "--timeout",
         type=bounded_float(0.1, 60.0, "s"),

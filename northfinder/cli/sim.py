@@ -63,7 +63,7 @@ def control_address(text: str) -> str:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "sim", "run the simulated instrument on a link", __doc__)
+    p = command_parser(sub, "sim", __doc__)
     link = add_link_arguments(p, "serial and pseudo-terminal links")
     link.add_argument("--pty", action="store_true", help="serial frames on a new pseudo-terminal")
     link.add_argument(

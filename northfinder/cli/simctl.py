@@ -34,9 +34,7 @@ def operations_help(width: int = 100) -> str:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(
-        sub, "simctl", "control a running simulator", __doc__, epilog=operations_help()
-    )
+    p = command_parser(sub, "simctl", __doc__, epilog=operations_help())
     p.add_argument("address", help="control address printed by `northfinder sim --control`")
     p.add_argument("op", help="operation (listed below)")
     p.add_argument("args", nargs="*", metavar="KEY=VALUE")

@@ -29,7 +29,7 @@ from northfinder.firmware_sim.imu import Instrument, body_rates
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "simulate", "summarise simulated windows (physics only)", __doc__)
+    p = command_parser(sub, "simulate", __doc__)
     add_sensor_argument(p)
     add_truth_arguments(p)
     p.add_argument(

@@ -40,7 +40,7 @@ from northfinder.host.recording import Recording
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "solve", "solve a recording or CAN log offline", __doc__)
+    p = command_parser(sub, "solve", __doc__)
     p.add_argument("file", help="recording (.csv, .npz) or CAN log (.log, .asc, .blf, ...)")
     p.add_argument(
         "--latitude",
@@ -138,7 +138,7 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
             warn(
                 "solve",
                 f"{path}: {len(session.windows) - len(complete.windows)} window(s) with samples "
-                f"missing left out; solving the complete windows {left or '(none)'}"
+                f"missing left out; solving the complete windows {left or '(none)'}",
             )
         if len(complete.windows) < 2:
             raise QualityError(

@@ -32,6 +32,7 @@ from northfinder.cli.common import (
     seed_value,
     study_executor,
 )
+from northfinder.cli.progress import Progress
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
@@ -65,7 +66,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(
         sub,
         "study",
-        "Monte Carlo accuracy of a plan against the physical bound; plan search",
         __doc__,
     )
     add_sensor_argument(p)
@@ -289,6 +289,9 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         "warmup_s": args.warmup,
         "tilt": args.tilt,
         "angles": args.angles,
+        "sample_rate_hz": args.rate,
+        "pitch_deg": args.pitch,
+        "roll_deg": args.roll,
     }
     report: dict[str, Any] = {
         "kind": "plan-search",
@@ -308,7 +311,8 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         best_plan = None if cand is None else cand.plan
     if best_plan is not None and args.runs > 0:
         t0 = time.perf_counter()
-        with study_executor(args) as executor:
+        with study_executor(args) as executor, _progress(args) as bar:
+            bar.step("Monte Carlo of the best plan")
             plan, row = verify_plan(
                 SimulatedWindows(spec),
                 model,
@@ -318,6 +322,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
                 args.seed,
                 args.plan_target,
                 executor=executor,
+                progress=bar.count,
             )
         report["verified"] = {
             **_plan_json(plan, model, args.warmup),
@@ -375,18 +380,26 @@ def _sweep(
     runs: int,
     seed: int,
     executor: Executor | None,
+    bar: Progress | None = None,
 ) -> list[dict[str, Any]]:
     model = error_model(spec)
     generator = SimulatedWindows(spec)
     subs = [replace(plan, window_s=w) for w in windows]
     errors = monte_carlo_many(
-        [(generator, sub, settings, runs, seed) for sub in subs], executor=executor
+        [(generator, sub, settings, runs, seed) for sub in subs],
+        executor=executor,
+        progress=None if bar is None else bar.count,
     )
     out = []
     for w, sub, e in zip(windows, subs, errors, strict=True):
         rows = study_rows(model, sub, settings, e)
         out.append({"window_s": w, **_plan_json(sub, model, settings.warmup_s), **rows[0]})
     return out
+
+
+def _progress(args: argparse.Namespace) -> Progress:
+    """The study's progress in chunks of runs (off with --json)."""
+    return Progress("study", unit="chunks", enabled=not args.json)
 
 
 def _plot(path: str, sweep: list[dict[str, Any]], title: str) -> None:
@@ -447,18 +460,20 @@ def run(args: argparse.Namespace) -> int:
         return _run_planner(args, spec, settings)
     plan = _plan(args)
     model = error_model(spec)
-    with study_executor(args) as executor:
+    with study_executor(args) as executor, _progress(args) as bar:
         t0 = time.perf_counter()
         errors = monte_carlo(
-            SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor
-        )
+            SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor,
+            progress=bar.count,
+        )  # fmt: skip
         wall = time.perf_counter() - t0
         sweep = None
         if args.plot:
             windows = args.sweep or [plan.window_s * f for f in (0.25, 0.5, 1.0, 2.0, 4.0)]
             if any(w <= 0 for w in windows):
                 raise HostConfigError(f"--sweep: windows must be positive, got {windows}")
-            sweep = _sweep(spec, plan, settings, windows, args.runs, args.seed, executor)
+            bar.step(f"window sweep for the plot ({len(windows)} studies)")
+            sweep = _sweep(spec, plan, settings, windows, args.runs, args.seed, executor, bar)
     rows = study_rows(model, plan, settings, errors)
     report: dict[str, Any] = {
         "kind": "monte-carlo",

@@ -25,6 +25,7 @@ from northfinder.cli.common import (
     seed_value,
     study_executor,
 )
+from northfinder.cli.progress import Progress
 from northfinder.cli.study import (
     MAX_BIAS_STEP_DPH,
     MAX_RATE_HZ,
@@ -74,7 +75,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(
         sub,
         "sweep",
-        "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",
         __doc__,
     )
     g = p.add_argument_group("what to sweep (every combination is one study)")
@@ -192,7 +192,9 @@ def run(args: argparse.Namespace) -> int:
     plans = _plans(args)
     combos = list(itertools.product(specs, args.latitudes, plans))
     settings = {lat: _settings(args, lat) for lat in args.latitudes}
-    with study_executor(args) as executor:
+    bar = Progress("sweep", unit="chunks", enabled=not args.json)
+    with study_executor(args) as executor, bar:
+        bar.step(f"{len(combos)} studies of {args.runs} runs")
         t0 = time.perf_counter()
         errors = monte_carlo_many(
             [
@@ -200,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
                 for spec, lat, plan in combos
             ],
             executor=executor,
+            progress=bar.count,
         )
         wall = time.perf_counter() - t0
     studies: list[dict[str, Any]] = []

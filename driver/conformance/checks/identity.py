@@ -90,7 +90,12 @@ def command_get_status(c: Ctx) -> None:
         else f"{st.temperature * TEMPERATURE_DEGC_PER_COUNT:.2f} degC",
     )
     if lat > c.opt.reply_limit_ms:
-        c.fail(f"the status came {lat:.0f} ms after the command")
+        c.late(
+            f"the status came {lat:.0f} ms after the command",
+            a.sent,
+            t,
+            s.wall((lat - c.opt.reply_limit_ms) / 1000.0),
+        )
     if not 0 <= st.angle < ANGLE_FULL_TURN:
         c.fail(f"status angle {st.angle} outside [0, 360e6)")
 

@@ -142,6 +142,9 @@ def send_cases(
         s.wait_until(lambda: all(a.reply is not None for _, a in sent), wait or s.reply_wait_s)
     else:
         sent = [(case, s.request(_payload(c, case.send), wait=wait)) for case in cases]
+    if any(a.reply is None for _, a in sent):
+        # Late is not missing: listen as long again before counting and judging the replies.
+        s.wait_until(lambda: all(a.reply is not None for _, a in sent), s.reply_wait_s)
     tally = Tally()
     for case, a in sent:
         reply = a.reply

@@ -9,6 +9,7 @@ import statistics
 from northfinder.driver.conformance.checks.common import judge_validity
 from northfinder.driver.conformance.core import Ctx, check
 from northfinder.driver.protocol.constants import ConfigKey, Result
+from northfinder.driver.protocol.counters import counter_diff
 from northfinder.driver.protocol.messages import StreamStart, StreamStop
 
 STATUS_OFFSET_LIMIT = 16
@@ -61,9 +62,13 @@ def command_stream_start(c: Ctx) -> None:
         return
     first = c.ms(s.samples[n].t - a.received)
     c.fig("first sample after reply", f"{first:.1f} ms")
-    if first > 1000.0 / rate + c.opt.reply_limit_ms:
-        c.fail(
-            f"the first sample came {first:.0f} ms after the reply (one tick is {1000 / rate:g} ms)"
+    allowed = 1000.0 / rate + c.opt.reply_limit_ms
+    if first > allowed:
+        c.late(
+            f"the first sample came {first:.0f} ms after the reply (one tick is {1000 / rate:g} ms)",
+            a.received,
+            s.samples[n].t,
+            s.wall((first - allowed) / 1000.0),
         )
     v = s.get_config(ConfigKey.STREAMING)
     if v != 1:
@@ -81,6 +86,49 @@ def observation(c: Ctx) -> tuple[float, float]:
         c.shared["window"] = (t0, c.s.now())
     t0, t1 = c.shared["window"]
     return t0, t1
+
+
+def unit_ticks(c: Ctx) -> tuple[list[int], float]:
+    """The unit's own clock over the window: how far its sample counter moved between heartbeats
+    (the counter each status carries), and how far it should move (rate x period).
+
+    The host's lateness moves arrival times, never these counters: when they agree with the
+    configuration, a rate or a period that failed on arrival times may be the host's doing; when
+    they do not, the unit's own timing is off whatever the host did."""
+    t0, t1 = observation(c)
+    sts = [(t, st) for t, st in c.s.statuses if t0 < t <= t1]
+    ticks = [
+        counter_diff(b.sample_counter, a.sample_counter)
+        for (_, a), (_, b) in itertools.pairwise(sts)
+        if a.state == b.state
+    ]
+    cfg = c.config()
+    return ticks, cfg[ConfigKey.SAMPLE_RATE_HZ] * cfg[ConfigKey.HEARTBEAT_PERIOD_MS] / 1000.0
+
+
+def window_failure(c: Ctx, problem: str, *, each: bool = False) -> None:
+    """Record a failure of a check over the window: a timing problem (judged against the host's
+    pace) when the unit's counters agree with the configuration, else a failure with the
+    counters' figures. ``each``: every interval must agree within 10 % (jitter), not the mean."""
+    ticks, want = unit_ticks(c)
+    if ticks:
+        mean = sum(ticks) / len(ticks)
+        if each:
+            worst = max(ticks, key=lambda d: abs(d - want))
+            off = abs(worst - want) > 0.1 * want + 1
+            shown = f"{worst} ticks between two heartbeats"
+        else:
+            off = abs(mean - want) > max(1.0, c.opt.rate_tolerance * want)
+            shown = f"{mean:.2f} ticks per heartbeat"
+        c.fig("unit counters", f"{mean:.2f} ticks per heartbeat (expected {want:g})")
+        if off:
+            c.fail(
+                f"{problem}; the unit's own counters show it: {shown}, {want:g} expected at "
+                "the configured rate and period"
+            )
+            return
+    t0, t1 = observation(c)
+    c.late(problem, t0, t1)
 
 
 def heartbeat_intervals(c: Ctx) -> list[float]:
@@ -113,9 +161,10 @@ def heartbeat_period(c: Ctx) -> None:
     c.fig("median interval", f"{statistics.median(heartbeat_intervals(c)):.2f} ms")
     c.fig("statuses", len(times))
     if abs(mean - period) > c.opt.rate_tolerance * period:
-        c.fail(
+        window_failure(
+            c,
             f"heartbeat period {mean:.2f} ms, configured {period} ms "
-            f"(tolerance {c.opt.rate_tolerance:.0%})"
+            f"(tolerance {c.opt.rate_tolerance:.0%})",
         )
 
 
@@ -136,8 +185,11 @@ def heartbeat_jitter(c: Ctx) -> None:
     c.fig("limit", f"{limit:.1f} ms")
     if max(dev) > limit:
         worst = iv[dev.index(max(dev))]
-        c.fail(
-            f"a heartbeat interval of {worst:.1f} ms against a period of {period} ms (limit +-{limit:.1f} ms)"
+        window_failure(
+            c,
+            f"a heartbeat interval of {worst:.1f} ms against a period of {period} ms "
+            f"(limit +-{limit:.1f} ms)",
+            each=True,
         )
 
 
@@ -160,12 +212,15 @@ def stream_rate(c: Ctx) -> None:
     received = len(recs) / (c.s.unit(ts[-1] - ts[0]) or 1.0)
     c.fig("rate", f"{measured:.3f} Hz (configured {rate})")
     c.fig("received", f"{received:.2f} samples/s")
+    problems = []
     if abs(measured - rate) > c.opt.rate_tolerance * rate:
-        c.fail(
+        problems.append(
             f"sample rate {measured:.3f} Hz, configured {rate} Hz (tolerance {c.opt.rate_tolerance:.0%})"
         )
     if abs(received - rate) > c.opt.rate_tolerance * rate + 2.0 / c.s.unit(ts[-1] - ts[0]):
-        c.fail(f"{received:.2f} samples/s received against {rate} Hz")
+        problems.append(f"{received:.2f} samples/s received against {rate} Hz")
+    if problems:
+        window_failure(c, "; ".join(problems))
 
 
 @check(

@@ -1,0 +1,101 @@
+"""The planner's prediction against Monte Carlo: the paper's sweep, and the best plan of a budget.
+
+Run: ``.venv/bin/python benchmarks/bench_planner.py [--runs 1000] [--only sweep|budget]``.
+Prints two markdown tables (34 deg N, 120 s warm-up, uniform random azimuth, seeded):
+
+1. ``paper-prototype`` on the paper's sweep (eight positions 30 deg apart, 10 s windows, every
+   position solved against the first): RMSE by Monte Carlo and the prediction for each mu.
+2. For each preset and plan budgets of 60, 160 and 600 s: the planner's best stop-and-go plan
+   (``northfinder study --sensor PRESET --plan-budget SECONDS``), its Monte Carlo RMSE, the
+   prediction, the white-noise bound of that plan and the physical bound of the budget (all of
+   it spent recording: N / (Omega_H sqrt(budget))).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from northfinder.firmware_sim.sensors import load_spec, preset_names
+from northfinder.host.accuracy import budget_bound_deg
+from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
+from northfinder.host.plan import PAPER_SWEEP
+from northfinder.host.planner import search_plans
+from northfinder.simwindows import SimulatedWindows, error_model
+
+LATITUDE = 34.0
+WARMUP = 120.0
+BUDGETS = (60.0, 160.0, 600.0)
+
+
+def sweep_table(runs: int, seed: int) -> None:
+    spec = load_spec("paper-prototype")
+    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
+    t0 = time.perf_counter()
+    errors = monte_carlo(SimulatedWindows(spec), PAPER_SWEEP, settings, runs, seed)
+    rows = study_rows(error_model(spec), PAPER_SWEEP, settings, errors)
+    print(
+        f"\n### paper-prototype on the paper's sweep, {runs} runs "
+        f"(Monte Carlo {time.perf_counter() - t0:.0f} s)\n\n"
+        "| mu deg | RMSE deg | +- (1 s.e.) | predicted deg | predicted/RMSE | bound deg |\n"
+        "|---:|---:|---:|---:|---:|---:|"
+    )
+    for r in rows:
+        print(
+            f"| {r['mu_deg']:g} | {r['rmse_deg']:.4f} | {100 * r['rmse_rel_se']:.1f} % | "
+            f"{r['predicted_deg']:.4f} | {r['predicted_deg'] / r['rmse_deg']:.3f} | "
+            f"{r['bound_deg']:.4f} |"
+        )
+
+
+def budget_table(runs: int, seed: int) -> None:
+    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
+    print(
+        f"\n### Best stop-and-go plan of a budget, {runs} runs per plan\n\n"
+        "| preset | budget s | positions | window s | plan s | RMSE deg | +- | predicted deg | "
+        "predicted/RMSE | plan bound deg | budget bound deg |\n"
+        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+    )
+    worst = 0.0
+    for name in preset_names():
+        if name == "ideal":
+            continue  # no noise: any plan is exact
+        spec = load_spec(name)
+        model = error_model(spec)
+        for budget in BUDGETS:
+            cands = search_plans(model, LATITUDE, budget, warmup_s=WARMUP)
+            if not cands:
+                print(f"| {name} | {budget:g} | no plan fits | | | | | | | | |")
+                continue
+            best = cands[0]
+            errors = monte_carlo(SimulatedWindows(spec), best.plan, settings, runs, seed)
+            row = study_rows(model, best.plan, settings, errors)[0]
+            ratio = row["predicted_deg"] / row["rmse_deg"]
+            worst = max(worst, abs(ratio - 1.0))
+            print(
+                f"| {name} | {budget:g} | {best.plan.label()} | {best.plan.window_s:.1f} | "
+                f"{best.plan_time_s:.1f} | {row['rmse_deg']:.4f} | "
+                f"{100 * row['rmse_rel_se']:.1f} % | {row['predicted_deg']:.4f} | {ratio:.3f} | "
+                f"{row['bound_deg']:.4f} | "
+                f"{budget_bound_deg(budget, model.arw_dpsh, LATITUDE):.4f} |",
+                flush=True,
+            )
+    print(f"\nlargest |predicted/RMSE - 1|: {100 * worst:.1f} % (target <= 15 %)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs per plan")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--only", choices=("sweep", "budget"), default=None)
+    args = ap.parse_args()
+    if args.only in (None, "sweep"):
+        sweep_table(args.runs, args.seed)
+    if args.only in (None, "budget"):
+        budget_table(args.runs, args.seed)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,222 @@
+"""The host's own pace, measured beside the link, and the rule that says when a timing check that
+failed is not judged.
+
+A timing check judges the unit by when its messages arrive on the host. A host that cannot keep
+pace (other processes holding the cores, a stalled scheduler) makes a correct unit look late or
+slow: a heartbeat read late, a reply read late, a simulated unit on the same host that is itself
+starved. So the suite measures the host in the same run, apart from the unit:
+
+- a **timer loop**: a thread that wants to wake every :data:`PERIOD_S` and records each wake and
+  how late it was (what the scheduler does to a thread that only wants to run on time, as a
+  reader or a simulated unit does); a wake later than a period restarts its schedule, so the
+  wakes it did not get are time it lost, as a simulated unit loses simulated time;
+- the **reader's lateness**: how much longer than asked each receive on the link took (the suite's
+  own thread not running when its data was there).
+
+From these, for any interval of the run, :meth:`HostPace.during` gives the worst single lateness
+(a stall) and the time lost: the timer loop's missing wakes times its period, and the reader's
+latenesses beyond :data:`GRACE_S` summed; the larger counts.
+:func:`excused` is the rule of ``docs/conformance.md``: a failed timing check is **not judged**
+when the host lost, inside the interval the check judged, at least as much time as the unit is
+late beyond its limit (a reply, a first sample, a move), or, for the checks over the observation
+window (rate, period, jitter), when the host did not keep pace in the window (:data:`STALL_S`,
+:data:`LOST_FRACTION`) while the unit's own counters show nothing wrong (the checks themselves
+look at the counters first). On a virtual clock nothing is measured: the host always keeps pace.
+"""
+
+from __future__ import annotations
+
+import bisect
+import threading
+from dataclasses import dataclass
+
+from northfinder.driver.clock import Clock
+
+__all__ = [
+    "GRACE_S",
+    "LOST_FRACTION",
+    "PERIOD_S",
+    "STALL_S",
+    "HostPace",
+    "PaceFigures",
+    "excused",
+]
+
+PERIOD_S = 0.005
+"""Period of the timer loop, wall s: the sample period of a unit at 200 Hz."""
+STALL_S = 0.020
+"""A wake (or a read) later than this is a stall: twice the heartbeat jitter the protocol allows
+at the default period (10 % of 100 ms) would not fit in it. A quiet host wakes the loop within
+1 to 5 ms (p99) and never this late."""
+LOST_FRACTION = 0.02
+"""A host that lost this share of a window (or more) did not keep pace in it: twice the default
+rate tolerance (1 %), the bias such a loss can put on a rate or period measured on arrival times.
+A quiet host loses well under 1 %; with two CPU-bound processes on two cores the loop measured
+50 % and more."""
+GRACE_S = 0.005
+"""A read later than asked by less than this is not counted as lost: Python hands its interpreter
+lock between threads every 5 ms (``sys.getswitchinterval``), so the suite's own threads delay each
+other that much on any host."""
+
+
+@dataclass(frozen=True)
+class PaceFigures:
+    """The host's pace over an interval, wall seconds.
+
+    Attributes
+    ----------
+    seconds : float
+        Length of the interval.
+    wakes : int
+        Wakes of the timer loop in it.
+    timer_max_s, timer_lost_s : float
+        The timer loop's worst lateness, and the wakes it missed times its period.
+    reader_max_s, reader_lost_s : float
+        The suite's reads of the link: the worst lateness, and the latenesses beyond
+        :data:`GRACE_S` summed.
+    """
+
+    seconds: float = 0.0
+    wakes: int = 0
+    timer_max_s: float = 0.0
+    timer_lost_s: float = 0.0
+    reader_max_s: float = 0.0
+    reader_lost_s: float = 0.0
+
+    @property
+    def stall_s(self) -> float:
+        """The worst single lateness, timer or reader."""
+        return max(self.timer_max_s, self.reader_max_s)
+
+    @property
+    def lost_s(self) -> float:
+        """Time lost: the larger of the timer's and the reader's sums (at most the interval: a
+        read that began in it may end after it)."""
+        return min(self.seconds, max(self.timer_lost_s, self.reader_lost_s))
+
+    @property
+    def lost_fraction(self) -> float:
+        return self.lost_s / self.seconds if self.seconds > 0 else 0.0
+
+    @property
+    def kept_pace(self) -> bool:
+        """No stall of :data:`STALL_S` and less than :data:`LOST_FRACTION` lost."""
+        return self.stall_s < STALL_S and self.lost_fraction < LOST_FRACTION
+
+    def text(self) -> str:
+        """``host lost 1.2 s of 3.0 s (40 %), worst stall 88 ms (timer loop, 412 wakes), reader
+        late by 30 ms at most``."""
+        return (
+            f"host lost {self.lost_s:.2f} s of {self.seconds:.2f} s ({self.lost_fraction:.0%}), "
+            f"worst stall {self.stall_s * 1e3:.0f} ms (timer loop: {self.wakes} wakes, "
+            f"{self.timer_lost_s:.2f} s lost, worst {self.timer_max_s * 1e3:.0f} ms; reader: "
+            f"{self.reader_lost_s:.2f} s lost, worst {self.reader_max_s * 1e3:.0f} ms)"
+        )
+
+
+def excused(p: PaceFigures, excess_s: float | None) -> bool:
+    """Whether a timing failure judged over the interval of ``p`` is the host's doing.
+
+    ``excess_s``: how late the unit was beyond its limit, wall s (a reply, a sample, a move); the
+    host excuses it when it stood still, or lost in all, at least that long in the interval.
+    None for a window check whose unit counters agreed: the host excuses it when it did not keep
+    pace in the window.
+    """
+    if excess_s is None:
+        return not p.kept_pace
+    return p.stall_s >= excess_s or p.lost_s >= excess_s
+
+
+class _Series:
+    """(time, lateness) records in time order, appended by one thread, read by another."""
+
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.late: list[float] = []
+        self._lock = threading.Lock()
+
+    def add(self, t: float, late: float) -> None:
+        with self._lock:
+            self.t.append(t)
+            self.late.append(late)
+
+    def between(self, t0: float, t1: float) -> list[float]:
+        with self._lock:
+            i, j = bisect.bisect_left(self.t, t0), bisect.bisect_right(self.t, t1)
+            return self.late[i:j]
+
+
+class HostPace:
+    """A timer loop and the reader's lateness, recorded over a run (wall clock only).
+
+    Parameters
+    ----------
+    clock : Clock
+        The session's clock; on a virtual clock nothing runs and every interval kept pace.
+    period_s : float
+        Period of the timer loop, wall s.
+    """
+
+    def __init__(self, clock: Clock, period_s: float = PERIOD_S) -> None:
+        self.clock = clock
+        self.period_s = period_s
+        self.timer = _Series()
+        self.reader = _Series()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def measuring(self) -> bool:
+        return self._thread is not None
+
+    def start(self) -> HostPace:
+        if self.clock.virtual or self._thread is not None:
+            return self
+        self._thread = threading.Thread(target=self._loop, name="host-pace", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(1.0)
+
+    def __enter__(self) -> HostPace:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _loop(self) -> None:
+        clock, period = self.clock, self.period_s
+        due = clock.now() + period
+        while not self._stop.is_set():
+            left = due - clock.now()
+            if left > 0:
+                clock.sleep(left)
+            now = clock.now()
+            late = max(0.0, now - due)
+            self.timer.add(now, late)
+            # A wake later than a period starts the schedule again from now: the time lost is
+            # counted once, not again at every wake that follows.
+            due = (now if late > period else due) + period
+
+    def read(self, t: float, asked_s: float, took_s: float) -> None:
+        """The suite's read of the link at ``t`` asked for ``asked_s`` and took ``took_s``."""
+        if self.measuring and took_s > asked_s:
+            self.reader.add(t, took_s - asked_s)
+
+    def during(self, t0: float, t1: float) -> PaceFigures:
+        """The figures of ``[t0, t1]`` (clock seconds)."""
+        if not self.measuring or t1 <= t0:
+            return PaceFigures(max(0.0, t1 - t0))
+        timer = self.timer.between(t0, t1)
+        reader = self.reader.between(t0, t1)
+        return PaceFigures(
+            t1 - t0,
+            len(timer),
+            max(timer, default=0.0),
+            max(0.0, (t1 - t0) - len(timer) * self.period_s),
+            max(reader, default=0.0),
+            sum(late - GRACE_S for late in reader if late > GRACE_S),
+        )

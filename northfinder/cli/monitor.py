@@ -1,0 +1,200 @@
+"""``northfinder monitor``: a live view of a unit in the terminal (needs the ``monitor`` extra).
+
+Panels: the unit (identity, state, faults, table angle and target, temperature), the stream
+(rate, sample counter, gaps, lost, partial and late ticks, commands, refusals), the link's
+counters, traces of the gyro and accelerometer channels over the last seconds with their means,
+a find run's windows and its solution as it forms, and every command with its reply and delay.
+
+Keys: t rotate to, b rotate by, s stop, h home, o stream on/off, f find (the plan options),
+w record every frame to ``--record FILE``, r reset, q quit.
+
+Links: python-can bus options (``-i socketcan -c vcan0``, ``-i slcan -c /dev/pts/3``),
+``--serial PORT``, or ``--sim`` (the embedded simulated instrument, paced at ``--speed``,
+default 1). ``--passive`` (CAN only) sends nothing: it decodes another host's session with the
+unit as it passes on the bus. docs/monitor.md has the details and the CPU cost.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import sys
+import time
+from collections.abc import Iterator
+from typing import Any
+
+from northfinder.cli.common import (
+    bounded_float,
+    bus_given,
+    check_output_path,
+    command_parser,
+    open_can_bus,
+)
+from northfinder.cli.measure import (
+    _open_unit,
+    add_device_arguments,
+    add_plan_arguments,
+    embedded_simulator,
+    plan_from_args,
+)
+from northfinder.host.errors import HostConfigError
+
+SIM_ONLY = ("warmup", "sensor", "azimuth", "pitch", "roll", "seed")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = command_parser(sub, "monitor", __doc__)
+    add_device_arguments(p)
+    add_plan_arguments(p)
+    g = p.add_argument_group("monitor")
+    g.add_argument(
+        "--passive", action="store_true",
+        help="send nothing, only listen (a CAN bus shared with another host)",
+    )  # fmt: skip
+    g.add_argument(
+        "--refresh", type=bounded_float(1.0, 30.0, "Hz"), default=10.0, metavar="HZ",
+        help="screen updates per second, 1 to 30 (default 10)",
+    )  # fmt: skip
+    g.add_argument(
+        "--plot-rate", type=bounded_float(0.2, 30.0, "Hz"), default=2.0, metavar="HZ",
+        help="trace redraws per second (default 2; at most --refresh)",
+    )  # fmt: skip
+    g.add_argument(
+        "--trace-seconds", type=bounded_float(1.0, 60.0, "s"), default=10.0, metavar="S",
+        help="seconds of samples in the traces (default 10)",
+    )  # fmt: skip
+    g.add_argument(
+        "--record", default="monitor.asc", metavar="FILE",
+        help="the CAN log the w key writes (ending: python-can's format; default monitor.asc)",
+    )  # fmt: skip
+    g.add_argument(
+        "--duration", type=bounded_float(0.0, 1e7, "s", open_lo=True), default=None,
+        metavar="S", help="quit after S seconds (a measurement run)",
+    )  # fmt: skip
+    g.add_argument(
+        "--summary", metavar="FILE",
+        help="on quitting, write the stream's counters and the monitor's CPU use as JSON",
+    )  # fmt: skip
+    return p
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """What can be refused before a link is opened (exit status 2)."""
+    links = sum((bus_given(args), bool(args.serial), bool(args.sim)))
+    if links != 1:
+        raise HostConfigError(
+            "choose exactly one link: -i/-c (python-can), --serial PORT, or --sim"
+        )
+    if args.passive and not bus_given(args):
+        raise HostConfigError(
+            "--passive listens on a CAN bus shared with another host: give -i/-c "
+            "(a serial link or the embedded simulator has one host only)"
+        )
+    if not args.sim:
+        given = [name for name in (*SIM_ONLY, "speed") if getattr(args, name, None) is not None]
+        if given:
+            raise HostConfigError(
+                f"--{given[0]}: applies to the embedded simulator only (--sim), not to a device"
+            )
+    if args.summary:
+        check_output_path(args.summary, "--summary", (".json",))
+
+
+def _needs_textual() -> None:
+    try:
+        import textual  # noqa: F401
+        import textual_plotext  # noqa: F401
+    except ImportError as exc:
+        raise HostConfigError(
+            f"northfinder monitor needs Textual ({exc.name} is missing): "
+            "pip install 'northfinder[monitor]'"
+        ) from exc
+
+
+def _describe(args: argparse.Namespace) -> str:
+    if args.sim:
+        return f"embedded simulator x{args.speed or 1.0:g}"
+    if args.serial:
+        return f"serial {args.serial}"
+    return f"{args.interface or 'can'} {args.channel or ''} node {args.node_id}".replace("  ", " ")
+
+
+def open_session(args: argparse.Namespace) -> Any:
+    """The session the arguments name (active or passive)."""
+    from northfinder.monitor.session import ActiveSession, PassiveSession
+
+    if args.passive:
+        return PassiveSession(
+            lambda: open_can_bus(args),
+            node_id=args.node_id,
+            description=_describe(args),
+            latitude_deg=args.latitude,
+            trace_seconds=args.trace_seconds,
+        )
+    if args.sim and args.speed is None:
+        args.speed = 1.0  # a live view runs paced: virtual time would not move on its own
+
+    @contextlib.contextmanager
+    def opener(tap: Any) -> Iterator[tuple[Any, dict[str, Any] | None]]:
+        if args.sim:
+            with embedded_simulator(args, tap) as (device, truth):
+                yield device, truth
+        else:
+            with _open_unit(args, tap) as device:
+                yield device, None
+
+    return ActiveSession(
+        opener,
+        node_id=args.node_id,
+        description=_describe(args),
+        latitude_deg=args.latitude,
+        trace_seconds=args.trace_seconds,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    check_arguments(args)
+    _needs_textual()
+    plan = plan_from_args(args)
+    from northfinder.monitor.app import MonitorApp
+
+    session = open_session(args)
+    wall0, cpu0 = time.monotonic(), time.process_time()
+    try:
+        if args.can_log:
+            session.start_recording(args.can_log)
+        app = MonitorApp(
+            session,
+            plan=plan,
+            refresh_hz=args.refresh,
+            plot_hz=args.plot_rate,
+            record_path=args.record,
+            duration_s=args.duration,
+        )
+        status = app.run()
+        session.poll()
+        link = session.link_stats()
+    finally:
+        session.close()
+    wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
+    counters = session.observer.counters()
+    summary = {
+        **counters,
+        "wall_s": round(wall, 3),
+        "cpu_s": round(cpu, 3),
+        "cpu_percent": round(100.0 * cpu / wall, 2) if wall > 0 else None,
+        "screen_updates": app.ticks,
+        "screen_cpu_s": round(app.tick_seconds, 3),
+        "link": link,
+    }
+    if args.summary:
+        with open(args.summary, "w") as f:
+            json.dump(summary, f, indent=2)
+    print(
+        f"monitor: {counters['samples']} samples, {counters['gaps']} gaps "
+        f"({counters['ticks_lost']} ticks lost), {counters['commands']} commands, "
+        f"{counters['refused']} refused; CPU {summary['cpu_percent']}% over {wall:.1f} s",
+        file=sys.stderr,
+    )
+    return int(status or 0)

@@ -1,0 +1,539 @@
+"""The monitor's screen: a Textual application on a :class:`~northfinder.monitor.session.Session`.
+
+The screen is redrawn from the session a few times a second (``refresh_hz``, default 10; the
+traces at most ``plot_hz``), never from the link's thread: the link's reader only queues frames,
+so however slow the terminal, the link is read in time. Commands run in worker threads, so a
+slow or dead unit never freezes the screen; every error is a line in the log, never a traceback.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any, ClassVar
+
+from rich.text import Text
+from textual import on
+from textual.app import App, ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import Horizontal, Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Footer, Input, Label, RichLog, Static
+from textual_plotext import PlotextPlot
+
+from northfinder.driver.errors import DriverError
+from northfinder.driver.protocol.constants import DeviceState
+from northfinder.host.errors import HostError
+from northfinder.host.plan import Plan
+from northfinder.monitor.observer import LogEntry, Traces, View
+from northfinder.monitor.session import ActiveSession, FindRun, Session
+
+__all__ = ["MIN_SIZE", "MonitorApp"]
+
+#: The smallest terminal the monitor draws in, columns x rows.
+MIN_SIZE = (100, 30)
+_LEVEL_STYLE = {
+    "info": "",
+    "ok": "green",
+    "refused": "yellow",
+    "warn": "yellow",
+    "error": "bold red",
+}
+_AXES = ("x", "y", "z")
+
+
+def _num(value: float | None, fmt: str = ".3f", unit: str = "") -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "---"
+    return f"{value:{fmt}}{unit}"
+
+
+class AskAngle(ModalScreen[float | None]):
+    """A one-line question for an angle in degrees (Enter: go, Escape: cancel)."""
+
+    DEFAULT_CSS = """
+    AskAngle { align: center middle; }
+    AskAngle > Vertical { width: 50; height: auto; border: round $accent; padding: 0 1;
+                          background: $surface; }
+    """
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "cancel", "cancel")]
+
+    def __init__(self, question: str) -> None:
+        super().__init__()
+        self.question = question
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(self.question)
+            yield Input(placeholder="degrees, e.g. 90", id="angle")
+            yield Label("", id="problem")
+
+    @on(Input.Submitted)
+    def submitted(self, event: Input.Submitted) -> None:
+        try:
+            value = float(event.value)
+            if not math.isfinite(value) or abs(value) > 720.0:
+                raise ValueError
+        except ValueError:
+            self.query_one("#problem", Label).update(
+                Text(f"not an angle from -720 to 720 deg: {event.value!r}", style="red")
+            )
+            return
+        self.dismiss(value)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class MonitorApp(App[int]):
+    """A live view of one unit on one link.
+
+    Parameters
+    ----------
+    session : Session
+        The link (active or passive), opened; closed when the app ends.
+    plan : Plan
+        What a find started with ``f`` measures.
+    refresh_hz : float
+        Screen updates per second (0: only when :meth:`refresh_view` is called, for tests).
+    plot_hz : float
+        Trace redraws per second, at most ``refresh_hz``.
+    record_path : str
+        The CAN log ``w`` writes (its ending picks the format).
+    duration_s : float, optional
+        Quit after this many wall seconds (a measurement run).
+    """
+
+    TITLE = "northfinder monitor"
+    CSS = """
+    Screen { layout: vertical; }
+    #banner { height: 1; padding: 0 1; background: $primary-background; }
+    #banner.alarm { background: darkred; color: white; text-style: bold; }
+    #banner.warn { background: darkorange; color: black; text-style: bold; }
+    #top { height: 13; }
+    .panel { border: round $primary; padding: 0 1; height: 100%; }
+    #unit { width: 38; }
+    #stream { width: 34; }
+    #link { width: 1fr; }
+    #traces { height: 1fr; min-height: 8; }
+    #traces PlotextPlot { width: 1fr; border: round $primary; }
+    #bottom { height: 12; }
+    #find { width: 50%; }
+    #log { width: 1fr; border: round $primary; }
+    #toosmall { display: none; width: 100%; height: 100%; content-align: center middle;
+                text-style: bold; }
+    Screen.toosmall #toosmall { display: block; }
+    Screen.toosmall #banner, Screen.toosmall #top, Screen.toosmall #traces,
+    Screen.toosmall #bottom { display: none; }
+    """
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("t", "rotate_to", "rotate to"),
+        Binding("b", "rotate_by", "rotate by"),
+        Binding("s", "stop", "stop"),
+        Binding("h", "home", "home"),
+        Binding("o", "stream", "stream on/off"),
+        Binding("f", "find", "find"),
+        Binding("w", "record", "record"),
+        Binding("r", "reset", "reset"),
+        Binding("q", "quit", "quit"),
+    ]
+
+    def __init__(
+        self,
+        session: Session,
+        *,
+        plan: Plan | None = None,
+        refresh_hz: float = 10.0,
+        plot_hz: float = 2.0,
+        record_path: str = "monitor.asc",
+        duration_s: float | None = None,
+    ) -> None:
+        super().__init__()
+        self.session = session
+        self.plan = plan or Plan((0.0, 180.0, 180.0, 0.0), 10.0)
+        self.refresh_hz = float(refresh_hz)
+        self.plot_hz = min(float(plot_hz), self.refresh_hz) if self.refresh_hz else 0.0
+        self.record_path = record_path
+        self.duration_s = duration_s
+        self.find_run: FindRun | None = None
+        self.ticks = 0
+        self.tick_seconds = 0.0  # CPU seconds spent in refresh_view (this thread)
+        self._last_plot = -math.inf
+        self._shown: dict[str, str] = {}
+        self._log_shown = 0
+        self._log_last: LogEntry | None = None
+        self._started = time.monotonic()
+
+    # -- layout -------------------------------------------------------------------------------
+    def compose(self) -> ComposeResult:
+        yield Static("", id="banner")
+        with Horizontal(id="top"):
+            yield Static("", id="unit", classes="panel")
+            yield Static("", id="stream", classes="panel")
+            yield Static("", id="link", classes="panel")
+        with Horizontal(id="traces"):
+            yield PlotextPlot(id="gyro")
+            yield PlotextPlot(id="accel")
+        with Horizontal(id="bottom"):
+            yield Static("", id="find", classes="panel")
+            yield RichLog(id="log", max_lines=500, wrap=True, markup=False, min_width=20)
+        yield Static("", id="toosmall")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.query_one("#unit").border_title = "unit"
+        self.query_one("#stream").border_title = "stream"
+        self.query_one("#link").border_title = "link"
+        self.query_one("#find").border_title = "find"
+        self.query_one("#log").border_title = "commands and events"
+        for name, title in (
+            ("gyro", "gyro, deg/h"),
+            ("accel", "accelerometer about its means, m/s^2"),
+        ):
+            plot = self.query_one(f"#{name}", PlotextPlot)
+            plot.border_title = title
+        self._check_size()
+        self.refresh_view()
+        if self.refresh_hz > 0:
+            self.set_interval(1.0 / self.refresh_hz, self.refresh_view)
+        if self.duration_s is not None:
+            self.set_timer(self.duration_s, self.action_quit)
+
+    def on_resize(self) -> None:
+        self._check_size()
+
+    def _check_size(self) -> None:
+        w, h = self.size
+        small = w < MIN_SIZE[0] or h < MIN_SIZE[1]
+        self.screen.set_class(small, "toosmall")
+        if small:
+            self.query_one("#toosmall", Static).update(
+                f"The terminal is {w} x {h}: the monitor needs at least "
+                f"{MIN_SIZE[0]} x {MIN_SIZE[1]}.\nEnlarge the window (q quits)."
+            )
+
+    # -- the periodic redraw ------------------------------------------------------------------
+    def refresh_view(self) -> None:
+        """Decode what the link brought and redraw the panels (the traces at most at
+        ``plot_hz``). Never raises: a failure is a line in the log."""
+        t0 = time.thread_time()
+        try:
+            self.session.poll()
+            view = self.session.observer.view()
+            self._draw(view)
+        except Exception as exc:  # the screen must stay up whatever a panel trips on
+            self.session.observer.note(f"display error: {exc!r}", "error")
+        self.ticks += 1
+        self.tick_seconds += time.thread_time() - t0
+
+    def _set(self, wid: str, content: Any) -> None:
+        key = content.plain if isinstance(content, Text) else str(content)
+        if self._shown.get(wid) == key + str(getattr(content, "spans", "")):
+            return
+        self._shown[wid] = key + str(getattr(content, "spans", ""))
+        self.query_one(f"#{wid}", Static).update(content)
+
+    def _draw(self, v: View) -> None:
+        self._set("banner", self._banner(v))
+        self._set("unit", self._unit(v))
+        self._set("stream", self._stream(v))
+        self._set("link", self._link(v))
+        self._set("find", self._find())
+        self._draw_log(v)
+        now = time.monotonic() if self.refresh_hz else v.now_s
+        if self.plot_hz == 0 or now - self._last_plot >= 1.0 / self.plot_hz:
+            self._last_plot = now
+            self._draw_traces(self.session.observer.traces())
+
+    def _banner(self, v: View) -> Text:
+        s = self.session
+        mode = "PASSIVE (listening only)" if s.passive else "active"
+        where = f"{s.description}  {mode}"
+        banner = self.query_one("#banner")
+        if not s.connected:
+            banner.set_classes("alarm")
+            return Text(f"LINK LOST: {s.lost_reason or 'no link'}; reopening every 2 s ({where})")
+        if v.status is None:
+            banner.set_classes("alarm" if v.frames == 0 else "warn")
+            what = "nothing received" if v.frames == 0 else "frames, but no status yet"
+            return Text(
+                f"NO STATUS from node {s.observer.node_id}: {what} (is the unit on, the node id "
+                f"right, the bus up?)  {where}"
+            )
+        if v.silent:
+            banner.set_classes("alarm")
+            return Text(
+                f"SILENT: no status for {v.status_age_s:.1f} s (the unit is off, restarting, or "
+                f"the link is down); last state {v.state}  {where}"
+            )
+        if v.status.state == DeviceState.FAULT:
+            banner.set_classes("alarm")
+            return Text(f"FAULT: {v.faults}; r resets the unit  {where}")
+        banner.set_classes("")
+        rec = f"  recording {s.record_path}" if s.record_path else ""
+        return Text(f"{v.state}  {where}{rec}")
+
+    def _unit(self, v: View) -> Text:
+        t = Text()
+        ident = v.identity
+        if ident is None:
+            t.append("identity: not seen yet\n", style="dim")
+        else:
+            fw = ".".join(map(str, ident.firmware_version))
+            t.append(f"{ident.model} #{ident.serial_number}\n", style="bold")
+            t.append(f"fw {fw}  protocol {ident.protocol_version[0]}."
+                     f"{ident.protocol_version[1]}\n")  # fmt: skip
+        style = "bold red" if v.state == "FAULT" else "bold"
+        t.append("state    ")
+        t.append(f"{v.state}\n", style=style)
+        t.append(
+            f"faults   {v.faults or '---'}\n", style="red" if v.faults not in ("", "none") else ""
+        )
+        t.append(f"table    {_num(v.angle_deg, '9.4f')} deg\n")
+        if v.target_deg is not None:
+            t.append(f"target   {v.target_deg:9.4f} deg\n", style="cyan")
+        else:
+            t.append("target   ---\n", style="dim")
+        t.append(f"temp     {_num(v.temperature_c, '7.2f')} degC\n")
+        age = "---" if v.status_age_s is None else f"{v.status_age_s:.2f} s ago"
+        t.append(f"status   {age}\n", style="dim")
+        s = self.session
+        if s.truth is not None:
+            t.append(f"truth    azimuth {s.truth.get('azimuth_deg', math.nan):.3f} deg\n",
+                     style="magenta")  # fmt: skip
+        return t
+
+    def _stream(self, v: View) -> Text:
+        t = Text()
+        on = "on" if v.streaming else "off"
+        t.append(f"stream    {on}\n", style="bold" if v.streaming else "dim")
+        conf = "" if v.configured_rate_hz is None else f" / {v.configured_rate_hz} Hz"
+        t.append(f"rate      {_num(v.rate_hz, '.1f')}{conf}\n")
+        t.append(f"counter   {v.sample_counter if v.sample_counter is not None else '---'}\n")
+        t.append(f"samples   {v.samples}\n")
+        bad = "red" if v.gaps or v.ticks_lost else ""
+        t.append(f"gaps      {v.gaps}  lost {v.ticks_lost}\n", style=bad)
+        t.append(f"partial   {v.ticks_incomplete}  late {v.late}\n",
+                 style="yellow" if v.ticks_incomplete or v.late else "")  # fmt: skip
+        t.append(f"commands  {v.commands}  replies {v.replies}\n")
+        t.append(f"refused   {v.refused}  unanswered {v.unanswered}\n",
+                 style="yellow" if v.refused or v.unanswered else "")  # fmt: skip
+        dev = "---" if v.device_rejected is None else str(v.device_rejected)
+        t.append(f"unit: rejected {dev}  dropped "
+                 f"{'---' if v.device_tx_dropped is None else v.device_tx_dropped}\n")  # fmt: skip
+        return t
+
+    def _link(self, v: View) -> Text:
+        t = Text()
+        stats = self.session.link_stats()
+        t.append(f"frames seen  {v.frames}\n")
+        t.append(f"not protocol {v.frames_unknown}  malformed {v.frames_malformed}\n")
+        t.append(f"other nodes  {v.frames_other_node}\n")
+        if stats is None:
+            t.append("driver: none (passive)\n", style="dim")
+            return t
+        names = (
+            ("received", "frames_received"), ("rejected", "frames_rejected"),
+            ("lost", "frames_lost"), ("ticks lost", "ticks_lost"),
+            ("incomplete", "ticks_incomplete"), ("retries", "retries"),
+            ("timeouts", "reply_timeouts"), ("stray", "stray_replies"),
+            ("resets", "resets_detected"),
+        )  # fmt: skip
+        t.append("driver\n", style="bold")
+        for i, (label, key) in enumerate(names):
+            value = stats.get(key, 0)
+            style = "red" if value and key not in ("frames_received",) else ""
+            t.append(f" {label:<10} {value:>7}", style=style)
+            t.append("\n" if i % 2 else " ")
+        return t
+
+    def _find(self) -> Text:
+        run = self.find_run
+        t = Text()
+        s = self.session
+        if run is None:
+            if s.passive:
+                t.append("passive: a find run by another host shows in the log and the traces\n",
+                         style="dim")  # fmt: skip
+            else:
+                positions = ", ".join(f"{p:g}" for p in self.plan.positions_deg)
+                t.append(f"f starts a find: positions {positions} deg, "
+                         f"{self.plan.window_s:g} s windows\n", style="dim")  # fmt: skip
+                if s.latitude_deg is None:
+                    t.append("(needs --latitude)\n", style="yellow")
+            return t
+        p = run.progress
+        if p is not None and not run.finished:
+            left = "" if p.seconds_left is None else f", ~{p.seconds_left:.0f} s left"
+            t.append(f"{p.phase} position {p.position}/{p.positions}{left}\n", style="bold")
+        for i, w in enumerate(run.windows):
+            t.append(f"w{i + 1} {w.encoder_deg:8.3f} deg  gx {w.gyro_dph[0]:+9.4f}  "
+                     f"gy {w.gyro_dph[1]:+9.4f} deg/h\n")  # fmt: skip
+        truth = run.truth_deg
+        for sol in run.solutions[-3:]:
+            sig = "---" if sol.sigma_deg is None else f"{sol.sigma_deg:.3f}"
+            t.append(f"{sol.windows} windows: {sol.azimuth_deg:8.3f} +- {sig} deg")
+            if truth is not None:
+                err = (sol.azimuth_deg - truth + 180.0) % 360.0 - 180.0
+                t.append(f"  error {err:+.3f}", style="magenta")
+            t.append("\n")
+        r = run.result
+        if r is not None:
+            sig = "---" if r.sigma_deg is None else f"{r.sigma_deg:.3f}"
+            t.append(f"azimuth {r.azimuth_deg:.3f} +- {sig} deg", style="bold green")
+            check = {True: "consistent", False: "INCONSISTENT", None: "not checked"}[r.consistent]
+            t.append(f"  {check}\n", style="green" if r.consistent else "yellow")
+        if truth is not None:
+            t.append(f"truth   {truth:.3f} deg (simulated)\n", style="magenta")
+        if run.error:
+            t.append(f"failed: {run.error}\n", style="bold red")
+        return t
+
+    def _draw_log(self, v: View) -> None:
+        log = self.query_one("#log", RichLog)
+        entries = v.log
+        if not entries:
+            return
+        # Write only the entries after the last one written.
+        start = 0
+        if self._log_last is not None:
+            for i in range(len(entries) - 1, -1, -1):
+                if entries[i] is self._log_last:
+                    start = i + 1
+                    break
+        for e in entries[start:]:
+            line = Text(f"{e.time_s - v.t0_s:9.3f}  ", style="dim")
+            line.append(e.text, style=_LEVEL_STYLE.get(e.level, ""))
+            log.write(line)
+        self._log_last = entries[-1]
+
+    def _draw_traces(self, tr: Traces | None) -> None:
+        for name, attr in (("gyro", "gyro_dph"), ("accel", "accel_mps2")):
+            plot = self.query_one(f"#{name}", PlotextPlot)
+            plt = plot.plt
+            plt.clear_data()
+            if tr is None or tr.samples < 2:
+                plt.title("no samples (o starts the stream)")
+                plot.refresh()
+                continue
+            data = getattr(tr, attr)
+            means = tr.mean_gyro_dph if name == "gyro" else tr.mean_accel_mps2
+            x = tr.time_s.tolist()
+            for k, axis in enumerate(_AXES):
+                # The accelerometers read about 0, 0 and g: on one scale x and y would be flat
+                # lines, so each is drawn about its mean (which the label gives).
+                y = data[:, k] - (means[k] if name == "accel" else 0.0)
+                plt.plot(x, y.tolist(), label=f"{axis} mean {means[k]:+.4g}", marker="braille")
+            plt.title(f"last {tr.seconds:.1f} s, {tr.samples} samples")
+            plt.xlabel("s")
+            plot.refresh()
+
+    # -- keys ---------------------------------------------------------------------------------
+    def _active(self) -> ActiveSession | None:
+        s = self.session
+        if isinstance(s, ActiveSession):
+            return s
+        self.session.observer.note("passive mode: the monitor sends nothing", "warn")
+        self.refresh_view()
+        return None
+
+    def _command(self, label: str, call: Any) -> None:
+        """Run a device call in a worker thread; its error is a line in the log."""
+        s = self._active()
+        if s is None:
+            return
+
+        def work() -> None:
+            try:
+                call(s.require())
+            except (DriverError, HostError) as exc:
+                s.observer.note(f"{label}: {exc}", "error")
+            except Exception as exc:  # never a traceback on the screen
+                s.observer.note(f"{label}: internal error {exc!r}", "error")
+
+        self.run_worker(work, thread=True, group="commands", name=label)
+
+    def action_rotate_to(self) -> None:
+        if self._active() is None:
+            return
+
+        def go(angle: float | None) -> None:
+            if angle is not None:
+                self._command("rotate to", lambda d: d.rotate_to(angle, wait=False))
+
+        self.push_screen(AskAngle("Rotate the table to (deg, encoder):"), go)
+
+    def action_rotate_by(self) -> None:
+        if self._active() is None:
+            return
+
+        def go(delta: float | None) -> None:
+            if delta is not None:
+                self._command("rotate by", lambda d: d.rotate_by(delta, wait=False))
+
+        self.push_screen(AskAngle("Rotate the table by (deg, + counter-clockwise):"), go)
+
+    def action_stop(self) -> None:
+        self._command("stop", lambda d: d.stop())
+
+    def action_home(self) -> None:
+        self._command("home", lambda d: d.home(wait=False))
+
+    def action_reset(self) -> None:
+        self._command("reset", lambda d: d.reset(wait=False))
+
+    def action_stream(self) -> None:
+        def toggle(d: Any) -> None:
+            on = not d.streaming
+            if isinstance(self.session, ActiveSession):
+                self.session.stream_on_ready(on)  # kept as chosen after a find or a reset
+            if on:
+                d.start_streaming()
+            else:
+                d.stop_streaming()
+
+        self._command("stream", toggle)
+
+    def action_record(self) -> None:
+        s = self.session
+        if s.record_path:
+            path = s.stop_recording()
+            s.observer.note(f"recording stopped: {path}", "ok")
+        else:
+            path = self.record_path
+            try:
+                s.start_recording(path)
+            except (DriverError, HostError, OSError) as exc:
+                s.observer.note(f"record: {exc}", "error")
+            else:
+                s.observer.note(f"recording every frame to {Path(path).resolve()}", "ok")
+        self.refresh_view()
+
+    def action_find(self) -> None:
+        s = self._active()
+        if s is None:
+            return
+        if self.find_run is not None and not self.find_run.finished:
+            s.observer.note("a find is running", "warn")
+            return
+        if s.latitude_deg is None:
+            s.observer.note("find: give the site's latitude (--latitude)", "error")
+            return
+        truth = None if s.truth is None else s.truth.get("azimuth_deg")
+        run = FindRun(self.plan, float(s.latitude_deg), truth_deg=truth)
+        self.find_run = run
+
+        def work() -> None:
+            try:
+                run.run(s)
+            except (DriverError, HostError):
+                pass  # FindRun put it in the log and on the panel
+            except Exception as exc:
+                run.error = f"internal error {exc!r}"
+                s.observer.note(f"find: internal error {exc!r}", "error")
+
+        self.run_worker(work, thread=True, group="find", name="find")
+
+    async def action_quit(self) -> None:
+        self.exit(0)

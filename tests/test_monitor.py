@@ -1,0 +1,493 @@
+"""``northfinder monitor``: the observer on frames alone, the screen with Textual's headless driver
+(key presses, panel content, snapshots) against the embedded simulator in virtual time, a passive
+session, a lost link that comes back, and the screen on a pseudo-terminal to a ``northfinder sim``
+process.
+
+In virtual time the screen does not redraw by itself (``refresh_hz=0``): a test moves the clock
+(``sim.clock.sleep``) and redraws (:meth:`MonitorApp.refresh_view`), so what it sees is the same
+on every machine.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+
+import can
+import pytest
+
+pytest.importorskip("textual")
+pytest.importorskip("textual_plotext")
+
+from textual.widgets import Static
+
+from northfinder.cli import main
+from northfinder.driver.clock import VirtualClock
+from northfinder.driver.errors import LinkLost
+from northfinder.driver.protocol.can import encode_can
+from northfinder.driver.protocol.constants import DeviceState, Fault, Opcode, Result
+from northfinder.driver.protocol.messages import (
+    Reply,
+    RotateTo,
+    Sample,
+    Status,
+    Validity,
+)
+from northfinder.embed import SimulatedInstrument, Truth
+from northfinder.host.plan import Plan
+from northfinder.monitor.app import MonitorApp
+from northfinder.monitor.observer import LinkObserver
+from northfinder.monitor.session import ActiveSession, PassiveSession
+
+SIZE = (120, 40)
+
+
+def sync(fn):
+    """A plain test function that runs the coroutine ``fn`` (Textual's pilot is async)."""
+
+    def test(*args, **kwargs):
+        return asyncio.run(fn(*args, **kwargs))
+
+    test.__name__ = fn.__name__
+    test.__doc__ = fn.__doc__
+    return test
+
+
+TRUTH_DEG = 42.0
+
+
+# -- the observer, on frames alone ------------------------------------------------------------
+class StepClock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def frames(message, node_id=1):
+    return [
+        can.Message(arbitration_id=f.arbitration_id, data=f.data, is_extended_id=False)
+        for f in encode_can(message, node_id)
+    ]
+
+
+def status(counter, state=DeviceState.READY, angle=0, faults=0):
+    return Status(state, angle, 2000, Fault(faults), counter, 0, 0, 0)
+
+
+def sample(counter):
+    return Sample(counter, (100, 200, 300), (10, 20, 1_000_000), 0, 2000, Validity(3))
+
+
+def feed(obs, clock, message, at):
+    clock.t = at
+    for m in frames(message):
+        obs.tap(m)
+
+
+def test_observer_counts_a_gap_of_the_stream():
+    clock = StepClock()
+    obs = LinkObserver(clock)
+    obs.configured_rate_hz = 200
+    feed(obs, clock, status(99), 0.0)
+    for k in range(100, 110):
+        if k not in (104, 105, 106):  # three ticks lost
+            feed(obs, clock, sample(k), (k - 100) / 200)
+    obs.drain()
+    v = obs.view()
+    assert (v.samples, v.gaps, v.ticks_lost) == (7, 1, 3)
+    assert v.state == "READY" and v.sample_counter == 99
+    # 1e-4 deg/h and 1e-6 g per count (the protocol's scales)
+    tr = obs.traces()
+    assert tr is not None and tr.samples == 7
+    assert tr.mean_gyro_dph == pytest.approx((0.01, 0.02, 0.03))
+    assert tr.mean_accel_mps2[2] == pytest.approx(9.80665, rel=1e-9)
+
+
+def test_observer_logs_a_command_with_its_reply_delay_and_counts_refusals():
+    clock = StepClock()
+    obs = LinkObserver(clock)
+    feed(obs, clock, status(0), 0.0)
+    feed(obs, clock, RotateTo(7, 90_000_000), 1.0)
+    feed(obs, clock, Reply(7, Opcode.ROTATE_TO, Result.OK), 1.0125)
+    feed(obs, clock, RotateTo(8, 10_000_000), 2.0)
+    feed(obs, clock, Reply(8, Opcode.ROTATE_TO, Result.BUSY), 2.004)
+    obs.drain()
+    v = obs.view()
+    texts = [e.text for e in v.log]
+    assert "ROTATE_TO 90.000 deg -> OK in 12.5 ms" in texts
+    assert "ROTATE_TO 10.000 deg -> BUSY in 4.0 ms" in texts
+    assert (v.commands, v.replies, v.refused) == (2, 2, 1)
+
+
+def test_observer_shows_the_target_while_the_table_moves():
+    clock = StepClock()
+    obs = LinkObserver(clock)
+    feed(obs, clock, status(0), 0.0)
+    feed(obs, clock, RotateTo(1, 90_000_000), 0.01)
+    feed(obs, clock, status(1, DeviceState.ROTATING, angle=30_000_000), 0.1)
+    obs.drain()
+    v = obs.view()
+    assert v.angle_deg == pytest.approx(30.0) and v.target_deg == pytest.approx(90.0)
+    feed(obs, clock, status(2, DeviceState.READY, angle=90_000_000), 0.2)
+    obs.drain()
+    assert obs.view().target_deg is None
+
+
+def test_observer_says_silent_after_three_heartbeats_without_status():
+    clock = StepClock()
+    obs = LinkObserver(clock, silent_after_s=0.0)
+    assert obs.view().silent  # nothing yet
+    feed(obs, clock, status(0), 0.0)
+    obs.drain()
+    clock.t = 0.29
+    assert not obs.view().silent
+    clock.t = 0.31
+    assert obs.view().silent
+
+
+# -- the screen on the embedded simulator in virtual time --------------------------------------
+def vclock(sim: SimulatedInstrument) -> VirtualClock:
+    clock = sim.clock
+    assert isinstance(clock, VirtualClock)
+    return clock
+
+
+@contextlib.contextmanager
+def simulated(*, warmup_s=0.0, seed=7, stream=True, sensor="paper-rlg"):
+    """A simulated unit in virtual time and an active session on it (the stream started)."""
+    with SimulatedInstrument(
+        sensor, Truth(azimuth_deg=TRUTH_DEG), seed=seed, clock="virtual", warmup_s=warmup_s
+    ) as sim:
+
+        @contextlib.contextmanager
+        def opener(tap):
+            with sim.open_device(tap=tap) as dev:
+                yield dev, sim.describe()
+
+        session = ActiveSession(
+            opener, description="embedded simulator", clock=vclock(sim), stream=False
+        )
+        try:
+            session.require().wait_ready(5.0)
+            if stream:
+                session.require().start_streaming()
+            yield sim, session
+        finally:
+            session.close()
+
+
+def text(app, wid):
+    return str(app.query_one(f"#{wid}", Static).content)
+
+
+def table_deg(app):
+    line = next(x for x in text(app, "unit").splitlines() if x.startswith("table"))
+    return float(line.split()[1])
+
+
+def log_text(app):
+    return "\n".join(e.text for e in app.session.observer.log)
+
+
+async def advance(app, pilot, sim, seconds):
+    vclock(sim).sleep(seconds)
+    app.refresh_view()
+    await pilot.pause()
+
+
+async def settle(app, pilot, sim, seconds=0.5):
+    """Let the command workers finish, then move the clock on and redraw. While they run this
+    thread leaves the clock alone: a worker waiting on it moves it itself, at the instants its
+    own commands call for, so the run is the same on every machine."""
+    await app.workers.wait_for_complete()
+    await advance(app, pilot, sim, seconds)
+
+
+@sync
+async def test_the_main_screen_shows_the_unit_and_its_stream():
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=SIZE) as pilot:
+            await advance(app, pilot, sim, 3.0)
+            unit, stream = text(app, "unit"), text(app, "stream")
+            assert "NF-SIM #1" in unit and "READY" in unit
+            assert "truth    azimuth 42.000 deg" in unit
+            assert "rate      200.0 / 200 Hz" in stream
+            assert "gaps      0  lost 0" in stream
+            assert text(app, "banner").startswith("READY")
+            assert "received" in text(app, "link")
+
+
+@sync
+async def test_keys_rotate_the_table_and_the_log_shows_command_and_reply():
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=SIZE) as pilot:
+            await advance(app, pilot, sim, 0.5)
+            await pilot.press("t")
+            await pilot.press("9", "0", "enter")
+            await settle(app, pilot, sim, 1.0)
+            assert "target     90.0000 deg" in text(app, "unit")
+            assert "ROTATE_TO 90.000 deg -> OK in" in log_text(app)
+            await advance(app, pilot, sim, 40.0)  # the table turns and settles
+            assert table_deg(app) == pytest.approx(90.0, abs=0.02)  # the encoder's indexing
+            await pilot.press("b")
+            await pilot.press("-", "3", "0", "enter")
+            await settle(app, pilot, sim, 30.0)
+            assert table_deg(app) == pytest.approx(60.0, abs=0.02)
+            assert "ROTATE_BY -30.000 deg -> OK" in log_text(app)
+            await pilot.press("h")
+            await settle(app, pilot, sim, 40.0)
+            assert table_deg(app) == pytest.approx(0.0, abs=0.02)
+
+
+@sync
+async def test_a_bad_angle_is_refused_in_the_question_and_escape_cancels():
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("t", "x", "enter")
+            assert "not an angle" in str(app.screen.query_one("#problem", Static).content)
+            await pilot.press("escape")
+            await settle(app, pilot, sim)
+            assert session.observer.commands == 10  # what opening and streaming sent, no more
+            assert "ROTATE" not in log_text(app)
+
+
+@sync
+async def test_stream_key_stops_and_starts_the_stream():
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=SIZE) as pilot:
+            await advance(app, pilot, sim, 1.0)
+            await pilot.press("o")
+            await settle(app, pilot, sim, 1.0)
+            assert "stream    off" in text(app, "stream")
+            assert "STREAM_STOP -> OK" in log_text(app)
+            n = session.observer.samples
+            await advance(app, pilot, sim, 1.0)
+            assert session.observer.samples == n
+            await pilot.press("o")
+            await settle(app, pilot, sim, 1.0)
+            assert "stream    on" in text(app, "stream")
+            assert session.observer.samples >= n + 190
+            assert "gaps      0  lost 0" in text(app, "stream")  # a stream off is no loss
+
+
+@sync
+async def test_a_find_started_from_the_monitor_forms_its_heading():
+    plan = Plan((0.0, 180.0, 180.0, 0.0), 5.0)
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0, plan=plan)
+        async with app.run_test(size=SIZE) as pilot:
+            await advance(app, pilot, sim, 0.5)
+            await pilot.press("f")
+            await settle(app, pilot, sim, 0.5)
+            run = app.find_run
+            assert run is not None and run.finished and run.error is None
+            assert len(run.windows) == 4
+            # a heading after 2, 3 and 4 windows, each with its sigma
+            assert [s.windows for s in run.solutions] == [2, 3, 4]
+            r = run.result
+            assert r is not None and r.sigma_deg is not None
+            err = (r.azimuth_deg - TRUTH_DEG + 180.0) % 360.0 - 180.0
+            assert abs(err) < 4.0 * r.sigma_deg
+            find = text(app, "find")
+            assert f"azimuth {r.azimuth_deg:.3f}" in find and "truth   42.000" in find
+            assert "consistent" in find
+            assert "find: azimuth" in log_text(app)
+
+
+@sync
+async def test_a_unit_in_fault_is_shown_and_reset_clears_it():
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=SIZE) as pilot:
+            with sim.runner.lock:
+                sim.firmware.stall_table(True)
+            await pilot.press("t", "9", "0", "enter")
+            await settle(app, pilot, sim, 60.0)
+            banner = text(app, "banner")
+            assert banner.startswith("FAULT: DRIVE") and "r resets" in banner
+            assert "-> FAULT (faults DRIVE)" in log_text(app)
+            with sim.runner.lock:
+                sim.firmware.stall_table(False)
+            await pilot.press("r")
+            await settle(app, pilot, sim, 2.0)
+            assert "RESET -> OK" in log_text(app)
+            assert not text(app, "banner").startswith("FAULT")
+
+
+@sync
+async def test_a_silent_unit_is_shown_and_its_return_too():
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=SIZE) as pilot:
+            await advance(app, pilot, sim, 1.0)
+            with sim.runner.lock:
+                sim.firmware.faults.silent = True
+            await advance(app, pilot, sim, 2.0)
+            assert text(app, "banner").startswith("SILENT: no status for 2.0 s")
+            with sim.runner.lock:
+                sim.firmware.faults.silent = False
+            await advance(app, pilot, sim, 1.0)
+            assert text(app, "banner").startswith("READY")
+
+
+@sync
+async def test_a_lost_link_is_reopened_and_said_so():
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=SIZE) as pilot:
+            await advance(app, pilot, sim, 0.5)
+
+            def unplugged(timeout):
+                raise LinkLost("the adapter was unplugged")
+
+            session.require()._transport.recv = unplugged
+            await advance(app, pilot, sim, 0.1)
+            assert text(app, "banner").startswith("LINK LOST")
+            for _ in range(100):  # the session reopens in a thread, on the virtual clock
+                if session.connected:
+                    break
+                await advance(app, pilot, sim, 0.2)
+            assert session.connected
+            await advance(app, pilot, sim, 0.5)
+            assert text(app, "banner").startswith("READY")
+            assert "link back" in log_text(app)
+
+
+@sync
+async def test_a_terminal_too_small_says_so():
+    with simulated(stream=False) as (_sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=(60, 20)) as pilot:
+            await pilot.pause()
+            assert "needs at least 100 x 30" in text(app, "toosmall")
+            assert app.query_one("#toosmall").display
+            assert not app.query_one("#top").display
+
+
+@sync
+async def test_passive_mode_decodes_another_hosts_session_and_sends_nothing():
+    with SimulatedInstrument(
+        "paper-rlg", Truth(azimuth_deg=TRUTH_DEG), seed=3, clock="virtual", warmup_s=0
+    ) as sim:
+        watch = PassiveSession(sim.open_bus, description="virtual bus", clock=vclock(sim))
+        app = MonitorApp(watch, refresh_hz=0)
+        try:
+            async with app.run_test(size=SIZE) as pilot:
+                with sim.open_device() as other:  # another host drives the unit
+                    other.wait_ready(5.0)
+                    other.start_streaming()
+                    other.rotate_to(45.0, wait=True)
+                    vclock(sim).sleep(1.0)
+                    app.refresh_view()
+                    await pilot.pause()
+                    assert "PASSIVE" in text(app, "banner")
+                    assert table_deg(app) == pytest.approx(45.0, abs=0.02)
+                    assert "ROTATE_TO 45.000 deg -> OK in" in log_text(app)
+                    assert "rate      200.0" in text(app, "stream")
+                    await pilot.press("h")  # refused here: passive sends nothing
+                    await pilot.pause()
+                    assert "passive mode: the monitor sends nothing" in log_text(app)
+            # every command seen came from the other host (its own sequence numbers)
+            assert watch.observer.commands == watch.observer.replies
+        finally:
+            watch.close()
+
+
+# -- snapshots of the main screens -------------------------------------------------------------
+def test_snapshot_main_screen(snap_compare):
+    with simulated() as (sim, session):
+
+        async def before(pilot):
+            await advance(pilot.app, pilot, sim, 3.0)
+
+        assert snap_compare(
+            MonitorApp(session, refresh_hz=0), terminal_size=SIZE, run_before=before
+        )
+
+
+def test_snapshot_find_done(snap_compare):
+    plan = Plan((0.0, 180.0, 180.0, 0.0), 5.0)
+    with simulated() as (sim, session):
+
+        async def before(pilot):
+            await advance(pilot.app, pilot, sim, 0.5)
+            await pilot.press("f")
+            await settle(pilot.app, pilot, sim, 0.5)
+
+        app = MonitorApp(session, refresh_hz=0, plan=plan)
+        assert snap_compare(app, terminal_size=SIZE, run_before=before)
+
+
+def test_snapshot_silent_unit(snap_compare):
+    with simulated() as (sim, session):
+
+        async def before(pilot):
+            await advance(pilot.app, pilot, sim, 1.0)
+            with sim.runner.lock:
+                sim.firmware.faults.silent = True
+            await advance(pilot.app, pilot, sim, 2.0)
+
+        assert snap_compare(
+            MonitorApp(session, refresh_hz=0), terminal_size=SIZE, run_before=before
+        )
+
+
+def test_snapshot_too_small(snap_compare):
+    with simulated(stream=False) as (_sim, session):
+        assert snap_compare(MonitorApp(session, refresh_hz=0), terminal_size=(80, 24))
+
+
+# -- the command line --------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["monitor"], "choose exactly one link"),
+        (["monitor", "--serial", "/dev/null", "--passive"], "--passive listens on a CAN bus"),
+        (["monitor", "--serial", "/dev/null", "--speed", "3"], "--speed: applies to the embedded"),
+        (["monitor", "--sim", "--summary", "x.txt"], "--summary x.txt: the file name must end"),
+    ],
+)
+def test_the_command_refuses_bad_requests_in_one_line(argv, words, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and words in err, err
+
+
+# -- on a pseudo-terminal, against a simulator in another process -------------------------------
+@pytest.mark.realtime
+@pytest.mark.subprocess
+@sync
+async def test_the_screen_on_a_pty_to_a_simulator_process():
+    from simprocess import sim_process
+
+    from northfinder.driver.device import Device
+
+    with sim_process("--pty", "--warmup", "0", "--control", "127.0.0.1:0", ready=True) as facts:
+
+        @contextlib.contextmanager
+        def opener(tap):
+            with Device.open_serial(facts["pty"], tap=tap, min_supervision_s=1.0) as dev:
+                yield dev, None
+
+        session = ActiveSession(opener, description=f"serial {facts['pty']}", latitude_deg=34.0)
+        app = MonitorApp(session, refresh_hz=10)
+        try:
+            async with app.run_test(size=SIZE) as pilot:
+                t_end = time.monotonic() + 20.0
+                while session.observer.samples < 600 and time.monotonic() < t_end:
+                    await pilot.pause(0.2)
+                await pilot.pause(0.3)
+                assert session.observer.samples >= 600
+                stream = text(app, "stream")
+                assert "stream    on" in stream and "/ 200 Hz" in stream
+                assert session.observer.view().gaps == 0
+                assert "READY" in text(app, "banner")
+        finally:
+            session.close()
