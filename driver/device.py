@@ -450,8 +450,16 @@ class Device(DeviceLink):
         """Start the sample stream (STREAM_START). :meth:`acquire` does this when needed."""
         if not self._streaming:
             self._prepare_stream_start()
-        self._request(StreamStart)
-        self._streaming = self._stream_owned = True
+        owned = self._stream_owned
+        # Owned from before it is sent: a lost reply may hide a stream that did start, and
+        # leaving must stop it then.
+        self._stream_owned = True
+        try:
+            self._request(StreamStart)
+        except DeviceRefused:
+            self._stream_owned = owned  # refused: nothing started
+            raise
+        self._streaming = True
 
     @_on_clock
     def stop_streaming(self) -> None:

@@ -17,6 +17,7 @@ import pytest
 from interruption import FIND, PLAN, host_link_args, interrupt_during_move, sim_link_args
 from simprocess import sim_process
 
+from northfinder.driver.errors import ReplyTimeout
 from northfinder.driver.protocol.can import decode_can
 from northfinder.driver.protocol.constants import DeviceState, Opcode
 from northfinder.driver.protocol.messages import Command
@@ -166,3 +167,23 @@ def test_signal_exit_statuses_are_stated():
     assert done.returncode == 143, done.stderr
     assert done.stderr.strip() == "northfinder simulate: interrupted (SIGTERM)"
     assert main is not None
+
+
+def test_a_stream_start_whose_reply_is_lost_is_still_stopped_on_leaving(monkeypatch):
+    # Under load the reply to STREAM_START can be lost while the stream did start: leaving must
+    # stop it (else the stream runs on with nobody reading it).
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        prepare = dev._prepare_stream_start
+
+        def then_late_replies() -> None:
+            prepare()
+            sim.firmware.faults.reply_delay_s = 5.0  # STREAM_START's replies all come too late
+
+        monkeypatch.setattr(dev, "_prepare_stream_start", then_late_replies)
+        with pytest.raises(ReplyTimeout):
+            dev.start_streaming()
+        sim.firmware.faults.reply_delay_s = 0.0
+        assert sim.firmware.streaming
+        assert dev.leave_at_rest().sent == ("STREAM_STOP",)
+        assert not sim.firmware.streaming
