@@ -98,7 +98,7 @@ def test_find_over_serial_survives_a_corrupted_sample():
         from northfinder.firmware_sim.control import ControlClient
 
         argv = [*CLI, "find", "--serial", facts["pty"], "--latitude", "34", "--window", "2",
-                "--positions", "0,180", "--json"]  # fmt: skip
+                "--positions", "0,180", "--json", "--link-timeout", "2"]  # fmt: skip
         with ControlClient(facts["control"]) as ctl:
             proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             while not ctl.call("status")["streaming"]:
