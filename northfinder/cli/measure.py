@@ -135,8 +135,7 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
         "--settle",
         type=bounded_float(0.0, MAX_SETTLE_S, "s"),
         default=0.0,
-        help=f"settle seconds from the end of a move to the window, up to {MAX_SETTLE_S:g} "
-        "(default 0: the device's own)",
+        help=f"seconds after a move, up to {MAX_SETTLE_S:g} (default 0)",
     )
     g.add_argument(
         "--denoise", default="none", choices=list(METHODS), help="denoising method (default none)"
