@@ -121,7 +121,7 @@ def garbled_slcan_line(bus: can.BusABC, exc: BaseException) -> bool:
     later read, so it is dropped here, up to its terminator."""
     if not isinstance(bus, slcanBus):
         return False
-    cause = exc.__cause__ if isinstance(exc, can.CanOperationError) else exc
+    cause = getattr(exc, "__cause__", None) if isinstance(exc, can.CanOperationError) else exc
     if not isinstance(cause, ValueError):  # UnicodeDecodeError is a ValueError
         return False
     held = getattr(bus, "_buffer", None)
