@@ -201,12 +201,13 @@ def command_reset(c: Ctx) -> None:
     after = s.statuses[-1][1]
     # The tick before the first after boot may be numbered 2**32 - 1.
     counter = -1 if after.sample_counter == UINT32_MAX else after.sample_counter
-    limit = (s.unit(s.now() - a.received) + 0.5) * max(SAMPLE_RATES_HZ)
+    # Since the command was sent, not since its reply was read: the unit restarted after the
+    # one and before the other, and a host that read the reply late must not move the bound.
+    since = s.unit(s.now() - a.sent)
+    limit = (since + 0.5) * max(SAMPLE_RATES_HZ)
     c.fig("sample counter after boot", counter)
     if counter > limit:
-        c.fail(
-            f"the sample counter did not restart: {counter} after {s.unit(s.now() - a.received):.2f} s"
-        )
+        c.fail(f"the sample counter did not restart: {counter} after {since:.2f} s")
     if c.link_kind == "serial" and s.seq_restart_pending:
         c.fail("the serial sequence counter did not restart at 0 after RESET")
     s.seq_restart_pending = False
