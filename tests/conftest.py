@@ -179,16 +179,12 @@ REALTIME_ENV = "NORTHFINDER_REALTIME"
 """How this pytest process takes part in a run (unset: decided in :func:`pytest_configure`):
 
 - ``beside``: an xdist controller or worker whose ``realtime`` tests run in a pytest process of
-  their own, started beside it (its workers leave them out and run at a lower priority);
+  their own, started beside it (its workers, one per core but one, leave them out);
 - ``alone``: that process (``-m realtime -n 0``): only the ``realtime`` tests that need the
   machine to themselves;
 - ``separate``: leave the ``realtime`` tests out (``.ci/run`` used to run them in a step of its
   own, ``-m realtime``); without a value, in one process (``-n 0``) or with ``-m``, every test
   selected runs here."""
-WORKER_NICENESS = 10
-"""Niceness of the xdist workers when the realtime tests run beside them: the scheduler then
-gives a realtime test (and the simulator it starts) about nine times a worker's share of a core
-whenever it wants one, so CPU-bound tests never starve it; the workers take what it leaves."""
 STARVED_FRACTION = 0.10
 STARVED_STALL_S = 0.1
 """A ``realtime`` test that failed while the host lost this share of its run (the timer loop of
@@ -200,10 +196,16 @@ must hold whatever the host does (the suite's own discrimination tests)."""
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
-    """``-n auto``: one worker per core this process may use; the realtime tests, which mostly
-    wait on the wall clock, run in a process of their own beside them (``beside``)."""
+    """``-n auto``: one worker per core this process may use but one, the core left to the
+    ``realtime`` tests, which run in a process of their own beside the workers (``beside``), so
+    that CPU-bound tests never compete with them; at least one worker. Lowering the workers'
+    priority instead (tried: niceness 10) starved them behind other jobs on a shared machine: not
+    one test done in 12 minutes at load 20."""
     affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere all the cores
-    return len(affinity(0)) if affinity is not None else (os.cpu_count() or 1)
+    cores = len(affinity(0)) if affinity is not None else (os.cpu_count() or 1)
+    phase = os.environ.get(REALTIME_ENV)  # read before pytest_configure decides it
+    beside = phase == "beside" or (phase is None and not config.getoption("-m"))
+    return max(1, cores - 1) if beside else cores
 
 
 def _xdist_controller(config: pytest.Config) -> bool:
@@ -217,14 +219,12 @@ def _xdist_controller(config: pytest.Config) -> bool:
 
 def pytest_configure(config: pytest.Config) -> None:
     """The README's command (``-n auto``, no ``-m``): the realtime tests run in a pytest process of
-    their own beside the xdist workers, which run at :data:`WORKER_NICENESS`."""
+    their own beside the xdist workers."""
     phase = os.environ.get(REALTIME_ENV)
     if phase is None and not config.getoption("-m") and _xdist_controller(config):
         if not config.getoption("collectonly") and not config.getoption("help", False):
             os.environ[REALTIME_ENV] = "beside"  # the workers inherit it
             config.stash[_BESIDE] = _RealtimeBeside(config)
-    elif phase == "beside" and hasattr(config, "workerinput"):
-        os.nice(WORKER_NICENESS)
 
 
 class _RealtimeBeside:

@@ -488,9 +488,9 @@ def test_a_unit_never_heard_fails_at_once_and_says_what_to_check(other_node, tim
 @contextmanager
 def cpu_load(processes: int) -> Iterator[None]:
     """``processes`` CPU-bound Python processes beside the test (none for 0), killed on leaving."""
-    burners = [
-        subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(processes)
-    ]
+    # Each also stops by itself once its parent is gone (a test run killed outright).
+    burn = "import os\nparent = os.getppid()\nwhile os.getppid() == parent: pass"
+    burners = [subprocess.Popen([sys.executable, "-c", burn]) for _ in range(processes)]
     try:
         yield
     finally:

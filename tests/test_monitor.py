@@ -138,7 +138,7 @@ def test_observer_shows_the_target_while_the_table_moves():
 
 def test_observer_says_silent_after_three_heartbeats_without_status():
     clock = StepClock()
-    obs = LinkObserver(clock)
+    obs = LinkObserver(clock, silent_after_s=0.0)
     assert obs.view().silent  # nothing yet
     feed(obs, clock, status(0), 0.0)
     obs.drain()

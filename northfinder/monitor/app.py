@@ -177,7 +177,7 @@ class MonitorApp(App[int]):
             yield PlotextPlot(id="accel")
         with Horizontal(id="bottom"):
             yield Static("", id="find", classes="panel")
-            yield RichLog(id="log", max_lines=500, wrap=False, markup=False)
+            yield RichLog(id="log", max_lines=500, wrap=True, markup=False, min_width=20)
         yield Static("", id="toosmall")
         yield Footer()
 
@@ -187,7 +187,10 @@ class MonitorApp(App[int]):
         self.query_one("#link").border_title = "link"
         self.query_one("#find").border_title = "find"
         self.query_one("#log").border_title = "commands and events"
-        for name, title in (("gyro", "gyro, deg/h"), ("accel", "accelerometer, m/s^2")):
+        for name, title in (
+            ("gyro", "gyro, deg/h"),
+            ("accel", "accelerometer about its means, m/s^2"),
+        ):
             plot = self.query_one(f"#{name}", PlotextPlot)
             plot.border_title = title
         self._check_size()
@@ -418,8 +421,10 @@ class MonitorApp(App[int]):
             means = tr.mean_gyro_dph if name == "gyro" else tr.mean_accel_mps2
             x = tr.time_s.tolist()
             for k, axis in enumerate(_AXES):
-                plt.plot(x, data[:, k].tolist(), label=f"{axis} mean {means[k]:+.4g}",
-                         marker="braille")  # fmt: skip
+                # The accelerometers read about 0, 0 and g: on one scale x and y would be flat
+                # lines, so each is drawn about its mean (which the label gives).
+                y = data[:, k] - (means[k] if name == "accel" else 0.0)
+                plt.plot(x, y.tolist(), label=f"{axis} mean {means[k]:+.4g}", marker="braille")
             plt.title(f"last {tr.seconds:.1f} s, {tr.samples} samples")
             plt.xlabel("s")
             plot.refresh()

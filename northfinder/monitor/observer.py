@@ -53,18 +53,23 @@ __all__ = ["LATE_AFTER_S", "TRACE_SECONDS", "LinkObserver", "LogEntry", "Traces"
 TRACE_SECONDS = 10.0
 #: Highest sample rate the trace buffer is sized for, Hz (the protocol's rates stay below it).
 MAX_RATE_HZ = 1000
-#: A sample counts as late when it arrives this much later than its tick's time, s (the tick's
-#: time: its counter over the rate, placed by the earliest arrival of the stream).
-LATE_AFTER_S = 0.1
+#: A sample counts as late when it is read this much later than its tick's time, s (the tick's
+#: time: its counter over the rate, placed by the earliest arrival of the stream). A link that
+#: carries samples in batches (an SLCAN adapter, a busy host) delays them by up to a batch.
+LATE_AFTER_S = 0.25
 #: Lines the command log keeps.
 LOG_LINES = 500
-#: How many heartbeat periods without a status make the link silent (protocol.md 6).
+#: How many heartbeat periods without a status make the link silent (protocol.md 6)...
 SILENT_AFTER_PERIODS = 3
+#: ...and not less than this, s, by default: on a busy host a status is often read a few tenths
+#: of a second late, and a screen that flickers SILENT says nothing.
+SILENT_AFTER_S = 1.0
 
 
 @dataclass(frozen=True)
 class LogEntry:
-    """One line of the command log: a command, its reply (with the delay), or an event."""
+    """One line of the command log: a command and its reply (at the reply's time, with the
+    delay since the command), a command left without reply, or an event."""
 
     time_s: float
     text: str
@@ -143,6 +148,9 @@ class LinkObserver:
         The unit's CAN node id (frames of other nodes are counted, not shown).
     trace_seconds : float
         Seconds of samples the traces hold.
+    silent_after_s : float
+        Least time without a status before the link is shown silent, s (it is never shown
+        silent before three heartbeat periods, protocol.md 6).
     """
 
     def __init__(
@@ -151,11 +159,13 @@ class LinkObserver:
         node_id: int = 1,
         *,
         trace_seconds: float = TRACE_SECONDS,
+        silent_after_s: float = SILENT_AFTER_S,
     ) -> None:
         self.clock = clock
         self.t0 = clock()
         self.node_id = node_id
         self.trace_seconds = float(trace_seconds)
+        self.silent_after_s = float(silent_after_s)
         self._queue: deque[tuple[float, can.Message]] = deque()
         self.receiver = CanReceiver(node_id=node_id)
         self.scales = CountScales()
@@ -312,7 +322,7 @@ class LinkObserver:
             self._config_reply(c, r)
         if not ok or c.opcode not in (Opcode.GET_STATUS, Opcode.GET_CONFIG):
             self.log.append(
-                LogEntry(t0, f"{_command_text(c, self.scales)} -> {result} "
+                LogEntry(t, f"{_command_text(c, self.scales)} -> {result} "
                          f"in {1000.0 * (t - t0):.1f} ms", "ok" if ok else "refused")
             )  # fmt: skip
 
@@ -415,7 +425,9 @@ class LinkObserver:
         st = self.status
         sc = self.scales
         age = None if self.status_at is None else max(0.0, now - self.status_at)
-        silent = age is None or age > SILENT_AFTER_PERIODS * self.heartbeat_s
+        silent = age is None or age > max(
+            SILENT_AFTER_PERIODS * self.heartbeat_s, self.silent_after_s
+        )
         moving = st is not None and st.state in (DeviceState.ROTATING, DeviceState.SETTLING)
         return View(
             now_s=now,

@@ -201,6 +201,8 @@ class ActiveSession(Session):
         st = self.observer.status
         if not self._stream or device.streaming or st is None or st.state != DeviceState.READY:
             return
+        if self.find is not None and not self.find.finished:
+            return  # the find starts and stops the stream for its windows
         if self._starter is not None and self._starter.is_alive():
             return
         if self.clock.now() < self._next_stream_try:
@@ -381,6 +383,7 @@ class FindRun:
         device = session.require()
         clock = device.clock
         self.started_at = clock.now()
+        session.find = self
         session.observer.note(
             f"find: positions {', '.join(f'{p:g}' for p in self.plan.positions_deg)} deg, "
             f"{self.plan.window_s:g} s windows"
