@@ -65,7 +65,14 @@ from northfinder.host.errors import RecordingError
 from northfinder.host.recording import RecordedWindow, Recording
 from northfinder.host.results import SIMULATOR_MODEL, device_identity
 
-__all__ = ["LOG_SUFFIXES", "CanLogSession", "is_can_log", "read_can_log"]
+__all__ = [
+    "LOG_SUFFIXES",
+    "CanLogSession",
+    "SessionCounter",
+    "is_can_log",
+    "read_can_log",
+    "read_frames",
+]
 
 #: Ticks a whole-segment collector may span (far beyond any session: 2**40 ticks at 400 Hz is
 #: 87 years).
@@ -174,6 +181,26 @@ class CanLogSession:
                 self.identity, simulated=self.identity.model == SIMULATOR_MODEL
             )
         return Recording(self.windows, {**info, **meta})
+
+
+class SessionCounter:
+    """Host sessions in a frame stream. Each host that connects asks IDENTIFY first; an IDENTIFY
+    command after a STREAM_START of the session before begins a new session (the retries of a
+    host's first IDENTIFY do not). Feed it every command in order; :attr:`number` is the
+    session (1-based) the command belongs to."""
+
+    def __init__(self) -> None:
+        self.number = 1
+        self._streamed = False
+
+    def command(self, command: Command) -> int:
+        """The session of ``command`` (a new one when it begins one)."""
+        if isinstance(command, RequestIdentify) and self._streamed:
+            self.number += 1
+            self._streamed = False
+        if isinstance(command, StreamStart):
+            self._streamed = True
+        return self.number
 
 
 class _Segment:
@@ -307,6 +334,23 @@ def _messages(
         cut.append(f"the log breaks off after frame {n} ({what}): it is cut short")
 
 
+def read_frames(
+    path: str | Path,
+    *,
+    skip_damaged: bool = True,
+    skipped: list[tuple[int, str]] | None = None,
+    cut: list[str] | None = None,
+) -> Iterator[can.Message]:
+    """The frames of a CAN log in any format python-can reads; with ``skip_damaged`` a damaged
+    line of a text log is skipped and noted in ``skipped`` (line number, error), and a log that
+    breaks off ends there (noted in ``cut``)."""
+    return _messages(
+        Path(path),
+        [] if cut is None else cut,
+        (skipped if skipped is not None else []) if skip_damaged else None,
+    )
+
+
 def _pick_node(path: Path, skip_damaged: bool = False) -> int:
     nodes: dict[int, int] = {}
     for msg in _messages(
@@ -384,11 +428,7 @@ def read_can_log(
     saw_stream_start = False
     frames = 0
     t0: float | None = None
-    # Host sessions: each host that connects asks IDENTIFY first; an IDENTIFY command after a
-    # window of the session before begins a new one (retries of the first do not).
-    session_no = 1
-    session_started: list[float] = []
-    session_has_window = False
+    sessions = SessionCounter()
 
     def requested() -> int:
         return _UNBOUNDED if window_s is None else max(1, round(window_s * rate))
@@ -432,13 +472,9 @@ def read_can_log(
                         rate = float(value)
             elif isinstance(item, Command):
                 commands.append((msg.timestamp - (t0 or 0.0), repr(item)))
-                if isinstance(item, RequestIdentify):
-                    if session_has_window:
-                        session_no += 1
-                        session_has_window = False
-                        current = None
-                    if len(session_started) < session_no:
-                        session_started.append(msg.timestamp - (t0 or 0.0))
+                before = sessions.number
+                if sessions.command(item) != before:
+                    current = None  # a new host: the last window of the one before is over
                 if isinstance(item, RotateTo):
                     commanded = item.angle * scales.angle_deg
                 elif isinstance(item, RotateBy):
@@ -453,9 +489,8 @@ def read_can_log(
                     saw_stream_start = True
                     free = None
                     receiver.ticks.restart()  # as the driver does: a new stream
-                    current = _Segment(commanded, requested(), msg.timestamp, session_no)
+                    current = _Segment(commanded, requested(), msg.timestamp, sessions.number)
                     segments.append(current)
-                    session_has_window = True
     chosen = segments if saw_stream_start else free_segments
     chosen = [seg for seg in chosen if seg.collector.received > 0]
     counts: dict[int, int] = {}

@@ -39,6 +39,7 @@ from northfinder.host.errors import GeometryError, HostConfigError, InputError, 
 from northfinder.host.kernels import MIN_MU_SEPARATION_DEG
 
 __all__ = [
+    "DEFAULT_POSITIONS_DEG",
     "HEADING_SOLVERS",
     "PAPER_SWEEP",
     "PLANS",
@@ -53,6 +54,14 @@ __all__ = [
 ]
 
 #: Heading solvers a plan may name.
+#: The commands' default plan (find, record, study, sweep, simulate): each position twice, in the
+#: symmetric order 0, 180, 180, 0. Opposite positions give the most heading per second (notes 4);
+#: the symmetric order cancels a linear drift; and the two redundant windows let the solver test
+#: the windows against their noise, so a bias step or drift between windows is flagged instead of
+#: giving a silently wrong heading (a two-position plan cannot check itself). docs/find.md, "The
+#: plan", says more.
+DEFAULT_POSITIONS_DEG: tuple[float, ...] = (0.0, 180.0, 180.0, 0.0)
+
 SOLVERS: Mapping[str, str] = {
     "auto": "two-position for 2 positions, least-squares for more",
     "two-position": "paper eq. 14 (eq. 15 when level is assumed); exactly 2 positions",

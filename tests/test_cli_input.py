@@ -108,7 +108,7 @@ def test_solver_and_method_that_agree_are_taken(capsys):
          "--solver", "least-squares", "--method", "least-squares"]
     )  # fmt: skip
     assert status == 0
-    assert "method least-squares" in capsys.readouterr().out
+    assert "solver least-squares" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("path", ["{tmp}", "{tmp}/missing/run.asc"])

@@ -248,3 +248,15 @@ def test_pairwise_predictions_follow_the_sweep_s_timeline():
     alone = predict(model, Plan((0.0, 180.0), 10.0, method="pairwise"), LAT, warmup_s=120.0)
     assert len(sweep) == 7
     assert sweep[5].sigma_deg > 2 * alone.sigma_deg
+
+
+def test_plan_search_states_the_bound_of_its_budget(capsys):
+    import json
+
+    from northfinder.cli import main
+
+    rc = main(["study", "--sensor", "paper-rlg", "--plan-budget", "160", "--runs", "0", "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["budget_bound_deg"] == pytest.approx(budget_bound_deg(160.0, 0.0015, LAT))
+    assert all(p["bound_deg"] > out["budget_bound_deg"] for p in out["plans"])

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import re
+import select
 import socket
 from pathlib import Path
 from typing import Any
@@ -156,6 +158,7 @@ def test_simulate_reports_its_seed_and_repeats_with_it():
     first = json.loads(run_cli("simulate", "--window", "1", "--json")[1])
     seed = first["seed"]
     again = json.loads(run_cli("simulate", "--window", "1", "--json", "--seed", str(seed))[1])
+    first.pop("created_utc"), again.pop("created_utc")
     assert again == first
 
 
@@ -393,7 +396,11 @@ def test_progress_on_a_terminal_of_no_width_is_plain_lines():
             for done in range(1, 21):
                 bar.count(done, 20)
         stream.flush()
-        text = os.read(master, 65536).decode()
+        text = ""
+        while "(100%)" not in text:  # a pty hands its bytes over in pieces
+            ready, _, _ = select.select([master], [], [], 10.0)
+            assert ready, text
+            text += os.read(master, 65536).decode()
     finally:
         stream.close()
         os.close(master)
@@ -427,3 +434,246 @@ def test_calibrate_shows_its_steps(tmp_path):
     code, _, err = run_cli("calibrate", str(rec))
     assert code == 0, err
     assert "calibrate: reading 1 recording(s)" in err and "calibrate: done" in err
+
+
+# -- 7. one versioned envelope on every --json ----------------------------------------------------
+@pytest.fixture(scope="module")
+def validator() -> Any:
+    import jsonschema
+
+    from northfinder.host.results import schema
+
+    s = schema()
+    jsonschema.Draft202012Validator.check_schema(s)
+    return jsonschema.Draft202012Validator(s)
+
+
+def test_every_json_output_has_the_envelope_and_meets_the_schema(tmp_path, validator):
+    from northfinder.host.results import SCHEMA, SCHEMA_VERSION
+
+    rec = tmp_path / "run.npz"
+    assert run_cli("record", str(rec), *FAST, "--seed", "1")[0] == 0
+    commands = {
+        "find": ["find", *FAST, "--seed", "1"],
+        "solve": ["solve", str(rec)],
+        "study": ["study", "--runs", "100", "--window", "1"],
+        "sweep": ["sweep", "--runs", "100", "--windows", "1"],
+        "simulate": ["simulate", "--window", "1", "--seed", "1"],
+        "calibrate": ["calibrate", str(rec)],
+        "conformance": ["conformance", "--sim", "--only", "identify"],
+    }
+    for command, argv in commands.items():
+        code, out, err = run_cli(*argv, "--json")
+        assert code == 0, (command, err)
+        doc = json.loads(out)
+        assert (doc["schema"], doc["schema_version"], doc["command"]) == (
+            SCHEMA, SCHEMA_VERSION, command,
+        )  # fmt: skip
+        validator.validate(doc)
+
+
+# -- 8. consistent defaults and wording ------------------------------------------------------------
+def test_study_sweep_and_simulate_plan_by_default_as_find_does():
+    from northfinder.host.plan import DEFAULT_POSITIONS_DEG
+
+    assert DEFAULT_POSITIONS_DEG == (0.0, 180.0, 180.0, 0.0)
+    find = run_json("find", "--sim", "--warmup", "0", "--window", "1", "--seed", "1")
+    assert [w["commanded_deg"] for w in find["windows"]] == list(DEFAULT_POSITIONS_DEG)
+    study = run_json("study", "--runs", "100", "--window", "1")
+    assert study["plan"]["positions_deg"] == list(DEFAULT_POSITIONS_DEG)
+    sweep = run_json("sweep", "--runs", "100", "--windows", "1")
+    assert sweep["studies"][0]["plan"]["positions_deg"] == list(DEFAULT_POSITIONS_DEG)
+    simulate = run_json("simulate", "--window", "1", "--seed", "1")
+    assert len(simulate["windows"]) == 4
+
+
+def test_the_text_says_solver_as_the_option_does():
+    code, out, _ = run_cli("find", *FAST, "--seed", "1", "--solver", "least-squares")
+    assert code == 0 and "solver least-squares" in out and "method " not in out
+
+
+@pytest.mark.parametrize("command", ["find", "study", "solve", "sim", "dump"])
+def test_version_after_the_command(command):
+    from northfinder.host.results import package_version
+
+    code, out, _ = run_cli(command, "--version")
+    assert code == 0 and out.strip() == f"northfinder {package_version()}"
+
+
+def test_latitude_is_among_the_options_a_device_needs():
+    code, text, _ = run_cli("find", "--help")
+    assert code == 0
+    own = next(part for part in text.split("\n\n") if part.startswith("options:"))
+    assert "--latitude" in own and "required with a device" in " ".join(own.split())
+    truth = text[text.index("simulated truth:") :].split("\n\n")[0]
+    assert "--latitude" not in truth
+    # Still refused when a real device is given without it (never assumed).
+    code, _, err = run_cli("find", "--serial", "loop://")
+    assert code == 2 and "--latitude" in err
+
+
+# -- 9. dump: a CAN log or a live bus decoded with the DBC ----------------------------------------
+DUMP_LINE = re.compile(
+    r"^\((\d+\.\d{6})\) (\S+) ([0-9A-F]{3})#([0-9A-F]*) :: (\w+)(?: node \d+)?\((.*)\)$"
+)
+
+
+def test_dump_decodes_every_frame_of_a_log_with_the_dbc(candump):
+    import can
+
+    from northfinder.driver.protocol.can import decode_can
+    from northfinder.driver.protocol.messages import SampleX
+
+    path, _ = candump
+    code, out, err = run_cli("dump", str(path))
+    assert code == 0, err
+    lines = out.splitlines()
+    with can.LogReader(str(path)) as reader:
+        frames = list(reader)
+    assert len(lines) == len(frames)
+    names = set()
+    for line, msg in zip(lines, frames, strict=True):
+        m = DUMP_LINE.match(line)
+        assert m is not None, line
+        assert int(m.group(3), 16) == msg.arbitration_id and bytes.fromhex(m.group(4)) == msg.data
+        names.add(m.group(5))
+        if m.group(5) == "SAMPLE_X":
+            ours = decode_can(msg.arbitration_id, bytes(msg.data)).message
+            assert isinstance(ours, SampleX)
+            gyro = float(re.search(r"GyroX: (\S+) deg/h", line).group(1))  # type: ignore[union-attr]
+            assert gyro == pytest.approx(ours.gyro * 1e-4, rel=1e-5, abs=1e-9)
+    assert names == {"COMMAND", "REPLY", "SAMPLE_X", "SAMPLE_Y", "SAMPLE_Z", "SAMPLE_AUX",
+                     "STATUS", "STATUS_COUNTERS", "IDENTIFY"}  # fmt: skip
+
+
+def test_dump_filters_by_id_time_and_session(candump, tmp_path):
+    path, _ = candump
+    code, out, _ = run_cli("dump", str(path), "--id", "COMMAND,51")
+    assert code == 0
+    kinds = {line.split(" :: ")[1].split("(")[0] for line in out.splitlines()}
+    assert kinds == {"COMMAND", "REPLY"}
+    assert "Opcode: ROTATE_TO" in out
+    out = run_cli("dump", str(path), "--time-from", "1", "--time-to", "2")[1]
+    times = [float(DUMP_LINE.match(line).group(1)) for line in out.splitlines()]  # type: ignore[union-attr]
+    first = float(DUMP_LINE.match(run_cli("dump", str(path), "--count", "1")[1].strip()).group(1))  # type: ignore[union-attr]
+    assert times and all(1.0 <= t - first <= 2.0 for t in times)
+    second_log = tmp_path / "second.log"
+    _logged_find(second_log, 13)
+    both = tmp_path / "both.log"
+    both.write_text(path.read_text() + second_log.read_text())
+    n_first = len(path.read_text().splitlines())
+    n_second = len(second_log.read_text().splitlines())
+    assert len(run_cli("dump", str(both), "--session", "1")[1].splitlines()) == n_first
+    assert len(run_cli("dump", str(both), "--session", "2")[1].splitlines()) == n_second
+    assert run_cli("dump", str(both), "--session", "3")[1] == ""
+
+
+def test_dump_skips_a_damaged_line_with_a_warning(candump, tmp_path):
+    path, _ = candump
+    lines = path.read_text().splitlines(keepends=True)
+    lines[100] = "garbage\n"
+    damaged = tmp_path / "damaged.log"
+    damaged.write_text("".join(lines))
+    code, out, err = run_cli("dump", str(damaged))
+    assert code == 0 and len(out.splitlines()) == len(lines) - 1
+    assert "skipped 1 damaged line(s) (first: line 101" in err
+    code, out, err = run_cli("dump", str(damaged), "--strict")
+    assert code == 2 and "breaks off after frame 100" in err and len(out.splitlines()) == 100
+
+
+def test_dump_reads_a_live_bus():
+    import threading
+
+    import can
+
+    from northfinder.driver.protocol.can import encode_can
+    from northfinder.driver.protocol.messages import RotateTo
+
+    channel = f"nf-dump-{os.getpid()}"
+    stop = threading.Event()
+
+    def send() -> None:
+        with can.Bus(interface="virtual", channel=channel) as bus:
+            frame = encode_can(RotateTo(7, 90_000_000))[0]
+            while not stop.wait(0.01):
+                bus.send(can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
+                                     is_extended_id=False))  # fmt: skip
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    try:
+        code, out, err = run_cli("dump", "-i", "virtual", "-c", channel, "--count", "3",
+                                 "--duration", "30")  # fmt: skip
+    finally:
+        stop.set()
+        sender.join()
+    assert code == 0, err
+    lines = out.splitlines()
+    assert len(lines) == 3 and all("COMMAND(Seq: 7, Opcode: ROTATE_TO" in line for line in lines)
+
+
+def test_dump_refuses_what_it_cannot_do(tmp_path):
+    assert run_cli("dump")[0] == 2
+    code, _, err = run_cli("dump", str(tmp_path / "missing.log"))
+    assert code == 2 and "no such file" in err
+    code, _, err = run_cli("dump", str(tmp_path / "x.log"), "--id", "NOPE")
+    assert code == 2 and "SAMPLE_X" in err
+
+
+# -- 10. calibrate: an unresolved term at its bound, or refused, with the record it needs -------
+@pytest.fixture(scope="module")
+def short_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cal") / "short.npz"
+    code, _, err = run_cli(
+        "record", str(path), "--sim", "--warmup", "0", "--window", "20", "--seed", "4",
+        "--sensor", "paper-rlg", "--positions", "0,180",
+    )  # fmt: skip
+    assert code == 0, err
+    return path
+
+
+def _toml(text: str) -> dict[str, Any]:
+    import tomllib
+
+    return tomllib.loads(text[text.index("# calibrated from") :])
+
+
+def test_an_unresolved_term_is_written_at_its_bound_not_as_zero(short_recording):
+    from northfinder.host.calibrate import calibrate, read_runs
+
+    code, out, err = run_cli("calibrate", str(short_recording))
+    assert code == 0, err
+    cal = calibrate(read_runs([short_recording]))
+    assert not cal.triad_fits["gyro"].resolved["bias_instability"]
+    _, _, bound = cal.field_value(0, "bias_instability")
+    written = _toml(out)["gyro"]["bias_instability_dph"]
+    assert written == pytest.approx(bound, rel=1e-12) and written > 0
+    assert "written at the bound" in out and "stretches of about" in out
+    code, out, _ = run_cli("calibrate", str(short_recording), "--unresolved", "zero")
+    assert code == 0 and _toml(out)["gyro"]["bias_instability_dph"] == 0.0
+    # The simulator takes the conservative file.
+    code, out, _ = run_cli("calibrate", str(short_recording), "--json")
+    assert json.loads(out)["sensor"]["gyro"]["bias_instability_dph"] == pytest.approx(bound)
+
+
+def test_calibrate_refuses_on_request_and_says_what_record_resolves_it(short_recording, tmp_path):
+    out_toml = tmp_path / "cal.toml"
+    code, _, err = run_cli(
+        "calibrate", str(short_recording), "--unresolved", "refuse", "-o", str(out_toml)
+    )
+    assert code == 1 and not out_toml.exists()
+    assert "do not resolve gyro.bias_instability_dph" in err and "stretches of about" in err
+
+
+def test_the_record_that_resolves_a_bias_instability_is_the_closed_form(short_recording):
+    """paper-rlg (ARW 0.0015 deg/sqrt(h)), B = 0.005 deg/h: the white noise's Allan deviation
+    60 N / sqrt(tau) meets the floor 0.664 B at tau = (60 N / 0.664 B)^2 = 751 s; thirty times
+    that is 6.1 h, so the 2 h recipe cannot resolve it."""
+    from northfinder.host.calibrate import calibrate, read_runs
+
+    cal = calibrate(read_runs([short_recording]))
+    arw = cal.triad_fits["gyro"].coefficients["arw"] / 60.0  # deg/sqrt(h)
+    assert arw == pytest.approx(0.0015, rel=0.1)  # the preset's, within the fit's scatter
+    expected = 30 * (60 * arw) ** 2 / (2 * math.log(2) / math.pi * 0.005**2)
+    assert cal.resolving_record_s(0.005) == pytest.approx(expected, rel=1e-12)
+    assert 5.0 * 3600 < cal.resolving_record_s(0.005) < 7.5 * 3600  # far beyond 2 h

@@ -138,12 +138,17 @@ class Calibration:
     pieces: int
     hours: float
     notes: list[str] = field(default_factory=list)
+    #: How the sensor file writes a term the records do not resolve: ``bound`` its 95 % upper
+    #: bound (a simulated unit at least as noisy as the records allow: never optimistic), or
+    #: ``zero`` (the term left out: optimistic).
+    unresolved: str = "bound"
 
     def field_value(self, triad: int, term: str) -> tuple[float, bool, float]:
         """(value in datasheet units, resolved, upper limit if not) of a term of a triad.
 
         ``triad`` 0 is the gyro, 1 the accelerometer; from the fit of its three axes pooled. The
-        ramp keeps one value per axis (see :meth:`sensor_dict`).
+        ramp keeps one value per axis (see :meth:`sensor_dict`). An unresolved term's value is
+        its upper limit, or 0 when :attr:`unresolved` is ``zero`` or the limit is not finite.
         """
         factor = _FIELDS[term][triad][1]
         if term == "quantisation":
@@ -151,12 +156,29 @@ class Calibration:
         fit = self.triad_fits[("gyro", "accel")[triad]]
         if fit.resolved[term]:
             return fit.coefficients[term] * factor, True, math.nan
-        return 0.0, False, fit.upper[term] * factor
+        upper = fit.upper[term] * factor
+        return self._unresolved_value(upper), False, upper
+
+    def _unresolved_value(self, upper: float) -> float:
+        return upper if self.unresolved == "bound" and math.isfinite(upper) else 0.0
+
+    def unresolved_terms(self) -> list[tuple[str, str, float]]:
+        """(section, field, upper limit in its units) of every term of the sensor file the
+        records do not resolve (quantisation, which white noise hides in most records, left
+        out)."""
+        out = []
+        for triad, section in enumerate(("gyro", "accel")):
+            for term in ("arw", "bias_instability", "rrw", "rate_ramp"):
+                _, resolved, upper = self.field_value(triad, term)
+                if not resolved:
+                    out.append((section, _FIELDS[term][triad][0], upper))
+        return out
 
     def sensor_dict(self, name: str = "calibrated", description: str = "") -> dict[str, Any]:
         """The fitted terms in the layout of a sensor TOML file (simulator units).
 
-        Only fields the calibration speaks to are present; unresolved terms are 0.
+        Only fields the calibration speaks to are present; unresolved terms are their upper
+        bound (:attr:`unresolved`).
         """
         out: dict[str, Any] = {
             "name": name,
@@ -173,7 +195,8 @@ class Calibration:
                     out[section][key] = [
                         self.ramp_sign[a] * self.fits[a].coefficients[term] * factor
                         if self.fits[a].resolved[term]
-                        else 0.0
+                        else self.ramp_sign[a]
+                        * self._unresolved_value(self.fits[a].upper[term] * factor)
                         for a in axes
                     ]
                 else:
@@ -210,7 +233,12 @@ class Calibration:
         data = self.sensor_dict(name)
         lines = [
             f"# {self.summary()} by `northfinder calibrate`.",
-            "# Terms the records do not resolve are 0, with the bound they allow in a comment.",
+            (
+                "# Terms the records do not resolve are written at the 95 % bound they allow "
+                "(never optimistic); the comment says so."
+                if self.unresolved == "bound"
+                else "# Terms the records do not resolve are 0, with the bound they allow in a comment."
+            ),
         ]
         if base is not None:
             lines.append(f"# Fields not fitted are those of {base.get('name', 'the base')!r}.")
@@ -392,6 +420,29 @@ class Calibration:
         out["notes"] = self.needs() + self.notes
         return out
 
+    def resolving_record_s(self, bias_instability_dph: float) -> float:
+        """The length of record, s, that resolves a gyro bias instability of this size, given
+        the gyros' fitted ARW: the white noise's Allan deviation falls to the flat floor
+        ``0.664 B`` at ``tau = N^2 / (0.441 B^2)``; the curve must reach about three times that,
+        and the longest cluster is about a ninth of a record (30 times in all)."""
+        n = self.triad_fits["gyro"].coefficients["arw"]  # deg/h sqrt(s)
+        if not (bias_instability_dph > 0 and math.isfinite(n)):
+            return math.nan
+        return 30.0 * n * n / (_FLOOR * bias_instability_dph**2)
+
+    def bias_instability_need(self) -> str:
+        """What it takes to resolve the gyros' bias instability (a note of an unresolved one)."""
+        _, _, upper = self.field_value(0, "bias_instability")
+        at_bound = self.resolving_record_s(upper)
+        n = self.triad_fits["gyro"].coefficients["arw"]
+        per = 30.0 * n * n / _FLOOR / 3600.0
+        return (
+            f"bias instability: not resolved (<= {upper:.3g} deg/h, written at that bound unless "
+            f"--unresolved zero); one that large would show in still stretches of about "
+            f"{_duration(at_bound)} each; one of B deg/h needs stretches of about {per:.3g} / B^2 h "
+            "(30 N^2 / (0.441 B^2), N the fitted ARW)"
+        )
+
     def needs(self) -> list[str]:
         """What the records are too short to show: for an unresolved rate random walk or rate
         ramp of the gyros, the smallest value the longest cluster time would show, and the
@@ -400,6 +451,7 @@ class Calibration:
         fit = self.triad_fits["gyro"]
         tau = float(self.curves[AXES[0]].taus_s[-1])
         if not fit.resolved["bias_instability"]:
+            out.append(self.bias_instability_need())
             if not (fit.resolved["rrw"] or fit.resolved["rate_ramp"]):
                 out.append(
                     f"the gyros' bias instability is not resolved (longest cluster {tau:.3g} s): "
@@ -430,7 +482,7 @@ class Calibration:
         axes = AXES[3 * triad : 3 * triad + 3]
         if term == "rate_ramp":
             if not any(self.fits[a].resolved[term] for a in axes):
-                return f"  # not resolved: |ramp| <= {upper:.3g}"
+                return f"  # not resolved: |ramp| <= {upper:.3g}{self._written()}"
             return "  # per axis, sign from the slope within the windows"
         if resolved:
             factor = _FIELDS[term][triad][1]
@@ -438,8 +490,25 @@ class Calibration:
                 factor *= self.sample_rate_hz
             sd = self.triad_fits[("gyro", "accel")[triad]].sigma[term] * factor
             return f"  # +-{sd:.2g} (1 sigma, fit of the three axes)"
-        return f"  # not resolved: <= {upper:.3g}"
+        return f"  # not resolved: <= {upper:.3g}{self._written()}"
 
+    def _written(self) -> str:
+        return ", written at the bound" if self.unresolved == "bound" else ""
+
+
+def _duration(seconds: float) -> str:
+    """A length of time in the unit that reads best (s, min or h)."""
+    if not math.isfinite(seconds):
+        return "an unknown time"
+    if seconds < 120.0:
+        return f"{seconds:.3g} s"
+    if seconds < 7200.0:
+        return f"{seconds / 60.0:.3g} min"
+    return f"{seconds / 3600.0:.3g} h"
+
+
+#: How a sensor file may write a term the records do not resolve (:class:`Calibration`).
+UNRESOLVED = ("bound", "zero")
 
 _HEAD = {
     "quantisation": "quantisation",
@@ -480,6 +549,7 @@ def calibrate(
     heat_tau_s: float = 0.0,
     design: str = "per-run",
     terms: Sequence[str] = TERMS,
+    unresolved: str = "bound",
 ) -> Calibration:
     """Fit the sensor terms of recorded runs (see the module doc).
 
@@ -492,12 +562,17 @@ def calibrate(
         (:func:`~northfinder.host.calibrate.between.fit_between_positions`).
     terms : sequence of str
         IEEE 952 terms to fit (default all five).
+    unresolved : {"bound", "zero"}
+        How the sensor file writes a term the records do not resolve (:class:`Calibration`).
 
     Raises
     ------
     InputError
-        No runs, runs at different sample rates, or too little good data for an Allan curve.
+        No runs, runs at different sample rates, too little good data for an Allan curve, or
+        an ``unresolved`` of neither kind.
     """
+    if unresolved not in UNRESOLVED:
+        raise InputError(f"unresolved={unresolved!r}: choose one of {', '.join(UNRESOLVED)}")
     runs = list(runs)
     if not runs:
         raise InputError("runs: give at least one recorded run")
@@ -552,6 +627,7 @@ def calibrate(
         pieces=len(pieces),
         hours=hours,
         notes=notes,
+        unresolved=unresolved,
     )
 
 

@@ -44,6 +44,7 @@ COMMANDS: dict[str, str] = {
     "record": "northfinder.cli.record",
     "calibrate": "northfinder.cli.calibrate",
     "monitor": "northfinder.cli.monitor",
+    "dump": "northfinder.cli.dump",
 }
 
 
@@ -62,10 +63,18 @@ def _log_level(text: str) -> str:
 
 
 def add_global_options(parser: argparse.ArgumentParser, *, sub: bool = False) -> None:
-    """``--debug``, ``-v`` and ``--log-level``, before or after the subcommand. On a
+    """``--debug``, ``-v`` and ``--log-level`` (and ``--version``), before or after the
+    subcommand. On a
     subcommand their defaults are left out, so that an option given before it stays."""
     default: dict[str, Any] = {"default": argparse.SUPPRESS} if sub else {}
     g = common_group(parser, "logging and debugging") if sub else parser
+    if sub:  # the top-level parser has its own --version
+        from northfinder.host.results import package_version
+
+        g.add_argument(
+            "--version", action="version", version=f"northfinder {package_version()}",
+            help="print the version and exit",
+        )  # fmt: skip
     g.add_argument(
         "--debug", action="store_true", help="show tracebacks on errors", **default
     )  # fmt: skip

@@ -24,6 +24,8 @@ from northfinder.cli.progress import Progress
 from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
 from northfinder.host.calibrate.readers import READERS
+from northfinder.host.errors import QualityError
+from northfinder.host.results import envelope
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -41,6 +43,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--report", metavar="FILE", help="write the report here instead of printing it")
     p.add_argument("--plot", metavar="FILE", help="plot the Allan deviation and the fit (PNG)")
     p.add_argument("--json", action="store_true", help="print the fitted terms as JSON")
+    p.add_argument(
+        "--unresolved", choices=("bound", "zero", "refuse"), default="bound",
+        help="a term the records do not resolve: written at its 95%% bound (default), as 0 "
+        "(optimistic), or refused (exit 1, with the record length that would resolve it)",
+    )  # fmt: skip
     g = p.add_argument_group("between-position assumptions")
     g.add_argument(
         "--move-tau", type=bounded_float(0.0, 86_400.0, "s", open_lo=True), default=10.0,
@@ -74,7 +81,18 @@ def run(args: argparse.Namespace) -> int:
         runs = read_runs(args.recordings)
         samples = sum(len(w.counter) for run in runs for w in run.windows)
         bar.step(f"fitting {samples} samples: Allan deviation, then the terms between positions")
-        cal = calibrate(runs, tau_s=args.move_tau, heat_tau_s=args.heat_tau, design=args.between)
+        cal = calibrate(
+            runs, tau_s=args.move_tau, heat_tau_s=args.heat_tau, design=args.between,
+            unresolved="zero" if args.unresolved == "zero" else "bound",
+        )  # fmt: skip
+        if args.unresolved == "refuse" and cal.unresolved_terms():
+            what = ", ".join(
+                f"{sec}.{name} (<= {up:.3g})" for sec, name, up in cal.unresolved_terms()
+            )
+            need = ""
+            if not cal.triad_fits["gyro"].resolved["bias_instability"]:
+                need = "; " + cal.bias_instability_need()
+            raise QualityError(f"the records do not resolve {what}{need}")
         bar.step("done")
     name = args.name or (Path(args.output).stem if args.output else "calibrated")
     text = cal.to_toml(name, base)
@@ -90,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         Path(args.output).write_text(text)
     if args.json:
-        say(dumps(cal.to_json_dict(name)))
+        say(dumps(envelope("calibrate", None, cal.to_json_dict(name))))
         return 0
     if not args.report:
         say(report)

@@ -164,6 +164,7 @@ SUMMARIES: dict[str, str] = {
     "record": "record raw windows to CSV or NPZ",
     "calibrate": "fit sensor terms to recordings and write a sensor TOML",
     "monitor": "live terminal view of a unit (Textual)",
+    "dump": "decode a CAN log or a live bus with protocol.dbc",
 }
 
 
@@ -379,15 +380,21 @@ def _short_bus_help(parser: argparse.ArgumentParser) -> None:
             action.help = _BUS_HELP[action.dest]
 
 
-def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
-    """The links every command speaks: python-can bus options (``-i/-c/-b``, as python-can's own
-    tools spell them), ``--serial PORT``, ``--baud`` and ``--node-id``. Returns the serial group so
-    a command can add its own links to it."""
+def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """python-can's bus options (``-i/-c/-b``, as python-can's own tools spell them), without
+    the interfaces that would send off the machine."""
     import can.cli
 
     can.cli.add_bus_arguments(parser)
     _refuse_interfaces_off_the_machine(parser)
     _short_bus_help(parser)
+
+
+def add_link_arguments(parser: argparse.ArgumentParser, title: str) -> argparse._ArgumentGroup:
+    """The links every command speaks: python-can bus options (``-i/-c/-b``, as python-can's own
+    tools spell them), ``--serial PORT``, ``--baud`` and ``--node-id``. Returns the serial group so
+    a command can add its own links to it."""
+    add_bus_arguments(parser)
     group = common_group(parser, title)
     group.add_argument("--serial", metavar="PORT", help="serial port path or pyserial URL")
     group.add_argument(
@@ -600,10 +607,29 @@ def add_sensor_argument(parser: argparse.ArgumentParser | argparse._ArgumentGrou
     )
 
 
-def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
-    """The simulated truth: where the simulated instrument really stands."""
+def add_latitude_argument(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, *, device: bool
+) -> None:
+    """``--latitude``: with ``device`` the site's latitude a real device needs (and the
+    simulated truth's with ``--sim``), else the simulated truth's only."""
     from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
 
+    parser.add_argument(
+        "--latitude",
+        type=bounded_float(-90.0, 90.0, "deg"),
+        default=None,
+        help=(
+            "site latitude, deg north positive: required with a device "
+            f"(--sim: the truth's, default {DEFAULT_LATITUDE_DEG:g})"
+            if device
+            else f"deg, north positive (default {DEFAULT_LATITUDE_DEG:g})"
+        ),
+    )
+
+
+def add_truth_arguments(parser: argparse.ArgumentParser, *, latitude: bool = True) -> None:
+    """The simulated truth: where the simulated instrument really stands (``latitude`` False:
+    the command takes ``--latitude`` among its own options, as a real device needs it)."""
     g = common_group(parser, "simulated truth")
     g.add_argument(
         "--azimuth",
@@ -611,13 +637,8 @@ def add_truth_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="deg clockwise from north, -360 to 360 (default: random)",
     )
-    g.add_argument(
-        "--latitude",
-        type=bounded_float(-90.0, 90.0, "deg"),
-        default=None,
-        help=f"deg, north positive (simulated: default {DEFAULT_LATITUDE_DEG:g}; required for a "
-        "real device)",
-    )
+    if latitude:
+        add_latitude_argument(g, device=False)
     from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
 
     tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")

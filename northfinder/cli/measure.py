@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from northfinder.cli.common import (
+    add_latitude_argument,
     add_link_arguments,
     add_solver_argument,
     add_truth_arguments,
@@ -36,6 +37,7 @@ from northfinder.driver.errors import DriverError
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
+from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 from northfinder.host.procedure import (
     MAX_SETTLE_S,
     METHOD_CHOICES,
@@ -50,12 +52,6 @@ from northfinder.host.results import device_identity, utc_now
 
 #: Default warm-up of the embedded simulator, s (the paper's 2 min).
 SIM_WARMUP_S = 120.0
-#: The default plan: each position twice, in the symmetric order 0, 180, 180, 0. Opposite
-#: positions give the most heading per second (notes 4); the symmetric order cancels a linear
-#: drift; and the two redundant windows let the solver test the windows against their noise, so
-#: a bias step or drift between windows is flagged instead of giving a silently wrong heading
-#: (a two-position plan cannot check itself). docs/find.md, "The plan", says more.
-DEFAULT_POSITIONS_DEG = (0.0, 180.0, 180.0, 0.0)
 #: Longest wait of a run, wall s (warm-up timeout, --link-timeout), and longest simulated warm-up.
 MAX_WAIT_S = 86_400.0
 #: Reply deadline per attempt the driver accepts, s (below 0.1 s a retry would outrun a reply).
@@ -113,7 +109,8 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         metavar="PRESET|FILE",
         help="sensor preset name or TOML file (default: paper-rlg)",
     )
-    add_truth_arguments(p)
+    add_latitude_argument(p, device=True)
+    add_truth_arguments(p, latitude=False)
 
 
 def add_plan_arguments(p: argparse.ArgumentParser) -> None:

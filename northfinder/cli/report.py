@@ -24,7 +24,7 @@ def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
     lines = [
         f"azimuth {result.azimuth_deg:.4f} deg{sigma} (1 sigma), clockwise from true north",
         f"pitch {result.pitch_deg:.4f} deg, roll {result.roll_deg:.4f} deg",
-        f"method {result.method}, denoise {result.denoise}, latitude {result.latitude_deg:g} deg"
+        f"solver {result.method}, denoise {result.denoise}, latitude {result.latitude_deg:g} deg"
         + (f" from {result.latitude_source}" if result.latitude_source else "")
         + f", positions {', '.join(f'{w.encoder_deg:.4f}' for w in result.windows)} deg (encoder)",
     ]

@@ -26,6 +26,9 @@ from northfinder.cli.common import (
 from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, body_rates
+from northfinder.host.plan import DEFAULT_POSITIONS_DEG
+from northfinder.host.results import envelope
+from northfinder.simwindows import simulator_identity
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -35,8 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--positions",
         type=angle_list,
-        default=[0.0, 180.0],
-        help="table angles, deg (default: 0,180)",
+        default=list(DEFAULT_POSITIONS_DEG),
+        help="table angles, deg (default 0,180,180,0, as find)",
     )
     p.add_argument(
         "--window",
@@ -87,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
             }
         )
     if args.json:
-        say(dumps({"sensor": spec.name, "seed": seed, "truth": truth.__dict__, "windows": rows}))
+        body = {"sensor": spec.name, "seed": seed, "truth": truth.__dict__, "windows": rows}
+        say(dumps(envelope("simulate", simulator_identity(spec.name), body)))
         return 0
     say(
         f"sensor {spec.name}; truth azimuth {truth.azimuth_deg:.4f} deg, latitude {truth.latitude_deg:g} deg, "

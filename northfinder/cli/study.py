@@ -35,7 +35,7 @@ from northfinder.cli.common import (
 from northfinder.cli.progress import Progress
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.sensors import SensorSpec
-from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel
+from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, budget_bound_deg
 from northfinder.host.denoise import METHODS, check_denoise
 from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
@@ -46,7 +46,14 @@ from northfinder.host.montecarlo import (
     study_rows,
     verify_plan,
 )
-from northfinder.host.plan import PLANS, SOLVERS, Plan, plan_time_s, settle_time_s
+from northfinder.host.plan import (
+    DEFAULT_POSITIONS_DEG,
+    PLANS,
+    SOLVERS,
+    Plan,
+    plan_time_s,
+    settle_time_s,
+)
 from northfinder.host.planner import PlanCandidate, search_plans, shortest_plan
 from northfinder.host.results import envelope
 from northfinder.simwindows import SimulatedWindows, error_model, simulator_identity
@@ -95,7 +102,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--positions",
         type=angle_list,
         default=None,
-        help="table angles, deg (default: 0,180)",
+        help="table angles, deg (default 0,180,180,0, as find)",
     )
     g.add_argument(
         "--plan",
@@ -223,7 +230,9 @@ def _plan(args: argparse.Namespace) -> Plan:
         named = PLANS[args.named_plan]
         plan = replace(named, window_s=args.window or named.window_s, settle_s=args.settle)
     else:
-        plan = Plan(tuple(args.positions or (0.0, 180.0)), args.window or 10.0, args.settle)
+        plan = Plan(
+            tuple(args.positions or DEFAULT_POSITIONS_DEG), args.window or 10.0, args.settle
+        )
     return _processing(args, plan)
 
 
@@ -302,6 +311,10 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
     if args.plan_budget is not None:
         cands = search_plans(model, args.latitude, args.plan_budget, **common)
         report["budget_s"] = args.plan_budget
+        # What no plan of this budget can beat: all of it spent recording, white noise only.
+        report["budget_bound_deg"] = budget_bound_deg(
+            args.plan_budget, model.arw_dpsh, args.latitude
+        )
         report["plans"] = [_candidate_json(c, model, args.warmup) for c in cands[: args.top]]
         best_plan = cands[0].plan if cands else None
     else:
@@ -347,7 +360,12 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
     if args.json:
         say(dumps(envelope("study", simulator_identity(spec.name), report)))
         return EXIT_RUNTIME if failed else 0
-    say(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}")
+    bound = (
+        f" (physical bound of the budget {report['budget_bound_deg']:.4f} deg)"
+        if "budget_bound_deg" in report
+        else ""
+    )
+    say(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}{bound}")
     if failed:
         return EXIT_RUNTIME
     say(

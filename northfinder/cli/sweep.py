@@ -42,8 +42,9 @@ from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
 from northfinder.host.kernels import MAX_TILT_DEG
 from northfinder.host.montecarlo import monte_carlo_many, study_rows
-from northfinder.host.plan import PLANS, SOLVERS, Plan
-from northfinder.simwindows import SimulatedWindows, error_model
+from northfinder.host.plan import DEFAULT_POSITIONS_DEG, PLANS, SOLVERS, Plan
+from northfinder.host.results import envelope
+from northfinder.simwindows import SimulatedWindows, error_model, simulator_identity
 
 
 def _names(text: str) -> list[str]:
@@ -98,7 +99,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="DEG,DEG,...",
-        help="table angles of one plan (repeatable; default 0,180 when no --plan is given)",
+        help="table angles of one plan (repeatable; default 0,180,180,0 as find, when no --plan)",
     )
     g.add_argument(
         "--plan",
@@ -162,7 +163,7 @@ def _plans(args: argparse.Namespace) -> list[Plan]:
     base: list[Plan] = [Plan(tuple(pos), 10.0) for pos in args.positions]
     base += [PLANS[name] for name in args.named_plans]
     if not base:
-        base = [Plan((0.0, 180.0), 10.0)]
+        base = [Plan(DEFAULT_POSITIONS_DEG, 10.0)]
     windows = args.windows
     plans = []
     for plan in base:
@@ -224,7 +225,9 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": wall,
     }
     if args.json:
-        say(dumps(report))
+        names = {spec.name for spec in specs}
+        device = simulator_identity(names.pop()) if len(names) == 1 else simulator_identity()
+        say(dumps(envelope("sweep", device, report)))
         return 0
     say(
         f"{len(studies)} studies of {args.runs} runs (seed {args.seed}), denoise {args.denoise}: "

@@ -1,0 +1,252 @@
+"""``northfinder dump LOG | -i INTERFACE -c CHANNEL``: decode CAN frames with protocol.dbc.
+
+Reads a CAN log in any format python-can reads (candump .log, .asc, .blf, .csv, .db, .trc) or a
+live python-can bus, and prints one line per frame decoded by cantools with the protocol's DBC,
+as ``candump -L | cantools decode --single-line protocol.dbc`` would. Filters: ``--id``,
+``--time-from``/``--time-to`` (seconds from the first frame), ``--session N`` (a host session of
+a ``sim --log``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from northfinder.cli.common import (
+    add_bus_arguments,
+    bounded_float,
+    bounded_int,
+    bus_given,
+    command_parser,
+    open_can_bus,
+    warn,
+)
+from northfinder.host.errors import HostConfigError, RecordingError
+
+#: Ids of the DBC's messages are those of node 1: another node's frame is decoded as node 1's
+#: message of the same function (the low four bits of an id are the node).
+DBC_NODE = 1
+
+
+def _dbc_path(given: str | None) -> Path:
+    """The DBC: ``--dbc``, else the protocol's own (protocol.dbc of the project's checkout)."""
+    if given:
+        return Path(given)
+    import northfinder
+
+    here = Path(northfinder.__file__).resolve().parents[1] / "protocol.dbc"
+    if here.is_file():
+        return here
+    raise HostConfigError(
+        "--dbc: protocol.dbc is not beside this installation; give --dbc PATH (the file is at "
+        "the root of the northfinder repository)"
+    )
+
+
+def _frame_id(text: str) -> int:
+    try:
+        value = int(text, 16)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"not a hexadecimal CAN id or message name: {text!r}"
+        ) from None
+    if not 0 <= value <= 0x7FF:
+        raise argparse.ArgumentTypeError(f"a CAN id is 000 to 7FF, got {text!r}")
+    return value
+
+
+def _id_list(text: str) -> list[str]:
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if not parts:
+        raise argparse.ArgumentTypeError("give CAN ids in hex (101) or message names (SAMPLE_X)")
+    return parts
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = command_parser(sub, "dump", __doc__)
+    p.add_argument(
+        "log", nargs="?", default=None, metavar="LOG",
+        help="CAN log to decode (or give a bus with -i/-c)",
+    )  # fmt: skip
+    g = p.add_argument_group("filters")
+    g.add_argument(
+        "--id", dest="ids", type=_id_list, action="extend", default=None, metavar="ID,...",
+        help="only these frames: hex CAN ids (101) or DBC message names (SAMPLE_X), any node",
+    )  # fmt: skip
+    g.add_argument(
+        "--time-from", type=bounded_float(0.0, 1e9, "s"), default=None, metavar="SECONDS",
+        help="only frames at least this long after the first frame",
+    )  # fmt: skip
+    g.add_argument(
+        "--time-to", type=bounded_float(0.0, 1e9, "s"), default=None, metavar="SECONDS",
+        help="only frames at most this long after the first frame",
+    )  # fmt: skip
+    g.add_argument(
+        "--session", type=bounded_int(1, 1_000_000), default=None, metavar="N",
+        help="only the frames of host session N (1-based; each host's IDENTIFY begins one)",
+    )  # fmt: skip
+    g = p.add_argument_group("output")
+    g.add_argument("--dbc", metavar="FILE", help="the DBC (default: the project's protocol.dbc)")
+    g.add_argument(
+        "--count", type=bounded_int(1, 10**12), default=None, metavar="N",
+        help="stop after N frames printed",
+    )  # fmt: skip
+    g.add_argument(
+        "--duration", type=bounded_float(0.0, 1e7, "s", open_lo=True), default=None,
+        metavar="SECONDS", help="a live bus: stop after this many wall seconds",
+    )  # fmt: skip
+    g.add_argument(
+        "--strict", action="store_true",
+        help="a damaged line of a log is an error (default: skipped with a warning)",
+    )  # fmt: skip
+    add_bus_arguments(p)
+    return p
+
+
+def _wanted_ids(db: Any, names: list[str] | None) -> set[int] | None:
+    """The functions (ids without their node bits) of ``--id``: hex ids or DBC names."""
+    if names is None:
+        return None
+    out: set[int] = set()
+    for name in names:
+        try:
+            out.add(db.get_message_by_name(name).frame_id & ~0x0F)
+            continue
+        except KeyError:
+            pass
+        try:
+            out.add(_frame_id(name) & ~0x0F)
+        except argparse.ArgumentTypeError as exc:
+            known = ", ".join(m.name for m in db.messages)
+            raise HostConfigError(f"--id {name}: {exc}; the DBC's messages: {known}") from None
+    return out
+
+
+def _frames_of_bus(args: argparse.Namespace) -> Iterator[Any]:
+    bus = open_can_bus(args)
+    end = None if args.duration is None else time.monotonic() + args.duration
+    try:
+        while end is None or time.monotonic() < end:
+            wait = 0.5 if end is None else max(0.0, min(0.5, end - time.monotonic()))
+            msg = bus.recv(wait)
+            if msg is not None:
+                yield msg
+    finally:
+        bus.shutdown()
+
+
+def decode_line(db: Any, msg: Any) -> str:
+    """One frame as ``(t) CHANNEL ID#DATA :: NAME(Signal: value unit, ...)``."""
+    from northfinder.driver.protocol.can import split_can_id
+
+    channel = msg.channel if msg.channel is not None else "can"
+    head = (
+        f"({msg.timestamp:.6f}) {channel} {msg.arbitration_id:03X}#{bytes(msg.data).hex().upper()}"
+    )
+    if msg.is_error_frame:
+        return f"{head} :: error frame"
+    if msg.is_extended_id or msg.is_remote_frame:
+        return f"{head} :: not a protocol frame"
+    try:
+        _, node = split_can_id(msg.arbitration_id)
+        message = db.get_message_by_frame_id((msg.arbitration_id & ~0x0F) | DBC_NODE)
+        signals = message.decode(bytes(msg.data), decode_choices=True, allow_truncated=True)
+    except Exception as exc:  # cantools raises its own and KeyError, ValueError
+        return f"{head} :: undecodable ({type(exc).__name__}: {exc})"
+    fields = []
+    for name, value in signals.items():
+        unit = message.get_signal_by_name(name).unit
+        shown = f"{value:g}" if isinstance(value, float) else str(value)
+        fields.append(f"{name}: {shown}{' ' + unit if unit else ''}")
+    node_text = f" node {node}" if node != DBC_NODE else ""
+    return f"{head} :: {message.name}{node_text}({', '.join(fields)})"
+
+
+def _session_filter(frames: Iterable[Any], session: int | None) -> Iterator[Any]:
+    """The frames of one host session (all frames when ``session`` is None)."""
+    if session is None:
+        yield from frames
+        return
+    from northfinder.driver.protocol.can import decode_can
+    from northfinder.driver.protocol.errors import ProtocolError
+    from northfinder.driver.protocol.messages import Command
+    from northfinder.host.canlog import SessionCounter
+
+    counter = SessionCounter()
+    for msg in frames:
+        if not (msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id):
+            try:
+                decoded = decode_can(msg.arbitration_id, bytes(msg.data))
+            except ProtocolError:
+                decoded = None
+            if decoded is not None and isinstance(decoded.message, Command):
+                counter.command(decoded.message)
+        if counter.number == session:
+            yield msg
+        elif counter.number > session:
+            return
+
+
+def run(args: argparse.Namespace) -> int:
+    import cantools
+
+    live = bus_given(args)
+    if live == (args.log is not None):
+        raise HostConfigError("give a CAN log, or a bus with -i/-c (not both)")
+    if live and args.session is not None:
+        raise HostConfigError("--session applies to a CAN log")
+    dbc = _dbc_path(args.dbc)
+    try:
+        db = cantools.database.load_file(str(dbc))
+    except (OSError, cantools.database.UnsupportedDatabaseFormatError) as exc:
+        raise HostConfigError(f"--dbc {dbc}: cannot load ({exc})") from exc
+    wanted = _wanted_ids(db, args.ids)
+    skipped: list[tuple[int, str]] = []
+    cut: list[str] = []
+    if live:
+        frames: Iterable[Any] = _frames_of_bus(args)
+    else:
+        from northfinder.host.canlog import read_frames
+
+        path = Path(args.log)
+        if not path.is_file():
+            raise RecordingError(f"{path}: no such file")
+        frames = read_frames(path, skip_damaged=not args.strict, skipped=skipped, cut=cut)
+    t0: float | None = None
+    printed = 0
+    out = sys.stdout
+    try:
+        for msg in _session_filter(frames, args.session):
+            if t0 is None:
+                t0 = msg.timestamp
+            t = msg.timestamp - t0
+            if args.time_from is not None and t < args.time_from:
+                continue
+            if args.time_to is not None and t > args.time_to:
+                if live:
+                    continue
+                break
+            if wanted is not None and (msg.arbitration_id & ~0x0F) not in wanted:
+                continue
+            out.write(decode_line(db, msg) + "\n")
+            printed += 1
+            if args.count is not None and printed >= args.count:
+                break
+    finally:
+        out.flush()
+        if skipped:
+            warn(
+                "dump",
+                f"{args.log}: skipped {len(skipped)} damaged line(s) (first: line "
+                f"{skipped[0][0]}, {skipped[0][1]})",
+            )
+        if not args.strict:
+            for note in cut:
+                warn("dump", f"{args.log}: {note}")
+    if args.strict and cut:
+        raise RecordingError(f"{args.log}: {cut[0]}")
+    return 0

@@ -1,0 +1,81 @@
+"""The README's and the walk-through's commands run as written, so the docs cannot drift.
+
+Every ``northfinder ...`` command of a ``sh`` block (also after ``&&``) and every ``$ northfinder
+...`` line of a ``console`` block is run in this process, in the order of the page, in one
+folder (a later command may read what an earlier one wrote), and must exit 0. Commands that need
+a second process or hardware (a simulator in the background, a pty or serial port, a CAN bus, the
+control channel, the terminal UI) are left out; so is a line whose comment says it runs in the
+second shell (beside such a process, or on what it wrote).
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+from clirun import run_cli
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = ("README.md", "docs/walkthrough.md")
+
+#: What makes a command need another process, a port or hardware: it is not run here.
+NEEDS_ANOTHER_PROCESS = re.compile(
+    r"(&\s*$)|(\s--(pty|slcan-pty|serial|nmea\s+(/dev|tcp)|control)\b)|(\s-i\s)|(\s-c\s)"
+    r"|(/dev/)|(^northfinder\s+(sim|simctl|monitor)\b)|(#.*second shell)"
+)
+_BLOCK = re.compile(r"^```(sh|console)\n(.*?)^```", re.M | re.S)
+
+
+def commands(page: str) -> list[str]:
+    """The northfinder commands of a page's ``sh`` and ``console`` blocks, in order."""
+    text = (ROOT / page).read_text()
+    out: list[str] = []
+    for kind, body in _BLOCK.findall(text):
+        for line in body.splitlines():
+            line = line.strip()
+            if kind == "console":
+                if not line.startswith("$ "):
+                    continue
+                line = line[2:]
+            line, _, comment = line.partition(" #")
+            for part in line.split("&&"):
+                part = part.strip()
+                part = re.sub(r"^(\S*/)?(\.venv/bin/)?northfinder\b", "northfinder", part)
+                if part.startswith("northfinder ") or part == "northfinder":
+                    out.append(f"{part}  #{comment}" if comment else part)
+    return out
+
+
+def runnable(command: str) -> bool:
+    return not NEEDS_ANOTHER_PROCESS.search(command)
+
+
+CASES = [
+    pytest.param(page, i, cmd, id=f"{page}:{i}:{cmd[:60]}")
+    for page in PAGES
+    if (ROOT / page).is_file()
+    for i, cmd in enumerate(commands(page))
+    if runnable(cmd)
+]
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """One folder per page, shared by its commands in order."""
+    return {page: tmp_path_factory.mktemp(page.replace("/", "-")) for page in PAGES}
+
+
+def test_the_pages_have_commands_to_run():
+    assert any(c.startswith("northfinder find --sim") for c in commands("README.md"))
+    assert len([c for c in CASES if c.values[0] == "docs/walkthrough.md"]) >= 5
+
+
+@pytest.mark.xdist_group("readme")  # one worker, the page's order (record before solve)
+@pytest.mark.parametrize(("page", "index", "command"), CASES)
+def test_a_documented_command_runs(page, index, command, workdir, monkeypatch):
+    monkeypatch.chdir(workdir[page])
+    argv = shlex.split(command.partition("  #")[0])[1:]
+    code, _, err = run_cli(*argv)
+    assert code == 0, f"{command}\n{err[-2000:]}"
