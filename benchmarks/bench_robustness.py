@@ -8,7 +8,8 @@ dict; add a section by adding its module to ``robustness/`` and its function the
 The sections live in ``benchmarks/robustness/``, one module each: ``control`` (control-channel
 abuse of a simulator process on a pty, and the ``--control`` addresses it must refuse), ``codec``
 (random and mutated input into every decoder), ``find`` (faults injected during ``find``) and
-``cli`` (bad input over every subcommand).
+``cli`` (bad input over every subcommand) and ``interrupt`` (``find`` in another process ended by
+SIGINT or SIGTERM during a move, on every link; the unit's state afterwards).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from robustness.cli import cli_sweep
 from robustness.codec import codec_fuzz
 from robustness.control import control_abuse
 from robustness.find import find_faults
+from robustness.interrupt import interrupt_runs
 
 #: Section name -> function(args) that prints its table and returns a summary.
 SECTIONS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
@@ -30,6 +32,7 @@ SECTIONS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "control": control_abuse,
     "cli": cli_sweep,
     "find": find_faults,
+    "interrupt": interrupt_runs,
 }
 
 
@@ -43,6 +46,12 @@ def main() -> int:
     parser.add_argument("--case-timeout", type=float, default=60.0, help="cli: s per case")
     parser.add_argument("--jobs", type=int, default=2, help="cli: cases run at once")
     parser.add_argument("--only-cli", default="", help="cli: only cases whose argv contains this")
+    parser.add_argument(
+        "--interrupt-runs", type=int, default=20, help="interrupt: per link, signal"
+    )
+    parser.add_argument(
+        "--interrupt-links", default="", help="interrupt: comma-separated links (default: all here)"
+    )
     parser.add_argument("--json", metavar="FILE", help="also write the summaries as JSON")
     args = parser.parse_args()
     names = [s for s in args.sections.split(",") if s]

@@ -39,6 +39,7 @@ from northfinder.driver.clock import Clock
 from northfinder.driver.errors import (
     ArgumentError,
     DeviceFault,
+    DeviceRefused,
     DeviceReset,
     DriverTimeout,
     LinkError,
@@ -53,6 +54,7 @@ from northfinder.driver.link import (
     REPLY_TIMEOUT_S,
     RETRIES,
     RETRYABLE,
+    AtRest,
     DeviceLink,
     DeviceStatus,
     LinkStats,
@@ -94,6 +96,7 @@ from northfinder.driver.window import OnGap, Window, WindowCollector
 __all__ = [
     "HEARTBEATS_UNTIL_LOST",
     "RETRYABLE",
+    "AtRest",
     "Device",
     "DeviceStatus",
     "LinkStats",
@@ -401,6 +404,8 @@ class Device(DeviceLink):
             self._config[k] = in_effect
             if k == ConfigKey.STREAMING:
                 self._streaming = bool(in_effect)
+                if command is SetConfig:
+                    self._stream_owned = bool(in_effect)
         return in_effect
 
     @_on_clock
@@ -447,14 +452,29 @@ class Device(DeviceLink):
         """Start the sample stream (STREAM_START). :meth:`acquire` does this when needed."""
         if not self._streaming:
             self._prepare_stream_start()
-        self._request(StreamStart)
+        owned = self._stream_owned
+        # Owned from before it is sent: a lost reply may hide a stream that did start, and
+        # leaving must stop it then.
+        self._stream_owned = True
+        try:
+            self._request(StreamStart)
+        except DeviceRefused:
+            self._stream_owned = owned  # refused: nothing started
+            raise
         self._streaming = True
 
     @_on_clock
     def stop_streaming(self) -> None:
-        """Stop the sample stream (STREAM_STOP)."""
+        """Stop the sample stream (STREAM_STOP), whoever started it."""
         self._request(StreamStop)
-        self._streaming = False
+        self._streaming = self._stream_owned = False
+
+    @_on_clock
+    def release_stream(self) -> None:
+        """Stop the sample stream if this object started it (STREAM_STOP); leave another
+        host's stream running."""
+        if self._stream_owned:
+            self.stop_streaming()
 
     # -- motion -------------------------------------------------------------------------------
     @_on_clock
@@ -622,6 +642,7 @@ class Device(DeviceLink):
             n0, epoch = self._status_count, self._boot_epoch
         t0 = self._clock.now()
         self._request(Stop)
+        self._move_open = False
         if not wait:
             return None
         self._refresh_config_if_stale()
@@ -688,21 +709,36 @@ class Device(DeviceLink):
         expected = self.move_duration_s(distance_deg)
         with self._lock:
             n0, epoch = self._status_count, self._boot_epoch
+            # Open from before it is sent: an interrupt between the send and its reply must
+            # still leave the table stopped.
+            self._move_open, self._move_n0 = True, n0
         t0 = self._clock.now()
-        self._request(command, *args)
+        try:
+            self._request(command, *args)
+        except DeviceRefused:
+            self._move_open = False  # refused: nothing moves
+            raise
         if not wait:
             return None
         limit = expected * 1.5 + 2.0 if timeout is None else timeout
-        return self._wait_settled(n0, epoch, t0, expected, limit, command.OPCODE.name)
+        st = self._wait_settled(n0, epoch, t0, expected, limit, command.OPCODE.name)
+        self._move_open = False
+        return st
 
     def _wait_settled(
         self, n0: int, epoch: int, t0: float, min_s: float, limit: float, what: str
     ) -> DeviceStatus:
         """READY after having seen ROTATING or SETTLING since the command (or after ``min_s``)."""
 
+        foreign0 = self._foreign_disruptive[0]
+
         def check() -> DeviceStatus | None:
             if self._boot_epoch != epoch:
                 raise DeviceReset(f"the device restarted during {what}: {self._reset_reason}")
+            count, op = self._foreign_disruptive
+            if count != foreign0 and op != Opcode.RESET:
+                self._move_open = False  # the other host has the table now
+                raise self._another_host(op, f"during {what}")
             st = self._status
             if st is None or self._status_count <= n0:
                 return None
@@ -741,7 +777,7 @@ class Device(DeviceLink):
         t0 = self._clock.now()
         self._request(Reset)
         with self._lock:
-            self._streaming = False
+            self._streaming = self._stream_owned = self._move_open = False
             self._config_stale = True
         if not wait:
             return None
@@ -857,6 +893,10 @@ class Device(DeviceLink):
                     raise DeviceReset(
                         f"the device restarted during the window after {collector.received} of "
                         f"{n} samples ({item}); its configuration and stream are back to defaults"
+                    )
+                if kind == "foreign":
+                    raise self._another_host(
+                        item, f"during the window, after {collector.received} of {n} samples"
                     )
                 if kind == "loss":
                     collector.add_loss(item)

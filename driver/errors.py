@@ -169,6 +169,12 @@ class DeviceReset(DriverError):
     while the driver was waiting for it; its configuration and counters are back to defaults."""
 
 
+class AnotherHost(DriverError):
+    """Another host on the bus commanded this unit (its COMMAND frames were seen) in a way that
+    broke what this host was doing: STREAM_STOP during a window, STOP or a move during a move,
+    a configuration change. protocol.md 13 says what the protocol can and cannot do about it."""
+
+
 class DeviceFault(DriverError):
     """The device entered FAULT while the driver was waiting for it.
 

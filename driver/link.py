@@ -22,6 +22,7 @@ from typing import Any, TypeVar
 
 from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.errors import (
+    AnotherHost,
     ArgumentError,
     DeviceRefused,
     DriverError,
@@ -41,10 +42,12 @@ from northfinder.driver.protocol.constants import (
 )
 from northfinder.driver.protocol.messages import (
     Command,
+    GetStatus,
     Identify,
     Reply,
     Sample,
     Status,
+    Stop,
     StreamStop,
 )
 from northfinder.driver.transport import READ_POLL_S, Received, Transport
@@ -55,6 +58,7 @@ __all__ = [
     "REPLY_TIMEOUT_S",
     "RETRIES",
     "RETRYABLE",
+    "AtRest",
     "DeviceLink",
     "DeviceStatus",
     "LinkStats",
@@ -82,6 +86,9 @@ during the move is refused BUSY, and ROTATE_BY would add up), nor RESET and SELF
 """
 
 REPLY_TIMEOUT_S = 0.25
+#: Longest wait, s, after the STOP of :meth:`DeviceLink.leave_at_rest` for the table to be seen
+#: leaving ROTATING (a table at 6 deg/s and 10 deg/s^2 stops in 0.6 s).
+STOP_WAIT_S = 2.0
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
@@ -154,6 +161,8 @@ class LinkStats:
         Replies matched to the command that waited for them.
     commands_refused : int
         Replies with a result other than OK (the device refused the command).
+    foreign_commands : int
+        CAN only: commands to this unit from another host on the bus.
     """
 
     frames_received: int
@@ -170,6 +179,7 @@ class LinkStats:
     commands_sent: int = 0
     replies_received: int = 0
     commands_refused: int = 0
+    foreign_commands: int = 0
 
     def summary(self) -> str:
         """One line for people: commands and replies, then what was lost or rejected."""
@@ -180,8 +190,65 @@ class LinkStats:
             f"frames {self.frames_received} received, {self.frames_rejected} rejected, "
             f"{self.frames_foreign} foreign, {self.frames_lost} lost; "
             f"{self.samples_received} samples, ticks {self.ticks_lost} lost, "
-            f"{self.ticks_incomplete} incomplete; {self.resets_detected} device restarts"
+            f"{self.ticks_incomplete} incomplete; {self.resets_detected} device restarts; "
+            f"{self.foreign_commands} commands of other hosts"
         )
+
+
+#: Another host's commands that break a window or a move of this host (queries and STREAM_START
+#: do not).
+DISRUPTIVE = frozenset(
+    {
+        Opcode.STREAM_STOP,
+        Opcode.STOP,
+        Opcode.ROTATE_TO,
+        Opcode.ROTATE_BY,
+        Opcode.HOME,
+        Opcode.RESET,
+        Opcode.SET_CONFIG,
+        Opcode.SELF_TEST,
+    }
+)
+
+
+@dataclass(frozen=True, slots=True)
+class AtRest:
+    """What :meth:`DeviceLink.leave_at_rest` did to leave the unit at rest and quiet.
+
+    Attributes
+    ----------
+    sent : tuple of str
+        Commands sent and accepted, in order (``"STOP"``, ``"STREAM_STOP"``).
+    failed : tuple of str
+        Commands that were needed but could not be sent or were not answered (a lost link).
+    state : str or None
+        The device state read afterwards (``"READY"``, ``"SETTLING"``, ...), None if unknown.
+    """
+
+    sent: tuple[str, ...] = ()
+    failed: tuple[str, ...] = ()
+    state: str | None = None
+
+    @property
+    def needed(self) -> bool:
+        """Whether this host had anything to undo."""
+        return bool(self.sent or self.failed)
+
+    def summary(self) -> str:
+        """One clause: ``sent STOP and STREAM_STOP; the unit reads READY``."""
+        parts = []
+        if self.sent:
+            parts.append(f"sent {' and '.join(self.sent)}")
+        if self.failed:
+            parts.append(
+                f"could not send {' and '.join(self.failed)} (the unit may still move or stream)"
+            )
+        if not parts:
+            parts.append("nothing to stop")
+        text = "; ".join(parts)
+        if self.state is not None:
+            text += f"; the unit reads {self.state}"
+        return text
 
 
 @dataclass
@@ -252,6 +319,14 @@ class DeviceLink:
         self._config: dict[ConfigKey, int] = {}
         self._config_stale = True
         self._streaming = False
+        # What this host started and has not seen end: a stream (STREAM_START or SET_CONFIG
+        # STREAMING=1 sent by this object) and a move (ROTATE_TO/BY or HOME sent, its settling
+        # not yet seen). Only these are undone on leaving (:meth:`leave_at_rest`): another host's
+        # stream or move on the same bus is never stopped.
+        self._stream_owned = False
+        self._move_open = False
+        self._move_n0 = 0  # _status_count when the open move was commanded
+        self.at_rest: AtRest | None = None
         self._dead: DriverError | None = None
         self._closed = False
         self._stop = threading.Event()
@@ -259,6 +334,13 @@ class DeviceLink:
             "samples": 0, "stray": 0, "retries": 0, "timeouts": 0, "resets": 0,
             "sent": 0, "replies": 0, "refused": 0,
         }  # fmt: skip
+        # Another host's commands seen on the bus (CAN): how many, and the latest disruptive one
+        # (count, opcode); its IDENTIFY's answer is expected until _foreign_identify_until; its
+        # RESET explains the restart that follows.
+        self._foreign_count = 0
+        self._foreign_disruptive: tuple[int, Opcode | None] = (0, None)
+        self._foreign_identify_until = -math.inf
+        self._foreign_reset_until = -math.inf
         self._reader: threading.Thread | None = None
         if self._clock.virtual:
             self._clock.add_poller(self._pump)
@@ -278,20 +360,81 @@ class DeviceLink:
         """What to read from the device once the reader runs (``Device``: identify, status and
         configuration); an error closes the link again."""
 
+    def leave_at_rest(self) -> AtRest:
+        """Undo what this host started, nothing else: STOP a move it commanded that has not been
+        seen to settle, STREAM_STOP a stream it started; then read the state once.
+
+        Called by :meth:`close` (so a ``with`` block left by an exception or Ctrl-C leaves the
+        unit at rest and quiet); callable before it to learn what was done. Never raises: what
+        could not be sent is listed in :attr:`AtRest.failed`. Idempotent: a second call sends
+        nothing and returns the first call's report.
+        """
+        if self.at_rest is not None and not (self._move_open or self._stream_owned):
+            return self.at_rest
+        sent: list[str] = []
+        failed: list[str] = []
+        state: str | None = None
+        reading = self._reader.is_alive() if self._reader is not None else True
+        usable = not self._closed and self._dead is None and reading
+        todo: list[tuple[type[Command], str]] = [(Stop, "STOP")] if self._move_open else []
+        if self._stream_owned:
+            todo.append((StreamStop, "STREAM_STOP"))
+        for command, name in todo:
+            if not usable:
+                failed.append(name)
+                continue
+            try:
+                with self._clock.participant():
+                    self._request(command, attempts=1 + self.retries)
+                sent.append(name)
+            except DriverError as exc:
+                log.info("%s not sent on leaving: %s", name, exc)
+                failed.append(name)
+        with self._lock:
+            if "STOP" in sent:
+                self._move_open = False
+            if "STREAM_STOP" in sent:
+                self._stream_owned = self._streaming = False
+        if usable and todo:
+            state = self._read_state("STOP" in sent)
+        elif self._status is not None:
+            state = self._status.state.name
+        self.at_rest = AtRest(tuple(sent), tuple(failed), state)
+        return self.at_rest
+
+    def _read_state(self, stopping: bool) -> str | None:
+        """The state from one fresh status (GET_STATUS once), else the latest one received.
+        After a STOP (``stopping``), wait up to :data:`STOP_WAIT_S` for the table to leave
+        ROTATING (it decelerates at its acceleration limit) on the heartbeats."""
+        with self._lock:
+            n0 = self._status_count
+        try:
+            with self._clock.participant():
+                self._request(GetStatus, attempts=1)
+                self._clock.wait_until(
+                    lambda: self._status_count > n0, self._clock.now() + self.reply_timeout
+                )
+                if stopping:
+                    self._clock.wait_until(
+                        lambda: (
+                            self._status is not None and self._status.state != DeviceState.ROTATING
+                        ),
+                        self._clock.now() + STOP_WAIT_S,
+                    )
+        except DriverError:
+            pass
+        return self._status.state.name if self._status is not None else None
+
     def close(self) -> None:
-        """Stop the stream if this driver started it, stop the reader, release the bus or port.
+        """Leave the unit at rest (:meth:`leave_at_rest`: STOP a move and STREAM_STOP a stream
+        this object started, nothing another host started), stop the reader, release the bus
+        or port.
 
         Idempotent; never raises for a device that stopped answering.
         """
         if self._closed:
             return
-        reading = self._reader.is_alive() if self._reader is not None else True
-        if self._streaming and self._dead is None and reading:
-            try:
-                with self._clock.participant():
-                    self._request(StreamStop, attempts=1)
-            except DriverError as exc:
-                log.info("stream not stopped on close: %s", exc)
+        self.leave_at_rest()
         self._closed = True
         self._stop.set()
         if self._reader is None:
@@ -403,9 +546,38 @@ class DeviceLink:
                     self._on_status(item, mono)
                 elif isinstance(item, Identify):
                     self._on_identify(item, mono)
+                elif isinstance(item, Command):
+                    self._on_foreign_command(item, mono)
             self._events += 1
         if self._reader is not None:
             self._clock.notify()  # a virtual clock looks at its waiters after every poll anyway
+
+    def _on_foreign_command(self, cmd: Command, mono: float) -> None:
+        """Another host's command to this unit (seen on a shared CAN bus)."""
+        self._foreign_count += 1
+        op = cmd.OPCODE
+        # Its answers may come up to its own retries later; a second host's IDENTIFY answered
+        # is not a restart of the device.
+        answered_by = mono + (1 + RETRIES) * REPLY_TIMEOUT_S + 1.0
+        if op == Opcode.IDENTIFY:
+            self._foreign_identify_until = answered_by
+        elif op == Opcode.RESET:
+            self._foreign_reset_until = answered_by + 1.0
+        if op in DISRUPTIVE:
+            self._foreign_disruptive = (self._foreign_disruptive[0] + 1, op)
+            log.warning("another host sent %s to this unit", op.name)
+            if self._inbox is not None and op != Opcode.RESET:  # a reset shows as a restart
+                self._inbox.append(("foreign", op, mono, self._clock.wall()))
+                self._inbox_alerts += 1
+        else:
+            log.info("another host sent %s to this unit", op.name)
+
+    def _another_host(self, op: Opcode | None, during: str) -> AnotherHost:
+        name = op.name if op is not None else "a command"
+        return AnotherHost(
+            f"another host is commanding this unit: it sent {name} {during}; "
+            "one host at a time should command a unit (protocol.md 13)"
+        )
 
     def _on_reply(self, reply: Reply) -> None:
         waiter = self._waiters.get(reply.seq)
@@ -432,6 +604,12 @@ class DeviceLink:
         self._status_count += 1
         if status.state in (DeviceState.ROTATING, DeviceState.SETTLING, DeviceState.SPINNING):
             self._motion_count = self._status_count
+        elif (
+            status.state == DeviceState.READY
+            and self._move_open
+            and self._motion_count > self._move_n0
+        ):
+            self._move_open = False  # the move this host commanded has settled
         if status.state == DeviceState.BOOT and previous is not None:
             if previous.state != DeviceState.BOOT:
                 self._note_reset("the device reports state BOOT")
@@ -441,7 +619,8 @@ class DeviceLink:
         self._identify_count += 1
         self._scales = CountScales.of(ident)
         booting = self._status is not None and self._status.state == DeviceState.BOOT
-        if mono > self._identify_expected_until and self._status is not None and not booting:
+        asked = max(self._identify_expected_until, self._foreign_identify_until)
+        if mono > asked and self._status is not None and not booting:
             # protocol.md 5: a device announces itself in BOOT; nobody asked, so it restarted.
             self._note_reset("the device sent IDENTIFY unrequested, as it does after a restart")
 
@@ -449,8 +628,10 @@ class DeviceLink:
         """Called with the lock held, in the reader thread."""
         self._boot_epoch += 1
         self._counts["resets"] += 1
+        if self._clock.now() <= self._foreign_reset_until:
+            reason = f"another host sent RESET ({reason})"
         self._reset_reason = reason
-        self._streaming = False
+        self._streaming = self._stream_owned = self._move_open = False
         self._config_stale = True
         self._transport.restart_stream()
         log.warning("device restart detected: %s", reason)
@@ -629,6 +810,7 @@ class DeviceLink:
             retries=c["retries"],
             reply_timeouts=c["timeouts"],
             resets_detected=c["resets"],
+            foreign_commands=self._foreign_count,
             commands_sent=c["sent"],
             replies_received=c["replies"],
             commands_refused=c["refused"],

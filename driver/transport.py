@@ -15,6 +15,7 @@ be called from any thread (python-can buses and pyserial ports allow one reader 
 from __future__ import annotations
 
 import errno
+import logging
 import queue
 import socket
 import threading
@@ -39,6 +40,8 @@ from northfinder.driver.protocol.constants import UINT32_MAX
 from northfinder.driver.protocol.counters import counter_diff
 from northfinder.driver.protocol.messages import Command, Identify, Reply, Sample, Status
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
+
+log = logging.getLogger("northfinder.driver")
 
 __all__ = [
     "CanTransport",
@@ -110,7 +113,27 @@ def frame_drain(bus: can.BusABC) -> Callable[[], can.Message | None]:
     return next_frame
 
 
-def frame_batch(bus: can.BusABC) -> Callable[[int], list[can.Message]]:
+def garbled_slcan_line(bus: can.BusABC, exc: BaseException) -> bool:
+    """Whether ``exc``, raised by ``bus.recv``, is one SLCAN line that did not parse (a flipped
+    bit, a dropped byte): a frame error, not a lost link. python-can's ``slcan`` reader raises
+    ValueError for a line it cannot parse and CanOperationError (from UnicodeDecodeError) for a
+    byte that is not ASCII; in the latter case the line stays in its buffer and would fail every
+    later read, so it is dropped here, up to its terminator."""
+    if not isinstance(bus, slcanBus):
+        return False
+    cause = getattr(exc, "__cause__", None) if isinstance(exc, can.CanOperationError) else exc
+    if not isinstance(cause, ValueError):  # UnicodeDecodeError is a ValueError
+        return False
+    held = getattr(bus, "_buffer", None)
+    if isinstance(cause, UnicodeDecodeError) and isinstance(held, bytearray):
+        ends = [i for i in (held.find(b"\r"), held.find(b"\a")) if i >= 0]
+        del held[: min(ends) + 1 if ends else len(held)]
+    return True
+
+
+def frame_batch(
+    bus: can.BusABC, on_garbled: Callable[[], None] | None = None
+) -> Callable[[int], list[can.Message]]:
     """A function ``take(n)`` that returns up to ``n`` frames already received on ``bus``, in
     the order they arrived, at once (an empty list if none is waiting).
 
@@ -131,7 +154,7 @@ def frame_batch(bus: can.BusABC) -> Callable[[int], list[can.Message]]:
     if isinstance(bus, VirtualBus) and not bus.filters:
         return _virtual_batch(bus)
     if isinstance(bus, slcanBus):
-        return _slcan_batch(bus)
+        return _slcan_batch(bus, on_garbled)
     sock = getattr(bus, "socket", None)
     if (
         SocketcanBus is None
@@ -169,7 +192,9 @@ def frame_batch(bus: can.BusABC) -> Callable[[int], list[can.Message]]:
     return take_socket
 
 
-def _slcan_batch(bus: slcanBus) -> Callable[[int], list[can.Message]]:
+def _slcan_batch(
+    bus: slcanBus, on_garbled: Callable[[], None] | None = None
+) -> Callable[[int], list[can.Message]]:
     """:func:`frame_batch` of a python-can ``slcan`` bus: ``recv(0.0)`` while the port has bytes
     waiting or the bus holds a whole line it has read. python-can's next ``slcan`` reader
     (merged after 4.6.1) reads all the waiting bytes at once and keeps the lines after the first;
@@ -205,7 +230,13 @@ def _slcan_batch(bus: slcanBus) -> Callable[[int], list[can.Message]]:
                         break
                     if port.timeout:
                         port.timeout = 0
-                msg = bus.recv(0.0)
+                try:
+                    msg = bus.recv(0.0)
+                except (can.CanError, ValueError) as exc:
+                    if on_garbled is None or not garbled_slcan_line(bus, exc):
+                        raise
+                    on_garbled()
+                    continue
                 if msg is not None:  # None: a line not complete yet, or an answer to a command
                     out.append(msg)
         finally:
@@ -272,7 +303,8 @@ class CanTransport:
         self.own_bus = own_bus
         self.receiver = CanReceiver(node_id=node_id)
         self.rcvbuf = enlarge_receive_buffer(bus)
-        self._take = frame_batch(bus)
+        self.garbled = 0  # SLCAN lines that did not parse (frame errors)
+        self._take = frame_batch(bus, self._garbled)
         self._send_lock = threading.Lock()
         self._rx_lock = threading.RLock()
         self._closed = False
@@ -314,7 +346,13 @@ class CanTransport:
         try:
             if timeout > 0:
                 # Block in the bus (one wake-up for the first frame), then take what came with it.
-                msg = self.bus.recv(timeout)
+                try:
+                    msg = self.bus.recv(timeout)
+                except (can.CanError, ValueError) as exc:
+                    if not garbled_slcan_line(self.bus, exc):
+                        raise
+                    self._garbled()
+                    return []
                 frames = [] if msg is None else [msg, *self._take(MAX_FRAMES_PER_RECV - 1)]
             else:  # a poll (a virtual clock's, at every instant): nothing but what is waiting
                 frames = self._take(MAX_FRAMES_PER_RECV)
@@ -329,23 +367,32 @@ class CanTransport:
         with self._rx_lock:
             for msg in frames:
                 if not (msg.is_error_frame or msg.is_remote_frame):
-                    out += self.receiver.feed(
+                    got = self.receiver.feed(
                         msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id
                     )
-        # Commands on the bus are another host's (or our own, echoed): not for us.
-        return [m for m in out if not isinstance(m, Command)]
+                    if not msg.is_rx:  # this host's own frame, echoed by the interface
+                        got = [m for m in got if not isinstance(m, Command)]
+                    out += got
+        # Commands on the bus are another host's (this host's own echoes were dropped above):
+        # the link notes them.
+        return out
 
     def restart_stream(self) -> list[TickLoss]:
         """The stream was off: the next tick does not continue the previous one (any thread)."""
         with self._rx_lock:
             return self.receiver.ticks.restart()
 
+    def _garbled(self) -> None:
+        self.garbled += 1
+        log.info("an SLCAN line did not parse: counted as a rejected frame")
+
     def counters(self) -> dict[str, int]:
-        """Frame statistics: received, rejected (could not be decoded), foreign, tick losses."""
+        """Frame statistics: received, rejected (could not be decoded, or an SLCAN line that did
+        not parse), foreign, tick losses."""
         r = self.receiver
         return {
             "frames_received": r.frames,
-            "frames_rejected": r.malformed + r.identify.errors,
+            "frames_rejected": r.malformed + r.identify.errors + self.garbled,
             "frames_foreign": r.unknown_id + r.other_node,
             "frames_lost": 0,
             "ticks_lost": r.ticks.lost,

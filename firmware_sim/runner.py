@@ -192,7 +192,11 @@ class RealTimeClock:
 
 
 class LockstepClock:
-    """A clock that moves only when told: ``advance(dt)``."""
+    """A clock that moves only when told: ``advance(dt)``. Any step is carried out in full by the
+    runner's next :meth:`Runner.step` (in steps of at most ``Runner.MAX_STEP_S``, the link polled
+    between them): nothing is behind a clock that waits for the simulator."""
+
+    lockstep = True
 
     def __init__(self) -> None:
         self._t = 0.0
@@ -392,7 +396,8 @@ class Runner:
             # out as a burst, so the clock slips instead.
             late = now - self.firmware.next_output_s()
             self.lag.behind_s = max(0.0, late)
-            if late > MAX_LAG_WALL_S * clock.speed and not clock.paused:
+            lockstep = getattr(clock, "lockstep", False)
+            if late > MAX_LAG_WALL_S * clock.speed and not clock.paused and not lockstep:
                 self._slip(clock, late)
                 now -= late
             dt = min(now - self.firmware.now, self.MAX_STEP_S)
@@ -400,6 +405,17 @@ class Runner:
                 out = self.firmware.process(dt)
                 self.sent += len(out)
                 self.link.send(out)
+            # A lockstep clock stepped further than one step: catch up to it now, answering
+            # commands between the steps as a paced runner would.
+            # (The firmware keeps time in whole nanoseconds: a remainder below that is no step.)
+            while lockstep and now - self.firmware.now > 1e-6:
+                self.link.poll(0.0)
+                before = self.firmware.now
+                out = self.firmware.process(min(now - self.firmware.now, self.MAX_STEP_S))
+                self.sent += len(out)
+                self.link.send(out)
+                if self.firmware.now <= before:
+                    break
 
     def _slip(self, clock: Clock, behind: float) -> None:
         """Fallen too far behind: the clock slips back to the oldest message due (no burst)."""

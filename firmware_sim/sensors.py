@@ -297,10 +297,7 @@ def load_spec(name_or_path: str | Path) -> SensorSpec:
     text = str(name_or_path)
     path = Path(text)
     if text.endswith(".toml") or path.exists():
-        try:
-            raw = path.read_bytes()
-        except OSError as exc:
-            raise SimConfigError(f"sensor file {text}: cannot read it ({exc.strerror})") from exc
+        raw = _read_sensor_file(path, text)
         source = text
     else:
         if text not in preset_names():
@@ -315,7 +312,40 @@ def load_spec(name_or_path: str | Path) -> SensorSpec:
         )
         source = text
     try:
-        data = tomllib.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        data = tomllib.loads(raw.decode("utf-8-sig"))  # a byte-order mark is no error
+    except UnicodeDecodeError as exc:
+        raise SimConfigError(f"sensor file {source}: not UTF-8 text ({exc.reason})") from exc
+    except tomllib.TOMLDecodeError as exc:
         raise SimConfigError(f"sensor file {source}: not valid TOML ({exc})") from exc
+    if not data:
+        raise SimConfigError(
+            f"sensor file {source}: specifies nothing (empty); give the sections and fields "
+            "to change, or the preset 'ideal' for an ideal sensor"
+        )
     return spec_from_dict(data, source=source)
+
+
+#: Largest sensor file read, bytes: a sensor TOML is a few kB.
+MAX_SENSOR_FILE_BYTES = 1 << 20
+
+
+def _read_sensor_file(path: Path, text: str) -> bytes:
+    """A sensor file's bytes: a regular file of at most :data:`MAX_SENSOR_FILE_BYTES` (a FIFO
+    would block, ``/dev/zero`` never ends)."""
+    import stat
+
+    try:
+        mode = path.stat().st_mode
+        if not stat.S_ISREG(mode):
+            kind = "a folder" if stat.S_ISDIR(mode) else "not a regular file (a FIFO or a device)"
+            raise SimConfigError(f"sensor file {text}: {kind}; give a .toml file")
+        with path.open("rb") as fh:
+            raw = fh.read(MAX_SENSOR_FILE_BYTES + 1)
+    except OSError as exc:
+        raise SimConfigError(f"sensor file {text}: cannot read it ({exc.strerror})") from exc
+    if len(raw) > MAX_SENSOR_FILE_BYTES:
+        raise SimConfigError(
+            f"sensor file {text}: larger than {MAX_SENSOR_FILE_BYTES >> 20} MiB; a sensor "
+            "TOML is a few kB"
+        )
+    return raw

@@ -240,7 +240,9 @@ class Turntable:
             # A jammed table stops at once, not on a deceleration ramp.
             angle = float(self.state(t)[0])
             self._segments = [_Segment(-math.inf, angle, 0.0, 0.0)]
-            self._motion_end = t
+            # A move in progress ends now; a table at rest stays at rest since it came to rest
+            # (a jam at rest shows nothing until the next move).
+            self._motion_end = min(self._motion_end, t)
         self._stalled = stalled
 
     # -- queries ------------------------------------------------------------------------------

@@ -42,6 +42,7 @@ import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TypedDict, Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -55,7 +56,9 @@ from northfinder.host.spin import MIN_SWEEP_DEG, spin_weights_level
 __all__ = [
     "ANGLE_SOURCES",
     "TILT_SOURCES",
+    "Conditions",
     "ErrorModel",
+    "PredictOptions",
     "Prediction",
     "angle_rms",
     "bound_deg",
@@ -596,6 +599,26 @@ def angle_rms(sigma_rad: float) -> float:
     return math.sqrt(float(np.sum(f[1:] + f[:-1]) * 0.5 * (phi[1] - phi[0])))
 
 
+class Conditions(TypedDict, total=False):
+    """How a plan is run, as keyword arguments of :func:`predict` and the planner (each optional;
+    the defaults are those of :func:`predict_solutions`)."""
+
+    warmup_s: float
+    tilt: str
+    angles: str
+    sample_rate_hz: float
+    pitch_deg: float
+    roll_deg: float
+
+
+class PredictOptions(Conditions, total=False):
+    """The keyword arguments of :func:`predict`: :class:`Conditions`, the true azimuth and a bias
+    step."""
+
+    azimuth_deg: float | None
+    bias_step_dph: float
+
+
 def predict_solutions(
     model: ErrorModel,
     plan: Plan,
@@ -698,18 +721,7 @@ def predict_solutions(
 
 
 def predict(
-    model: ErrorModel,
-    plan: Plan,
-    latitude_deg: float,
-    *,
-    warmup_s: float = 0.0,
-    tilt: str = "accel",
-    angles: str = "encoder",
-    sample_rate_hz: float = 200.0,
-    pitch_deg: float = 0.0,
-    roll_deg: float = 0.0,
-    azimuth_deg: float | None = None,
-    bias_step_dph: float = 0.0,
+    model: ErrorModel, plan: Plan, latitude_deg: float, **options: Unpack[PredictOptions]
 ) -> Prediction:
     """Predicted RMS heading error of a plan over runs (see the module docstring).
 
@@ -721,20 +733,20 @@ def predict(
         Positions, window, settle and solver (the windows are reduced by their plain means).
     latitude_deg : float
         Latitude, deg.
-    warmup_s : float
+    warmup_s : float, default 0
         Time from power-on to the first window, s (for the drift and the random walks).
-    tilt : {"accel", "level"}
+    tilt : {"accel", "level"}, default "accel"
         With ``accel`` the accelerometer errors enter through the tilt.
-    angles : {"encoder", "commanded"}
+    angles : {"encoder", "commanded"}, default "encoder"
         With ``commanded`` the table indexing error enters (d_azimuth = -d_mu / 2 for two
         positions), with ``encoder`` the encoder's resolution.
-    sample_rate_hz : float
+    sample_rate_hz : float, default 200
         Sample rate, Hz (samples per window, quantisation).
-    pitch_deg, roll_deg : float
+    pitch_deg, roll_deg : float, default 0
         Tilt of the instrument, deg.
     azimuth_deg : float, optional
         True azimuth; default the mean over azimuths (a study's uniform draw).
-    bias_step_dph : float
+    bias_step_dph : float, default 0
         One gyro bias step of this size at a random time in a random direction, deg/h.
 
     Returns
@@ -743,19 +755,7 @@ def predict(
         ``sigma_deg`` (the root of the summed variances), ``bound_deg`` (gyro white noise only).
         With the ``pairwise`` solver the first pair's; :func:`predict_solutions` gives all.
     """
-    return predict_solutions(
-        model,
-        plan,
-        latitude_deg,
-        warmup_s=warmup_s,
-        tilt=tilt,
-        angles=angles,
-        sample_rate_hz=sample_rate_hz,
-        pitch_deg=pitch_deg,
-        roll_deg=roll_deg,
-        azimuth_deg=azimuth_deg,
-        bias_step_dph=bias_step_dph,
-    )[0]
+    return predict_solutions(model, plan, latitude_deg, **options)[0]
 
 
 def spin_bound_deg(

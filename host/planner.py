@@ -12,10 +12,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Unpack
 
 import numpy as np
 
-from northfinder.host.accuracy import ErrorModel, Prediction, predict
+from northfinder.host.accuracy import Conditions, ErrorModel, Prediction, predict
 from northfinder.host.errors import HostConfigError
 from northfinder.host.plan import Plan, TableModel, plan_time_s
 
@@ -68,14 +69,9 @@ def search_plans(
     budget_s: float,
     *,
     settle_s: float | None = None,
-    warmup_s: float = 0.0,
-    tilt: str = "accel",
-    angles: str = "encoder",
-    sample_rate_hz: float = 200.0,
-    pitch_deg: float = 0.0,
-    roll_deg: float = 0.0,
     min_window_s: float = 1.0,
     geometries: Sequence[tuple[float, ...]] = GEOMETRIES,
+    **conditions: Unpack[Conditions],
 ) -> list[PlanCandidate]:
     """The best window for each position pattern within a time budget, best first.
 
@@ -91,12 +87,14 @@ def search_plans(
         Largest plan time (windows, moves, settling), s.
     settle_s : float, optional
         Settle time; default the table's.
-    warmup_s, tilt, angles, sample_rate_hz, pitch_deg, roll_deg
-        As for :func:`~northfinder.host.accuracy.predict` (the true azimuth is averaged over).
     min_window_s : float
         Shortest window considered, s.
     geometries : sequence of tuple of float
         Position patterns to try.
+    **conditions
+        :class:`~northfinder.host.accuracy.Conditions`: warm-up, tilt, angles, rate, pitch and
+        roll, as for :func:`~northfinder.host.accuracy.predict` (the true azimuth is averaged
+        over).
 
     Returns
     -------
@@ -114,17 +112,7 @@ def search_plans(
         grid = np.unique(np.r_[np.geomspace(min_window_s, w_max, 40), w_max])
         best = None
         for w in grid:
-            pred = predict(
-                model,
-                Plan(pos, float(w), settle_s),
-                latitude_deg,
-                warmup_s=warmup_s,
-                tilt=tilt,
-                angles=angles,
-                sample_rate_hz=sample_rate_hz,
-                pitch_deg=pitch_deg,
-                roll_deg=roll_deg,
-            )
+            pred = predict(model, Plan(pos, float(w), settle_s), latitude_deg, **conditions)
             if best is None or pred.sigma_deg < best[1].sigma_deg * (1 - 1e-9):
                 best = (float(w), pred)
         assert best is not None
@@ -141,13 +129,8 @@ def shortest_plan(
     *,
     max_time_s: float = 4 * 3600.0,
     settle_s: float | None = None,
-    warmup_s: float = 0.0,
-    tilt: str = "accel",
-    angles: str = "encoder",
-    sample_rate_hz: float = 200.0,
-    pitch_deg: float = 0.0,
-    roll_deg: float = 0.0,
     geometries: Sequence[tuple[float, ...]] = GEOMETRIES,
+    **conditions: Unpack[Conditions],
 ) -> PlanCandidate | None:
     """The plan with the shortest plan time whose predicted sigma meets ``target_deg``.
 
@@ -160,17 +143,7 @@ def shortest_plan(
     best: PlanCandidate | None = None
 
     def sigma(pos: tuple[float, ...], w: float) -> Prediction:
-        return predict(
-            model,
-            Plan(pos, w, settle_s),
-            latitude_deg,
-            warmup_s=warmup_s,
-            tilt=tilt,
-            angles=angles,
-            sample_rate_hz=sample_rate_hz,
-            pitch_deg=pitch_deg,
-            roll_deg=roll_deg,
-        )
+        return predict(model, Plan(pos, w, settle_s), latitude_deg, **conditions)
 
     for pos in geometries:
         w_max = (max_time_s - _overhead_s(pos, model.table, settle_s)) / len(pos)

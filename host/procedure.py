@@ -23,7 +23,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.driver.errors import DeviceFault, DriverTimeout
+from northfinder.driver.errors import DeviceFault, DriverTimeout, StreamGap
 from northfinder.driver.protocol.constants import (
     VALIDITY_GOOD,
     VALIDITY_UNFIT,
@@ -47,8 +47,10 @@ from northfinder.host.plan import HEADING_SOLVERS, Plan
 __all__ = [
     "BAD_BITS",
     "MAX_ENCODER_SPAN_DEG",
+    "MAX_REMEASURE",
     "MAX_SETTLE_S",
     "METHOD_CHOICES",
+    "ON_GAP_CHOICES",
     "WINDOW_RANGE_S",
     "FindResult",
     "Plan",
@@ -79,6 +81,11 @@ BAD_BITS = VALIDITY_UNFIT
 #: Impulsive samples: farther from the window median than this many robust sigmas (MAD x 1.4826,
 #: at least one output step).
 OUTLIER_SIGMAS = 8.0
+#: What a window with missing sample ticks (a damaged or lost frame) does: measure it again,
+#: keep it and report the gap in the result, or stop the run.
+ON_GAP_CHOICES = ("remeasure", "report", "fail")
+#: How often a window is measured again before the run stops (``on_gap="remeasure"``).
+MAX_REMEASURE = 3
 #: Solvers the procedure offers (a plan's ``pairwise`` is for studies: it gives no one heading).
 METHOD_CHOICES = HEADING_SOLVERS
 #: Window and settle-time limits of a run on a device, s.
@@ -259,6 +266,8 @@ def summarise_window(
     commanded_deg: float,
     denoise_method: str,
     denoise_options: Mapping[str, Any] | None = None,
+    *,
+    allow_gaps: bool = False,
 ) -> PositionWindow:
     """Check one window and reduce it to means and standard errors.
 
@@ -274,8 +283,16 @@ def summarise_window(
     n = len(window.counter)
     if n < 2 * N_BATCHES:
         raise QualityError(f"window at {commanded_deg:g} deg has only {n} samples")
+    gap_note = []
     if window.missing:
-        raise QualityError(f"window at {commanded_deg:g} deg is missing {window.missing} samples")
+        if not allow_gaps:
+            raise QualityError(
+                f"window at {commanded_deg:g} deg is missing {window.missing} samples"
+            )
+        gap_note.append(
+            f"{window.missing} of {n + window.missing} sample ticks missing (damaged or lost "
+            "frames); the mean is of the samples received"
+        )
     bad = unfit_samples(window.validity)
     if bad.any():
         v = np.asarray(window.validity).astype(np.int64)[bad]
@@ -307,7 +324,7 @@ def summarise_window(
     outliers = int(
         np.sum(np.any(np.abs(gyro - med) > OUTLIER_SIGMAS * np.maximum(spread, 1e-12), axis=1))
     )
-    notes = []
+    notes = gap_note
     if outliers > 0.005 * n:
         notes.append(
             f"{outliers} impulsive samples (vibration or shock); consider --denoise hampel"
@@ -535,7 +552,8 @@ def wait_until_ready(
             break
         if state == "FAULT":
             raise HostError(
-                f"the device is in FAULT (faults {getattr(status, 'faults', '?')!r}); reset it"
+                f"the device is in FAULT (faults {getattr(status, 'faults', '?')!r}); reset it "
+                "(northfinder reset, or Device.reset())"
             )
         if now() > deadline:
             raise HostError(
@@ -564,6 +582,8 @@ def find_north(
     sleep: Callable[[float], None] | None = None,
     clock: Callable[[], float] | None = None,
     latitude_source: str = "",
+    on_window: Callable[[int, Any], None] | None = None,
+    on_gap: str = "remeasure",
 ) -> tuple[FindResult, list[Any]]:
     """Run the plan on ``device`` and solve; return the result and the raw windows.
 
@@ -586,6 +606,13 @@ def find_north(
         the wall clock).
     latitude_source : str
         Where the latitude came from, stated in the result.
+    on_window : callable, optional
+        Called with the 0-based index and the raw window as soon as each window is measured
+        (before its checks), e.g. to write it to disk while the run goes on.
+    on_gap : {"remeasure", "report", "fail"}
+        A window with missing sample ticks (a damaged or lost frame): measure it again (up to
+        :data:`MAX_REMEASURE` times, then stop), keep it and state the gap in the result's
+        notes, or stop the run (:class:`~northfinder.driver.errors.StreamGap`).
 
     Raises
     ------
@@ -635,16 +662,49 @@ def find_north(
             )
             sleep(extra)
         report(Progress("acquire", i + 1, n, target % 360.0, seconds_left(i, None) - extra))
-        window = device.acquire(plan.window_s, on_gap="raise")
-        device.stop_streaming()
+        window, remeasured = _acquire(device, plan.window_s, on_gap)
+        # Stop the stream between windows, but only one this host started (another host on
+        # the bus may be using it): a Device has release_stream for that. A window complete
+        # in hand is kept when the stop's reply does not come (the next window starts with
+        # the next sample whether the stream ran on or not).
+        stream_note = []
+        try:
+            getattr(device, "release_stream", device.stop_streaming)()
+        except DriverTimeout as exc:
+            stream_note.append(f"STREAM_STOP unanswered after the window ({exc})")
         raw.append(window)
-        summary = summarise_window(window, target, plan.denoise, options)
+        if on_window is not None:
+            on_window(i, window)
+        summary = summarise_window(
+            window, target, plan.denoise, options, allow_gaps=on_gap == "report"
+        )
+        extra_notes = [*stream_note]
+        if remeasured:
+            extra_notes.append(f"measured again {remeasured} time(s): sample ticks were missing")
+        if extra_notes:
+            summary = dataclasses.replace(summary, notes=(*summary.notes, *extra_notes))
         windows.append(summary)
         here = summary.encoder_deg
     report(Progress("solve", n, n, here, 0.0))
     result = result_from_windows(windows, latitude_deg, plan, latitude_source=latitude_source)
     report(Progress("done", n, n, here, 0.0))
     return result, raw
+
+
+def _acquire(device: DeviceLike, window_s: float, on_gap: str) -> tuple[Any, int]:
+    """One window by ``on_gap`` (see :func:`find_north`); the window and how often it was
+    measured again."""
+    if on_gap not in ON_GAP_CHOICES:
+        raise HostConfigError(f"on_gap: {on_gap!r}; choose one of {', '.join(ON_GAP_CHOICES)}")
+    if on_gap == "report":
+        return device.acquire(window_s, on_gap="report"), 0
+    for attempt in range(MAX_REMEASURE + 1):
+        try:
+            return device.acquire(window_s, on_gap="raise"), attempt
+        except StreamGap:
+            if on_gap == "fail" or attempt == MAX_REMEASURE:
+                raise
+    raise AssertionError("unreachable")  # pragma: no cover
 
 
 def _angle(status: Any) -> float | None:

@@ -22,14 +22,29 @@ CSV (``.csv``)
 NPZ (``.npz``)
     Arrays named after the columns (``gyro_dph`` and ``accel_mps2`` as (n, 3)), concatenated over
     windows, and ``meta_json``: the same metadata as a JSON string.
+
+Written as they arrive
+    :class:`RecordingWriter` writes each window as soon as it is measured. A CSV is first written
+    to a temporary file beside the target, which replaces the target (``os.replace``) once the
+    first window is on disk; later windows are appended and flushed to disk one by one. An NPZ is
+    rewritten to a temporary file after each window and atomically replaces the target. So a
+    failed write never destroys an existing file, and an interrupted run keeps every complete
+    window. The metadata key ``status`` says how the recording ended: ``"recording"`` (written
+    while the windows arrive; a recording that still reads so was cut off: power, SIGKILL, a
+    full disk), ``"interrupted"`` or ``"complete"``; a CSV states the final ``status`` and the
+    number of ``windows`` in comment lines after the samples. A recording without ``status``
+    (written before this key) counts as complete. :attr:`Recording.partial` names what is missing.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
 import math
+import os
+import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,6 +65,7 @@ __all__ = [
     "RecordedWindow",
     "Recording",
     "RecordingError",
+    "RecordingWriter",
 ]
 
 FORMAT = "northfinder-recording"
@@ -147,43 +163,54 @@ class Recording:
         return cls(tuple(windows), {"latitude_deg": latitude_deg, "sample_rate_hz": fs})
 
     def save(self, path: str | Path) -> None:
-        """Write as CSV or NPZ, chosen by the file name's ending."""
-        p = Path(path)
+        """Write as CSV or NPZ, chosen by the file name's ending: to a temporary file beside it,
+        which then replaces ``path`` at once (a failed write leaves an existing file as it was).
+
+        Raises
+        ------
+        RecordingError
+            The name ends in neither .csv nor .npz.
+        OutputError
+            The file cannot be written.
+        """
+        p = _recording_path(path)
         meta = {"format": FORMAT, "version": VERSION, **self.meta}
+        meta.setdefault("status", "complete")
         try:
             if p.suffix == ".npz":
-                payload: dict[str, Any] = {
-                    "meta_json": np.array(json.dumps(meta)),
-                    **_concat(self.windows),
-                }
-                np.savez_compressed(p, **payload)
-            elif p.suffix == ".csv":
-                with p.open("w", newline="") as fh:
-                    for k, v in meta.items():
-                        fh.write(f"# {k} = {json.dumps(v)}\n")
-                    writer = csv.writer(fh)
-                    writer.writerow(COLUMNS)
-                    for i, w in enumerate(self.windows):
-                        for j in range(len(w.counter)):
-                            writer.writerow(
-                                [
-                                    i,
-                                    f"{w.commanded_deg:.6f}",
-                                    int(w.counter[j]),
-                                    f"{w.time_s[j]:.6f}",
-                                ]
-                                + [repr(float(v)) for v in w.gyro_dph[j]]
-                                + [repr(float(v)) for v in w.accel_mps2[j]]
-                                + [
-                                    f"{w.table_deg[j]:.6f}",
-                                    f"{w.temperature_c[j]:.2f}",
-                                    int(w.validity[j]),
-                                ]
-                            )
+                _replace_npz(p, meta, self.windows)
             else:
-                raise RecordingError(f"{p}: the file name must end in .csv or .npz")
+                with _atomic(p) as fh:
+                    _write_csv_head(fh, meta)
+                    for i, w in enumerate(self.windows):
+                        _write_csv_rows(fh, i, w)
+                    _write_csv_tail(fh, meta["status"], len(self.windows))
         except OSError as exc:
-            raise OutputError(f"{p}: cannot write ({exc.strerror})") from exc
+            raise OutputError(f"{p}: cannot write ({exc.strerror or exc})") from exc
+
+    @property
+    def status(self) -> str:
+        """How the recording ended: ``"complete"``, ``"interrupted"`` or ``"recording"``
+        (cut off while written); ``"complete"`` for a recording written before the key."""
+        return str(self.meta.get("status", "complete"))
+
+    @property
+    def planned_windows(self) -> int | None:
+        """The number of windows the recording's plan asked for, if it states its plan."""
+        plan = self.meta.get("plan")
+        positions = plan.get("positions_deg") if isinstance(plan, dict) else None
+        return len(positions) if isinstance(positions, list) else None
+
+    @property
+    def partial(self) -> str | None:
+        """None for a complete recording, else what it holds: ``"interrupted: 3 of 4 windows"``
+        (every window it holds is complete)."""
+        if self.status == "complete":
+            return None
+        why = "interrupted" if self.status == "interrupted" else "cut off while recording"
+        planned = self.planned_windows
+        of = f" of {planned}" if planned is not None else ""
+        return f"{why}: {len(self.windows)}{of} windows"
 
     @staticmethod
     def load(path: str | Path, *, min_windows: int = 2) -> Recording:
@@ -194,6 +221,7 @@ class Recording:
         p = Path(path)
         if p.suffix not in (".csv", ".npz"):
             raise RecordingError(f"{p}: the file name must end in .csv or .npz")
+        _check_readable(p)
         try:
             if p.suffix == ".npz":
                 arrays, meta = _read_npz(p)
@@ -217,7 +245,55 @@ class Recording:
         check_meta(meta, p)
         windows = _split(arrays, p, min_windows)
         check_rate(windows, float(meta["sample_rate_hz"]), p)
-        return Recording(windows, meta)
+        recording = Recording(windows, meta)
+        check_against_plan(recording, p)
+        return recording
+
+
+def check_against_plan(rec: Recording, p: Path | str) -> None:
+    """Refuse a recording that does not hold what its own plan and status say: fewer windows
+    than planned in a recording that says it is complete, a window shorter than the plan's
+    (cut short) or longer, more windows than planned (padded). A recording without a plan
+    (written by other tools) is not checked; a partial one (:attr:`Recording.partial`) may hold
+    fewer windows, each of them whole.
+
+    Raises
+    ------
+    RecordingError
+        ``truncated: 3 of 4 windows, the last cut short``, ``padded: ...``.
+    """
+    plan = rec.meta.get("plan")
+    if not isinstance(plan, dict):
+        return
+    positions, window_s = plan.get("positions_deg"), plan.get("window_s")
+    if not isinstance(positions, list) or not _number(window_s) or window_s <= 0:
+        return
+    planned = len(positions)
+    n = round(float(window_s) * float(rec.meta["sample_rate_hz"]))
+    have = len(rec.windows)
+    sizes = [len(w.counter) + w.missing for w in rec.windows]  # ticks spanned, gaps included
+    if have > planned:
+        raise RecordingError(f"{p}: padded: {have} windows, its plan has {planned}")
+    long = [i for i, k in enumerate(sizes) if k > n]
+    if long:
+        raise RecordingError(
+            f"{p}: padded: window {long[0]} spans {sizes[long[0]]} sample ticks; its plan's "
+            f"{window_s:g} s at {rec.meta['sample_rate_hz']:g} Hz make {n}"
+        )
+    short = [i for i, k in enumerate(sizes) if k < n]
+    if short and short != [have - 1]:
+        raise RecordingError(
+            f"{p}: truncated: window {short[0]} has {sizes[short[0]]} of its {n} samples"
+        )
+    if short:
+        raise RecordingError(
+            f"{p}: truncated: {have} of {planned} windows, the last cut short "
+            f"({sizes[-1]} of {n} samples)"
+        )
+    if have < planned and rec.partial is None:
+        raise RecordingError(
+            f"{p}: truncated: {have} of {planned} windows, though it says it is complete"
+        )
 
 
 def check_rate(windows: tuple[RecordedWindow, ...], rate_hz: float, p: Path | str) -> None:
@@ -342,6 +418,205 @@ def _read_npz(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
     return arrays, meta
 
 
+#: Largest recording read, bytes (a day of 200 Hz samples in CSV is about 2 GB; beyond this the
+#: reader would exhaust memory rather than say what is wrong).
+MAX_RECORDING_BYTES = 4 << 30
+
+
+def _check_readable(p: Path) -> None:
+    """Refuse what is no regular file (a FIFO would block, a device never end) or is larger
+    than :data:`MAX_RECORDING_BYTES`."""
+    import stat
+
+    try:
+        st = p.stat()
+    except OSError as exc:
+        raise RecordingError(f"{p}: cannot read ({exc.strerror or exc})") from exc
+    if not stat.S_ISREG(st.st_mode):
+        raise RecordingError(f"{p}: not a regular file (a folder, a FIFO or a device)")
+    if st.st_size > MAX_RECORDING_BYTES:
+        raise RecordingError(
+            f"{p}: {st.st_size / 2**30:.1f} GiB; recordings up to {MAX_RECORDING_BYTES >> 30} GiB "
+            "are read (split a longer session)"
+        )
+
+
+def _recording_path(path: str | Path) -> Path:
+    p = Path(path)
+    if p.suffix not in (".csv", ".npz"):
+        raise RecordingError(f"{p}: the file name must end in .csv or .npz")
+    return p
+
+
+def _temporary_beside(p: Path) -> tuple[int, str]:
+    """A new temporary file in ``p``'s directory (so that ``os.replace`` is atomic), with the
+    permissions a file created in place would get (mkstemp makes it private)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent or ".")
+    try:
+        mode = os.stat(p).st_mode & 0o777
+    except OSError:
+        umask = os.umask(0o022)
+        os.umask(umask)
+        mode = 0o666 & ~umask
+    with contextlib.suppress(OSError):
+        os.fchmod(fd, mode)
+    return fd, tmp
+
+
+@contextlib.contextmanager
+def _atomic(p: Path, mode: str = "w") -> Any:
+    """A temporary file beside ``p`` that replaces ``p`` once written and flushed to disk; on
+    any error it is removed and ``p`` is left as it was."""
+    fd, tmp = _temporary_beside(p)
+    try:
+        with os.fdopen(fd, mode, newline="" if "b" not in mode else None) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _replace_npz(p: Path, meta: dict[str, Any], windows: tuple[RecordedWindow, ...]) -> None:
+    payload: dict[str, Any] = {"meta_json": np.array(json.dumps(meta)), **_concat(windows)}
+    with _atomic(p, "wb") as fh:
+        np.savez_compressed(fh, **payload)
+
+
+def _write_csv_head(fh: Any, meta: dict[str, Any]) -> None:
+    for k, v in meta.items():
+        fh.write(f"# {k} = {json.dumps(v)}\n")
+    csv.writer(fh).writerow(COLUMNS)
+
+
+def _write_csv_rows(fh: Any, i: int, w: RecordedWindow) -> None:
+    writer = csv.writer(fh)
+    for j in range(len(w.counter)):
+        writer.writerow(
+            [i, f"{w.commanded_deg:.6f}", int(w.counter[j]), f"{w.time_s[j]:.6f}"]
+            + [repr(float(v)) for v in w.gyro_dph[j]]
+            + [repr(float(v)) for v in w.accel_mps2[j]]
+            + [f"{w.table_deg[j]:.6f}", f"{w.temperature_c[j]:.2f}", int(w.validity[j])]
+        )
+
+
+def _write_csv_tail(fh: Any, status: str, windows: int) -> None:
+    fh.write(f"# status = {json.dumps(status)}\n# windows = {windows}\n")
+
+
+class RecordingWriter:
+    """Writes a recording window by window, as the windows are measured (module docstring).
+
+    ``add`` never raises for a failed write: the first error is kept (:attr:`error`), later
+    windows are counted but not written, and :meth:`close` raises it, so that a run goes on to
+    its result and the caller reports the result first, then the error.
+
+    Parameters
+    ----------
+    path : str or Path
+        The recording, .csv or .npz (replaced once the first window is on disk).
+    meta : dict
+        Its metadata (``latitude_deg``, ``sample_rate_hz``, ``plan``, ...).
+
+    Raises
+    ------
+    RecordingError
+        The name ends in neither .csv nor .npz.
+    """
+
+    def __init__(self, path: str | Path, meta: dict[str, Any]) -> None:
+        self.path = _recording_path(path)
+        self.meta = {"format": FORMAT, "version": VERSION, **meta, "status": "recording"}
+        self.windows: list[RecordedWindow] = []
+        self.written = 0
+        self.error: OutputError | None = None
+        self._fh: Any = None
+        self._good = 0  # bytes of the CSV up to the end of its last complete window
+        self._closed = False
+
+    def add(self, window: RecordedWindow) -> None:
+        """Write one more window (flushed to disk before this returns)."""
+        self.windows.append(window)
+        if self.error is not None or self._closed:
+            return
+        try:
+            if self.path.suffix == ".npz":
+                _replace_npz(self.path, self.meta, tuple(self.windows))
+            else:
+                self._append_csv(len(self.windows) - 1, window)
+            self.written = len(self.windows)
+        except OSError as exc:
+            self._failed(exc)
+
+    def _append_csv(self, i: int, window: RecordedWindow) -> None:
+        if self._fh is None:
+            fd, tmp = _temporary_beside(self.path)
+            fh = os.fdopen(fd, "w", newline="")
+            try:
+                _write_csv_head(fh, self.meta)
+                _write_csv_rows(fh, i, window)
+                fh.flush()
+                os.fsync(fh.fileno())
+                os.replace(tmp, self.path)  # the open file now is the recording
+            except BaseException:
+                fh.close()
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+                raise
+            self._fh = fh
+        else:
+            _write_csv_rows(self._fh, i, window)
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+        self._good = self._fh.tell()
+
+    def _failed(self, exc: OSError) -> None:
+        kept = f"; {self.written} complete window(s) kept" if self.written else ""
+        self.error = OutputError(f"{self.path}: cannot write ({exc.strerror or exc}){kept}")
+        self.error.__cause__ = exc
+        if self._fh is not None:
+            # Cut a half-written window off: the file ends with complete windows.
+            with contextlib.suppress(OSError, ValueError):
+                self._fh.flush()
+            with contextlib.suppress(OSError, ValueError):
+                self._fh.truncate(self._good)
+
+    def close(self, status: str = "complete") -> None:
+        """State how the recording ended (``"complete"`` or ``"interrupted"``) and close it.
+        Without a window written, an existing file is left untouched.
+
+        Raises
+        ------
+        OutputError
+            A write failed (the message says how many complete windows the file keeps).
+        """
+        if self._closed:
+            if self.error is not None:
+                raise self.error
+            return
+        self._closed = True
+        self.meta["status"] = status
+        try:
+            if self.error is None and self.written:
+                if self.path.suffix == ".npz":
+                    _replace_npz(self.path, self.meta, tuple(self.windows[: self.written]))
+                else:
+                    _write_csv_tail(self._fh, status, self.written)
+                    self._fh.flush()
+                    os.fsync(self._fh.fileno())
+        except OSError as exc:
+            self._failed(exc)
+        finally:
+            if self._fh is not None:
+                with contextlib.suppress(OSError, ValueError):
+                    self._fh.close()
+        if self.error is not None:
+            raise self.error
+
+
 def _read_csv(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
     text = p.read_text(errors="replace")
     meta: dict[str, Any] = {}
@@ -374,6 +649,12 @@ def _read_csv(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
     rows = []
     for lineno, row in enumerate(reader, start=body_start + 2):
         if not row:
+            continue
+        if row[0].startswith("#"):  # the tail: how the recording ended
+            key, sep, value = ",".join(row)[1:].partition("=")
+            with contextlib.suppress(json.JSONDecodeError):
+                if sep:
+                    meta[key.strip()] = json.loads(value.strip())
             continue
         try:
             values = [float(row[k]) for k in idx]

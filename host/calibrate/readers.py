@@ -12,7 +12,6 @@ from a recording by its header, and ``.gz`` of the text formats), whose windows
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -150,30 +149,43 @@ def read_runs(paths: Sequence[str | Path]) -> list[RecordedRun]:
                 f"{', '.join(sorted(READERS))}"
             )
         runs.append(reader(p))
-    seen: dict[str, str] = {}
-    for name, run in zip(map(str, paths), runs, strict=True):
-        key = _fingerprint(run)
-        if key in seen:
-            first = seen[key]
-            same = (
-                "is the same file as"
-                if Path(name).resolve() == Path(first).resolve()
-                else "holds the same samples as"
-            )
-            raise RecordingError(
-                f"{name}: {same} {first}; each recording must be a separate power-on "
-                "(a repeated one would be counted as independent data)"
-            )
-        seen[key] = name
+    names = list(map(str, paths))
+    for j, run in enumerate(runs):
+        first = next((names[i] for i in range(j) if same_session(runs[i], run)), None)
+        if first is None:
+            continue
+        name = names[j]
+        same = (
+            "is the same file as"
+            if Path(name).resolve() == Path(first).resolve()
+            else "holds the same samples as"
+        )
+        raise RecordingError(
+            f"{name}: {same} {first}; each recording must be a separate power-on "
+            "(a repeated one would be counted as independent data)"
+        )
     return runs
 
 
-def _fingerprint(run: RecordedRun) -> str:
-    """A digest of a run's samples (not its file name or metadata): equal for copies."""
-    h = hashlib.sha256()
-    for w in run.windows:
-        for a in (w.counter, w.time_s, w.gyro_dph, w.accel_mps2, w.table_deg, w.validity):
-            arr = np.ascontiguousarray(a)
-            h.update(str(arr.shape).encode())
-            h.update(arr.astype(arr.dtype.newbyteorder("<"), copy=False).tobytes())
-    return h.hexdigest()
+#: Sample values of one session written in two formats (a recording's CSV or NPZ, a CAN log's
+#: counts scaled back) agree to this, relative and absolute (deg/h, m/s^2); two power-ons never do.
+SAME_SESSION_RTOL = 1e-6
+SAME_SESSION_ATOL = 1e-6
+
+
+def same_session(a: RecordedRun, b: RecordedRun) -> bool:
+    """Whether two runs hold the same session: the same windows of the same sample counters and
+    validity, with gyro and accelerometer samples equal within :data:`SAME_SESSION_RTOL` (a
+    recording and a CAN log of one run differ in the last digits, as floats written and read
+    in another way do)."""
+    if len(a.windows) != len(b.windows):
+        return False
+    for wa, wb in zip(a.windows, b.windows, strict=True):
+        if not (
+            np.array_equal(wa.counter, wb.counter) and np.array_equal(wa.validity, wb.validity)
+        ):
+            return False
+        for x, y in ((wa.gyro_dph, wb.gyro_dph), (wa.accel_mps2, wb.accel_mps2)):
+            if not np.allclose(x, y, rtol=SAME_SESSION_RTOL, atol=SAME_SESSION_ATOL):
+                return False
+    return True

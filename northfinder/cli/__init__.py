@@ -4,15 +4,24 @@ Every subcommand's errors derive from the packages' root exceptions (``HostError
 ``SimError``); they are printed as one line naming what is wrong, with the exit status of
 :mod:`northfinder.cli.common` (2: the request is wrong, 1: the work failed). ``--debug``
 shows the traceback instead.
+
+SIGINT (Ctrl-C), SIGTERM and SIGHUP end a command the same way: the work stops, a device the
+command opened is left at rest (STOP for a move it commanded, STREAM_STOP for a stream it started),
+logs are closed, one line says what was done, and the exit status is 128 + the signal's number
+(130, 143, 129).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+import time
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 from northfinder.cli.common import (
@@ -20,7 +29,9 @@ from northfinder.cli.common import (
     EXIT_RUNTIME,
     EXIT_USAGE,
     SUMMARIES,
+    SignalInterrupt,
     common_group,
+    ending_of,
     order_groups,
     report_error,
 )
@@ -45,6 +56,7 @@ COMMANDS: dict[str, str] = {
     "calibrate": "northfinder.cli.calibrate",
     "monitor": "northfinder.cli.monitor",
     "dump": "northfinder.cli.dump",
+    "reset": "northfinder.cli.reset",
 }
 
 
@@ -140,12 +152,49 @@ def _command_of(argv: Sequence[str]) -> str:
     return ""
 
 
+#: Signals that end a command as Ctrl-C does (SIGINT is Ctrl-C itself).
+ENDING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: Seconds after the first ending signal during which more are ignored: the clean-up (STOP,
+#: STREAM_STOP, a few replies) runs to its end; a signal after that interrupts it.
+CLEANUP_GRACE_S = 3.0
+
+
+@contextlib.contextmanager
+def ending_signals() -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP raise :class:`~northfinder.cli.common.SignalInterrupt` (a
+    KeyboardInterrupt) in the main thread, so that every ending runs the same clean-up; the
+    previous handlers come back afterwards. Outside the main thread nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    first: list[float] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        now = time.monotonic()
+        if first and now - first[0] < CLEANUP_GRACE_S:
+            return  # leaving already: let the clean-up finish
+        first[:] = [now]
+        raise SignalInterrupt(signum)
+
+    previous = {}
+    for sig in ENDING_SIGNALS:
+        with contextlib.suppress(OSError, ValueError):
+            previous[sig] = signal.signal(sig, handler)
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            with contextlib.suppress(OSError, ValueError, TypeError):
+                signal.signal(sig, old)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    try:
-        return _main(argv)
-    except KeyboardInterrupt:  # while a command's module loads, or while an error is reported
-        return _interrupted(_command_of(argv) or "")
+    with ending_signals():
+        try:
+            return _main(argv)
+        except KeyboardInterrupt as exc:  # while a module loads, or while an error is reported
+            return _interrupted(_command_of(argv) or "", exc)
 
 
 def _main(argv: list[str]) -> int:
@@ -157,8 +206,8 @@ def _main(argv: list[str]) -> int:
     _configure_logging(args)
     try:
         return int(args._run(args) or 0)
-    except KeyboardInterrupt:
-        return _interrupted(args.command)
+    except KeyboardInterrupt as exc:
+        return _interrupted(args.command, exc)
     except BrokenPipeError:
         # The reader of stdout went away (``northfinder find --json | head``): nothing left to
         # say to it. Further writes to the closed pipe would fail again at exit.
@@ -173,35 +222,45 @@ def _main(argv: list[str]) -> int:
             # interrupt is what happened, not the clean-up's error.
             if args.debug:
                 raise
-            return _interrupted(args.command)
+            return _interrupted(args.command, exc)
         if args.debug:
             raise
         return report_error(args.command, exc)
 
 
-def _caused_by_interrupt(exc: BaseException) -> bool:
-    """Whether a KeyboardInterrupt is in the error's chain of causes and contexts."""
+def _interrupt_in(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt in the error's chain of causes and contexts, if any."""
     seen: set[int] = set()
     current: BaseException | None = exc
     while current is not None and id(current) not in seen:
         if isinstance(current, KeyboardInterrupt):
-            return True
+            return current
         seen.add(id(current))
         current = current.__cause__ or current.__context__
-    return False
+    return None
 
 
-def _interrupted(command: str) -> int:
-    """The one line of Ctrl-C (SIGINT), and its status 130."""
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is in the error's chain of causes and contexts."""
+    return _interrupt_in(exc) is not None
+
+
+def _interrupted(command: str, exc: BaseException | None = None) -> int:
+    """The one line of an ending signal (``interrupted: sent STOP and STREAM_STOP; the unit
+    reads READY``), and its status: 128 + the signal's number (130 for Ctrl-C)."""
+    interrupt = _interrupt_in(exc) if exc is not None else None
+    signum = getattr(interrupt, "signum", signal.SIGINT)
+    what = (
+        "interrupted" if signum == signal.SIGINT else f"interrupted ({signal.Signals(signum).name})"
+    )
+    ending = ending_of(exc) if exc is not None else None
+    if ending is not None:
+        what += f": {ending}"
     try:
-        print(
-            f"northfinder{' ' + command if command else ''}: interrupted",
-            file=sys.stderr,
-            flush=True,
-        )
+        print(f"northfinder{' ' + command if command else ''}: {what}", file=sys.stderr, flush=True)
     except (OSError, ValueError):
         pass
-    return EXIT_INTERRUPTED
+    return EXIT_INTERRUPTED if signum == signal.SIGINT else 128 + int(signum)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -13,7 +13,8 @@ Exit status
   their consistency check (they disagree beyond their noise: a bias step, a drift, a table angle
   error, a wrong latitude). The result is printed (JSON, plot, record) with the warning, its
   sigma scaled; NMEA sends it as not valid. A script must not take it as a good heading.
-- 130: interrupted (Ctrl-C).
+- 130, 143, 129: interrupted by SIGINT (Ctrl-C), SIGTERM, SIGHUP (128 + the signal's number);
+  a device the command opened is left at rest first (:class:`SignalInterrupt`).
 
 :func:`exit_status` maps an exception to its status by :data:`EXIT_STATUS` (the most specific
 class of the error's MRO decides); :func:`report_error` prints the one line. An exception of no
@@ -55,6 +56,45 @@ EXIT_RUNTIME = 1
 EXIT_USAGE = 2
 EXIT_INCONSISTENT = 3
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class SignalInterrupt(KeyboardInterrupt):
+    """SIGTERM, SIGHUP (or SIGINT) turned into the interrupt Ctrl-C raises, so that every
+    ending runs the same clean-up; ``signum`` names the signal."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = int(signum)
+
+
+def note_ending(exc: BaseException, clause: str) -> None:
+    """Remember on ``exc`` a clause of what was done as the command ended (the device left at
+    rest, the windows kept), for the one line that reports ``exc``."""
+    with contextlib.suppress(AttributeError, TypeError):
+        clauses = exc.__dict__.setdefault("northfinder_ending", [])
+        clauses.append(clause)
+
+
+def note_at_rest(exc: BaseException, rest: Any) -> None:
+    """:func:`note_ending` with what was done to leave the device at rest (an
+    :class:`~northfinder.driver.link.AtRest`), if there was anything to undo."""
+    if rest.needed:
+        note_ending(exc, rest.summary())
+
+
+def ending_of(exc: BaseException) -> str | None:
+    """The clauses :func:`note_ending` remembered on ``exc`` and the errors in its chain, joined
+    (``sent STOP; the unit reads SETTLING; kept 3 of 4 windows in run.csv``); None if none."""
+    clauses: list[str] = []
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        clauses += getattr(current, "northfinder_ending", [])
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return "; ".join(clauses) if clauses else None
+
 
 #: Exception class -> exit status. The first class of an error's MRO found here decides, so a
 #: subclass listed overrides its base (a HostConfigError is a HostError, and exits 2).
@@ -103,8 +143,13 @@ def error_line(command: str, exc: BaseException) -> str:
 
 
 def report_error(command: str, exc: BaseException, stream: TextIO | None = None) -> int:
-    """Print the one line for ``exc`` and return the exit status (internal errors: 1)."""
-    print(error_line(command, exc), file=stream or sys.stderr)
+    """Print the one line for ``exc`` and return the exit status (internal errors: 1); what was
+    done to leave a device at rest (:func:`note_at_rest`) ends the line."""
+    line = error_line(command, exc)
+    ending = ending_of(exc)
+    if ending is not None:
+        line += f" ({ending})"
+    print(line, file=stream or sys.stderr)
     status = exit_status(exc)
     return EXIT_RUNTIME if status is None else status
 
@@ -165,6 +210,7 @@ SUMMARIES: dict[str, str] = {
     "calibrate": "fit sensor terms to recordings and write a sensor TOML",
     "monitor": "live terminal view of a unit (Textual)",
     "dump": "decode a CAN log or a live bus with protocol.dbc",
+    "reset": "restart a unit (clears FAULT)",
 }
 
 

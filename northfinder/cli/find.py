@@ -28,7 +28,6 @@ from northfinder.cli.measure import (
     Measured,
     add_arguments,
     run_plan,
-    save_recording,
 )
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
 
@@ -139,9 +138,7 @@ def _find_spin(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: boo
 
 
 def _find(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
-    m = run_plan(args, progress=not (args.json or to_stdout))
-    if args.record:
-        save_recording(args.record, m)
+    m = run_plan(args, progress=not (args.json or to_stdout), record_to=args.record)
     if args.plot:
         report.plot(args.plot, m.result, m.windows, m.plan.denoise, m.truth)
     text = (
@@ -150,6 +147,8 @@ def _find(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) ->
         else report.text(m.result, m.truth)
     )
     print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
+    if m.errors:  # the heading is out; now what could not be written (exit 1)
+        raise m.errors[0]
     if nmea is not None:
         send_nmea(args, m, nmea)
     return result_status(m.result.consistent)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import math
 import sys
 from collections.abc import Iterator
@@ -26,6 +27,8 @@ from northfinder.cli.common import (
     common_group,
     latitude_source,
     load_sensor,
+    note_at_rest,
+    note_ending,
     open_can_bus,
     run_seed,
     sim_latitude,
@@ -36,18 +39,19 @@ from northfinder.driver.device import Device
 from northfinder.driver.errors import DriverError
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.host.denoise import METHODS
-from northfinder.host.errors import HostConfigError
+from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 from northfinder.host.procedure import (
     MAX_SETTLE_S,
     METHOD_CHOICES,
+    ON_GAP_CHOICES,
     WINDOW_RANGE_S,
     FindResult,
     Plan,
     Progress,
     find_north,
 )
-from northfinder.host.recording import RecordedWindow, Recording
+from northfinder.host.recording import RecordedWindow, Recording, RecordingWriter
 from northfinder.host.results import device_identity, utc_now
 
 #: Default warm-up of the embedded simulator, s (the paper's 2 min).
@@ -131,13 +135,19 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
         "--settle",
         type=bounded_float(0.0, MAX_SETTLE_S, "s"),
         default=0.0,
-        help=f"settle seconds from the end of a move to the window, up to {MAX_SETTLE_S:g} "
-        "(default 0: the device's own)",
+        help=f"seconds after a move, up to {MAX_SETTLE_S:g} (default 0)",
     )
     g.add_argument(
         "--denoise", default="none", choices=list(METHODS), help="denoising method (default none)"
     )
     add_solver_argument(g, METHOD_CHOICES)
+    g.add_argument(
+        "--on-gap",
+        choices=ON_GAP_CHOICES,
+        default="remeasure",
+        metavar="MODE",
+        help="lost ticks: remeasure (default), report or fail",
+    )
     g.add_argument(
         "--timeout",
         type=bounded_float(0.0, MAX_WAIT_S, "s", open_lo=True),
@@ -185,17 +195,38 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 
 @contextlib.contextmanager
-def open_device(args: argparse.Namespace) -> Iterator[tuple[Device, dict[str, Any] | None]]:
-    """The device named by the arguments, and the simulated truth when it is simulated."""
+def open_device(
+    args: argparse.Namespace, deferred: list[Exception] | None = None
+) -> Iterator[tuple[Device, dict[str, Any] | None]]:
+    """The device named by the arguments, and the simulated truth when it is simulated.
+
+    With ``deferred``, a CAN log (``--can-log``) that cannot be completed after a successful
+    run is added to it instead of raised: the caller reports its result first, then the error.
+    """
     check_arguments(args)
     with contextlib.ExitStack() as stack:
-        tap = stack.enter_context(FrameLog(args.can_log)) if args.can_log else None
+        tap = None
+        if args.can_log:
+            tap = FrameLog(args.can_log)
+            stack.push(functools.partial(_close_log, tap, deferred))
         if args.sim:
             with embedded_simulator(args, tap) as (device, truth):
                 yield device, truth
             return
         with _open_unit(args, tap) as device:
             yield device, None
+
+
+def _close_log(log: FrameLog, deferred: list[Exception] | None, *exc_info: Any) -> bool:
+    """Close the CAN log as the run's context ends; after a successful run, a log that cannot be
+    completed goes to ``deferred`` (the result is reported first)."""
+    try:
+        log.close()
+    except DriverError as exc:
+        if deferred is None or exc_info[0] is not None:
+            raise
+        deferred.append(exc)
+    return False
 
 
 @contextlib.contextmanager
@@ -206,8 +237,19 @@ def _open_unit(args: argparse.Namespace, tap: FrameLog | None) -> Iterator[Devic
     else:
         bus = open_can_bus(args)
         device = Device.from_bus(bus, node_id=args.node_id, own_bus=True, **options)
-    with device:
+    with device, leaving_at_rest(device):
         yield device
+
+
+@contextlib.contextmanager
+def leaving_at_rest(device: Device) -> Iterator[None]:
+    """On any exception, Ctrl-C or an ending signal: leave the device at rest now (STOP, STREAM_STOP
+    for what this host started) and note on the exception what was done, for its one line."""
+    try:
+        yield
+    except BaseException as exc:
+        note_at_rest(exc, device.leave_at_rest())
+        raise
 
 
 def device_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -247,7 +289,7 @@ def embedded_simulator(
     options = {**(RELAXED_DEVICE_OPTIONS if paced else {}), **device_options(args)}
     if tap is not None and not paced:
         tap.use_clock(sim.clock)  # the log's times are the instrument's, not the CPU's
-    with sim, sim.open_device(tap=tap, **options) as device:
+    with sim, sim.open_device(tap=tap, **options) as device, leaving_at_rest(device):
         try:
             yield device, {**sim.describe(), "seed": seed}
         except DriverError:
@@ -321,20 +363,70 @@ class Measured:
     truth: dict[str, Any] | None
     device: dict[str, Any] | None = None
     created_utc: str = ""
+    #: Files that could not be written (the recording, the CAN log), after a result was found:
+    #: the command reports the result first, then these, and exits 1.
+    errors: tuple[Exception, ...] = ()
+    #: What was recorded (``record_to``), as written.
+    recording: Recording | None = None
 
 
-def run_plan(args: argparse.Namespace, *, progress: bool = True) -> Measured:
-    """Open the device, run the plan and solve (``progress``: draw the progress bar)."""
+def recording_meta(
+    plan: Plan,
+    latitude_deg: float,
+    source: str,
+    sample_rate_hz: float,
+    created_utc: str,
+    device: dict[str, Any] | None,
+    truth: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """The metadata of a recording: what is needed to solve it again, the device's identity
+    and the UTC time the run began."""
+    meta: dict[str, Any] = {
+        "latitude_deg": latitude_deg,
+        "latitude_source": source,
+        "sample_rate_hz": sample_rate_hz,
+        "plan": dataclasses.asdict(plan),
+        "created_utc": created_utc or utc_now(),
+        "device": device,
+    }
+    if truth is not None:
+        meta["truth"] = truth
+    return meta
+
+
+def run_plan(
+    args: argparse.Namespace, *, progress: bool = True, record_to: str | None = None
+) -> Measured:
+    """Open the device, run the plan and solve (``progress``: draw the progress bar).
+
+    With ``record_to``, each window is written to that recording as soon as it is measured
+    (:class:`~northfinder.host.recording.RecordingWriter`); an interrupted or failed run keeps
+    every complete window, marked ``interrupted``. A write that fails after the result was
+    found is returned in :attr:`Measured.errors`, not raised.
+    """
     plan = plan_from_args(args)
     check_arguments(args)
     latitude = sim_latitude(args) if args.sim else float(args.latitude)
     created = utc_now()
-    with open_device(args) as (device, truth):
+    source = latitude_source(args, args.sim)
+    deferred: list[Exception] = []
+    writer: RecordingWriter | None = None
+    with open_device(args, deferred) as (device, truth):
         identity = device_identity(
             device.identity,
             simulated=bool(args.sim),
             sensor=None if truth is None else truth.get("sensor"),
         )
+        rate = device.sample_rate_hz
+        on_window = None
+        if record_to is not None:
+            meta = recording_meta(plan, latitude, source, rate, created, identity, truth)
+            writer = RecordingWriter(record_to, meta)
+            w = writer
+
+            def on_window(i: int, window: Any) -> None:
+                w.add(RecordedWindow.from_window(window, plan.positions_deg[i]))
+
         bar = ProgressBar(enabled=progress, label=args.command or "find")
         try:
             clock = device.clock
@@ -346,15 +438,28 @@ def run_plan(args: argparse.Namespace, *, progress: bool = True) -> Measured:
                 progress=bar,
                 sleep=clock.sleep,
                 clock=clock.now,
-                latitude_source=latitude_source(args, args.sim),
+                latitude_source=source,
+                on_window=on_window,
+                on_gap=args.on_gap,
             )
+        except BaseException as exc:
+            if writer is not None:
+                note_ending(exc, _close_interrupted(writer))
+            raise
         finally:
             bar.close()
             if getattr(args, "verbose", 0):
                 print(link_statistics(device), file=sys.stderr, flush=True)
-        return Measured(
-            result, windows, plan, latitude, device.sample_rate_hz, truth, identity, created
-        )
+    recording = None
+    if writer is not None:
+        try:
+            writer.close("complete")
+        except HostError as exc:
+            deferred.insert(0, exc)
+        recording = Recording(tuple(writer.windows[: writer.written]), writer.meta)
+    return Measured(
+        result, windows, plan, latitude, rate, truth, identity, created, tuple(deferred), recording
+    )
 
 
 def link_statistics(device: Device) -> str:
@@ -370,23 +475,13 @@ def link_statistics(device: Device) -> str:
     return line
 
 
-def save_recording(path: str, measured: Measured) -> Recording:
-    """Write the raw windows of a run with what is needed to solve them again, the device's
-    identity and the UTC time the run began."""
-    meta: dict[str, Any] = {
-        "latitude_deg": measured.latitude_deg,
-        "latitude_source": measured.result.latitude_source,
-        "sample_rate_hz": measured.sample_rate_hz,
-        "plan": dataclasses.asdict(measured.plan),
-        "created_utc": measured.created_utc or utc_now(),
-        "device": measured.device,
-    }
-    if measured.truth is not None:
-        meta["truth"] = measured.truth
-    recorded = tuple(
-        RecordedWindow.from_window(w, p)
-        for w, p in zip(measured.windows, measured.plan.positions_deg, strict=True)
-    )
-    recording = Recording(recorded, meta)
-    recording.save(path)
-    return recording
+def _close_interrupted(writer: RecordingWriter) -> str:
+    """Close a recording whose run did not finish; the clause that says what it keeps."""
+    try:
+        writer.close("interrupted")
+    except HostError as exc:
+        return f"the recording is incomplete: {exc}"
+    if not writer.written:
+        return f"no complete window: {writer.path} not written"
+    planned = len(writer.meta["plan"]["positions_deg"])
+    return f"kept {writer.written} of {planned} windows in {writer.path}, marked interrupted"

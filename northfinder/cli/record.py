@@ -1,8 +1,8 @@
 """``northfinder record FILE``: run a plan on a device and write the raw windows (.csv or .npz).
 
 The device, simulator and plan options are those of ``find`` (``--spin RATE_DPS`` records a spin
-instead); ``northfinder solve FILE`` solves
-the recording offline.
+instead); ``northfinder solve FILE`` solves the recording offline. Each window is written as soon as it is measured; an interrupted run keeps
+every complete window, marked ``interrupted`` (``solve`` says so).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import argparse
 
 from northfinder.cli import spinfind
 from northfinder.cli.common import check_output_path, command_parser
-from northfinder.cli.measure import add_arguments, run_plan, save_recording
+from northfinder.cli.measure import add_arguments, run_plan
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -34,7 +34,11 @@ def run(args: argparse.Namespace) -> int:
         n = len(rec.windows[0].counter)
         print(f"wrote a spin of {n} samples at {args.spin:+g} deg/s to {args.file}{seed}")
         return 0
-    recording = save_recording(args.file, run_plan(args))
+    m = run_plan(args, record_to=args.file)
+    if m.errors:
+        raise m.errors[0]
+    recording = m.recording
+    assert recording is not None
     samples = sum(len(w.counter) for w in recording.windows)
     truth = recording.meta.get("truth")
     seed = f" (simulated, seed {truth['seed']})" if truth and "seed" in truth else ""

@@ -125,6 +125,7 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
     """The recording named by the arguments (read from a CAN log if it is one) and where it
     came from."""
     path = Path(args.file)
+    source: dict[str, Any]
     if is_can_log(path):
         session = read_can_log(
             path, node_id=args.node_id, window_s=args.window, skip_damaged=not args.strict,
@@ -167,7 +168,11 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
     rec = Recording.load(path, min_windows=1)
     if "spin" not in rec.meta and len(rec.windows) < 2:
         rec = Recording.load(path)  # the stop-and-go reader's own error: a heading needs two
-    return rec, {"file": str(path), "format": f"recording{path.suffix}"}
+    source = {"file": str(path), "format": f"recording{path.suffix}"}
+    if rec.partial is not None:
+        source["partial"] = rec.partial
+        source["notes"] = [f"partial recording ({rec.partial}): solved from the windows it holds"]
+    return rec, source
 
 
 def run(args: argparse.Namespace) -> int:

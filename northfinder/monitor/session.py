@@ -24,6 +24,7 @@ from northfinder.driver.device import Device
 from northfinder.driver.errors import DriverError, LinkError, LinkLost
 from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.constants import DeviceState
+from northfinder.driver.transport import enlarge_receive_buffer
 from northfinder.host.errors import HostError
 from northfinder.host.plan import Plan
 from northfinder.host.procedure import FindResult, PositionWindow, Progress, find_north
@@ -290,7 +291,7 @@ class PassiveSession(Session):
         self.latitude_deg = latitude_deg
         self.observer = LinkObserver(self.clock.now, node_id, trace_seconds=trace_seconds)
         self._stop = threading.Event()
-        self.bus: can.BusABC | None = open_bus()
+        self.bus: can.BusABC | None = self._open()
         self.connected = True
         self._thread: threading.Thread | None = None
         if self.clock.virtual:
@@ -300,6 +301,13 @@ class PassiveSession(Session):
                 target=self._read, name="northfinder-monitor-listen", daemon=True
             )
             self._thread.start()
+
+    def _open(self) -> can.BusABC:
+        bus = self._open_bus()
+        # A SocketCAN socket's default buffer holds a fraction of a second of the stream: a
+        # screen that stalls the reader that long would lose frames (the driver does the same).
+        enlarge_receive_buffer(bus)
+        return bus
 
     def _poll_bus(self) -> bool:
         got = False
@@ -317,7 +325,7 @@ class PassiveSession(Session):
             bus = self.bus
             try:
                 if bus is None:
-                    bus = self.bus = self._open_bus()
+                    bus = self.bus = self._open()
                     self.connected, self.lost_reason = True, None
                     self.observer.note("bus back: listening again", "ok")
                 msg = bus.recv(0.1)

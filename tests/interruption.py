@@ -1,0 +1,111 @@
+"""A ``northfinder find`` process ended by a real signal during a move, and what the unit reads
+afterwards through the simulator's control channel (used by the tests and by
+``benchmarks/bench_robustness.py --sections interrupt``).
+
+The simulator (``northfinder sim``) and the host (``northfinder find``) are separate processes
+on a pty (serial frames or SLCAN) or on vcan0; the control channel tells the truth of the
+simulated unit whatever the host believes.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from simprocess import sim_process
+
+FIND = [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit(main())", "find"]
+LINKS = ("serial-pty", "slcan-pty", "socketcan")
+VCAN = "vcan0"
+#: The plan of the interrupted run: long windows, so that the moves stand out.
+PLAN = ["--positions", "0,180,180,0", "--window", "2", "--latitude", "34"]
+
+
+@dataclass(frozen=True)
+class Interrupted:
+    """One run: the signal, the host's exit status and last stderr line, the seconds from the
+    signal to its exit, and the unit's state and stream as the control channel reads them."""
+
+    link: str
+    signum: int
+    returncode: int | None
+    last_line: str
+    exit_s: float
+    state: str
+    streaming: bool
+    table_deg: float
+    caught_moving: bool
+
+    @property
+    def at_rest(self) -> bool:
+        return self.state in ("READY", "SETTLING") and not self.streaming
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.__dict__, "signal": signal.Signals(self.signum).name}
+
+
+def sim_link_args(link: str) -> list[str]:
+    return {"serial-pty": ["--pty"], "slcan-pty": ["--slcan-pty"]}.get(
+        link, ["-i", "socketcan", "-c", VCAN]
+    )
+
+
+def host_link_args(link: str, facts: dict[str, str]) -> list[str]:
+    if link == "serial-pty":
+        return ["--serial", facts["pty"]]
+    if link == "slcan-pty":
+        return [
+            "-i",
+            "slcan",
+            "-c",
+            facts["pty"],
+            "-b",
+            "500000",
+            "--bus-kwargs",
+            "sleep_after_open=0",
+        ]
+    return ["-i", "socketcan", "-c", VCAN]
+
+
+def interrupt_during_move(
+    link: str, signum: int, *, seed: int = 1, facts: dict[str, str] | None = None
+) -> Interrupted:
+    """Run ``find`` against a simulator on ``link`` (started here unless ``facts`` of a running
+    one are given), send ``signum`` once the control channel reads ROTATING, and read the unit's
+    state once the host has exited."""
+    if facts is None:
+        wanted = ("control",) if link == "socketcan" else ("pty", "control")
+        args = [*sim_link_args(link), "--warmup", "0", "--seed", str(seed)]
+        with sim_process(*args, "--control", "127.0.0.1:0", wanted=wanted, ready=True) as f:
+            return interrupt_during_move(link, signum, seed=seed, facts=f)
+    from northfinder.firmware_sim.control import ControlClient
+
+    argv = [*FIND, *host_link_args(link, facts), *PLAN, "--link-timeout", "1"]
+    with ControlClient(facts["control"]) as ctl:
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 60.0
+            caught = False
+            while proc.poll() is None and time.monotonic() < deadline:
+                if ctl.call("status")["state"] == "ROTATING":
+                    caught = True
+                    break
+                time.sleep(0.005)
+            sent_at = time.monotonic()
+            proc.send_signal(signum)
+            _, err = proc.communicate(timeout=30)
+            exit_s = time.monotonic() - sent_at
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(5)
+        status = ctl.call("status")
+    lines = err.strip().splitlines()
+    return Interrupted(
+        link, int(signum), proc.returncode, lines[-1] if lines else "", exit_s,
+        status["state"], bool(status["streaming"]), float(status["table_deg"]), caught,
+    )  # fmt: skip

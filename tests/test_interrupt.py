@@ -1,0 +1,191 @@
+"""A host that ends for any reason (SIGINT, SIGTERM, SIGHUP, an error) leaves the unit at rest and
+quiet: STOP for a move it commanded, STREAM_STOP for a stream it started, nothing else.
+
+The driver's part in virtual time; the command line's with real processes and real signals, the
+unit's state read afterwards through the simulator's control channel (``tests/interruption.py``).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+
+import can
+import pytest
+from interruption import FIND, PLAN, host_link_args, interrupt_during_move, sim_link_args
+from simprocess import sim_process
+
+from northfinder.driver.errors import ReplyTimeout
+from northfinder.driver.protocol.can import decode_can
+from northfinder.driver.protocol.constants import DeviceState, Opcode
+from northfinder.driver.protocol.messages import Command
+from northfinder.embed import SimulatedInstrument
+
+
+def _instrument() -> SimulatedInstrument:
+    return SimulatedInstrument("ideal", seed=1, clock="virtual", warmup_s=0.0)
+
+
+def test_leaving_a_move_sends_stop_and_the_table_comes_to_rest():
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        dev.rotate_to(180.0, wait=False)
+        dev.clock.sleep(1.0)
+        assert sim.firmware.state == DeviceState.ROTATING
+        rest = dev.leave_at_rest()
+        assert rest.sent == ("STOP",)
+        assert rest.state in ("SETTLING", "READY")
+        assert "sent STOP; the unit reads" in rest.summary()
+        assert sim.firmware.state != DeviceState.ROTATING
+        # Idempotent: nothing more to undo, the same report.
+        assert dev.leave_at_rest() is rest
+
+
+def test_leaving_a_window_sends_stream_stop_and_a_settled_move_needs_no_stop():
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        dev.rotate_to(90.0)  # settled: nothing of it to undo
+        dev.start_streaming()
+        rest = dev.leave_at_rest()
+        assert rest.sent == ("STREAM_STOP",)
+        assert not sim.firmware.streaming
+
+
+def test_close_after_an_error_in_a_with_block_leaves_the_unit_at_rest():
+    with _instrument() as sim:
+        with pytest.raises(RuntimeError), sim.open_device() as dev:
+            dev.wait_ready(5.0)
+            dev.start_streaming()
+            dev.rotate_to(180.0, wait=False)
+            dev.clock.sleep(0.5)
+            raise RuntimeError("the host's own failure")
+        assert dev.at_rest is not None and dev.at_rest.sent == ("STOP", "STREAM_STOP")
+        assert not sim.firmware.streaming
+        assert sim.firmware.state != DeviceState.ROTATING
+
+
+def test_a_host_that_only_looks_stops_nothing():
+    # Another host's stream and move are not this host's to stop (issue: a second Device that
+    # merely connected and closed stopped the first one's stream).
+    with _instrument() as sim, sim.open_device() as first:
+        first.wait_ready(5.0)
+        first.start_streaming()
+        first.rotate_to(180.0, wait=False)
+        with sim.open_device() as second:
+            assert second.streaming  # it reads the configuration: the unit streams
+            assert not second.leave_at_rest().needed
+        assert sim.firmware.streaming
+        assert sim.firmware.state == DeviceState.ROTATING
+
+
+# -- the command line, with real processes and real signals -----------------------------------
+
+LINK_PARAMS = [
+    pytest.param(
+        link,
+        marks=pytest.mark.skipif(
+            link == "socketcan" and not os.path.exists("/sys/class/net/vcan0"),
+            reason="no vcan0 (scripts/hil runs benchmarks/bench_robustness.py there)",
+        ),
+    )
+    for link in ("serial-pty", "slcan-pty", "socketcan")
+]
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize("link", LINK_PARAMS)
+@pytest.mark.parametrize(
+    "signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=lambda s: s.name
+)
+def test_a_signal_during_a_move_leaves_the_unit_at_rest(link, signum):
+    run = interrupt_during_move(link, signum)
+    assert run.caught_moving
+    assert run.returncode == 128 + signum
+    assert run.state in ("READY", "SETTLING"), run
+    assert not run.streaming
+    assert "sent STOP" in run.last_line and "the unit reads" in run.last_line, run.last_line
+    if signum != signal.SIGINT:
+        assert signal.Signals(signum).name in run.last_line
+
+
+def _commands(log_path: str) -> list[Opcode]:
+    out = []
+    with can.LogReader(log_path) as reader:
+        for msg in reader:
+            try:
+                decoded = decode_can(msg.arbitration_id, msg.data).message
+            except Exception:
+                continue
+            if isinstance(decoded, Command):
+                out.append(decoded.OPCODE)
+    return out
+
+
+@pytest.mark.realtime
+def test_sigterm_during_a_window_stops_the_stream_and_flushes_the_can_log(tmp_path):
+    log = tmp_path / "run.log"
+    args = [*sim_link_args("serial-pty"), "--warmup", "0", "--control", "127.0.0.1:0"]
+    with sim_process(*args, ready=True) as facts:
+        from northfinder.firmware_sim.control import ControlClient
+
+        argv = [*FIND, *host_link_args("serial-pty", facts), *PLAN, "--can-log", str(log)]
+        argv += ["--link-timeout", "2"]  # a loaded machine reads its link late
+        with ControlClient(facts["control"]) as ctl:
+            proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
+            try:
+                while not ctl.call("status")["streaming"]:
+                    assert proc.poll() is None
+                proc.send_signal(signal.SIGTERM)
+                _, err = proc.communicate(timeout=30)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+            status = ctl.call("status")
+    assert proc.returncode == 143, err
+    assert "sent STREAM_STOP" in err.strip().splitlines()[-1]
+    assert not status["streaming"]
+    sent = _commands(str(log))
+    last_start = max(i for i, op in enumerate(sent) if op == Opcode.STREAM_START)
+    assert Opcode.STREAM_STOP in sent[last_start:]  # sent on leaving, and in the log
+
+
+def test_signal_exit_statuses_are_stated():
+    from northfinder.cli import main
+    from northfinder.cli.common import SignalInterrupt
+
+    assert SignalInterrupt(signal.SIGTERM).signum == 15
+    assert isinstance(SignalInterrupt(signal.SIGHUP), KeyboardInterrupt)
+    # A subcommand ended by SIGTERM in this process: the handler main() installs raises.
+    done = subprocess.run(
+        [sys.executable, "-c", "import os, signal, sys\n"
+         "from northfinder.cli import main\n"
+         "import northfinder.cli.simulate as s\n"
+         "s.run = lambda args: os.kill(os.getpid(), signal.SIGTERM) or signal.pause()\n"
+         "sys.exit(main(['simulate']))"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 143, done.stderr
+    assert done.stderr.strip() == "northfinder simulate: interrupted (SIGTERM)"
+    assert main is not None
+
+
+def test_a_stream_start_whose_reply_is_lost_is_still_stopped_on_leaving(monkeypatch):
+    # Under load the reply to STREAM_START can be lost while the stream did start: leaving must
+    # stop it (else the stream runs on with nobody reading it).
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        prepare = dev._prepare_stream_start
+
+        def then_late_replies() -> None:
+            prepare()
+            sim.firmware.faults.reply_delay_s = 5.0  # STREAM_START's replies all come too late
+
+        monkeypatch.setattr(dev, "_prepare_stream_start", then_late_replies)
+        with pytest.raises(ReplyTimeout):
+            dev.start_streaming()
+        sim.firmware.faults.reply_delay_s = 0.0
+        assert sim.firmware.streaming
+        assert dev.leave_at_rest().sent == ("STREAM_STOP",)
+        assert not sim.firmware.streaming

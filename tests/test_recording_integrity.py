@@ -1,0 +1,246 @@
+"""Recordings written as they arrive and replaced atomically; a failed write never destroys a file
+nor hides a result; readers check a recording against its own plan and status."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from northfinder.cli import main
+from northfinder.host.errors import OutputError
+from northfinder.host.recording import RecordedWindow, Recording, RecordingError, RecordingWriter
+
+RATE = 200
+N = 400  # 2 s windows
+
+
+def window(k: int, angle: float) -> RecordedWindow:
+    counter = np.arange(N) + k * 10_000
+    rng = np.random.default_rng(k)
+    return RecordedWindow(
+        angle, counter, (counter + 1) / RATE, rng.normal(0.0, 1.0, (N, 3)),
+        rng.normal([0.0, 0.0, 9.8], 1e-4, (N, 3)), np.full(N, angle), np.full(N, 20.0),
+        np.full(N, 3, dtype=np.uint8),
+    )  # fmt: skip
+
+
+META: dict[str, Any] = {
+    "latitude_deg": 34.0,
+    "sample_rate_hz": RATE,
+    "plan": {"positions_deg": [0.0, 180.0, 180.0, 0.0], "window_s": 2.0},
+}
+ANGLES = META["plan"]["positions_deg"]
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_windows_are_on_disk_as_they_arrive_and_an_interrupted_recording_says_so(tmp_path, suffix):
+    path = tmp_path / f"run{suffix}"
+    writer = RecordingWriter(path, META)
+    for k in range(2):
+        writer.add(window(k, ANGLES[k]))
+        # Readable after every window, before any close: a run cut off here keeps them.
+        rec = Recording.load(path, min_windows=1)
+        assert len(rec.windows) == k + 1
+    assert Recording.load(path).partial == "cut off while recording: 2 of 4 windows"
+    writer.add(window(2, ANGLES[2]))
+    writer.close("interrupted")
+    rec = Recording.load(path)
+    assert rec.partial == "interrupted: 3 of 4 windows"
+    np.testing.assert_array_equal(rec.windows[2].counter, window(2, 0).counter)
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_failed_first_write_leaves_an_existing_file_as_it_was(tmp_path, suffix, monkeypatch):
+    path = tmp_path / f"run{suffix}"
+    good = Recording(tuple(window(k, a) for k, a in enumerate(ANGLES)), dict(META))
+    good.save(path)
+    before = path.read_bytes()
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    writer = RecordingWriter(path, META)
+    writer.add(window(0, 0.0))
+    with pytest.raises(OutputError):
+        good.save(path)  # save() too writes beside it and replaces it only when written
+    monkeypatch.undo()
+    with pytest.raises(OutputError, match="No space left on device"):
+        writer.close()
+    assert path.read_bytes() == before
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_a_write_that_fails_mid_window_keeps_the_complete_windows(tmp_path, monkeypatch):
+    path = tmp_path / "run.csv"
+    writer = RecordingWriter(path, META)
+    writer.add(window(0, 0.0))
+    writer.add(window(1, 180.0))
+    import northfinder.host.recording as recording
+
+    real = recording._write_csv_rows
+
+    def half_then_full(fh, i, w):
+        real(
+            fh,
+            i,
+            RecordedWindow(
+                w.commanded_deg, *(getattr(w, n)[: N // 2] for n in recording.SAMPLE_ARRAYS)
+            ),
+        )
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(recording, "_write_csv_rows", half_then_full)
+    writer.add(window(2, 180.0))
+    with pytest.raises(OutputError, match="2 complete window"):
+        writer.close()
+    rec = Recording.load(path)
+    assert len(rec.windows) == 2 and rec.partial == "cut off while recording: 2 of 4 windows"
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 64 KiB tmpfs (as root), else skipped."""
+    mount = tmp_path / "tiny"
+    mount.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)])
+    if done.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], check=False)
+
+
+FIND = ["--sim", "--warmup", "0", "--seed", "3", "--sensor", "ideal", "--window", "2"]
+
+
+def test_find_on_a_full_disk_prints_the_heading_then_the_error(tiny_disk, capsys):
+    status = main(["find", *FIND, "--record", str(tiny_disk / "run.csv")])
+    out, err = capsys.readouterr()
+    assert status == 1
+    assert "azimuth" in out.lower()
+    last = err.strip().splitlines()[-1]  # after the progress lines, one error line
+    assert last.startswith("northfinder find: error: ") and "No space left on device" in last
+
+
+def test_find_with_a_can_log_that_fails_prints_the_heading_then_the_error(tiny_disk, capsys):
+    status = main(["find", *FIND, "--can-log", str(tiny_disk / "run.log")])
+    out, err = capsys.readouterr()
+    assert status == 1
+    assert "azimuth" in out.lower()
+    assert "CAN log" in err and "incomplete" in err
+
+
+def test_find_record_write_failure_never_hides_the_result(tmp_path, capsys, monkeypatch):
+    import northfinder.host.recording as recording
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(recording, "_write_csv_rows", full)
+    status = main(["find", *FIND, "--record", str(tmp_path / "run.csv"), "--json"])
+    out, err = capsys.readouterr()
+    assert status == 1
+    assert json.loads(out)["azimuth_deg"] is not None
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("northfinder find: error: ") and "No space left" in last
+
+
+@pytest.mark.realtime(alone=False)
+def test_an_interrupted_record_keeps_its_complete_windows_and_solve_says_so(tmp_path):
+    path = tmp_path / "run.csv"
+    argv = [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit(main())",
+            "record", str(path), "--sim", "--speed", "20", "--warmup", "0", "--window", "2",
+            "--positions", "0,90,180,270"]  # fmt: skip
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and proc.poll() is None:
+            if path.exists() and "\n1," in path.read_text():
+                break  # the second window is on disk
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "marked interrupted" in err
+    rec = Recording.load(path)
+    assert rec.partial is not None and rec.partial.startswith("interrupted: ")
+    assert 2 <= len(rec.windows) < 4
+    done = subprocess.run(
+        [*argv[:3], "solve", str(path)], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    assert f"partial recording (interrupted: {len(rec.windows)} of 4 windows)" in done.stdout
+
+
+def _cut_csv(src: Path, dst: Path, keep_rows: int) -> None:
+    lines = src.read_text().splitlines(keepends=True)
+    head = [x for x in lines if x.startswith("#") and "status" not in x and "windows =" not in x]
+    body = [x for x in lines if not x.startswith("#")]
+    dst.write_text("".join(head + body[: 1 + keep_rows]))
+
+
+def test_a_csv_cut_at_a_line_end_is_named_truncated(tmp_path):
+    full = tmp_path / "full.csv"
+    Recording(tuple(window(k, a) for k, a in enumerate(ANGLES)), dict(META)).save(full)
+    old_style = tmp_path / "cut.csv"  # no status lines: as written before they existed
+    _cut_csv(full, old_style, 3 * N - 200)
+    with pytest.raises(RecordingError, match=r"truncated: 3 of 4 windows, the last cut short"):
+        Recording.load(old_style)
+    three = tmp_path / "three.csv"
+    _cut_csv(full, three, 3 * N)
+    with pytest.raises(RecordingError, match=r"truncated: 3 of 4 windows, though it says"):
+        Recording.load(three)
+    # calibrate reads with the same rules
+    from northfinder.host.calibrate.readers import read_runs
+
+    with pytest.raises(RecordingError, match="truncated"):
+        read_runs([old_style])
+
+
+def test_a_padded_recording_is_named(tmp_path):
+    meta = {**META, "plan": {"positions_deg": [0.0, 180.0], "window_s": 2.0}}
+    path = tmp_path / "padded.npz"
+    Recording(tuple(window(k, a) for k, a in enumerate(ANGLES[:3])), meta).save(path)
+    with pytest.raises(RecordingError, match="padded: 3 windows, its plan has 2"):
+        Recording.load(path)
+
+
+def test_calibrates_duplicate_guard_sees_one_session_in_two_formats(tmp_path):
+    from northfinder.host.calibrate.readers import read_runs
+
+    windows = tuple(window(k, a) for k, a in enumerate(ANGLES))
+    npz = tmp_path / "run.npz"
+    Recording(windows, dict(META)).save(npz)
+    # The same session as another tool would write it: floats that differ in the last digits.
+    nudged = tuple(
+        RecordedWindow(
+            w.commanded_deg, w.counter, w.time_s, w.gyro_dph * (1 + 1e-13), w.accel_mps2 + 1e-15,
+            w.table_deg, w.temperature_c, w.validity,
+        )
+        for w in windows
+    )  # fmt: skip
+    csv = tmp_path / "run.csv"
+    Recording(nudged, dict(META)).save(csv)
+    with pytest.raises(RecordingError, match="holds the same samples as"):
+        read_runs([npz, csv])
+    other = tmp_path / "other.csv"  # another power-on
+    Recording(tuple(window(k + 10, a) for k, a in enumerate(ANGLES)), dict(META)).save(other)
+    assert len(read_runs([npz, other])) == 2
