@@ -754,7 +754,7 @@ class DeviceLink:
                 "off, or the link is down (check power, cable, bus termination, port)"
             )
         if opcode in (Opcode.ROTATE_TO, Opcode.ROTATE_BY, Opcode.HOME, Opcode.RESET):
-            text += f"; {opcode.name} may have been carried out: read status() before repeating it"
+            text += f"; {opcode.name} may have been carried out: check the unit's status before repeating it"
         raise ReplyTimeout(text, deadline, opcode, attempts, alive)
 
     def _next_seq(self) -> int:
