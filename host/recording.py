@@ -493,7 +493,10 @@ def _write_csv_head(fh: Any, meta: dict[str, Any]) -> None:
 
 
 def _write_csv_rows(fh: Any, i: int, w: RecordedWindow) -> None:
-    writer = csv.writer(fh)
+    # The window is formatted first and written in one call: a signal that interrupts the
+    # formatting leaves nothing of the window in the file.
+    text = io.StringIO()
+    writer = csv.writer(text)
     for j in range(len(w.counter)):
         writer.writerow(
             [i, f"{w.commanded_deg:.6f}", int(w.counter[j]), f"{w.time_s[j]:.6f}"]
@@ -501,6 +504,7 @@ def _write_csv_rows(fh: Any, i: int, w: RecordedWindow) -> None:
             + [repr(float(v)) for v in w.accel_mps2[j]]
             + [f"{w.table_deg[j]:.6f}", f"{w.temperature_c[j]:.2f}", int(w.validity[j])]
         )
+    fh.write(text.getvalue())
 
 
 def _write_csv_tail(fh: Any, status: str, windows: int) -> None:
@@ -604,6 +608,10 @@ class RecordingWriter:
                 if self.path.suffix == ".npz":
                     _replace_npz(self.path, self.meta, tuple(self.windows[: self.written]))
                 else:
+                    # A window cut off by an interruption (an exception raised while it was
+                    # being written) is cut off the file: it ends with complete windows.
+                    self._fh.seek(self._good)
+                    self._fh.truncate()
                     _write_csv_tail(self._fh, status, self.written)
                     self._fh.flush()
                     os.fsync(self._fh.fileno())

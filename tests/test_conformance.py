@@ -22,6 +22,7 @@ import json
 import subprocess
 import sys
 import threading
+import time
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -536,6 +537,14 @@ PTY_LINKS = {"serial-pty": "--pty", "slcan-pty": "--slcan-pty"}
 PACED_SPEED = {"serial-pty": SPEED, "slcan-pty": 1.0}
 
 
+def until_ready(ctl: ControlClient, timeout_s: float = 60.0) -> None:
+    """Wait, on the wall clock, until the simulator is READY again (after a reset it boots)."""
+    deadline = time.monotonic() + timeout_s
+    while (state := ctl.call("status")["state"]) != "READY":
+        assert time.monotonic() < deadline, f"the simulator stayed {state}"
+        time.sleep(0.02)
+
+
 @pytest.fixture(scope="module", params=list(PTY_LINKS))
 def paced_unit(request, sensor_file) -> Iterator[tuple[list[str], ControlClient, float]]:
     """The simulator on a pty for the tests of this section: the suite's link and timing options,
@@ -554,6 +563,7 @@ def paced_unit(request, sensor_file) -> Iterator[tuple[list[str], ControlClient,
 @pytest.mark.parametrize("defect", list(DEFECTS))
 def test_a_unit_really_off_fails_idle_and_under_load(paced_unit, defect, load, capsys):
     link, ctl, speed = paced_unit
+    until_ready(ctl)  # an earlier test of the module may have just reset it
     order, check, evidence = DEFECTS[defect]
     op = dict(order)
     if "seconds" in op:
@@ -577,7 +587,8 @@ def test_a_unit_really_off_fails_idle_and_under_load(paced_unit, defect, load, c
 def test_a_correct_unit_is_never_failed_under_load(paced_unit, capsys, tmp_path):
     """Two CPU-bound processes beside the suite, the simulator and the suite on two cores: every
     check passes or, if the host could not keep pace, is not judged; none fails (no retry)."""
-    link, _ctl, _speed = paced_unit
+    link, ctl, _speed = paced_unit
+    until_ready(ctl)  # an earlier test of the module may have just reset it
     junit = tmp_path / "loaded.xml"
     # The stream and heartbeat, replies and refusals (a late reply once read as a wrong one);
     # the full suite runs idle above.
