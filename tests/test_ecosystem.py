@@ -605,7 +605,7 @@ def test_the_c_host_example_reaches_the_simulator_on_a_pty(tmp_path):
         )
     assert res.returncode == 0, res.stderr
     ident, samples, mean = res.stdout.splitlines()
-    assert ident == "identify model NF-SIM serial 1 firmware 0.1.0 protocol 1.0"
+    assert ident == "identify model NF-SIM serial 1 firmware 0.1.0 protocol 1.1"
     assert samples.startswith("samples 400 ") and samples.endswith(" gaps 0")
     values = [float(v) for v in mean.split()[2:5]]
     # Ideal sensor, level, azimuth 0 at 34 deg N: x reads the horizontal Earth rate, y nothing,

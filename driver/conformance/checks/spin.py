@@ -14,6 +14,7 @@ from northfinder.driver.protocol.constants import (
     DeviceState,
     Result,
 )
+from northfinder.driver.protocol.counters import counter_diff
 from northfinder.driver.protocol.messages import RotateBy, Spin, Stop
 
 #: The mean rate over the steady samples must be within this fraction of the command.
@@ -69,10 +70,13 @@ def spin_steady(c: Ctx) -> None:
         c.expect(again, Result.BUSY, f"SPIN while spinning ({what})")
         s.idle(OBSERVE_S)
         t_end = s.now()
+        # Judged by the unit's own counter, not by arrival: a loaded host may read the tick that
+        # ends the ramp well after the first SPINNING status.
+        c0 = s.statuses[i][1].sample_counter
         recs = [
             r
-            for r in s.samples_between(t_steady + s.wall(2.0 / fs), t_end)
-            if r.complete and r.angle is not None
+            for r in s.samples_between(t_steady, t_end)
+            if r.complete and r.angle is not None and counter_diff(r.counter, c0) >= 2
         ]
         stop = s.request(Stop(0))
         c.expect(stop, Result.OK, f"STOP while spinning ({what})")
