@@ -510,9 +510,43 @@ def solve_least_squares_batch(
     mu = np.radians(np.broadcast_to(np.asarray(mu_deg, dtype=float), (r_count, n)))
     lat = latitude_rad(latitude_deg, "the solution")
     rot = table_rotation(mu)  # (R, N, 2, 2)
-    if accel_means is not None:
-        f = np.asarray(accel_means, dtype=float)[..., :2]
-        theta, gamma, _, _, _ = fit_tilt(f, rot, float(normal_gravity(lat)))
+    return azimuths_of_rotated(w, rot, lat, accel_means, max_iterations=max_iterations)
+
+
+def azimuths_of_rotated(
+    gyro: Array,
+    rot: Array,
+    lat_rad: float,
+    accel: ArrayLike | None,
+    *,
+    max_iterations: int = 50,
+    nuisance: Array | None = None,
+) -> Array:
+    """Azimuths of many runs from horizontal gyro readings and the table rotation of each:
+    tilt from the accelerometers (level without them), then the heading (:func:`fit_tilt`,
+    :func:`fit_heading`). The one tail of the window solver and the spin solver.
+
+    Parameters
+    ----------
+    gyro : ndarray, shape (R, N, 2)
+        Horizontal gyro readings, rad/s.
+    rot : ndarray, shape (R, N, 2, 2)
+        The table rotation of each reading.
+    lat_rad : float
+    accel : array_like, shape (R, N, 2) or (R, N, 3), or None
+        Accelerometer readings, m/s^2.
+    nuisance : ndarray, optional
+        Extra columns fitted beside the biases (drift terms).
+
+    Returns
+    -------
+    ndarray, shape (R,)
+        [0, 360) deg; NaN for a run whose tilt is excessive or whose fit did not converge.
+    """
+    r_count = gyro.shape[0]
+    if accel is not None:
+        f = np.asarray(accel, dtype=float)[..., :2]
+        theta, gamma, _, _, _ = fit_tilt(f, rot, float(normal_gravity(lat_rad)), nuisance=nuisance)
         ok = tilt_within_limit(theta, gamma)
         # Rejected runs are solved level (finite numbers throughout) and masked at the end.
         theta, gamma = np.where(ok, theta, 0.0), np.where(ok, gamma, 0.0)
@@ -520,13 +554,14 @@ def solve_least_squares_batch(
         theta = gamma = np.zeros(r_count)
         ok = np.ones(r_count, dtype=bool)
     fit = fit_heading(
-        w,
+        gyro,
         rot,
         theta,
         gamma,
-        OMEGA_IE * math.cos(lat),
-        OMEGA_IE * math.sin(lat),
+        OMEGA_IE * math.cos(lat_rad),
+        OMEGA_IE * math.sin(lat_rad),
         max_iterations=max_iterations,
+        nuisance=nuisance,
     )
     az = np.mod(-np.degrees(fit.alpha), 360.0)
     return np.where(ok & fit.converged, az, np.nan)

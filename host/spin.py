@@ -43,6 +43,7 @@ from northfinder.driver.protocol.units import DPH, OMEGA_IE, normal_gravity
 from northfinder.host.errors import GeometryError, InputError, TiltError
 from northfinder.host.kernels import (
     MAX_TILT_DEG,
+    azimuths_of_rotated,
     bias_design,
     earth_rate_body,
     fit_heading,
@@ -325,27 +326,10 @@ def solve_spin_batch(
         nuisance = nuisance_design(np.broadcast_to(np.asarray(time_s, float), (r_count, n)), True)
     else:
         nuisance = None
-    g = float(normal_gravity(lat))
-    if accel_mps2 is not None:
-        f = np.asarray(accel_mps2, dtype=float)[..., :2]
-        theta, gamma, _, _, _ = fit_tilt(f, rot, g, nuisance=nuisance)
-        ok = tilt_within_limit(theta, gamma)
-        theta, gamma = np.where(ok, theta, 0.0), np.where(ok, gamma, 0.0)
-    else:
-        theta = gamma = np.zeros(r_count)
-        ok = np.ones(r_count, dtype=bool)
-    fit = fit_heading(
-        w,
-        rot,
-        theta,
-        gamma,
-        OMEGA_IE * math.cos(lat),
-        OMEGA_IE * math.sin(lat),
-        max_iterations=max_iterations,
-        nuisance=nuisance,
+
+    return azimuths_of_rotated(
+        w, rot, lat, accel_mps2, max_iterations=max_iterations, nuisance=nuisance
     )
-    az = np.mod(-np.degrees(fit.alpha), 360.0)
-    return np.where(ok & fit.converged, az, np.nan)
 
 
 @dataclass(frozen=True)
