@@ -1,7 +1,7 @@
-"""``northfinder dump LOG | -i INTERFACE -c CHANNEL``: decode CAN frames with protocol.dbc.
+"""``northfinder dump LOG [LOG ...] | -i INTERFACE -c CHANNEL``: decode CAN frames with protocol.dbc.
 
-Reads a CAN log in any format python-can reads (candump .log, .asc, .blf, .csv, .db, .trc) or a
-live python-can bus, and prints one line per frame decoded by cantools with the protocol's DBC,
+Reads a CAN log in any format python-can reads (candump .log, .asc, .blf, .csv, .db, .trc), the
+parts of a rotated log in order (several files or a quoted glob), or a live python-can bus, and prints one line per frame decoded by cantools with the protocol's DBC,
 as ``candump -L | cantools decode --single-line protocol.dbc`` would. Filters: ``--id``,
 ``--time-from``/``--time-to`` (seconds from the first frame), ``--session N`` (a host session of
 a ``sim --log``).
@@ -69,8 +69,8 @@ def _id_list(text: str) -> list[str]:
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(sub, "dump", __doc__)
     p.add_argument(
-        "log", nargs="?", default=None, metavar="LOG",
-        help="CAN log to decode (or give a bus with -i/-c)",
+        "log", nargs="*", default=None, metavar="LOG",
+        help="CAN log to decode, or the parts of a rotated log (or give a bus with -i/-c)",
     )  # fmt: skip
     g = p.add_argument_group("filters")
     g.add_argument(
@@ -195,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
     import cantools
 
     live = bus_given(args)
-    if live == (args.log is not None):
+    if live == bool(args.log):
         raise HostConfigError("give a CAN log, or a bus with -i/-c (not both)")
     if live and args.session is not None:
         raise HostConfigError("--session applies to a CAN log")
@@ -207,15 +207,22 @@ def run(args: argparse.Namespace) -> int:
     wanted = _wanted_ids(db, args.ids)
     skipped: list[tuple[int, str]] = []
     cut: list[str] = []
+    gaps: list[str] = []
+    name = "bus"
     if live:
         frames: Iterable[Any] = _frames_of_bus(args)
     else:
-        from northfinder.host.canlog import read_frames
+        from northfinder.driver.framelog import expand_log_names
+        from northfinder.host.canlog import LogSet, read_frames
 
-        path = Path(args.log)
-        if not path.is_file():
-            raise RecordingError(f"{path}: no such file")
-        frames = read_frames(path, skip_damaged=not args.strict, skipped=skipped, cut=cut)
+        logs = LogSet(expand_log_names(args.log))
+        for path in logs.files:
+            if not path.is_file():
+                raise RecordingError(f"{path}: no such file")
+        name = logs.name
+        frames = read_frames(
+            logs.files, skip_damaged=not args.strict, skipped=skipped, cut=cut, gaps=gaps
+        )
     t0: float | None = None
     printed = 0
     out = sys.stdout
@@ -238,15 +245,17 @@ def run(args: argparse.Namespace) -> int:
                 break
     finally:
         out.flush()
+        for gap in gaps:
+            warn("dump", f"{name}: {gap}")
         if skipped:
             warn(
                 "dump",
-                f"{args.log}: skipped {len(skipped)} damaged line(s) (first: line "
+                f"{name}: skipped {len(skipped)} damaged line(s) (first: line "
                 f"{skipped[0][0]}, {skipped[0][1]})",
             )
         if not args.strict:
             for note in cut:
-                warn("dump", f"{args.log}: {note}")
-    if args.strict and cut:
-        raise RecordingError(f"{args.log}: {cut[0]}")
+                warn("dump", f"{name}: {note}")
+    if args.strict and (cut or gaps):
+        raise RecordingError(f"{name}: {(cut or gaps)[0]}")
     return 0
