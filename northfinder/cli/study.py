@@ -54,7 +54,7 @@ from northfinder.host.plan import (
     plan_time_s,
     settle_time_s,
 )
-from northfinder.host.planner import PlanCandidate, search_plans, shortest_plan
+from northfinder.host.plan_search import PlanCandidate, search_plans, shortest_plan
 from northfinder.host.results import envelope
 from northfinder.simwindows import SimulatedWindows, error_model, simulator_identity
 
