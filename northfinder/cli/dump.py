@@ -27,24 +27,20 @@ from northfinder.cli.common import (
 )
 from northfinder.host.errors import HostConfigError, RecordingError
 
-#: Ids of the DBC's messages are those of node 1: another node's frame is decoded as node 1's
-#: message of the same function (the low four bits of an id are the node).
-DBC_NODE = 1
-
 
 def _dbc_path(given: str | None) -> Path:
-    """The DBC: ``--dbc``, else the protocol's own (protocol.dbc of the project's checkout)."""
+    """The DBC: ``--dbc``, else the protocol's own, installed with the package."""
     if given:
         return Path(given)
-    import northfinder
+    from northfinder.driver.protocol import dbc_path
 
-    here = Path(northfinder.__file__).resolve().parents[1] / "protocol.dbc"
-    if here.is_file():
-        return here
-    raise HostConfigError(
-        "--dbc: protocol.dbc is not beside this installation; give --dbc PATH (the file is at "
-        "the root of the northfinder repository)"
-    )
+    installed = dbc_path()
+    if not installed.is_file():  # pragma: no cover - a broken installation
+        raise HostConfigError(
+            "--dbc: protocol.dbc is missing from this installation; reinstall northfinder or "
+            "give --dbc PATH"
+        )
+    return Path(str(installed))
 
 
 def _frame_id(text: str) -> int:
@@ -90,7 +86,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="only the frames of host session N (1-based; each host's IDENTIFY begins one)",
     )  # fmt: skip
     g = p.add_argument_group("output")
-    g.add_argument("--dbc", metavar="FILE", help="the DBC (default: the project's protocol.dbc)")
+    g.add_argument("--dbc", metavar="FILE", help="the DBC (default: the protocol's own)")
     g.add_argument(
         "--count", type=bounded_int(1, 10**12), default=None, metavar="N",
         help="stop after N frames printed",
@@ -141,6 +137,7 @@ def _frames_of_bus(args: argparse.Namespace) -> Iterator[Any]:
 
 def decode_line(db: Any, msg: Any) -> str:
     """One frame as ``(t) CHANNEL ID#DATA :: NAME(Signal: value unit, ...)``."""
+    from northfinder.driver.protocol import DBC_NODE
     from northfinder.driver.protocol.can import split_can_id
 
     channel = msg.channel if msg.channel is not None else "can"
