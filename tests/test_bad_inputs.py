@@ -5,7 +5,7 @@ recordings, recordings too large to hold, and argparse's own errors."""
 from __future__ import annotations
 
 import math
-import warnings
+from typing import Any
 
 import pytest
 from clirun import run_cli
@@ -67,3 +67,73 @@ def test_the_docs_state_every_range():
     page = (Path(__file__).resolve().parents[1] / "docs" / "instrument.md").read_text()
     for dotted, (lo, hi, _) in field_ranges().items():
         assert f"| `{dotted}` | {lo:g} to {hi:g} |" in page, dotted
+
+
+# -- a serial link whose bytes never parse -----------------------------------------------------
+class _GarbageServer:
+    """A TCP server on 127.0.0.1 that sends random bytes to whoever connects (what a host reads
+    from a unit at another baud rate), as pyserial's ``socket://`` URL reaches it."""
+
+    def __init__(self) -> None:
+        import socket
+        import threading
+
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        import random
+
+        rng = random.Random(7)
+        self.sock.settimeout(0.2)
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                continue
+            with conn:
+                while not self.stop.is_set():
+                    try:
+                        conn.sendall(rng.randbytes(256))
+                    except OSError:
+                        break
+                    self.stop.wait(0.005)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5)
+        self.sock.close()
+
+
+@pytest.fixture
+def garbage() -> Any:
+    server = _GarbageServer()
+    yield f"socket://127.0.0.1:{server.port}"
+    server.close()
+
+
+def test_bytes_that_never_parse_are_reported_as_a_wrong_baud_rate(garbage):
+    import serial
+
+    from northfinder.driver.device import Device
+    from northfinder.driver.errors import DriverTimeout, LinkLost
+    from northfinder.driver.transport import SerialTransport
+
+    port = serial.serial_for_url(garbage, timeout=0.05)
+    transport = SerialTransport(port)
+    with pytest.raises((DriverTimeout, LinkLost)) as info:
+        Device(transport, reply_timeout=0.2, retries=1)
+    text = str(info.value)
+    assert "bytes arrive but no frame parses" in text and "wrong baud rate or protocol?" in text
+    assert "silent" not in text
+    assert transport.counters()["bytes_unparsed"] >= 256
+    port.close()
+
+
+def test_find_on_a_garbled_serial_link_says_so_in_one_line(garbage):
+    code, out, err = run_cli("find", "--serial", garbage, "--latitude", "34")
+    assert code == 1 and out == ""
+    assert "wrong baud rate or protocol?" in err and len(err.splitlines()) == 1, err
