@@ -77,7 +77,7 @@ class GyroSpec:
     )
     warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s", lo=0.0, hi=1e6)
     rate_ramp_dph_per_h: tuple[float, float, float] = _v(
-        "rate ramp: linear bias trend from power-on, deg/h per hour", lo=-1e4, hi=1e4
+        "rate ramp: linear bias trend from power-on, deg/h per hour", lo=-1e6, hi=1e6
     )
     move_walk_dph_per_rtdeg: float = _f(
         0.0,
@@ -131,7 +131,7 @@ class AccelSpec:
     )
     warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s", lo=0.0, hi=1e6)
     ramp_ug_per_h: tuple[float, float, float] = _v(
-        "linear bias trend from power-on, ug per hour", lo=-1e5, hi=1e5
+        "linear bias trend from power-on, ug per hour", lo=-1e7, hi=1e7
     )
     move_walk_ug_per_rtdeg: float = _f(
         0.0,

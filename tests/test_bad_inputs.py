@@ -5,6 +5,8 @@ recordings, recordings too large to hold, and argparse's own errors."""
 from __future__ import annotations
 
 import math
+import re
+import warnings
 from typing import Any
 
 import pytest
@@ -137,3 +139,96 @@ def test_find_on_a_garbled_serial_link_says_so_in_one_line(garbage):
     code, out, err = run_cli("find", "--serial", garbage, "--latitude", "34")
     assert code == 1 and out == ""
     assert "wrong baud rate or protocol?" in err and len(err.splitlines()) == 1, err
+
+
+# -- recordings: half precision, pickles, too many windows or samples -------------------------
+RATE = 200
+
+
+def _window(k: int, angle: float, n: int = 40) -> Any:
+    import numpy as np
+
+    from northfinder.host.recording import RecordedWindow
+
+    counter = np.arange(n) + k * 10_000
+    return RecordedWindow(
+        angle, counter, (counter + 1) / RATE, np.full((n, 3), 10.0),
+        np.tile([0.0, 0.0, 9.8], (n, 1)), np.full(n, angle), np.full(n, 20.0),
+        np.full(n, 3, dtype=np.uint8),
+    )  # fmt: skip
+
+
+def _saved(tmp_path: Any, windows: int, suffix: str = ".npz", n: int = 40) -> Any:
+    from northfinder.host.recording import Recording
+
+    path = tmp_path / f"rec{suffix}"
+    meta = {"latitude_deg": 34.0, "sample_rate_hz": RATE}
+    Recording(tuple(_window(k, 180.0 * (k % 2), n) for k in range(windows)), meta).save(path)
+    return path
+
+
+@pytest.mark.parametrize("array", ["gyro_dph", "counter", "time_s"])
+def test_a_half_precision_recording_is_refused_in_one_line_without_a_numpy_warning(tmp_path, array):
+    import numpy as np
+
+    path = _saved(tmp_path, 2)
+    arrays = dict(np.load(path))
+    arrays[array] = arrays[array].astype(np.float16)
+    np.savez(path, **arrays)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any numpy warning fails the test
+        code, out, err = run_cli("solve", str(path))
+    assert code == 2 and out == ""
+    assert f"array {array!r} is float16 (half precision" in err and len(err.splitlines()) == 1
+
+
+def test_a_file_numpy_could_only_unpickle_is_refused_without_numpy_s_advice(tmp_path):
+    path = tmp_path / "junk.npz"
+    path.write_bytes(b"x")
+    code, _, err = run_cli("solve", str(path))
+    assert code == 2 and "never loaded" in err and "allow_pickle" not in err
+
+
+def test_a_csv_of_more_windows_than_a_recording_holds_is_refused_as_it_is_read(
+    tmp_path, monkeypatch
+):
+    import northfinder.host.recording as recording
+
+    path = _saved(tmp_path, 40, ".csv", n=4)
+    monkeypatch.setattr(recording, "MAX_WINDOWS", 32)
+    code, out, err = run_cli("solve", str(path))
+    assert code == 2 and out == ""
+    assert "more than 32 windows; a recording holds at most that many" in err
+    # the line of the 33rd window's first sample: refused while reading, not after
+    assert re.search(r"line (\d+):", err) and len(err.splitlines()) == 1
+
+
+def test_a_recording_of_more_samples_than_the_cap_is_refused_in_either_format(
+    tmp_path, monkeypatch
+):
+    import northfinder.host.recording as recording
+
+    monkeypatch.setattr(recording, "MAX_SAMPLES", 100)
+    for suffix in (".csv", ".npz"):
+        path = _saved(tmp_path, 4, suffix, n=40)
+        code, _, err = run_cli("solve", str(path))
+        assert code == 2 and "a recording holds at most" in err and "100" in err, err
+
+
+def test_the_csv_reader_never_holds_the_text(tmp_path):
+    """A CSV is parsed row by row into blocks of numbers: the memory it takes is that of the
+    samples as numbers (13 floats a row, twice while the blocks are joined), not the text and
+    Python's lists of it (about 0.5 kB a row)."""
+    import tracemalloc
+
+    from northfinder.host.recording import Recording
+
+    path = _saved(tmp_path, 4, ".csv", n=12_500)
+    size = path.stat().st_size
+    tracemalloc.start()
+    rec = Recording.load(path)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert sum(len(w.counter) for w in rec.windows) == 50_000
+    numbers = 50_000 * 13 * 8
+    assert peak < 2.3 * numbers and peak < 3.5 * size, (peak, numbers, size)
