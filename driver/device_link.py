@@ -695,7 +695,10 @@ class DeviceLink:
         return LinkLost(
             f"no status from the device for {self._status_age_s():.2f} s "
             f"(limit {self._supervision_s():.2f} s, {HEARTBEATS_UNTIL_LOST} heartbeat periods): "
-            + (self._garbled_text() or "the device is silent, off or restarting, or the link is down")
+            + (
+                self._garbled_text()
+                or "the device is silent, off or restarting, or the link is down"
+            )
         )
 
     def _garbled_text(self) -> str | None:
