@@ -159,9 +159,8 @@ def heading_weights(
     eps = 1e-7
 
     def d_alpha(du: Array, th: float, ga: float) -> float:
-        return float(
-            _alpha_from_u(h + du, np.asarray(th), np.asarray(ga), omega_n, omega_u) - alpha
-        )
+        d = float(_alpha_from_u(h + du, np.asarray(th), np.asarray(ga), omega_n, omega_u) - alpha)
+        return (d + math.pi) % (2.0 * math.pi) - math.pi  # alpha may be given beyond +-pi
 
     scale = omega_n * eps
     grad_u = np.array([d_alpha(np.array([scale, 0.0]), theta, gamma),
