@@ -63,6 +63,7 @@ from northfinder.host.plan import (
 )
 from northfinder.host.spin import (
     MIN_SWEEP_DEG,
+    amplitude_pinv,
     heading_weights,
     interval_rotation,
     nuisance_design,
@@ -886,9 +887,16 @@ def _spin_channel_vars(
         out["white"] = ch.white**2 * fs * cc
     slow = np.zeros(cc.shape)
     if ch.flicker:
+        # The weights summed over blocks of at most 50 ms: the correlation times are 1 s and
+        # more (and the simulator draws the flicker on a 0.1 s grid).
+        b = max(1, int(0.05 * fs))
+        m = c.shape[-1] // b * b
+        blocks = c[..., :m].reshape(*c.shape[:-1], -1, b).sum(axis=-1)
+        if m < c.shape[-1]:
+            blocks = np.concatenate([blocks, c[..., m:].sum(axis=-1, keepdims=True)], axis=-1)
         v = ch.flicker**2 * _FLICKER_VAR
         for tc in _FLICKER_TAUS:
-            slow += v * _ar1_quad(c, math.exp(-1.0 / (fs * tc)))
+            slow += v * _ar1_quad(blocks, math.exp(-b / (fs * tc)))
     rev = np.cumsum(c[..., ::-1], axis=-1)[..., ::-1]  # sum of the weights from each sample on
     if ch.walk:
         # k^2 min(s_i, s_j) at the sample times s (the walk runs from power-on).
@@ -993,10 +1001,11 @@ def _spin_prediction(
     # Weights of the azimuth (= -alpha) on every sample's gyro and accelerometer x and y.
     wg = np.empty((a_count, 2, n))
     wa = np.zeros((a_count, 2, n))
+    pinv = amplitude_pinv(rot, nuisance)
     for a in range(a_count):
         c_g, c_a = heading_weights(
             rot, nuisance, float(alpha[a]), 0.0 if level else th, 0.0 if level else ga, on, ou,
-            grav,
+            grav, pinv=pinv,
         )  # fmt: skip
         wg[a] = -c_g.reshape(n, 2).T
         if not level:
