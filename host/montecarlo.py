@@ -35,7 +35,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Protocol, cast
+from typing import Any, Protocol, TypeVar, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -538,10 +538,21 @@ def prediction_options(settings: StudySettings) -> dict[str, Any]:
     }
 
 
+_P = TypeVar("_P", Plan, SpinPlan)
+
+
+def _lengthened(plan: _P, factor: float) -> _P:
+    """The plan with its windows (a spin: its steady time) ``factor`` times as long."""
+    p: Any = plan
+    if isinstance(plan, SpinPlan):
+        return cast(_P, replace(p, spin_s=plan.spin_s * factor))
+    return cast(_P, replace(p, window_s=p.window_s * factor))
+
+
 def verify_plan(
     generator: WindowGenerator,
     model: ErrorModel,
-    plan: Plan | SpinPlan,
+    plan: _P,
     settings: StudySettings,
     runs: int,
     seed: int,
@@ -550,7 +561,7 @@ def verify_plan(
     *,
     executor: Executor | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[Plan | SpinPlan, dict[str, Any]]:
+) -> tuple[_P, dict[str, Any]]:
     """Monte Carlo of a plan; with a target, lengthen the window (a spin's time) until the
     simulated RMSE meets it.
 
@@ -567,9 +578,6 @@ def verify_plan(
             row["meets_target"] = True
             return plan, row
         grow = 1.05 * (row["rmse_deg"] / target_deg) ** 2
-        if isinstance(plan, SpinPlan):
-            plan = replace(plan, spin_s=plan.spin_s * grow)
-        else:
-            plan = replace(plan, window_s=plan.window_s * grow)
+        plan = _lengthened(plan, grow)
     row["meets_target"] = False
     return plan, row

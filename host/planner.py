@@ -28,6 +28,7 @@ __all__ = [
     "GEOMETRIES",
     "SPIN_RATES_DPS",
     "PlanCandidate",
+    "SpinCandidate",
     "search_plans",
     "search_spin_plans",
     "shortest_plan",
@@ -38,9 +39,25 @@ __all__ = [
 class PlanCandidate:
     """A plan with its predicted error and time."""
 
-    plan: Plan | SpinPlan
+    plan: Plan
     prediction: Prediction
     allan_limited: bool
+
+    @property
+    def sigma_deg(self) -> float:
+        return self.prediction.sigma_deg
+
+    @property
+    def plan_time_s(self) -> float:
+        return self.prediction.plan_time_s
+
+
+@dataclass(frozen=True)
+class SpinCandidate:
+    """A spin plan with its predicted error and time."""
+
+    plan: SpinPlan
+    prediction: Prediction
 
     @property
     def sigma_deg(self) -> float:
@@ -193,7 +210,7 @@ def search_spin_plans(
     *,
     rates_dps: Sequence[float] = SPIN_RATES_DPS,
     **conditions: Unpack[Conditions],
-) -> list[PlanCandidate]:
+) -> list[SpinCandidate]:
     """The best spin for each table rate within a time budget, best first.
 
     For each rate (those of ``rates_dps`` within the table's limit, and the limit itself) the
@@ -203,7 +220,7 @@ def search_spin_plans(
 
     Returns
     -------
-    list of PlanCandidate
+    list of SpinCandidate
         One per rate that turns at least 90 deg within the budget, sorted by predicted sigma.
     """
     if not (math.isfinite(budget_s) and budget_s > 0):
@@ -211,7 +228,7 @@ def search_spin_plans(
     table = model.table
     top = table.max_rate_dps
     rates = sorted({float(r) for r in rates_dps if 0 < r < top} | {float(top)})
-    out = []
+    out: list[SpinCandidate] = []
     for rate in rates:
         steady = budget_s - 2.0 * spin_ramp_s(SpinPlan(rate, 360.0 / rate), table)
         if steady * rate < MIN_SWEEP_DEG:
@@ -230,7 +247,7 @@ def search_spin_plans(
                 except GeometryError:
                     continue  # too few samples at this rate
                 if best is None or pred.sigma_deg < best.sigma_deg * (1 - 1e-9):
-                    best = PlanCandidate(plan, pred, allan_limited=False)
+                    best = SpinCandidate(plan, pred)
         if best is not None:
             out.append(best)
     out.sort(key=lambda c: (c.sigma_deg, c.plan_time_s))

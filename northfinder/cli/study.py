@@ -61,6 +61,7 @@ from northfinder.host.plan import (
 )
 from northfinder.host.planner import (
     PlanCandidate,
+    SpinCandidate,
     search_plans,
     search_spin_plans,
     shortest_plan,
@@ -319,14 +320,18 @@ def _plan_json(plan: Plan | SpinPlan, model: ErrorModel, warmup_s: float) -> dic
     }
 
 
-def _candidate_json(c: PlanCandidate, model: ErrorModel, warmup_s: float) -> dict[str, Any]:
-    return {
+def _candidate_json(
+    c: PlanCandidate | SpinCandidate, model: ErrorModel, warmup_s: float
+) -> dict[str, Any]:
+    out = {
         **_plan_json(c.plan, model, warmup_s),
         "predicted_deg": c.sigma_deg,
         "bound_deg": c.prediction.bound_deg,
         "predicted_parts_deg": c.prediction.parts_deg,
-        "allan_limited": c.allan_limited,
     }
+    if isinstance(c, PlanCandidate):
+        out["allan_limited"] = c.allan_limited
+    return out
 
 
 def _row_label(r: dict[str, Any]) -> str:
@@ -379,7 +384,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         )
         report["plans"] = [_candidate_json(c, model, args.warmup) for c in cands[: args.top]]
         best_plan = cands[0].plan if cands else None
-        spins = []
+        spins: list[SpinCandidate] = []
         if args.angles == "encoder":  # a spin reads the encoder at every sample
             spins = search_spin_plans(
                 model, args.latitude, args.plan_budget,
