@@ -358,7 +358,7 @@ def _linearise(
     level: bool,
 ) -> _Linearisation:
     """Central differences of the plan's solver around noise-free window means."""
-    from northfinder.host.study import chunk_errors  # the solvers the studies run
+    from northfinder.host.batch_solve import chunk_errors  # the solvers the studies run
 
     lat = latitude_rad(latitude_deg, "the prediction")
     grav = float(normal_gravity(lat))

@@ -1,7 +1,7 @@
 """Monte Carlo accuracy of a plan: many seeded runs drawn at once, solved, and compared.
 
 The engine draws N seeded runs in chunks (whole arrays of runs), solves every run
-(:func:`northfinder.host.study.chunk_errors`) and reports the azimuth bias and RMSE beside the
+(:func:`northfinder.host.batch_solve.chunk_errors`) and reports the azimuth bias and RMSE beside the
 white-noise bound of the same plan (notes, section 4), their ratio, the error predicted from the
 datasheet figures (:func:`northfinder.host.accuracy.predict`) and the plan time. A ratio below 1
 beyond its statistical spread would be a bug.
@@ -50,16 +50,16 @@ from northfinder.host.accuracy import (
     predict_solutions,
     spin_bound_deg,
 )
-from northfinder.host.errors import HostConfigError, check_choice
-from northfinder.host.plan import Plan, SpinPlan, spin_start_deg
-from northfinder.host.spin import solve_spin_batch
-from northfinder.host.study import (
+from northfinder.host.batch_solve import (
     Summary,
     azimuth_errors,
     chunk_errors,
     summarize,
     summarize_columns,
 )
+from northfinder.host.errors import HostConfigError, check_choice
+from northfinder.host.plan import Plan, SpinPlan, spin_start_deg
+from northfinder.host.spin import solve_spin_batch
 
 __all__ = [
     "CHUNK_SAMPLES",
@@ -489,7 +489,7 @@ def study_rows(
 ) -> list[dict[str, Any]]:
     """One result row per solution (one, or one per pair with ``pairwise``).
 
-    Each row holds the :class:`~northfinder.host.study.Summary` fields (``rejected`` counts the
+    Each row holds the :class:`~northfinder.host.batch_solve.Summary` fields (``rejected`` counts the
     runs without a solution), ``bound_deg``, ``ratio`` (RMSE over bound), ``predicted_deg`` and
     its parts; pairwise rows also ``mu_deg``. A spin's row holds ``rate_dps``, ``spin_s`` and
     ``drift`` instead of the positions, and its bound is

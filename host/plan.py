@@ -2,7 +2,7 @@
 
 A :class:`Plan` is used alike by the procedure on a device (:mod:`northfinder.host.procedure`),
 the accuracy study (:mod:`northfinder.host.montecarlo`) and the planner
-(:mod:`northfinder.host.planner`): table positions, one recording window of ``window_s`` at each,
+(:mod:`northfinder.host.plan_search`): table positions, one recording window of ``window_s`` at each,
 the settle time after every move, the denoising method applied to every window and the solver.
 
 Settle time

@@ -1,7 +1,7 @@
 """The simulated instrument wired into the host library's accuracy studies (application layer).
 
 The host library's study engine (:mod:`northfinder.host.montecarlo`) and planner
-(:mod:`northfinder.host.planner`) know nothing of the simulator. This module gives them:
+(:mod:`northfinder.host.plan_search`) know nothing of the simulator. This module gives them:
 
 - :class:`SimulatedWindows`, the window generator that draws whole arrays of runs with
   :func:`northfinder.firmware_sim.batch.simulate_windows`;

@@ -15,12 +15,12 @@ from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import TableSpec
 from northfinder.firmware_sim.turntable import Turntable
 from northfinder.host.accuracy import bound_deg
+from northfinder.host.batch_solve import chunk_errors
 from northfinder.host.errors import HostConfigError
 from northfinder.host.heading import two_position_bound_deg
 from northfinder.host.montecarlo import StudySettings
 from northfinder.host.plan import HEADING_SOLVERS, SOLVERS, Plan, TableModel, resolve_solver
 from northfinder.host.procedure import METHOD_CHOICES
-from northfinder.host.study import chunk_errors
 
 
 def test_the_table_defaults_are_the_same_on_every_side():

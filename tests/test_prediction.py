@@ -25,7 +25,7 @@ from northfinder.host.accuracy import (
 )
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
 from northfinder.host.plan import PAPER_SWEEP, Plan
-from northfinder.host.planner import search_plans
+from northfinder.host.plan_search import search_plans
 from northfinder.simwindows import SimulatedWindows, error_model
 
 LAT = 34.0

@@ -78,7 +78,7 @@ def note_ending(exc: BaseException, clause: str) -> None:
 
 def note_at_rest(exc: BaseException, rest: Any) -> None:
     """:func:`note_ending` with what was done to leave the device at rest (an
-    :class:`~northfinder.driver.link.AtRest`), if there was anything to undo."""
+    :class:`~northfinder.driver.device_link.AtRest`), if there was anything to undo."""
     if rest.needed:
         note_ending(exc, rest.summary())
 

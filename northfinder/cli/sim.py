@@ -34,16 +34,16 @@ from northfinder.cli.common import (
 )
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT
-from northfinder.firmware_sim.control import Controller, ControlServer, parse_address
-from northfinder.firmware_sim.errors import SimConfigError
-from northfinder.firmware_sim.firmware import Firmware, LinkInfo
-from northfinder.firmware_sim.links import (
+from northfinder.firmware_sim.adapters import (
     CanLink,
     PseudoTerminal,
     SerialLink,
     SerialStream,
     SlcanAdapter,
 )
+from northfinder.firmware_sim.control import Controller, ControlServer, parse_address
+from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.firmware import Firmware, LinkInfo
 from northfinder.firmware_sim.runner import Link, RealTimeClock, Runner
 from northfinder.firmware_sim.sender import Capture, CaptureBus, CaptureStream, ProcessSender
 from northfinder.host.errors import HostConfigError

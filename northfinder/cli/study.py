@@ -59,7 +59,7 @@ from northfinder.host.plan import (
     settle_time_s,
     spin_ramp_s,
 )
-from northfinder.host.planner import (
+from northfinder.host.plan_search import (
     PlanCandidate,
     SpinCandidate,
     search_plans,
