@@ -28,8 +28,19 @@ predicted variance is ``g^T C g`` plus the square of the deterministic error ``g
   a random time; table indexing error (commanded angles) and encoder resolution; scale-factor and
   misalignment draws of both triads (through the true rates and forces at each position);
 - ``d``, the deterministic bias of each window mean: warm-up transient, temperature and ramp of
-  both triads over the plan's timeline, plus the solver's own error on noise-free data (a level
-  solver on a tilted instrument).
+  both triads over the plan's timeline, the encoder's periodic error at each stop (with encoder
+  angles), plus the solver's own error on noise-free data (a level solver on a tilted
+  instrument).
+
+A spin plan (:class:`~northfinder.host.plan.SpinPlan`) is predicted the same way through the
+demodulating solver (:mod:`northfinder.host.spin`), whose first-order weights on every sample are
+exact (:func:`~northfinder.host.spin.heading_weights`): white noise, flicker and walks (their
+covariance along the samples by a recursion), quantisation with carry, vibration, impulses, a
+bias step, the encoder's resolution (each reading bounds two samples), scale-factor and
+misalignment draws through the true sensor-frame rates and forces (the table rate and its ripple
+on the table axis, the table top's wobble), and, as ``drift``, the drifts and the solver's own
+error on the noise-free samples with the table's ripple, wobble and periodic encoder error. A
+spin starts no move transient.
 
 Constant biases and the turn-on bias are the same in every window and cancel in every solver
 (``g`` sums to zero over the windows of each channel). The prediction is exact to first order;
@@ -708,6 +719,16 @@ def predict_solutions(
             d = _window_drift(tl, drift)  # (P, 2)
             det += np.einsum("aspc,pc->as", grad[..., cols[0] : cols[1] + 1], d)
             has_drift = True
+    tab = model.table
+    if angles == "encoder" and tab.encoder_error_deg:
+        # The encoder's periodic error at each stop (the continuous commanded angle: the
+        # indexing error moves it by a second-order amount).
+        angle = plan.positions_deg[0] + np.concatenate([[0.0], np.cumsum(moves_deg(plan))])
+        read = encoder_angle_deg(
+            angle, tab.encoder_error_deg, tab.encoder_error_harmonic, tab.encoder_error_phase_deg
+        )
+        det += np.einsum("asp,p->as", grad[..., 4], np.radians(read - angle))
+        has_drift = True
     if has_drift or np.any(np.abs(lin.offset) > 1e-9):
         add("drift", det * det)
     # Table angles: a stop error is shared by the windows of one stop (no move between them).
