@@ -32,9 +32,7 @@ def spin_angles_deg(
 ) -> NDArray[np.float64]:
     """True continuous table angle of a steady spin, deg, with the table's once-per-turn ripple
     (:func:`~northfinder.driver.protocol.motion.spin_angle_deg`); arguments broadcast."""
-    return spin_angle_deg(
-        rate_dps, start_deg, dt_s, table.rate_ripple, table.rate_ripple_phase_deg
-    )
+    return spin_angle_deg(rate_dps, start_deg, dt_s, table.rate_ripple, table.rate_ripple_phase_deg)
 
 
 def encoder_reading_deg(table: TableSpec, angle_deg: ArrayLike) -> NDArray[np.float64]:
@@ -71,8 +69,10 @@ class _Segment:
     def at(self, dt: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         angle, rate = self.a0 + self.v0 * dt + 0.5 * self.acc * dt * dt, self.v0 + self.acc * dt
         if self.ripple and self.v0:
-            angle = angle - (self.a0 + self.v0 * dt) + spin_angle_deg(
-                self.v0, self.a0, dt, self.ripple, self.ripple_phase_deg
+            angle = (
+                angle
+                - (self.a0 + self.v0 * dt)
+                + spin_angle_deg(self.v0, self.a0, dt, self.ripple, self.ripple_phase_deg)
             )
             x = np.radians(self.a0 + self.v0 * dt - self.ripple_phase_deg)
             rate = rate + self.ripple * abs(self.v0) * np.cos(x)
