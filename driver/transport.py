@@ -417,7 +417,6 @@ class CanTransport(_Releasing):
             "duplicates": r.ticks.duplicates,
         }
 
-
     def _name(self) -> str:
         return str(getattr(self.bus, "channel_info", type(self.bus).__name__))
 
@@ -600,4 +599,3 @@ class SerialTransport(_Releasing):
             "ticks_incomplete": 0,
             "duplicates": 0,
         }
-

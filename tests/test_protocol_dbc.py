@@ -68,7 +68,7 @@ _FIELD_SIGNALS: dict[type, dict[str, str]] = {
     },
 }
 #: Flag fields, one signal a bit: field and its bits' signals.
-_FLAG_SIGNALS: dict[type, tuple[str, dict[str, int]]] = {
+_FLAG_SIGNALS: dict[type, tuple[str, Mapping[str, int]]] = {
     SampleAux: ("validity", _VALIDITY_SIGNALS),
     StatusMain: ("faults", _FAULT_SIGNALS),
 }
