@@ -460,3 +460,50 @@ def test_the_summary_prints_the_spin_find_and_the_interrupted_runs(tmp_path):
         "white-noise bound 0.071 deg; spin.refusals pass, spin.steady pass" in run.stdout
     )
     assert "socketcan SIGTERM: 20/20 at rest, 20/20 caught moving, 0 left ROTATING" in run.stdout
+
+
+# -- the interrupt step's judgement -----------------------------------------------------------
+
+interrupt_result = load("interrupt_result")
+
+JUNIT_OK = (
+    '<?xml version="1.0"?><testsuites><testsuite name="pytest" tests="3" failures="0" '
+    'errors="0" skipped="0"></testsuite></testsuites>'
+)
+
+
+def bench_row(signal: str, runs=20, at_rest=20, rotating=0, errors=()) -> dict:
+    return {"link": "socketcan", "signal": signal, "runs": runs, "caught_moving": runs,
+            "status_ok": runs, "at_rest": at_rest, "rotating": rotating, "streaming": 0,
+            "exit_s_median": 0.18, "states": ["SETTLING"], "errors": list(errors),
+            "not_at_rest": []}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("rows", "junit", "failed"),
+    [
+        ([bench_row("SIGINT"), bench_row("SIGTERM")], JUNIT_OK, []),
+        ([bench_row("SIGINT", at_rest=19, rotating=1), bench_row("SIGTERM")], JUNIT_OK,
+         ["socketcan SIGINT: 1 of 20 runs not at rest"]),
+        ([bench_row("SIGINT", runs=19, at_rest=19, errors=["find did not exit within 30 s"]),
+          bench_row("SIGTERM")], JUNIT_OK, ["socketcan SIGINT: 1 runs in error: find did not"]),
+        ([bench_row("SIGINT"), bench_row("SIGTERM")], JUNIT_OK.replace('failures="0"', 'failures="1"'),
+         ["tests: 1 failed, 0 errors"]),
+        ([], JUNIT_OK, ["the bench ran no link"]),
+        (None, JUNIT_OK, ["no figures from the bench"]),
+    ],
+)  # fmt: skip
+def test_the_interrupt_step_fails_unless_every_run_left_the_unit_at_rest(
+    tmp_path, rows, junit, failed
+):
+    (tmp_path / "junit.xml").write_text(junit)
+    if rows is not None:
+        (tmp_path / "bench.json").write_text(json.dumps({"interrupt": {"rows": rows}}))
+    assert interrupt_result.main(str(tmp_path)) == (1 if failed else 0)
+    res = json.loads((tmp_path / "result.json").read_text())
+    assert len(res["failed"]) == len(failed)
+    for got, want in zip(res["failed"], failed, strict=True):
+        assert got.startswith(want), got
+    if rows:
+        assert [r["signal"] for r in res["rows"]] == ["SIGINT", "SIGTERM"]
+        assert res["runs"] == sum(r["runs"] for r in rows)
