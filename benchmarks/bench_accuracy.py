@@ -21,7 +21,7 @@ import time
 from northfinder.firmware_sim.sensors import load_spec, preset_names
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows, verify_plan
 from northfinder.host.plan import PAPER_SWEEP, Plan, plan_time_s
-from northfinder.host.planner import search_plans, shortest_plan
+from northfinder.host.plan_search import search_plans, shortest_plan
 from northfinder.simwindows import SimulatedWindows, error_model
 
 LATITUDE = 34.0

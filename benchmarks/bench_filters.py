@@ -30,8 +30,8 @@ from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.accuracy import bound_deg
+from northfinder.host.batch_solve import chunk_errors
 from northfinder.host.denoise import METHODS
-from northfinder.host.study import chunk_errors
 
 LATITUDE = 34.0
 ARW = 0.0015

@@ -20,7 +20,7 @@ from northfinder.firmware_sim.sensors import load_spec, preset_names
 from northfinder.host.accuracy import budget_bound_deg
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
 from northfinder.host.plan import PAPER_SWEEP
-from northfinder.host.planner import search_plans
+from northfinder.host.plan_search import search_plans
 from northfinder.simwindows import SimulatedWindows, error_model
 
 LATITUDE = 34.0

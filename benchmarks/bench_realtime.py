@@ -188,9 +188,9 @@ def collect(
 
 
 def run_can(duration_s: float, window_s: float, seed: int) -> RunResult:
+    from northfinder.firmware_sim.adapters import CanLink
     from northfinder.firmware_sim.firmware import Firmware, LinkInfo
     from northfinder.firmware_sim.imu import Truth
-    from northfinder.firmware_sim.links import CanLink
     from northfinder.firmware_sim.runner import BackgroundRunner, RealTimeClock, Runner
     from northfinder.firmware_sim.sensors import load_spec
 
@@ -394,7 +394,7 @@ def run_bare(link: str, duration_s: float) -> RunResult:
     """The link's own floor: nothing but the wire bytes of a sample written at 5 ms deadlines and
     read by a reader that does nothing else, with the host library of the link.
 
-    The writer is the simulator's sender process (``firmware_sim/sendloop.py``, sleep then spin,
+    The writer is the simulator's sender process (``firmware_sim/sender_child.py``, sleep then spin,
     ``SCHED_FIFO`` where allowed) fed fixed samples; on virtual CAN, where only the one process
     can reach the bus, a thread of this process that sleeps and spins the same way. The reader:
     pyserial (serial), python-can ``slcan`` / ``socketcan`` / ``virtual`` (``recv`` in a loop),
@@ -404,9 +404,9 @@ def run_bare(link: str, duration_s: float) -> RunResult:
     samples came or after 10 s without one (a guest may stall for seconds)."""
     from northfinder.driver.protocol.serial import HEADER_SIZE, SerialEncoder
     from northfinder.driver.transport import open_serial_port
-    from northfinder.firmware_sim.links import PseudoTerminal, slcan_line
+    from northfinder.firmware_sim.adapters import PseudoTerminal, slcan_line
     from northfinder.firmware_sim.sender import ProcessSender
-    from northfinder.firmware_sim.sendloop import DROPPED, FAILED, SLIP, SPIN_S
+    from northfinder.firmware_sim.sender_child import DROPPED, FAILED, SLIP, SPIN_S
 
     n = round(duration_s / PERIOD_S)
     result = RunResult(f"bare {link}")

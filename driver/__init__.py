@@ -2,8 +2,8 @@
 
 - :mod:`northfinder.driver.device`: :class:`~northfinder.driver.device.Device`, what a host application uses (identify,
   status, moves, configuration, streaming, ``acquire`` windows in physical units).
-- :mod:`northfinder.driver.link`: what ``Device`` is built on: the reader that sorts what arrives, link
-  supervision, requests with retries, :class:`~northfinder.driver.link.DeviceStatus` and ``LinkStats``.
+- :mod:`northfinder.driver.device_link`: what ``Device`` is built on: the reader that sorts what arrives, link
+  supervision, requests with retries, :class:`~northfinder.driver.device_link.DeviceStatus` and ``LinkStats``.
 - :mod:`northfinder.driver.window`: :class:`~northfinder.driver.window.Window` and the pure state machine that
   collects one (:class:`~northfinder.driver.window.WindowCollector`).
 - :mod:`northfinder.driver.transport`: CAN (python-can) and serial (pyserial) transports under it.

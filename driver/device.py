@@ -36,6 +36,16 @@ import serial
 
 from northfinder.driver.arguments import finite_number, seconds, whole_number
 from northfinder.driver.clock import Clock
+from northfinder.driver.device_link import (
+    HEARTBEATS_UNTIL_LOST,
+    REPLY_TIMEOUT_S,
+    RETRIES,
+    RETRYABLE,
+    AtRest,
+    DeviceLink,
+    DeviceStatus,
+    LinkStats,
+)
 from northfinder.driver.errors import (
     ArgumentError,
     DeviceFault,
@@ -48,16 +58,6 @@ from northfinder.driver.errors import (
     ProtocolError,
     ReplyTimeout,
     StreamTimeout,
-)
-from northfinder.driver.link import (
-    HEARTBEATS_UNTIL_LOST,
-    REPLY_TIMEOUT_S,
-    RETRIES,
-    RETRYABLE,
-    AtRest,
-    DeviceLink,
-    DeviceStatus,
-    LinkStats,
 )
 from northfinder.driver.protocol.constants import (
     PROTOCOL_VERSION_MAJOR,

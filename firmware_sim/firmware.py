@@ -1,7 +1,7 @@
 """The simulated instrument's firmware: a state machine advanced by ``process(dt)``.
 
 The firmware speaks protocol messages (the codec's dataclasses), not bytes: link adapters in
-:mod:`northfinder.firmware_sim.links` turn them into CAN frames or serial frames. It never sleeps and never
+:mod:`northfinder.firmware_sim.adapters` turn them into CAN frames or serial frames. It never sleeps and never
 reads the wall clock; a runner (:mod:`northfinder.firmware_sim.runner`) or a test decides how far time moves.
 
 The state is a function of time and of the commands received: BOOT until ``boot_s`` after power-on

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from operator import attrgetter
 from typing import TYPE_CHECKING, Any, Protocol
 
-from northfinder.firmware_sim import sendloop
+from northfinder.firmware_sim import sender_child
 from northfinder.firmware_sim.errors import SimConfigError, SimError
 from northfinder.firmware_sim.firmware import (
     NS_PER_S,
@@ -56,13 +56,13 @@ MAX_LAG_WALL_S = 0.05
 LAG_LOG_EVERY_S = 10.0
 
 
-#: Whether a spin on the clock is worth it here (``sendloop.cheap_clock``, measured once: the
+#: Whether a spin on the clock is worth it here (``sender_child.cheap_clock``, measured once: the
 #: sender process decides the same way).
-cheap_clock = functools.cache(sendloop.cheap_clock)
+cheap_clock = functools.cache(sender_child.cheap_clock)
 
 
 class Link(Protocol):
-    """A wire adapter of the simulated device (:mod:`northfinder.firmware_sim.links`)."""
+    """A wire adapter of the simulated device (:mod:`northfinder.firmware_sim.adapters`)."""
 
     def poll(self, timeout: float) -> int: ...
     def send(self, outgoing: list[Outgoing]) -> None: ...
@@ -379,7 +379,7 @@ class Runner:
     #: The last part of the wait for a message that is due, spent re-reading the clock rather
     #: than asleep, wall seconds; none where a clock read is a costly system call
     #: (:func:`cheap_clock`).
-    SPIN_S = sendloop.SPIN_S
+    SPIN_S = sender_child.SPIN_S
     #: The look-ahead's next chunk is computed only when the next message is due at least this
     #: far ahead, wall seconds (a chunk of 0.2 s takes about a millisecond here), ...
     PREFETCH_QUIET_S = 0.003
@@ -554,12 +554,12 @@ class Runner:
         """Apply what the sender process reported: its slips (the clock slips with it), the
         chunks the link did not take (counted as dropped), a link that failed (raised)."""
         for kind, value in sender.reports():
-            if kind == sendloop.SLIP:
+            if kind == sender_child.SLIP:
                 self._slip(clock, value / NS_PER_S * clock.speed)
                 sender.epoch += 1
-            elif kind == sendloop.DROPPED:
+            elif kind == sender_child.DROPPED:
                 self.firmware.tx_dropped += value
-            elif kind == sendloop.FAILED:
+            elif kind == sender_child.FAILED:
                 raise SimError(
                     f"the sender process could not write to the link: {os.strerror(value)}"
                 )

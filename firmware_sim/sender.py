@@ -1,5 +1,5 @@
 """Sending from a process of its own: a paced simulator's output, computed ahead, written at its
-due times by :mod:`~northfinder.firmware_sim.sendloop` (protocol.md 12).
+due times by :mod:`~northfinder.firmware_sim.sender_child` (protocol.md 12).
 
 A paced simulator that computes and sends in one interpreter sends late whenever a due message
 waits for a computation (or, embedded, for the host) to let go of the interpreter. With a
@@ -25,12 +25,12 @@ from typing import Any
 
 import can
 
-from northfinder.firmware_sim import sendloop
+from northfinder.firmware_sim import sender_child
 from northfinder.firmware_sim.errors import SimError
 
 __all__ = ["Capture", "CaptureBus", "CaptureStream", "ProcessSender"]
 
-_SCRIPT = Path(sendloop.__file__)
+_SCRIPT = Path(sender_child.__file__)
 log = logging.getLogger("northfinder.sim.sender")
 
 
@@ -57,7 +57,7 @@ class Capture:
 
 
 class CaptureStream(Capture):
-    """A byte stream (:class:`~northfinder.firmware_sim.links.ByteStream`) whose writes can be
+    """A byte stream (:class:`~northfinder.firmware_sim.adapters.ByteStream`) whose writes can be
     captured; reads go to the stream."""
 
     def __init__(self, stream: Any) -> None:
@@ -123,7 +123,7 @@ class ProcessSender:
         The process could not be started.
     """
 
-    SPIN_S = sendloop.SPIN_S
+    SPIN_S = sender_child.SPIN_S
     PRIORITY = 10
 
     def __init__(
@@ -184,9 +184,9 @@ class ProcessSender:
         SimError
             The sender process has ended.
         """
-        record = bytearray(sendloop.HEADER.pack(round(due_s * 1e9), self.epoch, len(chunks)))
+        record = bytearray(sender_child.HEADER.pack(round(due_s * 1e9), self.epoch, len(chunks)))
         for chunk in chunks:
-            record += sendloop.LENGTH.pack(len(chunk))
+            record += sender_child.LENGTH.pack(len(chunk))
             record += chunk
         view = memoryview(bytes(record))
         try:
@@ -197,7 +197,7 @@ class ProcessSender:
 
     def reports(self) -> list[tuple[int, int]]:
         """What the sender reported since the last call: ``(kind, value)`` records, kinds
-        :data:`~northfinder.firmware_sim.sendloop.SLIP`, ``DROPPED`` and ``FAILED``."""
+        :data:`~northfinder.firmware_sim.sender_child.SLIP`, ``DROPPED`` and ``FAILED``."""
         while True:  # the pipe is non-blocking: read what is there
             try:
                 data = os.read(self._back, 4096)
@@ -206,11 +206,14 @@ class ProcessSender:
             if not data:
                 break
             self._pending += data
-        n = len(self._pending) // sendloop.BACK.size * sendloop.BACK.size
-        out = [sendloop.BACK.unpack_from(self._pending, i) for i in range(0, n, sendloop.BACK.size)]
+        n = len(self._pending) // sender_child.BACK.size * sender_child.BACK.size
+        out = [
+            sender_child.BACK.unpack_from(self._pending, i)
+            for i in range(0, n, sender_child.BACK.size)
+        ]
         del self._pending[:n]
         for kind, value in out:
-            if kind == sendloop.SCHEDULING:
+            if kind == sender_child.SCHEDULING:
                 self.priority = value
                 log.info(
                     "sender process %d runs %s", self.pid,
@@ -227,7 +230,7 @@ class ProcessSender:
         try:
             # Never blocks: a sender that stopped reading (stopped, or starved) is killed below.
             os.set_blocking(self._w, False)
-            os.write(self._w, sendloop.HEADER.pack(-1, 0, 0))
+            os.write(self._w, sender_child.HEADER.pack(-1, 0, 0))
         except OSError:
             pass
         os.close(self._w)

@@ -41,8 +41,8 @@ __version__ = "0.2.0"
 _PUBLIC: dict[str, str] = {
     # the device and what it reports
     "Device": "northfinder.driver.device",
-    "DeviceStatus": "northfinder.driver.link",
-    "LinkStats": "northfinder.driver.link",
+    "DeviceStatus": "northfinder.driver.device_link",
+    "LinkStats": "northfinder.driver.device_link",
     "Window": "northfinder.driver.window",
     "VirtualClock": "northfinder.driver.clock",
     "WallClock": "northfinder.driver.clock",
@@ -128,6 +128,7 @@ __all__ = [
 if _TYPE_CHECKING:  # what static tools and the API reference see
     from northfinder.driver.clock import VirtualClock, WallClock
     from northfinder.driver.device import Device
+    from northfinder.driver.device_link import DeviceStatus, LinkStats
     from northfinder.driver.errors import (
         ArgumentError,
         DeviceFault,
@@ -144,7 +145,6 @@ if _TYPE_CHECKING:  # what static tools and the API reference see
         StreamGap,
         StreamTimeout,
     )
-    from northfinder.driver.link import DeviceStatus, LinkStats
     from northfinder.driver.window import Window
     from northfinder.embed import SimulatedInstrument
     from northfinder.firmware_sim.errors import SimConfigError, SimError
@@ -172,17 +172,26 @@ def __dir__() -> list[str]:
 
 
 # ---------------------------------------------------------------------------------------------
-# Paths of version 0.1: the application layer lived under northfinder.host. Importing an old path
-# gives the module at its new path (the same module object) with a DeprecationWarning, so code and
-# entry points written for 0.1 keep working while the host library itself never imports the layer
-# above it.
+# Paths of version 0.1. The application layer lived under northfinder.host, and a few modules had
+# names easy to confuse (four "link" modules, plan/planner, study/montecarlo/cli.study,
+# sender/sendloop). Importing an old path gives the module at its new path (the same module
+# object) with a DeprecationWarning, so code and entry points written for 0.1 keep working while
+# the host library itself never imports the layer above it.
 # ---------------------------------------------------------------------------------------------
 
 _MOVED: dict[str, str] = {
+    # the application layer, out of the host library
     "northfinder.host.cli.simulated": "northfinder.simwindows",
     "northfinder.host.cli": "northfinder.cli",
     "northfinder.host.embed": "northfinder.embed",
     "northfinder.host.pytest_plugin": "northfinder.pytest_plugin",
+    # clearer names
+    "northfinder.driver.link": "northfinder.driver.device_link",
+    "northfinder.driver.conformance.links": "northfinder.driver.conformance.wire",
+    "northfinder.firmware_sim.links": "northfinder.firmware_sim.adapters",
+    "northfinder.firmware_sim.sendloop": "northfinder.firmware_sim.sender_child",
+    "northfinder.host.planner": "northfinder.host.plan_search",
+    "northfinder.host.study": "northfinder.host.batch_solve",
 }
 
 

@@ -55,16 +55,16 @@ from northfinder.driver.clock import VirtualClock
 from northfinder.driver.device import Device
 from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT, SERIAL_BAUD_DEFAULT
-from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
-from northfinder.firmware_sim.errors import SimError
-from northfinder.firmware_sim.firmware import Firmware, LinkInfo
-from northfinder.firmware_sim.imu import Truth
-from northfinder.firmware_sim.links import (
+from northfinder.firmware_sim.adapters import (
     CanLink,
     PseudoTerminal,
     SerialLink,
     SlcanAdapter,
 )
+from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
+from northfinder.firmware_sim.errors import SimError
+from northfinder.firmware_sim.firmware import Firmware, LinkInfo
+from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import BackgroundRunner, Clock, Link, RealTimeClock, Runner
 from northfinder.firmware_sim.sensors import SensorSpec, load_spec
 from northfinder.host.errors import HostConfigError

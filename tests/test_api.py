@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import os
 import subprocess
 import sys
 import warnings
@@ -79,6 +80,12 @@ def test_import_northfinder_is_light():
         ("northfinder.host.cli.find", "northfinder.cli.find"),
         ("northfinder.host.cli.simulated", "northfinder.simwindows"),
         ("northfinder.host.pytest_plugin", "northfinder.pytest_plugin"),
+        ("northfinder.driver.link", "northfinder.driver.device_link"),
+        ("northfinder.driver.conformance.links", "northfinder.driver.conformance.wire"),
+        ("northfinder.firmware_sim.links", "northfinder.firmware_sim.adapters"),
+        ("northfinder.firmware_sim.sendloop", "northfinder.firmware_sim.sender_child"),
+        ("northfinder.host.planner", "northfinder.host.plan_search"),
+        ("northfinder.host.study", "northfinder.host.batch_solve"),
     ],
 )
 def test_the_paths_of_version_0_1_still_import_with_a_warning(old, new):
@@ -93,6 +100,28 @@ def test_the_paths_of_version_0_1_still_import_with_a_warning(old, new):
         " for x in w), [str(x.message) for x in w]\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_a_renamed_module_keeps_its_names_under_the_old_path():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from northfinder.driver.link import DeviceLink
+        from northfinder.host.study import chunk_errors
+    from northfinder.driver.device_link import DeviceLink as new_link
+    from northfinder.host.batch_solve import chunk_errors as new_errors
+
+    assert DeviceLink is new_link and chunk_errors is new_errors
+
+
+def test_no_old_path_is_a_module_of_its_own():
+    """A moved path is only an alias: no file is left behind to shadow it (and drift from it)."""
+    for old in northfinder._MOVED:
+        parent, _, leaf = old.rpartition(".")
+        if parent in northfinder._MOVED:
+            continue  # inside a moved package: nothing of it is left
+        for folder in importlib.import_module(parent).__path__:
+            assert not os.path.exists(os.path.join(folder, leaf + ".py")), old
+            assert not os.path.isdir(os.path.join(folder, leaf)), old
 
 
 def test_an_unknown_old_path_is_still_an_import_error():

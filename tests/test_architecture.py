@@ -151,12 +151,12 @@ def test_the_import_direction(rule):
         ("northfinder.driver.conformance.runner", "northfinder.firmware_sim.runner", DRIVER),
         ("northfinder.driver.protocol.can", "northfinder.driver.errors", WIRE),
         ("northfinder.driver.protocol.can", "northfinder.driver.protocol.errors", None),
-        ("northfinder.firmware_sim.links", "northfinder.driver.protocol.serial", None),
-        ("northfinder.firmware_sim.links", "northfinder.driver.errors", SIM),
+        ("northfinder.firmware_sim.adapters", "northfinder.driver.protocol.serial", None),
+        ("northfinder.firmware_sim.adapters", "northfinder.driver.errors", SIM),
         ("northfinder.firmware_sim.control", "northfinder.host.errors", SIM),
         ("northfinder.host.procedure", "northfinder.driver.device", None),
-        ("northfinder.host.study", "northfinder.firmware_sim.batch", HOST),
-        ("northfinder.host.study", "northfinder.simwindows", APP),
+        ("northfinder.host.batch_solve", "northfinder.firmware_sim.batch", HOST),
+        ("northfinder.host.batch_solve", "northfinder.simwindows", APP),
         ("northfinder.host.procedure", "northfinder", APP),
         ("northfinder.driver.device", "northfinder.embed", APP),
         ("northfinder.firmware_sim.runner", "northfinder.cli", SIM),
@@ -175,7 +175,7 @@ def test_imports_are_read_everywhere_in_a_file(tmp_path):
     path = tmp_path / "__init__.py"
     path.write_text(
         "import northfinder.driver.device\n"
-        "from . import links\n"
+        "from . import adapters\n"
         "from .. import host\n"
         "def f():\n"
         "    from northfinder.driver.protocol import can\n"
@@ -184,7 +184,7 @@ def test_imports_are_read_everywhere_in_a_file(tmp_path):
     assert got == {
         "northfinder.driver.device",
         "northfinder.firmware_sim",
-        "northfinder.firmware_sim.links",
+        "northfinder.firmware_sim.adapters",
         "northfinder",
         "northfinder.host",
         "northfinder.driver.protocol",

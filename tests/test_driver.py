@@ -484,7 +484,7 @@ def test_an_slcan_batch_takes_the_waiting_frames_without_a_read_that_waits(reade
     from northfinder.driver.protocol.can import encode_can
     from northfinder.driver.protocol.messages import Validity
     from northfinder.driver.transport import frame_batch
-    from northfinder.firmware_sim.links import PseudoTerminal, slcan_line
+    from northfinder.firmware_sim.adapters import PseudoTerminal, slcan_line
 
     pty = PseudoTerminal()
     bus: Any = can.Bus(interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0)

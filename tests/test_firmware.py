@@ -34,9 +34,9 @@ from northfinder.driver.protocol import (
     Validity,
 )
 from northfinder.driver.protocol.can import CanReceiver, encode_can
+from northfinder.firmware_sim.adapters import CanLink
 from northfinder.firmware_sim.firmware import Firmware, LinkInfo
 from northfinder.firmware_sim.imu import Truth
-from northfinder.firmware_sim.links import CanLink
 from northfinder.firmware_sim.runner import LockstepClock, Runner
 from northfinder.firmware_sim.sensors import load_spec
 

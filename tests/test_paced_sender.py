@@ -2,7 +2,7 @@
 sender sends each message at its due time on the device's tick grid, in order, from a bounded
 queue, and after a stall slips instead of bursting. Injected wall clock and sleep (exact).
 
-The sender process (firmware_sim.sender.ProcessSender, firmware_sim/sendloop.py): its records,
+The sender process (firmware_sim.sender.ProcessSender, firmware_sim/sender_child.py): its records,
 one write per chunk in order, and what its reports do to the simulator; tests/test_pacing.py
 stalls it on the wall clock."""
 
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from northfinder.driver.protocol.messages import Sample, StreamStart
-from northfinder.firmware_sim import sendloop
+from northfinder.firmware_sim import sender_child
 from northfinder.firmware_sim.errors import SimError
 from northfinder.firmware_sim.firmware import Firmware
 from northfinder.firmware_sim.imu import Truth
@@ -181,19 +181,21 @@ def test_a_runner_with_its_sender_streams_at_its_pace_on_the_wall_clock():
 
 def test_the_sender_process_reads_records_in_any_pieces():
     record = [
-        sendloop.HEADER.pack(10, 0, 2),
-        sendloop.LENGTH.pack(3),
+        sender_child.HEADER.pack(10, 0, 2),
+        sender_child.LENGTH.pack(3),
         b"abc",
-        sendloop.LENGTH.pack(0),
+        sender_child.LENGTH.pack(0),
     ]
-    data = b"".join(record) + sendloop.HEADER.pack(20, 1, 1) + sendloop.LENGTH.pack(1) + b"z"
+    data = (
+        b"".join(record) + sender_child.HEADER.pack(20, 1, 1) + sender_child.LENGTH.pack(1) + b"z"
+    )
     for cut in range(len(data) + 1):
         buf, out = bytearray(data[:cut]), deque[tuple[int, int, list[bytes]]]()
-        assert sendloop.parse(buf, out)
+        assert sender_child.parse(buf, out)
         buf += data[cut:]
-        assert sendloop.parse(buf, out)
+        assert sender_child.parse(buf, out)
         assert list(out) == [(10, 0, [b"abc", b""]), (20, 1, [b"z"])] and not buf
-    assert not sendloop.parse(bytearray(sendloop.HEADER.pack(-1, 0, 0)), deque())  # stop
+    assert not sender_child.parse(bytearray(sender_child.HEADER.pack(-1, 0, 0)), deque())  # stop
 
 
 @pytest.mark.subprocess
@@ -211,8 +213,8 @@ def test_the_sender_process_writes_each_chunk_in_order_and_reports_its_class():
         assert got == [c for k in range(50) for c in (b"%d" % k, b"again %d" % k)]
         # nothing dropped or failed (a machine busy enough to delay it may make it slip again)
         kinds = [kind for kind, _ in sender.reports()]
-        assert kinds[0] == sendloop.SCHEDULING and sendloop.SLIP in kinds
-        assert set(kinds) == {sendloop.SCHEDULING, sendloop.SLIP}
+        assert kinds[0] == sender_child.SCHEDULING and sender_child.SLIP in kinds
+        assert set(kinds) == {sender_child.SCHEDULING, sender_child.SLIP}
         assert sender.priority == 0 and sender.alive
     finally:
         sender.close()
@@ -240,13 +242,13 @@ def test_a_runner_with_a_sender_process_slips_with_it_and_counts_what_it_dropped
     firmware = Firmware(load_spec("ideal"), Truth(), np.random.default_rng(1), warmup_s=0.0)
     clock = RealTimeClock(1.0, monotonic=wall)
     runner = Runner(firmware, Recorder(wall), clock)
-    sender = Reporting([(sendloop.SLIP, 250_000_000), (sendloop.DROPPED, 3)])
+    sender = Reporting([(sender_child.SLIP, 250_000_000), (sender_child.DROPPED, 3)])
     wall.t = 1.0
     runner._take_reports(sender, clock)  # type: ignore[arg-type]
     assert clock.now() == pytest.approx(0.75)
     assert runner.lag.slips == 1 and runner.lag.slipped_s == pytest.approx(0.25)
     assert sender.epoch == 1 and firmware.tx_dropped == 3
-    sender = Reporting([(sendloop.FAILED, errno.EIO)])
+    sender = Reporting([(sender_child.FAILED, errno.EIO)])
     with pytest.raises(SimError, match="Input/output error"):
         runner._take_reports(sender, clock)  # type: ignore[arg-type]
     sender = Reporting([])

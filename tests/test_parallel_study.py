@@ -20,6 +20,7 @@ from northfinder.firmware_sim.batch import simulate_windows
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.batch_solve import chunk_errors
 from northfinder.host.denoise import METHODS, denoise, denoised_mean, wavelet_denoise_mean
 from northfinder.host.distributed import (
     DistributedError,
@@ -38,7 +39,6 @@ from northfinder.host.montecarlo import (
     monte_carlo_many,
 )
 from northfinder.host.plan import Plan
-from northfinder.host.study import chunk_errors
 from northfinder.simwindows import SimulatedWindows
 
 # 10 s windows at 200 Hz: 65 runs a chunk, so 150 runs make three chunks, the last one short.

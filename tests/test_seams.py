@@ -336,7 +336,7 @@ def test_v_prints_the_link_statistics_at_the_end():
 
 
 def test_the_link_summary_names_every_counter():
-    from northfinder.driver.link import LinkStats
+    from northfinder.driver.device_link import LinkStats
 
     stats = LinkStats(10, 1, 2, 3, 4, 5, 6, 7, 8, 9, 0, commands_sent=20, replies_received=11)
     assert stats.summary().startswith(

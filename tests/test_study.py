@@ -19,6 +19,7 @@ from northfinder.firmware_sim.batch import plan_timeline, simulate_windows
 from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.accuracy import ErrorModel, _window_mean_cov, bound_deg, predict
+from northfinder.host.batch_solve import summarize
 from northfinder.host.errors import GeometryError, HostConfigError, InputError, TiltError
 from northfinder.host.heading import (
     solve_multi_position,
@@ -28,8 +29,7 @@ from northfinder.host.heading import (
 from northfinder.host.kernels import solve_least_squares_batch, solve_two_position_batch
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
 from northfinder.host.plan import Plan, TableModel, plan_time_s, window_starts_s
-from northfinder.host.planner import search_plans, shortest_plan
-from northfinder.host.study import summarize
+from northfinder.host.plan_search import search_plans, shortest_plan
 from northfinder.simwindows import SimulatedWindows, error_model
 
 #: Every random term off, deterministic terms on: closed-form means must agree exactly.

@@ -8,7 +8,7 @@ rotations. Each check passes, fails or is skipped with a message and measured fi
 does not stop the run, and the unit is restored (STOP, RESET if needed) before the next check.
 
 It validates the protocol, so it lives beside the driver and imports only the driver's codec,
-transport helpers and errors (never the host or the simulator). Modules: :mod:`.links` (raw links),
+transport helpers and errors (never the host or the simulator). Modules: :mod:`.wire` (raw links),
 :mod:`.session` (requests, replies and the record of what the unit sent), :mod:`.core` (options,
 results, the check context), :mod:`.checks` (the checks, one module per protocol section),
 :mod:`.runner` (running and restoring), :mod:`.report` (text and JUnit XML), :mod:`.errors`.
@@ -33,7 +33,6 @@ from northfinder.driver.conformance.errors import (
     Skipped,
     SuiteConfigError,
 )
-from northfinder.driver.conformance.links import CanRawLink, RawLink, SerialRawLink
 from northfinder.driver.conformance.report import (
     format_header,
     format_report,
@@ -43,6 +42,7 @@ from northfinder.driver.conformance.report import (
     write_junit,
 )
 from northfinder.driver.conformance.runner import restore, run_suite
+from northfinder.driver.conformance.wire import CanRawLink, RawLink, SerialRawLink
 
 __all__ = [
     "CHECKS",

@@ -13,9 +13,9 @@ from northfinder.driver.clock import Clock
 from northfinder.driver.conformance.checks import select_checks
 from northfinder.driver.conformance.core import CheckResult, Ctx, Report, SuiteOptions
 from northfinder.driver.conformance.errors import LinkFault, NoReply, Skipped
-from northfinder.driver.conformance.links import RawLink
 from northfinder.driver.conformance.pace import excused
 from northfinder.driver.conformance.session import Session
+from northfinder.driver.conformance.wire import RawLink
 from northfinder.driver.errors import DriverError
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState
 from northfinder.driver.protocol.messages import Reset, SetConfig, Stop
@@ -50,8 +50,8 @@ def run_suite(
     Parameters
     ----------
     link : RawLink
-        The suite's end of the link (a :class:`~northfinder.driver.conformance.links.CanRawLink` or
-        :class:`~northfinder.driver.conformance.links.SerialRawLink`).
+        The suite's end of the link (a :class:`~northfinder.driver.conformance.wire.CanRawLink` or
+        :class:`~northfinder.driver.conformance.wire.SerialRawLink`).
     options : SuiteOptions
     progress : callable, optional
         Called with each result as soon as it is known.

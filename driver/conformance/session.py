@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.conformance.errors import LinkFault, NoReply
-from northfinder.driver.conformance.links import Arrival, RawLink, TickParts
 from northfinder.driver.conformance.pace import HostPace
+from northfinder.driver.conformance.wire import Arrival, RawLink, TickParts
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
 from northfinder.driver.protocol.counters import TickCounter, counter_diff
 from northfinder.driver.protocol.messages import (

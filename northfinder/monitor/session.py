@@ -70,7 +70,7 @@ class Session:
         self.observer.drain()
 
     def link_stats(self) -> dict[str, int] | None:
-        """The driver's counters (:class:`~northfinder.driver.link.LinkStats`), None passively."""
+        """The driver's counters (:class:`~northfinder.driver.device_link.LinkStats`), None passively."""
         return None
 
     # -- recording ----------------------------------------------------------------------------

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from northfinder.driver.conformance.checks.common import dropped_silently, undisturbed
 from northfinder.driver.conformance.core import Ctx, check
-from northfinder.driver.conformance.links import CanRawLink, SerialRawLink
+from northfinder.driver.conformance.wire import CanRawLink, SerialRawLink
 from northfinder.driver.protocol.constants import (
     NODE_ID_MAX,
     CanFunction,

@@ -1,7 +1,7 @@
 """The paced sender's own process: writes output computed ahead to a link at its due times.
 
 :class:`northfinder.firmware_sim.sender.ProcessSender` starts this file as a script
-(``python -I sendloop.py OUT_FD IN_FD BACK_FD SPIN_NS MAX_LAG_NS PRIORITY``). It uses the standard library
+(``python -I sender_child.py OUT_FD IN_FD BACK_FD SPIN_NS MAX_LAG_NS PRIORITY``). It uses the standard library
 only, so it starts in milliseconds, and nothing else runs in its interpreter: no computation and
 no host can hold it up when a message is due. It sleeps until shortly before each due time, spins
 the last ``SPIN_NS`` on the monotonic clock, and writes.
