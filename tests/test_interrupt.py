@@ -72,6 +72,23 @@ def test_an_interrupt_as_the_clock_takes_its_lock_leaves_the_lock_free(clock):
     assert c.wait_until(lambda: True, c.now() + 1.0)
 
 
+def test_an_interrupt_as_the_simulators_sender_takes_its_lock_leaves_the_lock_free():
+    from northfinder.firmware_sim.runner import PacedSender
+
+    sender = PacedSender(runner=None)  # type: ignore[arg-type]  # put() needs no runner
+    previous = sys.gettrace()
+    sys.settrace(_interrupt_as_a_python_enter_returns)
+    try:
+        with contextlib.suppress(KeyboardInterrupt):
+            sender.put([])
+    finally:
+        sys.settrace(previous)
+    other = threading.Thread(target=sender.put, args=([],), daemon=True)
+    other.start()
+    other.join(5.0)
+    assert not other.is_alive(), "an interrupted put left the sender's lock held"
+
+
 def _instrument() -> SimulatedInstrument:
     return SimulatedInstrument("ideal", seed=1, clock="virtual", warmup_s=0.0)
 
