@@ -70,7 +70,7 @@ class Clock(Protocol):
 # handler that raises (Ctrl-C, SIGTERM: the command line's clean-up) runs at the return of a
 # Python-level ``__enter__`` such as ``threading.Condition.__enter__``, after the lock was taken
 # and before the ``with`` statement guards it, and the lock stays held for good (CPython issue
-# 29988). Measured on vcan0: 4 of 120 runs of ``find`` sent SIGINT or SIGTERM during a move hung
+# 29988). Measured on vcan0: 3 of 120 runs of ``find`` sent SIGINT or SIGTERM during a move hung
 # so, the reader thread in ``notify`` and the clean-up's request in ``wait_until``. A lock's own
 # ``__enter__`` is C: taking it and the guard leave no gap for a handler.
 
