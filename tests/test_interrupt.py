@@ -32,7 +32,11 @@ def _interrupt_as_a_python_enter_returns(frame, event, arg):
     threading module returns: where a signal handler can run after the lock was taken and before
     the ``with`` statement guards it (CPython issue 29988)."""
     if event == "call" and frame.f_code.co_name == "__enter__":
-        if frame.f_code.co_filename == threading.__file__:
+        caller = frame.f_back.f_code.co_filename if frame.f_back is not None else ""
+        # only the product's own locks (not a finalizer's that the collector runs meanwhile)
+        if frame.f_code.co_filename == threading.__file__ and caller.endswith(
+            ("clock.py", "runner.py")
+        ):
 
             def at_return(frame, event, arg):
                 if event == "return":
