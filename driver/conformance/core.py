@@ -14,7 +14,7 @@ from northfinder.driver.conformance.errors import (
     Skipped,
     SuiteConfigError,
 )
-from northfinder.driver.conformance.pace import PaceFigures
+from northfinder.driver.conformance.pace import TTY_BUFFER_BYTES, PaceFigures
 from northfinder.driver.conformance.session import Answer, Session, describe_result
 from northfinder.driver.protocol.constants import (
     NODE_ID_MAX,
@@ -176,13 +176,17 @@ class TimingProblem:
 
     ``excess_s``: how late the unit was beyond its limit, wall s; None for a check over the
     observation window whose unit counters showed nothing wrong. The runner asks the host's pace
-    over the interval whether it excuses the failure (:func:`~.pace.excused`).
+    over the interval whether it excuses the failure (:func:`~.pace.excused`). For frames lost on
+    the link, ``behind_s`` is how far the reader was behind and ``excess_s`` what the link holds.
     """
 
     text: str
     t0: float
     t1: float
     excess_s: float | None = None
+    behind_s: float | None = None
+    """Frames lost: how far the reader was behind the unit's stream, wall s (``excess_s`` is then
+    what the link holds, wall s)."""
 
 
 @dataclass(frozen=True)
@@ -235,6 +239,24 @@ class Ctx:
         """Record a failure about time, judged over ``[t0, t1]`` (see :class:`TimingProblem`):
         not judged if the host could not keep pace then, a failure otherwise."""
         self.timing_problems.append(TimingProblem(text, t0, t1, excess_s))
+
+    def lost(self, text: str, t: float) -> None:
+        """Frames from the unit lost or broken, found at ``t``: a timing problem judged by how far
+        the reader was behind the unit's stream then (:meth:`Session.behind`) against what the
+        link holds (:data:`~.pace.TTY_BUFFER_BYTES` of the stream at its configured rate); a FAIL
+        if the reader kept up or the host kept pace."""
+        rate = self.config()[ConfigKey.SAMPLE_RATE_HZ]
+        behind = self.s.behind(t, rate)
+        holds = self.s.wall(TTY_BUFFER_BYTES / (self.s.link.tick_bytes * rate))
+        text += (
+            ""
+            if not text
+            else (
+                f" (the reader {behind * 1e3:.0f} ms behind the unit's stream then; the link holds "
+                f"{holds * 1e3:.0f} ms)"
+            )
+        )
+        self.timing_problems.append(TimingProblem(text, t - behind, t, holds, behind))
 
     def note(self, text: str) -> None:
         self.notes.append(text)
