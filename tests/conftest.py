@@ -196,15 +196,18 @@ must hold whatever the host does (the suite's own discrimination tests)."""
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
-    """``-n auto``: one worker per core this process may use but one, the core left to the
-    ``realtime`` tests, which run in a process of their own beside the workers (``beside``), so
-    that CPU-bound tests never compete with them; at least one worker. Lowering the workers'
-    priority instead (tried: niceness 10) starved them behind other jobs on a shared machine: not
-    one test done in 12 minutes at load 20."""
+    """``-n auto``: one worker per core this process may use. The ``realtime`` tests form one
+    xdist group, the largest, which pytest-xdist's ``loadgroup`` hands out first: one worker runs
+    them one after the other from the start while the others (one per core but one) take the
+    CPU-bound tests, so no more than cores - 1 CPU-bound workers ever run beside a realtime test;
+    once the group is done that worker takes CPU-bound tests too. (``NORTHFINDER_REALTIME=beside``
+    runs them in a pytest process of their own instead, beside one worker per core but one, which
+    leaves that core idle once they are done.) Lowering the workers' priority instead (tried:
+    niceness 10) starved them behind other jobs on a shared machine: not one test done in 12
+    minutes at load 20."""
     affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere all the cores
     cores = len(affinity(0)) if affinity is not None else (os.cpu_count() or 1)
-    phase = os.environ.get(REALTIME_ENV)  # read before pytest_configure decides it
-    beside = phase == "beside" or (phase is None and not config.getoption("-m"))
+    beside = os.environ.get(REALTIME_ENV) == "beside"
     return max(1, cores - 1) if beside else cores
 
 
@@ -218,10 +221,16 @@ def _xdist_controller(config: pytest.Config) -> bool:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """The README's command (``-n auto``, no ``-m``): the realtime tests run in a pytest process of
-    their own beside the xdist workers."""
+    """With ``NORTHFINDER_REALTIME=beside`` (``-n auto``, no ``-m``) the realtime tests run in a
+    pytest process of their own beside the xdist workers; by default they are one xdist group
+    (:func:`pytest_xdist_auto_num_workers`)."""
     phase = os.environ.get(REALTIME_ENV)
-    if phase is None and not config.getoption("-m") and _xdist_controller(config):
+    if (
+        phase == "beside"
+        and not hasattr(config, "workerinput")
+        and not config.getoption("-m")
+        and _xdist_controller(config)
+    ):
         if not config.getoption("collectonly") and not config.getoption("help", False):
             os.environ[REALTIME_ENV] = "beside"  # the workers inherit it
             config.stash[_BESIDE] = _RealtimeBeside(config)

@@ -588,7 +588,12 @@ def test_a_unit_really_off_fails_idle_and_under_load(paced_unit, defect, load, c
     outcomes = {c["name"]: (c["outcome"], c["message"]) for c in result["checks"]}
     assert status == 1, out
     assert outcomes[check][0] == "fail", out
-    assert evidence in outcomes[check][1], out
+    if defect == "late_replies" and load == "loaded":
+        # Two CPU-bound processes and other jobs can hold the simulator's reply beyond the 2 s
+        # the suite listens (twice its wait): then it is rightly missing, still a FAIL.
+        assert evidence in outcomes[check][1] or "GET_STATUS: no reply in 2." in out, out
+    else:
+        assert evidence in outcomes[check][1], out
 
 
 @pytest.mark.realtime(judge_host=False)
@@ -603,9 +608,16 @@ def test_a_correct_unit_is_never_failed_under_load(paced_unit, capsys, tmp_path)
     # the full suite runs idle above.
     only = "identify,command.get_status,command.stream*,heartbeat.*,stream.*,timing.reply"
     only += ",bad_input.wrong_length" if link[0] == "--serial" else ",refusal.unknown_command"
+    slipped = ctl.call("status")["lag"]["slipped_s"]
     with cpu_load(LOAD["loaded"]):
         status = main(["conformance", *link, "--only", only, "--junit", str(junit)])
     out = capsys.readouterr().out
+    slipped = ctl.call("status")["lag"]["slipped_s"] - slipped
+    if status == 1 and failed_names(out) <= TIMING and slipped > 0:
+        # The simulated unit shares this host: when the host starved the unit itself (it slipped
+        # its clock, as a paced simulator does when it cannot keep time), a late reply is the
+        # host's doing, though the suite's own timer loop, in another process, lost less.
+        pytest.skip(f"NOT JUDGED: the simulated unit was starved (slipped {slipped:.2f} s): {out}")
     assert status in (0, NOT_JUDGED), out
     assert failed_names(out) == set(), out
     # Not judged: a skip in the JUnit, its message the reason and the host's figures.
