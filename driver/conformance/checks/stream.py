@@ -47,6 +47,7 @@ def command_stream_stop(c: Ctx) -> None:
 )
 def command_stream_start(c: Ctx) -> None:
     s = c.s
+    c.ready()  # a unit still booting refuses it rightly (refusal.not_ready's business)
     rate = c.config()[ConfigKey.SAMPLE_RATE_HZ]
     if s.streaming:
         s.stop_stream()
