@@ -37,6 +37,9 @@ __all__ = [
     "check",
 ]
 
+LOSS_WORDS = ("incomplete", "tick(s) missing", "frame(s) lost")
+"""Words of the session's gaps that say frames went missing (see :meth:`Ctx.gaps`)."""
+
 Outcome = str
 """``"pass"``, ``"fail"``, ``"not judged"`` (a timing check that failed while the host could not
 keep pace: :mod:`northfinder.driver.conformance.pace`) or ``"skip"``."""
@@ -257,6 +260,23 @@ class Ctx:
             )
         )
         self.timing_problems.append(TimingProblem(text, t - behind, t, holds, behind))
+
+    def gaps(self, found: list[tuple[float, str]], head: str) -> None:
+        """Judge the session's gaps ``found`` ((time, text) pairs), the message starting with
+        ``head``: frames missing (an incomplete tick, ticks or serial frames lost) are judged as
+        frames lost on the link (:meth:`lost`); a counter repeated or going back is the unit's
+        whatever the host did, and fails them all."""
+        if not found:
+            return
+        texts = [text for _, text in found]
+        summary = (
+            head + "; ".join(texts[:3]) + (f" (+{len(texts) - 3} more)" if len(texts) > 3 else "")
+        )
+        if all(any(k in text for k in LOSS_WORDS) for text in texts):
+            for i, (t, _) in enumerate(found):
+                self.lost(summary if i == 0 else "", t)
+        else:
+            self.fail(summary)
 
     def note(self, text: str) -> None:
         self.notes.append(text)

@@ -492,6 +492,10 @@ class Session:
     def gaps_since(self, t0: float) -> list[str]:
         return [text for t, text in self.gaps if t >= t0]
 
+    def gaps_found_since(self, t0: float) -> list[tuple[float, str]]:
+        """The gaps found since ``t0``: (time, text)."""
+        return [(t, text) for t, text in self.gaps if t >= t0]
+
 
 def describe_result(code: int) -> str:
     """``BUSY (1)`` or ``undefined code 42``."""
