@@ -1,7 +1,7 @@
 """The planner's prediction against Monte Carlo: the paper's sweep, and the best plan of a budget.
 
-Run: ``.venv/bin/python benchmarks/bench_planner.py [--runs 1000] [--only sweep|budget]``.
-Prints two markdown tables (34 deg N, 120 s warm-up, uniform random azimuth, seeded):
+Run: ``.venv/bin/python benchmarks/bench_planner.py [--runs 1000] [--only sweep|budget|compare]``.
+Prints three markdown tables (34 deg N, 120 s warm-up, uniform random azimuth, seeded):
 
 1. ``paper-prototype`` on the paper's sweep (eight positions 30 deg apart, 10 s windows, every
    position solved against the first): RMSE by Monte Carlo and the prediction for each mu.
@@ -9,6 +9,10 @@ Prints two markdown tables (34 deg N, 120 s warm-up, uniform random azimuth, see
    (``northfinder study --sensor PRESET --plan-budget SECONDS``), its Monte Carlo RMSE, the
    prediction, the white-noise bound of that plan and the physical bound of the budget (all of
    it spent recording: N / (Omega_H sqrt(budget))).
+3. For each preset and plan budgets of 60, 160 and 600 s: the best stop-and-go plan and the best
+   spin (ramps counted; the first of each in ``northfinder study --sensor PRESET --plan-budget
+   SECONDS``) side by side, each with its Monte Carlo RMSE and prediction, and the budget's
+   physical bound.
 """
 
 from __future__ import annotations
@@ -19,8 +23,8 @@ import time
 from northfinder.firmware_sim.sensors import load_spec, preset_names
 from northfinder.host.accuracy import budget_bound_deg
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
-from northfinder.host.plan import PAPER_SWEEP
-from northfinder.host.plan_search import search_plans
+from northfinder.host.plan import PAPER_SWEEP, SpinPlan
+from northfinder.host.plan_search import search_plans, search_spin_plans
 from northfinder.simwindows import SimulatedWindows, error_model
 
 LATITUDE = 34.0
@@ -83,18 +87,74 @@ def budget_table(runs: int, seed: int) -> None:
     print(f"\nlargest |predicted/RMSE - 1|: {100 * worst:.1f} % (target <= 15 %)")
 
 
+def compare_table(runs: int, seed: int) -> None:
+    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
+    print(
+        f"\n### Best stop-and-go plan and best spin of a budget, {runs} runs per plan\n\n"
+        "| preset | budget s | stop-and-go | RMSE deg | predicted deg | spin | RMSE deg | "
+        "predicted deg | budget bound deg | better |\n"
+        "|---|---:|---|---:|---:|---|---:|---:|---:|---|"
+    )
+    worst, below = 0.0, 0
+    for name in preset_names():
+        if name == "ideal":
+            continue  # no noise: any plan is exact
+        spec = load_spec(name)
+        model = error_model(spec)
+        for budget in BUDGETS:
+            bound = budget_bound_deg(budget, model.arw_dpsh, LATITUDE)
+            cells, rmse = [], {}
+            for kind, cands in (
+                ("stop-and-go", search_plans(model, LATITUDE, budget, warmup_s=WARMUP)),
+                ("spin", search_spin_plans(model, LATITUDE, budget, warmup_s=WARMUP)),
+            ):
+                if not cands:
+                    cells += ["none fits", "", ""]
+                    continue
+                plan = cands[0].plan
+                errors = monte_carlo(SimulatedWindows(spec), plan, settings, runs, seed)
+                row = study_rows(model, plan, settings, errors)[0]
+                rmse[kind] = row["rmse_deg"]
+                worst = max(worst, abs(row["predicted_deg"] / row["rmse_deg"] - 1.0))
+                below += row["rmse_deg"] < bound
+                label = (
+                    f"{plan.rate_dps:+g} deg/s x {plan.spin_s:.1f} s"
+                    + (", drift" if plan.drift else "")
+                    if isinstance(plan, SpinPlan)
+                    else f"{plan.label()} x {plan.window_s:.1f} s"
+                )
+                cells += [
+                    label,
+                    f"{row['rmse_deg']:.4f} (+-{100 * row['rmse_rel_se']:.0f} %)",
+                    f"{row['predicted_deg']:.4f}",
+                ]
+            better = min(rmse, key=lambda k: rmse[k]) if rmse else "-"
+            if len(rmse) == 2:
+                better += f" (x{max(rmse.values()) / min(rmse.values()):.2f})"
+            print(
+                f"| {name} | {budget:g} | " + " | ".join(cells) + f" | {bound:.4f} | {better} |",
+                flush=True,
+            )
+    print(
+        f"\nlargest |predicted/RMSE - 1|: {100 * worst:.1f} % (target <= 15 %); "
+        f"RMSE below the budget bound: {below} (must be 0)"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     ap.add_argument("--runs", type=int, default=1000, help="Monte Carlo runs per plan")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--only", choices=("sweep", "budget"), default=None)
+    ap.add_argument("--only", choices=("sweep", "budget", "compare"), default=None)
     args = ap.parse_args()
     if args.only in (None, "sweep"):
         sweep_table(args.runs, args.seed)
     if args.only in (None, "budget"):
         budget_table(args.runs, args.seed)
+    if args.only in (None, "compare"):
+        compare_table(args.runs, args.seed)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,14 @@ frame the host or device sent is logged with ``is_rx=False`` (``Tx`` in ASC and 
 frame is logged on one channel: ``channel`` (default ``can0`` for candump, whose lines name an
 interface; the writer's own default, channel 1, for the formats that number channels).
 
+A log may be rotated as python-can's :class:`can.SizedRotatingLogger` rotates one: with
+``max_bytes`` a new part begins once the current one has grown to that size, with ``max_seconds``
+once a frame is that many seconds (by the log's own timestamps) after the part's first frame;
+either or both. The part being written keeps the name given; each finished part is closed (a
+complete log on its own) and renamed ``STEM_#NNN.EXT``, NNN counting 000, 001, ... in order
+(:func:`part_name`). Rotation takes the formats python-can rotates: ``.asc``, ``.blf``,
+``.csv``, ``.log``. :func:`log_parts` lists a set in order, the part with the given name last.
+
 A write that fails (disk full, say) does not stop the link: the first error is kept in
 :attr:`FrameLog.error`, later frames are counted in :attr:`FrameLog.lost`, and :meth:`close`
 raises :class:`~northfinder.driver.errors.LinkError` naming both, so a log is never silently
@@ -25,9 +33,14 @@ incomplete.
 
 from __future__ import annotations
 
+import copy
+import glob
+import itertools
+import os
+import re
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -36,10 +49,29 @@ import can
 from northfinder.driver.errors import ArgumentError, LinkError
 from northfinder.driver.protocol.can import CanFrame
 
-__all__ = ["LOG_SUFFIXES", "FrameLog", "FrameTap", "frame_message", "log_suffix"]
+__all__ = [
+    "LOG_SUFFIXES",
+    "ROTATING_SUFFIXES",
+    "FrameLog",
+    "FrameTap",
+    "RotatingLog",
+    "frame_message",
+    "log_parts",
+    "log_suffix",
+    "order_log_parts",
+    "part_name",
+]
 
 LOG_SUFFIXES = (".asc", ".blf", ".csv", ".db", ".log", ".mf4", ".trc")
 """File endings python-can reads and writes as CAN logs (``.mf4`` needs ``asammdf``)."""
+
+ROTATING_SUFFIXES = (".asc", ".blf", ".csv", ".log")
+"""File endings a rotated log may have (those python-can's :class:`can.SizedRotatingLogger` takes)."""
+
+#: Smallest and largest ``max_bytes`` and ``max_seconds`` of a rotated log: a smaller part would
+#: hold a handful of frames (a part per frame is no log), a larger one is no rotation at all.
+MAX_BYTES_RANGE = (4096, 1 << 40)
+MAX_SECONDS_RANGE = (1.0, 366 * 86_400.0)
 
 FrameTap = Callable[[can.Message], None]
 """What a link calls with every frame it sends or receives (a :class:`FrameLog`, or your own)."""
@@ -76,6 +108,140 @@ def log_suffix(path: str | Path) -> str:
     return suffix
 
 
+def part_name(path: str | Path, index: int) -> Path:
+    """The name of part ``index`` (0-based) of a rotated log: ``run.log`` -> ``run_#000.log``
+    (``run.log`` itself is the part written last)."""
+    p = Path(path)
+    suffix = p.suffix
+    return p.with_name(f"{p.name[: len(p.name) - len(suffix)]}_#{index:03d}{suffix}")
+
+
+def _part_index(path: Path) -> tuple[str, int] | None:
+    """(the base name, the index) of a finished part's name, None for any other name."""
+    m = re.fullmatch(r"(.*)_#(\d{3,})(\.[^.]+)", path.name)
+    if m is None:
+        return None
+    return str(path.with_name(m.group(1) + m.group(3))), int(m.group(2))
+
+
+def log_parts(path: str | Path) -> list[Path]:
+    """The finished parts of the rotated log ``path`` on disk, in order (``path`` itself, the
+    part written last, not included)."""
+    p = Path(path)
+    stem = p.name[: len(p.name) - len(p.suffix)]
+    found = [Path(f) for f in glob.glob(glob.escape(str(p.with_name(stem))) + "_#*" + p.suffix)]
+    parts = [(_part_index(f), f) for f in found]
+    return [f for key, f in sorted((k, f) for k, f in parts if k is not None and k[0] == str(p))]
+
+
+def order_log_parts(paths: Iterable[str | Path]) -> tuple[list[Path], list[str]]:
+    """Files of a log in reading order, and notes on parts missing from the set.
+
+    Files that are all parts of one rotated log (``run_#000.log``, ``run_#001.log`` and maybe
+    ``run.log``) are put in the order they were written, whatever the order given (a shell's
+    ``run*.log`` lists ``run.log`` first); any other list keeps the order given. A part number
+    skipped between two given parts is noted (frames of that time are missing).
+    """
+    files = [Path(f) for f in paths]
+    keys = [_part_index(f) for f in files]
+    bases = {k[0] for k in keys if k is not None}
+    others = [f for f, k in zip(files, keys, strict=True) if k is None]
+    if len(bases) != 1 or any(str(f) not in bases for f in others) or len(others) > 1:
+        return files, []
+    base = next(iter(bases))
+    numbered = sorted((k[1], f) for f, k in zip(files, keys, strict=True) if k is not None)
+    notes = [
+        f"part #{n:03d} of {base} is missing between {a} and {b}"
+        for (i, a), (j, b) in itertools.pairwise(numbered)
+        for n in range(i + 1, j)
+    ][:10]
+    return [f for _, f in numbered] + others, notes
+
+
+def expand_log_names(names: Iterable[str]) -> list[str]:
+    """Log names as given, a name with ``*``, ``?`` or ``[`` that is no file expanded as a glob
+    (sorted; :func:`order_log_parts` orders a rotated set)."""
+    out: list[str] = []
+    for name in names:
+        if glob.has_magic(name) and not os.path.exists(name):
+            matches = sorted(glob.glob(name))
+            if not matches:
+                raise ArgumentError(f"{name}: no file matches")
+            out += matches
+        else:
+            out.append(name)
+    return out
+
+
+class RotatingLog(can.SizedRotatingLogger):
+    """python-can's size-rotating logger, rotating by time as well, its parts named
+    predictably (:func:`part_name`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The log (the part written last keeps this name).
+    max_bytes : int
+        Begin a new part once the current one holds this many bytes (0: never by size).
+    max_seconds : float
+        Begin a new part with the first frame this many seconds, by the frames' timestamps,
+        after the first frame of the current part (0: never by time).
+    **options
+        Passed to python-can's writer of each part.
+    """
+
+    def __init__(
+        self, path: str | Path, *, max_bytes: int = 0, max_seconds: float = 0.0, **options: Any
+    ) -> None:
+        self.max_seconds = float(max_seconds)
+        self._part_start: float | None = None
+        self._next_index = 0
+        super().__init__(str(path), max_bytes=max_bytes, **options)
+        self.namer = self._name_part
+
+    def _name_part(self, _default: Any) -> str:
+        name = str(part_name(self.base_filename, self._next_index))
+        self._next_index += 1
+        return name
+
+    def should_rollover(self, msg: can.Message) -> bool:
+        if self._part_start is None:
+            self._part_start = msg.timestamp
+            return False
+        due = super().should_rollover(msg) or (
+            self.max_seconds > 0 and msg.timestamp - self._part_start >= self.max_seconds
+        )
+        if due:
+            self._part_start = msg.timestamp
+        return due
+
+
+def check_rotation(path: str | Path, max_bytes: int = 0, max_seconds: float = 0.0) -> None:
+    """Refuse a rotation a log cannot have (a format python-can does not rotate, a size or a
+    time out of range) before anything is written.
+
+    Raises
+    ------
+    ArgumentError
+    """
+    if not (max_bytes or max_seconds):
+        return
+    lo, hi = MAX_BYTES_RANGE
+    if max_bytes and not lo <= max_bytes <= hi:
+        raise ArgumentError(f"a rotated log's size must be {lo} to {hi} bytes, got {max_bytes}")
+    lo_s, hi_s = MAX_SECONDS_RANGE
+    if max_seconds and not lo_s <= max_seconds <= hi_s:
+        raise ArgumentError(
+            f"a rotated log's time must be {lo_s:g} to {hi_s:g} s, got {max_seconds:g}"
+        )
+    name = Path(path).name.lower()
+    if not name.endswith(ROTATING_SUFFIXES):
+        raise ArgumentError(
+            f"{path}: a rotated log must end in {', '.join(ROTATING_SUFFIXES)} "
+            "(the formats python-can rotates)"
+        )
+
+
 class FrameLog:
     """Writes CAN frames to a log file in the format its name ends with.
 
@@ -85,6 +251,10 @@ class FrameLog:
         The log file (created or replaced).
     channel : str or int, optional
         The channel of every logged frame (see the module docstring).
+    max_bytes : int, optional
+        Rotate the log by size (see the module docstring; 0: never).
+    max_seconds : float, optional
+        Rotate the log by time (see the module docstring; 0: never).
     **options
         Passed to python-can's writer (for example ``channel=`` of the ASC writer).
 
@@ -103,19 +273,33 @@ class FrameLog:
     Raises
     ------
     ArgumentError
-        The file name has no CAN log ending.
+        The file name has no CAN log ending; rotation of a format it does not take, or
+        ``max_bytes`` or ``max_seconds`` out of range.
     LinkError
         The file cannot be created, or the format's library is missing (``.mf4``).
     """
 
     def __init__(
-        self, path: str | Path, *, channel: str | int | None = None, **options: Any
+        self,
+        path: str | Path,
+        *,
+        channel: str | int | None = None,
+        max_bytes: int = 0,
+        max_seconds: float = 0.0,
+        **options: Any,
     ) -> None:
         self.path = Path(path)
         suffix = log_suffix(self.path)
+        check_rotation(self.path, max_bytes, max_seconds)
         self.channel = "can0" if channel is None and suffix == ".log" else channel
+        self._writer: can.io.generic.MessageWriter
         try:
-            self._writer = can.Logger(str(self.path), **options)
+            if max_bytes or max_seconds:
+                self._writer = RotatingLog(
+                    self.path, max_bytes=max_bytes, max_seconds=max_seconds, **options
+                )
+            else:
+                self._writer = can.Logger(str(self.path), **options)
         except (OSError, ValueError, ImportError) as exc:
             raise LinkError(f"cannot write the CAN log {self.path}: {exc}") from exc
         self._lock = threading.Lock()
@@ -143,21 +327,8 @@ class FrameLog:
             stamp = self._epoch + clock.now()
         else:
             stamp = msg.timestamp or time.time()
-        msg = can.Message(
-            timestamp=stamp,
-            arbitration_id=msg.arbitration_id,
-            is_extended_id=msg.is_extended_id,
-            is_remote_frame=msg.is_remote_frame,
-            is_error_frame=msg.is_error_frame,
-            channel=self.channel,
-            dlc=msg.dlc,
-            data=msg.data,
-            is_fd=msg.is_fd,
-            is_rx=msg.is_rx,
-            bitrate_switch=msg.bitrate_switch,
-            error_state_indicator=msg.error_state_indicator,
-            check=False,
-        )
+        msg = copy.copy(msg)  # the caller's frame keeps its own stamp and channel
+        msg.timestamp, msg.channel = stamp, self.channel
         with self._lock:
             if self._closed or self.error is not None:
                 self.lost += 1

@@ -271,7 +271,24 @@ def _virtual_batch(bus: VirtualBus) -> Callable[[int], list[can.Message]]:
     return take
 
 
-class CanTransport:
+class _Releasing:
+    """A transport's ``close``: the bus or port it was given is released once, and only if the
+    transport owns it (``_release``, set by the transport: None when it does not)."""
+
+    _release: Callable[[], object] | None = None
+    _closed = False
+
+    def close(self) -> None:
+        """Release the bus (``shutdown``) or the port (``close``) if this transport owns it
+        (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._release is not None:
+            self._release()
+
+
+class CanTransport(_Releasing):
     """The protocol on a python-can bus, for one node.
 
     Parameters
@@ -301,13 +318,13 @@ class CanTransport:
         self.tap = tap
         self.node_id = node_id
         self.own_bus = own_bus
+        self._release = bus.shutdown if own_bus else None
         self.receiver = CanReceiver(node_id=node_id)
         self.rcvbuf = enlarge_receive_buffer(bus)
         self.garbled = 0  # SLCAN lines that did not parse (frame errors)
         self._take = frame_batch(bus, self._garbled)
         self._send_lock = threading.Lock()
         self._rx_lock = threading.RLock()
-        self._closed = False
 
     def send(self, command: Command) -> None:
         """Send one command (one frame).
@@ -400,14 +417,6 @@ class CanTransport:
             "duplicates": r.ticks.duplicates,
         }
 
-    def close(self) -> None:
-        """Shut the bus down if this transport owns it (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        if self.own_bus:
-            self.bus.shutdown()
-
     def _name(self) -> str:
         return str(getattr(self.bus, "channel_info", type(self.bus).__name__))
 
@@ -441,7 +450,7 @@ def open_serial_port(
     return port
 
 
-class SerialTransport:
+class SerialTransport(_Releasing):
     """The protocol's binary frames on a serial port (pyserial ``Serial`` or URL handler).
 
     Lost frames show in the frame sequence counter (:class:`Deframer`), lost samples in the
@@ -474,6 +483,7 @@ class SerialTransport:
         self.tap = tap
         self.tap_node_id = tap_node_id
         self.own_port = own_port
+        self._release = port.close if own_port else None
         self.deframer = Deframer()
         self.encoder = SerialEncoder()
         self._send_lock = threading.Lock()
@@ -482,7 +492,6 @@ class SerialTransport:
         self.ticks_lost = 0
         self.counter_restarts = 0
         self.samples = 0
-        self._closed = False
 
     def send(self, command: Command) -> None:
         """Send one command frame.
@@ -590,11 +599,3 @@ class SerialTransport:
             "ticks_incomplete": 0,
             "duplicates": 0,
         }
-
-    def close(self) -> None:
-        """Close the port if this transport owns it (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        if self.own_port:
-            self.port.close()

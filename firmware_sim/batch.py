@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg.blas import daxpy
 
-from northfinder.driver.protocol.motion import move_time_s, shortest_delta_deg
+from northfinder.driver.protocol.motion import move_time_s, shortest_delta_deg, wobble_matrix
 from northfinder.driver.protocol.units import DPH, normal_gravity
 from northfinder.firmware_sim.earth import alpha_from_azimuth, earth_rate_n, mat_nb
 from northfinder.firmware_sim.error_terms import (
@@ -68,7 +68,7 @@ from northfinder.firmware_sim.error_terms import (
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec, TableSpec
-from northfinder.firmware_sim.turntable import Turntable
+from northfinder.firmware_sim.turntable import Turntable, encoder_reading_deg, spin_angles_deg
 
 __all__ = [
     "ALL_CHANNELS",
@@ -573,10 +573,8 @@ def simulate_windows(
                 counts, _ = quantise_carry(data[ch] / lsb[ch], remainder[:, :, ch])
                 data[ch] = counts * lsb[ch]
 
-    res = tab.encoder_resolution_deg
-    enc = true_angle + tl.ring_offset_deg[None, :]
-    if res > 0:
-        enc = np.round(enc / res) * res
+    # The encoder's periodic error and resolution (the table's own reading).
+    enc = encoder_reading_deg(tab, true_angle + tl.ring_offset_deg[None, :])
     view = np.moveaxis(data, 0, -1)  # (R, P, n, 6), channel-minor view of channel-major memory
     plan_time = (starts[-1] + n - starts[0]) / fs
     return BatchWindows(
@@ -703,12 +701,14 @@ class SpinBatch:
     gyro_rps, accel_mps2 : (runs, samples, 3) float64
         Sample means, sensor frame, rad/s and m/s^2.
     mu0_rad, mu1_rad : (runs, samples) float64
-        Continuous true table angle at the start and end of each sample (what an ideal encoder
-        reads, before taking it modulo a turn), rad.
+        Continuous true table angle at the start and end of each sample, rad.
     time_s : (samples,) float64
         End of each sample from the start of the steady spin, s.
     azimuth_deg : (runs,) float64
         True azimuth of each run.
+    encoder_rad : (runs, samples + 1) float64 or None
+        What the encoder reads at the sample edges (its periodic error and resolution), continuous
+        (not taken modulo a turn), rad; None when it reads the true angle.
     """
 
     gyro_rps: NDArray[np.float64]
@@ -717,10 +717,17 @@ class SpinBatch:
     mu1_rad: NDArray[np.float64]
     time_s: NDArray[np.float64]
     azimuth_deg: NDArray[np.float64]
+    encoder_rad: NDArray[np.float64] | None = None
 
+    @property
+    def read0_rad(self) -> NDArray[np.float64]:
+        """Encoder angle at the start of each sample (what a solver is given), (runs, samples)."""
+        return self.mu0_rad if self.encoder_rad is None else self.encoder_rad[:, :-1]
 
-#: Error terms :func:`simulate_spin` generates; a specification with any other is refused.
-SPIN_TERMS = ("bias", "turn-on bias", "white noise", "scale factor", "misalignment")
+    @property
+    def read1_rad(self) -> NDArray[np.float64]:
+        """Encoder angle at the end of each sample, (runs, samples)."""
+        return self.mu1_rad if self.encoder_rad is None else self.encoder_rad[:, 1:]
 
 
 def simulate_spin(
@@ -733,15 +740,20 @@ def simulate_spin(
     rng: np.random.Generator,
     sample_rate_hz: float = 200.0,
     start_deg: float | None = None,
+    start_s: float = 0.0,
+    bias_step_dph: float = 0.0,
 ) -> SpinBatch:
     """Samples of ``n_runs`` independent steady spins at once (the spin Monte Carlo's generator).
 
     The model is the instrument's (:class:`~northfinder.firmware_sim.imu.Instrument`): the
     Earth rate and gravity through the table (sample means over the angle swept, exact at a
-    constant rate), the table rate on z, the error matrices (scale factor, misalignment), the
-    constant and turn-on biases and white noise, drawn per run. It covers the terms of
-    :data:`SPIN_TERMS` only; a specification with others (drift, flicker, table ripple, ...) is
-    refused, so that a study never silently leaves one out.
+    constant rate) and through the table top's wobble, the table rate (with its ripple) on the
+    table axis, the error matrices (scale factor, misalignment), the constant and turn-on biases,
+    white noise, flicker and random walks, the warm-up transient, temperature and ramps (of time
+    since power-on), impulses, vibration, an optional bias step, range and quantisation, and the
+    encoder's periodic error and resolution (:attr:`SpinBatch.encoder_rad`). A spin starts no
+    move transient (the instrument's rule), and the steady spin follows no stop, so neither moves
+    nor the ring-down enter.
 
     Parameters
     ----------
@@ -756,42 +768,38 @@ def simulate_spin(
     rng : numpy.random.Generator
     sample_rate_hz : float
     start_deg : float, optional
-        Table angle at the start; default a uniformly random angle per run.
+        Table angle at the start of the steady spin; default a uniformly random angle per run.
+    start_s : float
+        Time from power-on to the start of the steady spin, s (for the terms of time since
+        power-on: warm-up, temperature, ramps, random walks).
+    bias_step_dph : float
+        One gyro bias step of this size per run at a uniformly random time within the spin, in a
+        random direction, deg/h.
 
     Raises
     ------
     SimConfigError
-        Bad arguments, or a specification with terms this generator does not model.
+        Bad arguments.
     """
     if isinstance(n_runs, bool) or int(n_runs) != n_runs or int(n_runs) < 1:
         raise SimConfigError(f"n_runs: must be a positive integer, got {n_runs!r}")
     n_runs = int(n_runs)
     fs = check_sample_rate(sample_rate_hz)
     duration_s = _check_positive("duration_s", duration_s)
+    start_s = _check_positive("start_s", start_s, allow_zero=True)
+    bias_step_dph = _check_positive("bias_step_dph", bias_step_dph, allow_zero=True)
     if not (math.isfinite(rate_dps) and rate_dps != 0.0):
         raise SimConfigError(f"rate_dps: must be a finite non-zero rate, got {rate_dps!r}")
     terms = _error_terms(spec)
-    extra = {
-        "warm-up": terms.warmup_bias.any(),
-        "temperature": terms.temp_coeff.any(),
-        "drift": terms.ramp.any(),
-        "flicker or random walk": terms.flicker_b.any() or terms.walk_k.any(),
-        "moves": terms.has_move_terms,
-        "vibration or impulses": bool(terms.vibration_amp.any() or terms.impulse_amp.any()),
-        "quantisation": terms.lsb.any(),
-        "table ripple, wobble or encoder error": bool(
-            spec.table.rate_ripple or spec.table.wobble_urad or spec.table.encoder_error_deg
-        ),
-    }
-    unmodelled = [name for name, on in extra.items() if on]
-    if unmodelled:
-        raise SimConfigError(
-            f"the spin batch generator models {', '.join(SPIN_TERMS)} only; the specification "
-            f"{spec.name!r} also has: {', '.join(unmodelled)}"
-        )
+    tab, dist = spec.table, spec.disturbance
     n = round(duration_s * fs)
+    if n < 1:
+        raise SimConfigError(f"duration_s: {duration_s} s holds no sample at {fs:g} Hz")
     az, lat, pitch, roll = _truth_arrays(truth, n_runs)
     turn_on, white, table_rng = rng.spawn(3)
+    # Streams of the slower terms, after the first three (so that runs without them keep
+    # their draws).
+    slow, impulses, quantiser = rng.spawn(3)
     c_nb = mat_nb(alpha_from_azimuth(az), np.radians(pitch), np.radians(roll))
     lat_r = np.radians(lat)
     omega_b = np.einsum("rij,rj->ri", c_nb, earth_rate_n(lat_r))
@@ -803,7 +811,8 @@ def simulate_spin(
         else np.full(n_runs, float(start_deg))
     )
     t = np.arange(1, n + 1) / fs
-    edges = np.radians(start[:, None] + rate_dps * np.arange(n + 1)[None, :] / fs)  # (R, n+1)
+    edge_deg = spin_angles_deg(tab, rate_dps, start[:, None], np.arange(n + 1)[None, :] / fs)
+    edges = np.radians(edge_deg)  # (R, n+1)
     d = edges[:, 1:] - edges[:, :-1]
     c = (np.sin(edges[:, 1:]) - np.sin(edges[:, :-1])) / d
     s = -(np.cos(edges[:, 1:]) - np.cos(edges[:, :-1])) / d
@@ -812,7 +821,11 @@ def simulate_spin(
         out[..., k] = c * v[:, 0, None] + s * v[:, 1, None]
         out[..., k + 1] = -s * v[:, 0, None] + c * v[:, 1, None]
         out[..., k + 2] = v[:, 2, None]
-    out[..., 2] += math.radians(rate_dps)
+    out[..., 2] += d * fs  # the table rate (mean over each sample)
+    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
+    if wob is not None:
+        out[..., :3] = out[..., :3] @ wob.T
+        out[..., 3:] = out[..., 3:] @ wob.T
     draws = draw_turn_on(turn_on, (n_runs,))
     if terms.has_matrix:
         mg, ma = terms.matrices(draws)
@@ -822,6 +835,56 @@ def simulate_spin(
     sigma = terms.white_sigma(fs)
     if sigma.any():
         out += white.standard_normal((n_runs, n, 6)) * sigma
+    # -- terms of time since power-on ---------------------------------------------------------
+    t_on = start_s + t  # (n,)
+    det = np.zeros((n, 6))
+    if terms.warmup_bias.any():
+        det += terms.warmup(t_on)
+    if terms.temp_coeff.any():
+        det += terms.thermal(temperature_c(spec.thermal, t_on), spec.thermal)
+    if terms.ramp.any():
+        det += terms.ramp_bias(t_on)
+    if det.any():
+        out += det[None]
+    slow_chans = [ch for ch in range(6) if terms.flicker_b[ch] + terms.walk_k[ch]]
+    if slow_chans:
+        grid = _grid_windows(((t_on - 0.5 / fs) / FLICKER_GRID_S)[None, :])
+        coarse = _slow_grid(
+            slow, grid, n_runs, terms.flicker_b[slow_chans], terms.walk_k[slow_chans]
+        )[0]  # (nc, R, m)
+        for s0, s1, j0, j1, w in grid[0].blocks:
+            out[:, s0:s1, slow_chans] += np.moveaxis(coarse[:, :, j0:j1] @ w, 0, -1)
+    if (dist.impulse_rate_hz > 0 and terms.impulse_amp.any()) or (
+        dist.vibration_hz > 0 and terms.vibration_amp.any()
+    ):
+        data = np.ascontiguousarray(np.moveaxis(out, -1, 0))[:, :, None, :]  # (6, R, 1, n)
+        if dist.impulse_rate_hz > 0 and terms.impulse_amp.any():
+            _add_impulses(data, ALL_CHANNELS, impulses, t_on[None, :], fs,
+                          dist.impulse_rate_hz, dist.impulse_duration_s, terms.impulse_amp)  # fmt: skip
+        if dist.vibration_hz > 0 and terms.vibration_amp.any():
+            phase = draws.vib_phase
+            for ch in map(int, np.flatnonzero(terms.vibration_amp)):
+                data[ch, :, 0] += vibration(
+                    t_on[None, :], dist.vibration_hz, terms.vibration_amp[ch], phase[:, ch, None]
+                )
+        out = np.moveaxis(data[:, :, 0, :], 0, -1)
+    if bias_step_dph:
+        t_step = impulses.uniform(t_on[0] - 1.0 / fs, t_on[-1], n_runs)
+        v = impulses.standard_normal((n_runs, 3))
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        on = (t_on[None, :] - 1.0 / fs) >= t_step[:, None]  # (R, n)
+        out[..., :3] += (bias_step_dph * DPH * v)[:, None, :] * on[..., None]
+    limit = terms.range
+    if np.any(out > limit) or np.any(out < -limit):
+        np.clip(out, -limit, limit, out=out)
+    if terms.lsb.any():
+        remainder = quantiser.uniform(-0.5, 0.5, (n_runs, 6))
+        for ch in map(int, np.flatnonzero(terms.lsb)):
+            counts, _ = quantise_carry(out[..., ch] / terms.lsb[ch], remainder[:, ch])
+            out[..., ch] = counts * terms.lsb[ch]
+    encoder = None
+    if tab.encoder_error_deg or tab.encoder_resolution_deg > 0:
+        encoder = np.radians(encoder_reading_deg(tab, edge_deg))
     return SpinBatch(
         gyro_rps=out[..., :3],
         accel_mps2=out[..., 3:],
@@ -829,4 +892,5 @@ def simulate_spin(
         mu1_rad=edges[:, 1:],
         time_s=t,
         azimuth_deg=az,
+        encoder_rad=encoder,
     )

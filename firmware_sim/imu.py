@@ -18,6 +18,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numpy.typing import NDArray
 
+from northfinder.driver.protocol.motion import wobble_matrix
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.earth import body_rates, check_latitude
 from northfinder.firmware_sim.error_terms import (
@@ -125,21 +126,6 @@ def _times(v: NDArray[np.float64], m: NDArray[np.float64]) -> NDArray[np.float64
         for j in np.flatnonzero(m[i]):
             out[:, j] += v[:, i] * m[i, j]
     return out
-
-
-def _wobble_matrix(wobble_urad: float, phase_deg: float) -> NDArray[np.float64] | None:
-    """Sensor frame from table frame for a table top tilted by ``wobble_urad`` towards the
-    table-frame direction ``phase_deg`` (a small rotation about the horizontal axis at right
-    angles to it), or None when there is no wobble."""
-    if not wobble_urad:
-        return None
-    w = wobble_urad * 1e-6
-    p = math.radians(phase_deg)
-    # The top's normal leans towards (cos p, sin p): a rotation by w about (-sin p, cos p, 0).
-    k = np.array([-math.sin(p), math.cos(p), 0.0])
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    rot = np.eye(3) + math.sin(w) * kx + (1.0 - math.cos(w)) * kx @ kx
-    return rot.T  # coordinates in the tilted frame
 
 
 class _SlowNoise:
@@ -256,7 +242,7 @@ class Instrument:
             (d.vibration_hz, vib_amp) if d.vibration_hz > 0 and vib_amp.any() else None
         )
         self.table.spec = spec.table
-        self._wobble = _wobble_matrix(spec.table.wobble_urad, spec.table.wobble_phase_deg)
+        self._wobble = wobble_matrix(spec.table.wobble_urad, spec.table.wobble_phase_deg)
 
     def generators(self) -> tuple[np.random.Generator, ...]:
         """Every random generator the instrument draws from, the table's included.

@@ -17,9 +17,34 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.driver.protocol.motion import move_phases_s, shortest_delta_deg
+from northfinder.driver.protocol.motion import (
+    encoder_angle_deg,
+    move_phases_s,
+    shortest_delta_deg,
+    spin_angle_deg,
+)
 from northfinder.firmware_sim.errors import SimError
 from northfinder.firmware_sim.sensors import TableSpec
+
+
+def spin_angles_deg(
+    table: TableSpec, rate_dps: float, start_deg: ArrayLike, dt_s: ArrayLike
+) -> NDArray[np.float64]:
+    """True continuous table angle of a steady spin, deg, with the table's once-per-turn ripple
+    (:func:`~northfinder.driver.protocol.motion.spin_angle_deg`); arguments broadcast."""
+    return spin_angle_deg(rate_dps, start_deg, dt_s, table.rate_ripple, table.rate_ripple_phase_deg)
+
+
+def encoder_reading_deg(table: TableSpec, angle_deg: ArrayLike) -> NDArray[np.float64]:
+    """What the table's encoder reads for true continuous angles, not taken modulo a turn
+    (:func:`~northfinder.driver.protocol.motion.encoder_angle_deg`)."""
+    return encoder_angle_deg(
+        angle_deg,
+        table.encoder_error_deg,
+        table.encoder_error_harmonic,
+        table.encoder_error_phase_deg,
+        table.encoder_resolution_deg,
+    )
 
 
 class TableBusyError(SimError):
@@ -44,11 +69,13 @@ class _Segment:
     def at(self, dt: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         angle, rate = self.a0 + self.v0 * dt + 0.5 * self.acc * dt * dt, self.v0 + self.acc * dt
         if self.ripple and self.v0:
+            angle = (
+                angle
+                - (self.a0 + self.v0 * dt)
+                + spin_angle_deg(self.v0, self.a0, dt, self.ripple, self.ripple_phase_deg)
+            )
             x = np.radians(self.a0 + self.v0 * dt - self.ripple_phase_deg)
-            x0 = math.radians(self.a0 - self.ripple_phase_deg)
-            k = self.ripple * abs(self.v0)
-            angle = angle + k * (np.sin(x) - math.sin(x0)) / math.radians(self.v0)
-            rate = rate + k * np.cos(x)
+            rate = rate + self.ripple * abs(self.v0) * np.cos(x)
         return angle, rate
 
 
@@ -310,13 +337,4 @@ class Turntable:
     def encoder(self, angle_deg: ArrayLike) -> NDArray[np.float64]:
         """What the encoder reports for true angles: with its periodic error, modulo 360,
         quantised to its resolution."""
-        a = np.asarray(angle_deg, dtype=float)
-        spec = self.spec
-        if spec.encoder_error_deg:
-            a = a + spec.encoder_error_deg * np.sin(
-                np.radians(spec.encoder_error_harmonic * a + spec.encoder_error_phase_deg)
-            )
-        res = spec.encoder_resolution_deg
-        if res > 0:
-            a = np.round(a / res) * res
-        return np.mod(a, 360.0)
+        return np.mod(encoder_reading_deg(self.spec, angle_deg), 360.0)

@@ -28,8 +28,19 @@ predicted variance is ``g^T C g`` plus the square of the deterministic error ``g
   a random time; table indexing error (commanded angles) and encoder resolution; scale-factor and
   misalignment draws of both triads (through the true rates and forces at each position);
 - ``d``, the deterministic bias of each window mean: warm-up transient, temperature and ramp of
-  both triads over the plan's timeline, plus the solver's own error on noise-free data (a level
-  solver on a tilted instrument).
+  both triads over the plan's timeline, the encoder's periodic error at each stop (with encoder
+  angles), plus the solver's own error on noise-free data (a level solver on a tilted
+  instrument).
+
+A spin plan (:class:`~northfinder.host.plan.SpinPlan`) is predicted the same way through the
+demodulating solver (:mod:`northfinder.host.spin`), whose first-order weights on every sample are
+exact (:func:`~northfinder.host.spin.heading_weights`): white noise, flicker and walks (their
+covariance along the samples by a recursion), quantisation with carry, vibration, impulses, a
+bias step, the encoder's resolution (each reading bounds two samples), scale-factor and
+misalignment draws through the true sensor-frame rates and forces (the table rate and its ripple
+on the table axis, the table top's wobble), and, as ``drift``, the drifts and the solver's own
+error on the noise-free samples with the table's ripple, wobble and periodic encoder error. A
+spin starts no move transient.
 
 Constant biases and the turn-on bias are the same in every window and cancel in every solver
 (``g`` sums to zero over the windows of each channel). The prediction is exact to first order;
@@ -47,11 +58,29 @@ from typing import TypedDict, Unpack
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from northfinder.driver.protocol.motion import encoder_angle_deg, spin_angle_deg, wobble_matrix
 from northfinder.driver.protocol.units import DPH, DPH_PSH, DPSH, OMEGA_IE, UG, normal_gravity
-from northfinder.host.errors import GeometryError, check_choice
+from northfinder.host.errors import GeometryError, HostConfigError, check_choice
 from northfinder.host.kernels import MAX_TILT_DEG, earth_rate_body, latitude_rad, table_rotation
-from northfinder.host.plan import Plan, TableModel, moves_deg, plan_time_s, window_starts_s
-from northfinder.host.spin import MIN_SWEEP_DEG, spin_weights_level
+from northfinder.host.plan import (
+    Plan,
+    SpinPlan,
+    TableModel,
+    moves_deg,
+    plan_time_s,
+    spin_ramp_s,
+    spin_start_deg,
+    window_starts_s,
+)
+from northfinder.host.spin import (
+    MIN_SWEEP_DEG,
+    amplitude_pinv,
+    heading_weights,
+    interval_rotation,
+    nuisance_design,
+    solve_spin_batch,
+    spin_weights_level,
+)
 
 __all__ = [
     "ANGLE_SOURCES",
@@ -621,7 +650,7 @@ class PredictOptions(Conditions, total=False):
 
 def predict_solutions(
     model: ErrorModel,
-    plan: Plan,
+    plan: Plan | SpinPlan,
     latitude_deg: float,
     *,
     warmup_s: float = 0.0,
@@ -641,6 +670,18 @@ def predict_solutions(
     check_choice(tilt, TILT_SOURCES, "tilt")
     check_choice(angles, ANGLE_SOURCES, "angles")
     azimuths = _AZIMUTHS_DEG if azimuth_deg is None else (float(azimuth_deg),)
+    if isinstance(plan, SpinPlan):
+        if angles != "encoder":
+            raise HostConfigError(
+                "angles: a spin solves with the encoder angle of every sample (angles encoder)"
+            )
+        return [
+            _spin_prediction(
+                model, plan, float(latitude_deg), azimuths, warmup_s=warmup_s,
+                level=tilt == "level", fs=float(sample_rate_hz), pitch_deg=pitch_deg,
+                roll_deg=roll_deg, bias_step_dph=bias_step_dph,
+            )
+        ]  # fmt: skip
     lin = _linearise(
         tuple(plan.positions_deg),
         float(latitude_deg),
@@ -678,6 +719,16 @@ def predict_solutions(
             d = _window_drift(tl, drift)  # (P, 2)
             det += np.einsum("aspc,pc->as", grad[..., cols[0] : cols[1] + 1], d)
             has_drift = True
+    tab = model.table
+    if angles == "encoder" and tab.encoder_error_deg:
+        # The encoder's periodic error at each stop (the continuous commanded angle: the
+        # indexing error moves it by a second-order amount).
+        angle = plan.positions_deg[0] + np.concatenate([[0.0], np.cumsum(moves_deg(plan))])
+        read = encoder_angle_deg(
+            angle, tab.encoder_error_deg, tab.encoder_error_harmonic, tab.encoder_error_phase_deg
+        )
+        det += np.einsum("asp,p->as", grad[..., 4], np.radians(read - angle))
+        has_drift = True
     if has_drift or np.any(np.abs(lin.offset) > 1e-9):
         add("drift", det * det)
     # Table angles: a stop error is shared by the windows of one stop (no move between them).
@@ -721,7 +772,7 @@ def predict_solutions(
 
 
 def predict(
-    model: ErrorModel, plan: Plan, latitude_deg: float, **options: Unpack[PredictOptions]
+    model: ErrorModel, plan: Plan | SpinPlan, latitude_deg: float, **options: Unpack[PredictOptions]
 ) -> Prediction:
     """Predicted RMS heading error of a plan over runs (see the module docstring).
 
@@ -729,8 +780,9 @@ def predict(
     ----------
     model : ErrorModel
         Sensor and table figures.
-    plan : Plan
-        Positions, window, settle and solver (the windows are reduced by their plain means).
+    plan : Plan or SpinPlan
+        Positions, window, settle and solver (the windows are reduced by their plain means);
+        or a spin (rate, time, drift fitted), solved by the demodulating solver.
     latitude_deg : float
         Latitude, deg.
     warmup_s : float, default 0
@@ -824,3 +876,220 @@ def spin_bound_deg(
     s_g = arw_dpsh * DPSH * math.sqrt(sample_rate_hz)
     s_a = vrw_ug_rthz * UG * math.sqrt(sample_rate_hz)
     return math.degrees(math.sqrt(s_g**2 * float(c_g @ c_g) + s_a**2 * float(c_a @ c_a)))
+
+
+# ----------------------------------------------------------------------------------------------
+# Spin plans
+# ----------------------------------------------------------------------------------------------
+
+
+def _ar1_quad(c: NDArray[np.float64], rho: float) -> NDArray[np.float64]:
+    """``c^T K c`` with ``K_ij = rho^|i - j|`` along the last axis, in O(N) (a first-order
+    recursion)."""
+    from scipy.signal import lfilter  # imported when first needed
+
+    y = lfilter([1.0], [1.0, -rho], c, axis=-1)
+    return np.asarray(2.0 * np.sum(c * y, axis=-1) - np.sum(c * c, axis=-1))
+
+
+def _spin_channel_vars(
+    c: NDArray[np.float64],
+    ch: _Channel,
+    model: ErrorModel,
+    t_on: NDArray[np.float64],
+    fs: float,
+    step: float,
+) -> dict[str, NDArray[np.float64]]:
+    """Variance of ``sum_k c_k e_k`` for one kind of channel's sample errors ``e`` by cause,
+    rad^2; ``c`` (..., N), the results (...)."""
+    out: dict[str, NDArray[np.float64]] = {}
+    cc = np.sum(c * c, axis=-1)
+    if ch.white:
+        out["white"] = ch.white**2 * fs * cc
+    slow = np.zeros(cc.shape)
+    if ch.flicker:
+        # The weights summed over blocks of at most 50 ms: the correlation times are 1 s and
+        # more (and the simulator draws the flicker on a 0.1 s grid).
+        b = max(1, int(0.05 * fs))
+        m = c.shape[-1] // b * b
+        blocks = c[..., :m].reshape(*c.shape[:-1], -1, b).sum(axis=-1)
+        if m < c.shape[-1]:
+            blocks = np.concatenate([blocks, c[..., m:].sum(axis=-1, keepdims=True)], axis=-1)
+        v = ch.flicker**2 * _FLICKER_VAR
+        for tc in _FLICKER_TAUS:
+            slow += v * _ar1_quad(blocks, math.exp(-b / (fs * tc)))
+    rev = np.cumsum(c[..., ::-1], axis=-1)[..., ::-1]  # sum of the weights from each sample on
+    if ch.walk:
+        # k^2 min(s_i, s_j) at the sample times s (the walk runs from power-on).
+        s0 = float(t_on[0] - 0.5 / fs)
+        slow += ch.walk**2 * (s0 * rev[..., 0] ** 2 + np.sum(rev[..., 1:] ** 2, axis=-1) / fs)
+    if ch.flicker or ch.walk:
+        out["slow_noise"] = slow
+    if ch.lsb:
+        # Quantised with carry: the error of sample k is r_(k-1) - r_k, r uniform.
+        d = np.diff(c, axis=-1)
+        out["quantisation"] = (
+            ch.lsb**2 / 12.0 * (np.sum(d * d, axis=-1) + c[..., 0] ** 2 + c[..., -1] ** 2)
+        )
+    if ch.vibration and model.vibration_hz > 0:
+        m = np.exp(2j * math.pi * model.vibration_hz * t_on)
+        out["vibration"] = 0.5 * ch.vibration**2 * np.abs(c @ m) ** 2
+    if ch.impulse and model.impulse_rate_hz > 0:
+        area = ch.impulse * 2.0 * model.impulse_duration_s / math.pi
+        out["impulses"] = model.impulse_rate_hz * area**2 / 3.0 * fs * cc
+    if step:
+        # A step at a uniform time, in a random direction (1/3 per axis), on from a sample on.
+        out["bias_step"] = step**2 / 3.0 * np.mean(rev * rev, axis=-1)
+    return out
+
+
+def _spin_prediction(
+    model: ErrorModel,
+    plan: SpinPlan,
+    latitude_deg: float,
+    azimuths_deg: tuple[float, ...],
+    *,
+    warmup_s: float,
+    level: bool,
+    fs: float,
+    pitch_deg: float,
+    roll_deg: float,
+    bias_step_dph: float,
+) -> Prediction:
+    """The prediction of a spin: the demodulating solver's first-order weights on every sample
+    (:func:`~northfinder.host.spin.heading_weights`) against every error term over the spin's
+    own timeline; the deterministic terms (drift, table ripple and wobble, periodic encoder
+    error, a level solver on a tilted instrument) through the solver itself."""
+    tab = model.table
+    n = round(plan.spin_s * fs)
+    if n < 16:
+        raise GeometryError(f"a spin of {plan.spin_s:g} s at {fs:g} Hz holds fewer than 16 samples")
+    ramp = spin_ramp_s(plan, tab)
+    lat = latitude_rad(latitude_deg, "the prediction")
+    grav = float(normal_gravity(lat))
+    on, ou = OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)
+    t = np.arange(1, n + 1) / fs
+    t_on = warmup_s + ramp + t
+    edge = spin_angle_deg(
+        plan.rate_dps, spin_start_deg(plan, tab), np.arange(n + 1) / fs, tab.rate_ripple,
+        tab.rate_ripple_phase_deg,
+    )  # fmt: skip
+    mu = np.radians(edge)
+    rot = interval_rotation(mu[:-1], mu[1:])  # (n, 2, 2)
+    nuisance = nuisance_design(t, plan.drift)[0]
+    limit = MAX_TILT_DEG - 1e-6
+    th = math.radians(min(max(pitch_deg, -limit), limit))
+    ga = math.radians(min(max(roll_deg, -limit), limit))
+    st, ct, sg, cg = math.sin(th), math.cos(th), math.sin(ga), math.cos(ga)
+    az = np.asarray(azimuths_deg, dtype=float)
+    a_count = az.size
+    alpha = -np.radians(az)
+    h, _ = earth_rate_body(alpha, th, ga, on, ou)  # (A, 2)
+    omega_z = on * (np.sin(alpha) * sg + np.cos(alpha) * st * cg) + ou * ct * cg
+    f_xy = np.array([-st, sg * ct]) * grav
+    f_z = cg * ct * grav
+    # Noise-free samples in the sensor frame, (A, n, 3): the table rate on its axis, the wobble.
+    gyro = np.concatenate(
+        [np.einsum("nij,aj->ani", rot, h),
+         (omega_z[:, None] + np.diff(mu)[None, :] * fs)[..., None]], -1,
+    )  # fmt: skip
+    accel = np.concatenate(
+        [np.broadcast_to(np.einsum("nij,j->ni", rot, f_xy), (a_count, n, 2)),
+         np.full((a_count, n, 1), f_z)], -1,
+    )  # fmt: skip
+    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
+    if wob is not None:
+        gyro, accel = gyro @ wob.T, accel @ wob.T
+    det = np.zeros(a_count)
+    if (
+        tab.rate_ripple or wob is not None or tab.encoder_error_deg
+        or (level and (pitch_deg or roll_deg))
+    ):  # fmt: skip
+        # The solver on the noise-free samples, given the encoder's reading: its own error.
+        read = np.radians(encoder_angle_deg(
+            edge, tab.encoder_error_deg, tab.encoder_error_harmonic, tab.encoder_error_phase_deg
+        ))  # fmt: skip
+        found = solve_spin_batch(
+            gyro, None if level else accel, read[:-1], read[1:], latitude_deg=latitude_deg,
+            time_s=t, drift=plan.drift,
+        )  # fmt: skip
+        if not np.all(np.isfinite(found)):
+            raise GeometryError(
+                f"{plan.label()} at pitch {pitch_deg:g}, roll {roll_deg:g} deg: the solver has no "
+                "solution even without noise; no prediction"
+            )
+        det = np.radians((found - az + 180.0) % 360.0 - 180.0)
+    # Weights of the azimuth (= -alpha) on every sample's gyro and accelerometer x and y.
+    wg = np.empty((a_count, 2, n))
+    wa = np.zeros((a_count, 2, n))
+    pinv = amplitude_pinv(rot, nuisance)
+    for a in range(a_count):
+        c_g, c_a = heading_weights(
+            rot, nuisance, float(alpha[a]), 0.0 if level else th, 0.0 if level else ga, on, ou,
+            grav, pinv=pinv,
+        )  # fmt: skip
+        wg[a] = -c_g.reshape(n, 2).T
+        if not level:
+            wa[a] = -c_a.reshape(n, 2).T
+    gyro_ch, accel_ch = _channels(model)
+    step = bias_step_dph * DPH
+    parts: dict[str, NDArray[np.float64]] = {}
+
+    def add(name: str, var: NDArray[np.float64]) -> None:
+        parts[name] = parts.get(name, np.zeros(a_count)) + var
+
+    for w, ch, is_gyro in ((wg, gyro_ch, True), (wa, accel_ch, False)):
+        if not is_gyro and level:
+            continue
+        for cause, var in _spin_channel_vars(
+            w, ch, model, t_on, fs, step if is_gyro else 0.0
+        ).items():
+            name = "tilt" if not is_gyro and cause in ("white", "slow_noise") else cause
+            add(name, var.sum(axis=-1))  # x and y
+    drift_g = None if model.drift_rps is None else np.asarray(model.drift_rps(t_on), float)
+    drift_a = (
+        None
+        if model.accel_drift_mps2 is None or level
+        else np.asarray(model.accel_drift_mps2(t_on), float)
+    )
+    if drift_g is not None or drift_a is not None or np.any(np.abs(det) > 1e-9):
+        lin = det.copy()
+        if drift_g is not None:
+            lin += np.einsum("acn,nc->a", wg, drift_g)
+        if drift_a is not None:
+            lin += np.einsum("acn,nc->a", wa, drift_a)
+        add("drift", lin * lin)
+    res = math.radians(tab.encoder_resolution_deg)
+    if res:
+        # An angle error at an edge moves both samples it bounds by half of it; a sample's
+        # angle error moves its regressors by dR/dmu.
+        mid = 0.5 * (mu[:-1] + mu[1:])
+        drot = np.stack(
+            [np.stack([-np.sin(mid), np.cos(mid)], -1),
+             np.stack([-np.cos(mid), -np.sin(mid)], -1)], -2,
+        )  # fmt: skip
+        d = -np.einsum("acn,ncj,aj->an", wg, drot, h)
+        if not level:
+            d -= np.einsum("acn,ncj,j->an", wa, drot, f_xy)
+        zero = np.zeros((a_count, 1))
+        u = 0.5 * (np.concatenate([zero, d], 1) + np.concatenate([d, zero], 1))
+        add("encoder", res * res / 12.0 * np.sum(u * u, axis=-1))
+    sf, mis = model.scale_factor_ppm * 1e-6, model.misalignment_urad * 1e-6
+    sf_a, mis_a = model.accel_scale_factor_ppm * 1e-6, model.accel_misalignment_urad * 1e-6
+    if sf or mis or (not level and (sf_a or mis_a)):
+        var = np.zeros(a_count)
+        for w, true, s_, m_ in ((wg, gyro, sf, mis), (wa, accel, sf_a, mis_a)):
+            sm = np.einsum("acn,anj->acj", w, true)  # sensitivity to the matrix element (c, j)
+            var += s_ * s_ * (sm[:, 0, 0] ** 2 + sm[:, 1, 1] ** 2)
+            var += m_ * m_ * (sm[:, 0, 1] ** 2 + sm[:, 0, 2] ** 2 + sm[:, 1, 0] ** 2
+                              + sm[:, 1, 2] ** 2)  # fmt: skip
+        add("misalignment", var)
+    parts.setdefault("white", np.zeros(a_count))
+    mean_parts = {k: float(np.mean(v)) for k, v in parts.items()}
+    total = sum(mean_parts.values())
+    return Prediction(
+        sigma_deg=math.degrees(angle_rms(math.sqrt(max(total, 0.0)))),
+        bound_deg=math.degrees(math.sqrt(mean_parts["white"])),
+        plan_time_s=plan_time_s(plan, tab),
+        parts_deg={k: math.degrees(math.sqrt(max(v, 0.0))) for k, v in mean_parts.items()},
+    )

@@ -18,6 +18,12 @@ sent and received. :func:`read_can_log` decodes it with the protocol's own recei
 - Missing ticks are never papered over: a window keeps its counters (the gaps show in
   :attr:`~northfinder.host.recording.RecordedWindow.gaps`) and :attr:`CanLogSession.notes` names
   every gap, every window shorter than asked and every frame that did not decode.
+- A rotated log (``sim --log-max-bytes``, python-can's rotating loggers) is read as one log from
+  its parts in order (:func:`~northfinder.driver.framelog.order_log_parts`). Where frames are
+  missing between two parts (a part left out, the device's sample counter in STATUS_COUNTERS
+  jumping by more than :data:`PART_GAP_HEARTBEATS` heartbeats), the notes say so and the window
+  measured across or just after the gap counts as incomplete (its commanded angle or samples
+  may be among the missing frames).
 - A log cut short (a copy cut mid-file: a partial last line, a truncated BLF container) is read
   up to its break, and the notes say so ("cut short"); so does a last window whose STREAM_STOP
   is not in the log (the host stops every stream it starts). ``solve`` refuses such a log
@@ -38,10 +44,11 @@ from typing import Any
 
 import can
 
-from northfinder.driver.framelog import LOG_SUFFIXES
+from northfinder.driver.framelog import LOG_SUFFIXES, order_log_parts
 from northfinder.driver.protocol.can import CanReceiver, TickLoss, split_can_id
 from northfinder.driver.protocol.constants import (
     SAMPLE_RATE_DEFAULT_HZ,
+    CanFunction,
     ConfigKey,
     Opcode,
     Validity,
@@ -68,11 +75,19 @@ from northfinder.host.results import SIMULATOR_MODEL, device_identity
 __all__ = [
     "LOG_SUFFIXES",
     "CanLogSession",
+    "LogSet",
     "SessionCounter",
     "is_can_log",
     "read_can_log",
     "read_frames",
 ]
+
+LogPaths = str | Path | Sequence[str | Path]
+"""One log file, or the parts of a log in order (a rotated log)."""
+
+#: A jump of the device's sample counter between two parts of a log of more than this many
+#: heartbeats (the typical step between two STATUS_COUNTERS) means frames are missing.
+PART_GAP_HEARTBEATS = 2.5
 
 #: Ticks a whole-segment collector may span (far beyond any session: 2**40 ticks at 400 Hz is
 #: 87 years).
@@ -157,6 +172,10 @@ class CanLogSession:
     session: int | None = None
     #: The number (1-based, in its session) of each window of :attr:`windows`.
     window_numbers: tuple[int, ...] = ()
+    #: The parts of the log in reading order (one file: just it).
+    parts: tuple[str, ...] = ()
+    #: Frames missing between two parts (a part left out, a jump of the device's counter).
+    part_gaps: tuple[str, ...] = ()
 
     def complete(self) -> CanLogSession:
         """The session without its windows that have samples missing (a gap, a cut)."""
@@ -211,6 +230,8 @@ class _Segment:
         self.requested = requested
         self.t = t
         self.stopped = False
+        #: Frames missing between two parts of the log in or just before this window.
+        self.suspect: str | None = None
 
 
 #: python-can's readers of text logs whose lines each hold one frame after a header: a damaged
@@ -273,7 +294,11 @@ def _text_lines(path: Path) -> list[str] | None:
 
 
 def _tolerant_messages(
-    path: Path, lines: list[str], skipped: list[tuple[int, str]], cut: list[str] | None
+    path: Path,
+    lines: list[str],
+    skipped: list[tuple[int, str]],
+    cut: list[str] | None,
+    **options: Any,
 ) -> Iterator[can.Message]:
     """The frames of a text log, each damaged line skipped and noted in ``skipped`` as (line
     number, error): a new reader goes on after it, given the header again. A damaged last line
@@ -285,7 +310,7 @@ def _tolerant_messages(
         prefix = header or []
         feed = _Feed(prefix + lines[start:])
         try:
-            for msg in reader_class(feed):
+            for msg in reader_class(feed, **options):
                 if header is None:
                     header = lines[: start + feed.pos - 1]  # before the line of the first frame
                 yield msg
@@ -304,7 +329,10 @@ def _tolerant_messages(
 
 
 def _messages(
-    path: Path, cut: list[str] | None = None, skipped: list[tuple[int, str]] | None = None
+    path: Path,
+    cut: list[str] | None = None,
+    skipped: list[tuple[int, str]] | None = None,
+    **options: Any,
 ) -> Iterator[can.Message]:
     """The log's frames. A file that breaks off after some frames (a copy cut short: a partial
     last line, a truncated BLF container) ends the frames there and says so in ``cut`` when it
@@ -313,10 +341,10 @@ def _messages(
     are read."""
     lines = _text_lines(path) if skipped is not None else None
     if lines is not None and skipped is not None:
-        yield from _tolerant_messages(path, lines, skipped, cut)
+        yield from _tolerant_messages(path, lines, skipped, cut, **options)
         return
     try:
-        reader = can.LogReader(str(path))
+        reader = can.LogReader(str(path), **options)
     except _OPEN_ERRORS as exc:
         # NotImplementedError: python-can's reader for the format needs a package not installed
         # (asammdf for .mf4); its message names it.
@@ -334,27 +362,141 @@ def _messages(
         cut.append(f"the log breaks off after frame {n} ({what}): it is cut short")
 
 
+class LogSet:
+    """A CAN log of one file or of several parts read in order, as one stream of frames.
+
+    Parameters
+    ----------
+    paths : str, Path or sequence of them
+        The file, or the parts (a rotated log's parts are put in the order they were written,
+        :func:`~northfinder.driver.framelog.order_log_parts`).
+
+    Attributes
+    ----------
+    files : list of Path
+        The parts in reading order.
+    gaps : list of str
+        Frames missing between two parts (a part number skipped; the device's sample counter
+        jumping at a boundary), as found while reading.
+    """
+
+    def __init__(self, paths: LogPaths) -> None:
+        given = [paths] if isinstance(paths, str | Path) else list(paths)
+        if not given:
+            raise RecordingError("no CAN log given")
+        self.files, self.gaps = order_log_parts(given)
+        self._gaps_named = len(self.gaps)
+        #: ASC stores times from each file's start: parts are read by their absolute times.
+        self._reader_options = {"relative_timestamp": False} if len(self.files) > 1 else {}
+
+    @property
+    def name(self) -> str:
+        """The log as named in messages: its file, or ``FIRST .. LAST (N parts)``."""
+        if len(self.files) == 1:
+            return str(self.files[0])
+        return f"{self.files[0]} .. {self.files[-1]} ({len(self.files)} parts)"
+
+    def messages(
+        self, cut: list[str] | None = None, skipped: list[tuple[int, str]] | None = None
+    ) -> Iterator[can.Message]:
+        """The frames of every part in order (``cut`` and ``skipped`` as :func:`read_frames`:
+        a part that breaks off is noted and the next part read). Frames missing at a boundary
+        between parts are added to :attr:`gaps` when the first status after it shows them."""
+        del self.gaps[self._gaps_named :]  # a second reading finds them again
+        return self._messages(cut, skipped)
+
+    def _messages(
+        self, cut: list[str] | None, skipped: list[tuple[int, str]] | None
+    ) -> Iterator[can.Message]:
+        last: dict[int, int] = {}  # node -> sample counter of its last STATUS_COUNTERS
+        steps: dict[int, list[int]] = {}  # node -> recent counter steps between heartbeats
+        pending: dict[int, str] = {}  # node -> the boundary its next status crosses
+        previous: Path | None = None
+        for path in self.files:
+            if previous is not None:
+                pending = {node: f"{previous} and {path}" for node in last}
+            part_skipped: list[tuple[int, str]] | None = None if skipped is None else []
+            options = self._reader_options if path.name.lower().endswith(".asc") else {}
+            for msg in _messages(path, cut, part_skipped, **options):
+                if (
+                    msg.arbitration_id & 0x7F0 == CanFunction.STATUS_COUNTERS
+                    and len(msg.data) == 8
+                    and not (msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame)
+                ):
+                    self._watch(msg, last, steps, pending)
+                yield msg
+            if skipped is not None and part_skipped:
+                prefix = f"{path} " if len(self.files) > 1 else ""
+                skipped += [(n, f"{prefix}{e}") for n, e in part_skipped]
+            previous = path
+
+    def _watch(
+        self,
+        msg: can.Message,
+        last: dict[int, int],
+        steps: dict[int, list[int]],
+        pending: dict[int, str],
+    ) -> None:
+        node = msg.arbitration_id & 0x0F
+        counter = int.from_bytes(bytes(msg.data[:4]), "little")
+        before = last.get(node)
+        last[node] = counter
+        if before is None:
+            return
+        step = (counter - before) % (1 << 32)
+        boundary = pending.pop(node, None)
+        recent = steps.setdefault(node, [])
+        if boundary is None:
+            recent.append(step)
+            del recent[:-16]
+            return
+        typical = sorted(recent)[len(recent) // 2] if recent else 0
+        if typical > 0 and step > PART_GAP_HEARTBEATS * typical:
+            self.gaps.append(
+                f"frames missing between {boundary}: the device's sample counter jumps from "
+                f"{before} to {counter} (about {step / typical:.0f} heartbeats)"
+            )
+
+
 def read_frames(
-    path: str | Path,
+    path: LogPaths,
     *,
     skip_damaged: bool = True,
     skipped: list[tuple[int, str]] | None = None,
     cut: list[str] | None = None,
+    gaps: list[str] | None = None,
 ) -> Iterator[can.Message]:
-    """The frames of a CAN log in any format python-can reads; with ``skip_damaged`` a damaged
-    line of a text log is skipped and noted in ``skipped`` (line number, error), and a log that
-    breaks off ends there (noted in ``cut``)."""
-    return _messages(
-        Path(path),
+    """The frames of a CAN log in any format python-can reads, or of the parts of a rotated log
+    in order; with ``skip_damaged`` a damaged line of a text log is skipped and noted in
+    ``skipped`` (line number, error), and a log that breaks off ends there (noted in ``cut``).
+    ``gaps`` receives a note for frames missing between two parts as they are found."""
+    logs = LogSet(path)
+    if gaps is not None:
+        gaps += logs.gaps
+    frames = logs.messages(
         [] if cut is None else cut,
         (skipped if skipped is not None else []) if skip_damaged else None,
     )
+    if gaps is None:
+        return frames
+    return _noting_gaps(logs, frames, gaps)
 
 
-def _pick_node(path: Path, skip_damaged: bool = False) -> int:
+def _noting_gaps(
+    logs: LogSet, frames: Iterator[can.Message], gaps: list[str]
+) -> Iterator[can.Message]:
+    seen = len(logs.gaps)
+    for msg in frames:
+        if len(logs.gaps) > seen:
+            gaps += logs.gaps[seen:]
+            seen = len(logs.gaps)
+        yield msg
+
+
+def _pick_node(path: LogSet, skip_damaged: bool = False) -> int:
     nodes: dict[int, int] = {}
-    for msg in _messages(
-        path, [], [] if skip_damaged else None
+    for msg in path.messages(
+        [], [] if skip_damaged else None
     ):  # a log cut short is read to its break (read_can_log says so)
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             continue
@@ -364,16 +506,16 @@ def _pick_node(path: Path, skip_damaged: bool = False) -> int:
             continue
         nodes[node] = nodes.get(node, 0) + 1
     if not nodes:
-        raise RecordingError(f"{path}: no frame of the north finder protocol in this CAN log")
+        raise RecordingError(f"{path.name}: no frame of the north finder protocol in this CAN log")
     if len(nodes) > 1:
         raise RecordingError(
-            f"{path}: frames of nodes {', '.join(map(str, sorted(nodes)))}; choose one (--node-id)"
+            f"{path.name}: frames of nodes {', '.join(map(str, sorted(nodes)))}; choose one (--node-id)"
         )
     return next(iter(nodes))
 
 
 def read_can_log(
-    path: str | Path,
+    path: LogPaths,
     *,
     node_id: int | None = None,
     window_s: float | None = None,
@@ -386,8 +528,9 @@ def read_can_log(
 
     Parameters
     ----------
-    path : str or Path
-        The log; python-can's reader for its ending reads it.
+    path : str, Path or sequence of them
+        The log; python-can's reader for its ending reads it. Several files are the parts of
+        one log (a rotated log), read in order.
     node_id : int, optional
         The device whose session to read (default: the only node in the log).
     window_s : float, optional
@@ -411,10 +554,11 @@ def read_can_log(
         several sessions and none chosen, a session or window that is not in the log, fewer
         windows than ``min_windows``.
     """
-    p = Path(path)
+    logs = LogSet(path)
+    p = logs.name
     if window_s is not None and not (math.isfinite(window_s) and window_s > 0):
         raise RecordingError(f"window: must be a positive number of seconds, got {window_s!r}")
-    node = _pick_node(p, skip_damaged) if node_id is None else node_id
+    node = _pick_node(logs, skip_damaged) if node_id is None else node_id
     receiver = CanReceiver(node_id=node)
     scales = CountScales()
     identity: Identify | None = None
@@ -435,7 +579,17 @@ def read_can_log(
 
     cut: list[str] = []
     skipped: list[tuple[int, str]] = []
-    for msg in _messages(p, cut, skipped if skip_damaged else None):
+    stream = logs.messages(cut, skipped if skip_damaged else None)
+    gaps_seen = len(logs.gaps)
+    after_gap: str | None = None
+    for msg in stream:
+        if len(logs.gaps) > gaps_seen:
+            # Frames missing at a boundary between parts: the window in progress lost samples,
+            # and the next may have lost its command (its angle).
+            gaps_seen = len(logs.gaps)
+            after_gap = logs.gaps[-1]
+            if current is not None:
+                current.suspect = current.suspect or after_gap
         frames += 1
         if t0 is None:
             t0 = msg.timestamp
@@ -490,6 +644,7 @@ def read_can_log(
                     free = None
                     receiver.ticks.restart()  # as the driver does: a new stream
                     current = _Segment(commanded, requested(), msg.timestamp, sessions.number)
+                    current.suspect, after_gap = after_gap, None
                     segments.append(current)
     chosen = segments if saw_stream_start else free_segments
     chosen = [seg for seg in chosen if seg.collector.received > 0]
@@ -517,7 +672,7 @@ def read_can_log(
             )
         numbered = [(i, chosen[i - 1]) for i in wanted]
     incomplete: list[str] = list(cut)
-    notes: list[str] = []
+    notes: list[str] = [g for g in logs.gaps if not any(g == s.suspect for s in chosen)]
     if skipped:
         first_line, first_error = skipped[0]
         notes.append(
@@ -552,6 +707,8 @@ def read_can_log(
                 f"{seg.collector.received + seg.collector.missing} ticks, before its STREAM_STOP: "
                 "the log is cut short"
             )
+        if seg.suspect is not None:
+            incomplete.append(f"window {i} ({seg.commanded_deg:g} deg): {seg.suspect}")
         if len(incomplete) > before:
             short.append(len(out))
         out.append(rec)
@@ -566,4 +723,5 @@ def read_can_log(
         incomplete_windows=tuple(short), skipped_lines=len(skipped),
         sessions=tuple(sorted(counts.items())), session=session,
         window_numbers=tuple(i for i, _ in numbered),
+        parts=tuple(str(f) for f in logs.files), part_gaps=tuple(logs.gaps),
     )  # fmt: skip

@@ -35,7 +35,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,15 +48,24 @@ from northfinder.host.accuracy import (
     ErrorModel,
     bound_deg,
     predict_solutions,
+    spin_bound_deg,
 )
-from northfinder.host.batch_solve import Summary, chunk_errors, summarize, summarize_columns
+from northfinder.host.batch_solve import (
+    Summary,
+    azimuth_errors,
+    chunk_errors,
+    summarize,
+    summarize_columns,
+)
 from northfinder.host.errors import HostConfigError, check_choice
-from northfinder.host.plan import Plan
+from northfinder.host.plan import Plan, SpinPlan, spin_start_deg
+from northfinder.host.spin import solve_spin_batch
 
 __all__ = [
     "CHUNK_SAMPLES",
     "ChunkTask",
     "RunRequest",
+    "SpinRuns",
     "Study",
     "StudySettings",
     "WindowBatch",
@@ -115,8 +124,10 @@ class RunRequest:
 
     Attributes
     ----------
-    plan : Plan
-        Positions, window and settle time (its ``denoise`` and ``method`` are the engine's).
+    plan : Plan or SpinPlan
+        Positions, window and settle time (its ``denoise`` and ``method`` are the engine's); or
+        a spin (the generator returns :class:`SpinRuns`: the table starts at rest at 0 when the
+        warm-up ends and accelerates to the rate at its limit).
     azimuth_deg : ndarray, shape (runs,)
         True azimuth of each run, deg clockwise from north.
     latitude_deg, pitch_deg, roll_deg : float
@@ -132,7 +143,7 @@ class RunRequest:
         a generator may leave the others out (NaN).
     """
 
-    plan: Plan
+    plan: Plan | SpinPlan
     azimuth_deg: NDArray[np.float64]
     latitude_deg: float
     pitch_deg: float
@@ -147,10 +158,45 @@ class RunRequest:
         return int(self.azimuth_deg.size)
 
 
+class SpinRuns(Protocol):
+    """The samples of many runs of a spin, as a window generator returns them for a
+    :class:`~northfinder.host.plan.SpinPlan`."""
+
+    @property
+    def gyro_rps(self) -> NDArray[np.float64]:
+        """(runs, samples, 3): gyro triad, mean rate over each sample, rad/s."""
+        ...
+
+    @property
+    def accel_mps2(self) -> NDArray[np.float64]:
+        """(runs, samples, 3): specific force, m/s^2."""
+        ...
+
+    @property
+    def read0_rad(self) -> NDArray[np.float64]:
+        """(runs, samples): encoder angle at the start of each sample, continuous, rad."""
+        ...
+
+    @property
+    def read1_rad(self) -> NDArray[np.float64]:
+        """(runs, samples): encoder angle at the end of each sample, continuous, rad."""
+        ...
+
+    @property
+    def time_s(self) -> NDArray[np.float64]:
+        """(samples,): end of each sample from the start of the steady spin, s."""
+        ...
+
+    @property
+    def azimuth_deg(self) -> NDArray[np.float64]:
+        """(runs,): true azimuth of each run, deg."""
+        ...
+
+
 class WindowGenerator(Protocol):
     """Draws the windows of a request with the given generator (module-level and picklable)."""
 
-    def __call__(self, request: RunRequest, rng: np.random.Generator) -> WindowBatch: ...
+    def __call__(self, request: RunRequest, rng: np.random.Generator) -> WindowBatch | SpinRuns: ...
 
 
 @dataclass(frozen=True)
@@ -193,10 +239,17 @@ class StudySettings:
         check_choice(self.angles, ANGLE_SOURCES, "angles")
 
 
-def chunk_runs(plan: Plan, settings: StudySettings) -> int:
+def _run_samples(plan: Plan | SpinPlan, settings: StudySettings) -> tuple[int, int]:
+    """Windows and samples per window of one run (a spin: one window)."""
+    if isinstance(plan, SpinPlan):
+        return 1, max(1, round(plan.spin_s * settings.sample_rate_hz))
+    return len(plan.positions_deg), max(1, round(plan.window_s * settings.sample_rate_hz))
+
+
+def chunk_runs(plan: Plan | SpinPlan, settings: StudySettings) -> int:
     """Runs per chunk: :data:`CHUNK_SAMPLES` over the samples of one run's windows (at least 1)."""
-    n = max(1, round(plan.window_s * settings.sample_rate_hz))
-    return max(1, CHUNK_SAMPLES // (len(plan.positions_deg) * n))
+    p, n = _run_samples(plan, settings)
+    return max(1, CHUNK_SAMPLES // (p * n))
 
 
 @dataclass(frozen=True)
@@ -217,7 +270,7 @@ class ChunkTask:
     """
 
     generator: WindowGenerator
-    plan: Plan
+    plan: Plan | SpinPlan
     settings: StudySettings
     seed: int
     index: int
@@ -225,7 +278,11 @@ class ChunkTask:
 
 
 def chunk_tasks(
-    generator: WindowGenerator, plan: Plan, settings: StudySettings, runs: int, seed: int
+    generator: WindowGenerator,
+    plan: Plan | SpinPlan,
+    settings: StudySettings,
+    runs: int,
+    seed: int,
 ) -> list[ChunkTask]:
     """The chunks of a study of ``runs`` runs, in order (see the module doc)."""
     if isinstance(runs, bool) or int(runs) != runs or runs < 2:
@@ -233,7 +290,11 @@ def chunk_tasks(
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:
         raise HostConfigError(f"seed: must be a non-negative integer, got {seed!r}")
     # Samples per window, for the memory budget only (the generator decides the exact count).
-    p, n = len(plan.positions_deg), round(plan.window_s * settings.sample_rate_hz)
+    p, n = _run_samples(plan, settings)
+    if isinstance(plan, SpinPlan) and settings.angles != "encoder":
+        raise HostConfigError(
+            "angles: a spin solves with the encoder angle of every sample (angles encoder)"
+        )
     if p * n * 6 > MAX_RUN_VALUES:
         raise HostConfigError(
             f"a run of {p} windows of {n} samples ({p * n * 6:.3g} values: positions x window x "
@@ -285,7 +346,19 @@ def run_chunk(task: ChunkTask) -> NDArray[np.float64]:
     )
     # The products inside are small: BLAS threads would only contend with the other workers.
     with _one_blas_thread():
-        batch = task.generator(request, rng)
+        if isinstance(plan, SpinPlan):
+            runs = cast(SpinRuns, task.generator(request, rng))
+            az = solve_spin_batch(
+                runs.gyro_rps,
+                None if settings.tilt == "level" else runs.accel_mps2,
+                runs.read0_rad,
+                runs.read1_rad,
+                latitude_deg=settings.latitude_deg,
+                time_s=runs.time_s,
+                drift=plan.drift,
+            )
+            return azimuth_errors(az, runs.azimuth_deg)
+        batch = cast(WindowBatch, task.generator(request, rng))
         angles = batch.table_deg if settings.angles == "encoder" else batch.commanded_deg
         return chunk_errors(
             batch.gyro_rps,
@@ -302,7 +375,7 @@ def run_chunk(task: ChunkTask) -> NDArray[np.float64]:
 
 def monte_carlo(
     generator: WindowGenerator,
-    plan: Plan,
+    plan: Plan | SpinPlan,
     settings: StudySettings,
     runs: int,
     seed: int,
@@ -338,7 +411,7 @@ def monte_carlo(
 
 
 #: One study of :func:`monte_carlo_many`: generator, plan, settings, runs, seed.
-Study = tuple[WindowGenerator, Plan, StudySettings, int, int]
+Study = tuple[WindowGenerator, Plan | SpinPlan, StudySettings, int, int]
 
 
 def monte_carlo_many(
@@ -389,15 +462,41 @@ def local_executor(workers: int | None = None) -> Iterator[Executor]:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+def _spin_row(
+    model: ErrorModel, plan: SpinPlan, settings: StudySettings, errors: NDArray[np.float64]
+) -> dict[str, Any]:
+    s = summarize(errors)
+    b = spin_bound_deg(
+        plan.spin_s, plan.rate_dps, model.arw_dpsh, settings.latitude_deg,
+        sample_rate_hz=settings.sample_rate_hz, start_deg=spin_start_deg(plan, model.table),
+        drift=plan.drift,
+    )  # fmt: skip
+    pred = predict_solutions(model, plan, **prediction_options(settings))[0]
+    return {
+        "rate_dps": plan.rate_dps,
+        "spin_s": plan.spin_s,
+        "drift": plan.drift,
+        **asdict(s),
+        "bound_deg": b,
+        "ratio": s.rmse_deg / b if b > 0 else math.inf,
+        "predicted_deg": pred.sigma_deg,
+        "predicted_parts_deg": pred.parts_deg,
+    }
+
+
 def study_rows(
-    model: ErrorModel, plan: Plan, settings: StudySettings, errors: NDArray[np.float64]
+    model: ErrorModel, plan: Plan | SpinPlan, settings: StudySettings, errors: NDArray[np.float64]
 ) -> list[dict[str, Any]]:
     """One result row per solution (one, or one per pair with ``pairwise``).
 
     Each row holds the :class:`~northfinder.host.batch_solve.Summary` fields (``rejected`` counts the
     runs without a solution), ``bound_deg``, ``ratio`` (RMSE over bound), ``predicted_deg`` and
-    its parts; pairwise rows also ``mu_deg``.
+    its parts; pairwise rows also ``mu_deg``. A spin's row holds ``rate_dps``, ``spin_s`` and
+    ``drift`` instead of the positions, and its bound is
+    :func:`~northfinder.host.accuracy.spin_bound_deg` (gyro white noise, the fit's own design).
     """
+    if isinstance(plan, SpinPlan):
+        return [_spin_row(model, plan, settings, errors)]
     pos = plan.positions_deg
     pairwise = errors.ndim == 2
     if pairwise:
@@ -439,10 +538,21 @@ def prediction_options(settings: StudySettings) -> dict[str, Any]:
     }
 
 
+_P = TypeVar("_P", Plan, SpinPlan)
+
+
+def _lengthened(plan: _P, factor: float) -> _P:
+    """The plan with its windows (a spin: its steady time) ``factor`` times as long."""
+    p: Any = plan
+    if isinstance(plan, SpinPlan):
+        return cast(_P, replace(p, spin_s=plan.spin_s * factor))
+    return cast(_P, replace(p, window_s=p.window_s * factor))
+
+
 def verify_plan(
     generator: WindowGenerator,
     model: ErrorModel,
-    plan: Plan,
+    plan: _P,
     settings: StudySettings,
     runs: int,
     seed: int,
@@ -451,8 +561,9 @@ def verify_plan(
     *,
     executor: Executor | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[Plan, dict[str, Any]]:
-    """Monte Carlo of a plan; with a target, lengthen the window until the simulated RMSE meets it.
+) -> tuple[_P, dict[str, Any]]:
+    """Monte Carlo of a plan; with a target, lengthen the window (a spin's time) until the
+    simulated RMSE meets it.
 
     Each round scales the window by ``1.05 (RMSE / target)^2`` (white noise falls as the square
     root of the dwell), at most ``max_rounds`` rounds. The row gains ``meets_target``.
@@ -467,6 +578,6 @@ def verify_plan(
             row["meets_target"] = True
             return plan, row
         grow = 1.05 * (row["rmse_deg"] / target_deg) ** 2
-        plan = replace(plan, window_s=plan.window_s * grow)
+        plan = _lengthened(plan, grow)
     row["meets_target"] = False
     return plan, row

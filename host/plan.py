@@ -37,6 +37,7 @@ from northfinder.driver.protocol.motion import TableLimits, shortest_delta_deg
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import GeometryError, HostConfigError, InputError, check_choice
 from northfinder.host.kernels import MIN_MU_SEPARATION_DEG
+from northfinder.host.spin import MIN_SWEEP_DEG
 
 __all__ = [
     "DEFAULT_POSITIONS_DEG",
@@ -45,11 +46,14 @@ __all__ = [
     "PLANS",
     "SOLVERS",
     "Plan",
+    "SpinPlan",
     "TableModel",
     "moves_deg",
     "plan_time_s",
     "resolve_solver",
     "settle_time_s",
+    "spin_ramp_s",
+    "spin_start_deg",
     "window_starts_s",
 ]
 
@@ -108,11 +112,26 @@ class TableModel(TableLimits):
     heat_tau_s : float
         Time constant of the heat the drive holds, s: it sizes the bias disturbance of a move
         (0: each move by its own angle).
+    rate_ripple, rate_ripple_phase_deg : float
+        While spinning: once-per-turn rate ripple (fraction of the rate) and the table angle of
+        its fastest point, deg.
+    wobble_urad, wobble_phase_deg : float
+        Tilt of the table top against its axis, urad, and the table-frame direction it tilts
+        towards, deg.
+    encoder_error_deg, encoder_error_harmonic, encoder_error_phase_deg : float
+        Periodic encoder error: it reads ``mu + e sin(n mu + phase)``.
     """
 
     indexing_error_deg: float = 0.0
     encoder_resolution_deg: float = 0.0
     heat_tau_s: float = 0.0
+    rate_ripple: float = 0.0
+    rate_ripple_phase_deg: float = 0.0
+    wobble_urad: float = 0.0
+    wobble_phase_deg: float = 0.0
+    encoder_error_deg: float = 0.0
+    encoder_error_harmonic: float = 1.0
+    encoder_error_phase_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -203,6 +222,83 @@ class Plan:
         return tuple(a - a0 for a in self.positions_deg[1:])
 
 
+@dataclass(frozen=True)
+class SpinPlan:
+    """A spin (rotation modulation): the table turns at a constant rate and the heading is the
+    phase of the Earth rate's sinusoid (:mod:`northfinder.host.spin`).
+
+    The table starts at rest at angle 0, accelerates to ``rate_dps`` at its acceleration limit,
+    records ``spin_s`` seconds at the steady rate and brakes: the plan time counts both ramps
+    (:func:`plan_time_s`), as ``find --spin RATE --spin-time SECONDS`` runs it.
+
+    Attributes
+    ----------
+    rate_dps : float
+        Table rate, deg/s (either sign; within the table's limit).
+    spin_s : float
+        Seconds at the steady rate (whole turns, ``360 / |rate|`` s each, are best).
+    drift : bool
+        The solver also fits a linear drift of each gyro and accelerometer.
+
+    Raises
+    ------
+    GeometryError
+        The table would turn less than :data:`~northfinder.host.spin.MIN_SWEEP_DEG`.
+    InputError
+        A rate or time that is not a finite positive number.
+    """
+
+    rate_dps: float = 6.0
+    spin_s: float = 60.0
+    drift: bool = False
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate_dps) and self.rate_dps != 0.0):
+            raise InputError(f"rate_dps: must be a finite non-zero rate, got {self.rate_dps!r}")
+        if not (math.isfinite(self.spin_s) and self.spin_s > 0):
+            raise InputError(f"spin_s: must be a positive number of seconds, got {self.spin_s!r}")
+        if abs(self.rate_dps) * self.spin_s < MIN_SWEEP_DEG:
+            raise GeometryError(
+                f"a spin of {self.spin_s:g} s at {self.rate_dps:g} deg/s: the table must turn "
+                f"at least {MIN_SWEEP_DEG:g} deg"
+            )
+        object.__setattr__(self, "rate_dps", float(self.rate_dps))
+        object.__setattr__(self, "spin_s", float(self.spin_s))
+        object.__setattr__(self, "drift", bool(self.drift))
+
+    @property
+    def turns(self) -> float:
+        return abs(self.rate_dps) * self.spin_s / 360.0
+
+    def label(self) -> str:
+        """``spin +6 deg/s x 60 s`` (and ``, drift fitted``)."""
+        return f"spin {self.rate_dps:+g} deg/s x {self.spin_s:g} s" + (
+            ", drift fitted" if self.drift else ""
+        )
+
+
+def spin_ramp_s(plan: SpinPlan, table: TableModel) -> float:
+    """Time to reach the spin's rate from rest (and to brake from it), s.
+
+    Raises
+    ------
+    HostConfigError
+        The rate is beyond the table's limit.
+    """
+    if abs(plan.rate_dps) > table.max_rate_dps * (1 + 1e-12):
+        raise HostConfigError(
+            f"spin rate {plan.rate_dps:g} deg/s: beyond the table's rate limit "
+            f"{table.max_rate_dps:g} deg/s"
+        )
+    return abs(plan.rate_dps) / table.max_accel_dps2
+
+
+def spin_start_deg(plan: SpinPlan, table: TableModel) -> float:
+    """Table angle at the start of the steady spin, deg (from rest at 0 at the acceleration
+    limit)."""
+    return 0.5 * plan.rate_dps * spin_ramp_s(plan, table)
+
+
 #: The source paper's prototype procedure: eight positions 30 deg apart, 10 s each, every position
 #: after the first solved against the first (seven azimuths, mu = 30 ... 210 deg).
 PAPER_SWEEP = Plan(tuple(float(a) for a in range(0, 240, 30)), 10.0, method="pairwise")
@@ -232,6 +328,9 @@ def window_starts_s(plan: Plan, table: TableModel) -> NDArray[np.float64]:
     return np.array(starts)
 
 
-def plan_time_s(plan: Plan, table: TableModel) -> float:
-    """Windows, moves and settling from the first window's start to the last one's end, s."""
+def plan_time_s(plan: Plan | SpinPlan, table: TableModel) -> float:
+    """Windows, moves and settling from the first window's start to the last one's end, s; for
+    a spin, the ramp to the rate, the steady spin and the brake."""
+    if isinstance(plan, SpinPlan):
+        return plan.spin_s + 2.0 * spin_ramp_s(plan, table)
     return float(window_starts_s(plan, table)[-1] + plan.window_s)

@@ -3,8 +3,11 @@ that meets an accuracy, from the datasheet prediction of :mod:`northfinder.host.
 error term of the model over the plan's own timeline, through the plan's own solver).
 
 Plans are searched over position patterns (:data:`GEOMETRIES`) and window lengths; the plan time
-counts moves and settling (:mod:`northfinder.host.plan`). A Monte Carlo of the chosen plan
-(:mod:`northfinder.host.montecarlo`) checks the prediction.
+counts moves and settling (:mod:`northfinder.host.plan`). Spin plans (:func:`search_spin_plans`)
+are searched over table rates (:data:`SPIN_RATES_DPS` up to the table's limit), whole turns or
+all the steady time the budget leaves after the ramps, with and without a fitted drift; the
+plan time counts both ramps, so both kinds compete for the same budget. A Monte Carlo of the
+chosen plan (:mod:`northfinder.host.montecarlo`) checks the prediction.
 """
 
 from __future__ import annotations
@@ -17,10 +20,19 @@ from typing import Unpack
 import numpy as np
 
 from northfinder.host.accuracy import Conditions, ErrorModel, Prediction, predict
-from northfinder.host.errors import HostConfigError
-from northfinder.host.plan import Plan, TableModel, plan_time_s
+from northfinder.host.errors import GeometryError, HostConfigError
+from northfinder.host.plan import Plan, SpinPlan, TableModel, plan_time_s, spin_ramp_s
+from northfinder.host.spin import MIN_SWEEP_DEG
 
-__all__ = ["GEOMETRIES", "PlanCandidate", "search_plans", "shortest_plan"]
+__all__ = [
+    "GEOMETRIES",
+    "SPIN_RATES_DPS",
+    "PlanCandidate",
+    "SpinCandidate",
+    "search_plans",
+    "search_spin_plans",
+    "shortest_plan",
+]
 
 
 @dataclass(frozen=True)
@@ -30,6 +42,22 @@ class PlanCandidate:
     plan: Plan
     prediction: Prediction
     allan_limited: bool
+
+    @property
+    def sigma_deg(self) -> float:
+        return self.prediction.sigma_deg
+
+    @property
+    def plan_time_s(self) -> float:
+        return self.prediction.plan_time_s
+
+
+@dataclass(frozen=True)
+class SpinCandidate:
+    """A spin plan with its predicted error and time."""
+
+    plan: SpinPlan
+    prediction: Prediction
 
     @property
     def sigma_deg(self) -> float:
@@ -169,3 +197,58 @@ def shortest_plan(
         if best is None or cand.plan_time_s < best.plan_time_s:
             best = cand
     return best
+
+
+#: Table rates the spin search tries, deg/s (those within the table's limit, and the limit).
+SPIN_RATES_DPS: tuple[float, ...] = (1.0, 2.0, 3.0, 6.0, 10.0, 20.0, 45.0, 90.0)
+
+
+def search_spin_plans(
+    model: ErrorModel,
+    latitude_deg: float,
+    budget_s: float,
+    *,
+    rates_dps: Sequence[float] = SPIN_RATES_DPS,
+    **conditions: Unpack[Conditions],
+) -> list[SpinCandidate]:
+    """The best spin for each table rate within a time budget, best first.
+
+    For each rate (those of ``rates_dps`` within the table's limit, and the limit itself) the
+    spin lasts all the steady time the budget leaves after the ramp to the rate and the brake,
+    or (below four turns) the whole turns within it, with or without a fitted drift: whichever
+    the prediction prefers. Parameters as :func:`search_plans`.
+
+    Returns
+    -------
+    list of SpinCandidate
+        One per rate that turns at least 90 deg within the budget, sorted by predicted sigma.
+    """
+    if not (math.isfinite(budget_s) and budget_s > 0):
+        raise HostConfigError(f"budget: must be a positive number of seconds, got {budget_s!r}")
+    table = model.table
+    top = table.max_rate_dps
+    rates = sorted({float(r) for r in rates_dps if 0 < r < top} | {float(top)})
+    out: list[SpinCandidate] = []
+    for rate in rates:
+        steady = budget_s - 2.0 * spin_ramp_s(SpinPlan(rate, 360.0 / rate), table)
+        if steady * rate < MIN_SWEEP_DEG:
+            continue
+        turn = 360.0 / rate
+        times = {steady}
+        if turn <= steady < 4 * turn:  # beyond four turns a part turn costs next to nothing
+            # Whole turns, with a margin against rounding the budget over.
+            times.add(math.floor(steady / turn + 1e-9) * turn * (1 - 1e-12))
+        best = None
+        for spin_s in sorted(times):
+            for drift in (False, True):
+                plan = SpinPlan(rate, spin_s, drift)
+                try:
+                    pred = predict(model, plan, latitude_deg, **conditions)
+                except GeometryError:
+                    continue  # too few samples at this rate
+                if best is None or pred.sigma_deg < best.sigma_deg * (1 - 1e-9):
+                    best = SpinCandidate(plan, pred)
+        if best is not None:
+            out.append(best)
+    out.sort(key=lambda c: (c.sigma_deg, c.plan_time_s))
+    return out

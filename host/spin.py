@@ -58,6 +58,7 @@ __all__ = [
     "MIN_SWEEP_DEG",
     "SpinSamples",
     "SpinSolution",
+    "amplitude_pinv",
     "heading_weights",
     "interval_rotation",
     "nuisance_design",
@@ -115,6 +116,15 @@ def _alpha_from_u(u: Array, theta: Array, gamma: Array, omega_n: float, omega_u:
     return np.arctan2(u1, u0)
 
 
+def amplitude_pinv(rot: Array, nuisance: Array) -> Array:
+    """Rows of the least-squares pseudo-inverse that map the samples (rows x, y of each in turn)
+    to the sinusoid's amplitudes (u or f0) with the nuisance terms estimated, (2, 2N)."""
+    n = rot.shape[0]
+    design = np.concatenate([rot.reshape(2 * n, 2), nuisance], axis=-1)
+    out: Array = np.linalg.solve(design.T @ design, design.T)[:2]
+    return out
+
+
 def heading_weights(
     rot: Array,
     nuisance: Array,
@@ -124,6 +134,8 @@ def heading_weights(
     omega_n: float,
     omega_u: float,
     g: float,
+    *,
+    pinv: Array | None = None,
 ) -> tuple[Array, Array]:
     """First-order weights of the heading on every gyro and accelerometer sample of one run.
 
@@ -143,6 +155,10 @@ def heading_weights(
     g : float
         Gravity, m/s^2.
 
+    pinv : ndarray, shape (2, 2N), optional
+        :func:`amplitude_pinv` of ``rot`` and ``nuisance``, when it is at hand (it does not
+        depend on the heading or the tilt).
+
     Returns
     -------
     c_g : ndarray, shape (2N,)
@@ -150,18 +166,15 @@ def heading_weights(
     c_a : ndarray, shape (2N,)
         rad per m/s^2 of accelerometer error.
     """
-    n = rot.shape[0]
-    design = np.concatenate([rot.reshape(2 * n, 2), nuisance], axis=-1)
-    # Rows 0, 1 of the pseudo-inverse map the samples to the sinusoid's amplitudes (u or f0).
-    pinv = np.linalg.solve(design.T @ design, design.T)[:2]  # (2, 2N)
+    if pinv is None:
+        pinv = amplitude_pinv(rot, nuisance)
     h, _ = earth_rate_body(alpha, theta, gamma, omega_n, omega_u)
     f0 = np.array([-g * math.sin(theta), g * math.cos(theta) * math.sin(gamma)])
     eps = 1e-7
 
     def d_alpha(du: Array, th: float, ga: float) -> float:
-        return float(
-            _alpha_from_u(h + du, np.asarray(th), np.asarray(ga), omega_n, omega_u) - alpha
-        )
+        d = float(_alpha_from_u(h + du, np.asarray(th), np.asarray(ga), omega_n, omega_u) - alpha)
+        return (d + math.pi) % (2.0 * math.pi) - math.pi  # alpha may be given beyond +-pi
 
     scale = omega_n * eps
     grad_u = np.array([d_alpha(np.array([scale, 0.0]), theta, gamma),

@@ -23,15 +23,22 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from northfinder.firmware_sim.batch import BatchWindows, simulate_windows
+from northfinder.firmware_sim.batch import BatchWindows, SpinBatch, simulate_spin, simulate_windows
 from northfinder.firmware_sim.error_terms import ACCEL, GYRO, ErrorTerms
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ErrorModel
 from northfinder.host.montecarlo import RunRequest
-from northfinder.host.plan import TableModel
+from northfinder.host.plan import SpinPlan, TableModel, spin_ramp_s, spin_start_deg
 
-__all__ = ["SimulatedWindows", "SpecDrift", "error_model", "simulator_identity", "write_recordings"]
+__all__ = [
+    "SimulatedWindows",
+    "SpecDrift",
+    "error_model",
+    "simulator_identity",
+    "table_model",
+    "write_recordings",
+]
 
 
 def simulator_identity(sensor: str | None = None) -> dict[str, Any]:
@@ -59,12 +66,27 @@ class SimulatedWindows:
 
     spec: SensorSpec
 
-    def __call__(self, request: RunRequest, rng: np.random.Generator) -> BatchWindows:
+    def __call__(self, request: RunRequest, rng: np.random.Generator) -> BatchWindows | SpinBatch:
         plan = request.plan
         truths = [
             Truth(float(a), request.latitude_deg, request.pitch_deg, request.roll_deg)
             for a in request.azimuth_deg
         ]
+        if isinstance(plan, SpinPlan):
+            # The table at rest at 0 when the warm-up ends, then up to the rate at its limit.
+            table = table_model(self.spec)
+            return simulate_spin(
+                self.spec,
+                truths,
+                plan.rate_dps,
+                plan.spin_s,
+                n_runs=request.n_runs,
+                rng=rng,
+                sample_rate_hz=request.sample_rate_hz,
+                start_deg=spin_start_deg(plan, table),
+                start_s=request.warmup_s + spin_ramp_s(plan, table),
+                bias_step_dph=request.bias_step_dph,
+            )
         return simulate_windows(
             self.spec,
             truths,
@@ -99,6 +121,27 @@ class SpecDrift:
         return out
 
 
+def table_model(spec: SensorSpec) -> TableModel:
+    """The planner's view of a sensor spec's turntable (every field of its ``table`` section but
+    the post-stop ring-down, which is over before a window starts)."""
+    t = spec.table
+    return TableModel(
+        max_rate_dps=t.max_rate_dps,
+        max_accel_dps2=t.max_accel_dps2,
+        settle_s=t.settle_s,
+        indexing_error_deg=t.indexing_error_deg,
+        encoder_resolution_deg=t.encoder_resolution_deg,
+        heat_tau_s=t.heat_tau_s,
+        rate_ripple=t.rate_ripple,
+        rate_ripple_phase_deg=t.rate_ripple_phase_deg,
+        wobble_urad=t.wobble_urad,
+        wobble_phase_deg=t.wobble_phase_deg,
+        encoder_error_deg=t.encoder_error_deg,
+        encoder_error_harmonic=t.encoder_error_harmonic,
+        encoder_error_phase_deg=t.encoder_error_phase_deg,
+    )
+
+
 def error_model(spec: SensorSpec) -> ErrorModel:
     """The planner's view of a sensor spec: every error term of its x and y gyros and
     accelerometers, its disturbances and its table."""
@@ -121,14 +164,7 @@ def error_model(spec: SensorSpec) -> ErrorModel:
         misalignment_urad=g.misalignment_urad,
         scale_factor_ppm=g.scale_factor_ppm,
         vrw_ug_rthz=a.vrw_ug_rthz,
-        table=TableModel(
-            max_rate_dps=spec.table.max_rate_dps,
-            max_accel_dps2=spec.table.max_accel_dps2,
-            settle_s=spec.table.settle_s,
-            indexing_error_deg=spec.table.indexing_error_deg,
-            encoder_resolution_deg=spec.table.encoder_resolution_deg,
-            heat_tau_s=spec.table.heat_tau_s,
-        ),
+        table=table_model(spec),
         drift_rps=SpecDrift(spec) if gyro_drift else None,
         lsb_dph=g.lsb_dph,
         move_walk_dph_per_rtdeg=g.move_walk_dph_per_rtdeg,

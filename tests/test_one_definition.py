@@ -4,6 +4,8 @@ the white-noise bound)."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import serial
@@ -85,3 +87,69 @@ def test_the_two_position_bound_is_the_plan_bound(mu):
     omega_h = 7.292115e-5 * np.cos(np.radians(34.0))
     closed = np.degrees(n / (omega_h * abs(np.sin(np.radians(mu) / 2)) * np.sqrt(20.0)))
     assert two_position_bound_deg(0.0015, 20.0, mu, 34.0) == pytest.approx(closed, rel=1e-12)
+
+
+# -- protocol.dbc: one database, installed with the codec --------------------------------------
+def test_the_installed_dbc_is_the_repository_s_protocol_dbc():
+    """The repository's protocol.dbc is the one edited; driver/protocol/protocol.dbc is the copy
+    that installs with the codec (package data). They must not drift apart."""
+    from pathlib import Path
+
+    from northfinder.driver.protocol import dbc_path
+
+    root = Path(__file__).resolve().parents[1]
+    installed = dbc_path()
+    assert installed.is_file()
+    assert installed.read_bytes() == (root / "protocol.dbc").read_bytes(), (
+        "driver/protocol/protocol.dbc differs from protocol.dbc: after editing protocol.dbc, "
+        "copy it: cp protocol.dbc driver/protocol/protocol.dbc"
+    )
+
+
+def test_the_dbc_resolves_through_importlib_resources_and_loads():
+    from importlib import resources
+
+    import cantools
+
+    from northfinder.driver.protocol import DBC_NODE, CanFunction
+
+    with resources.as_file(resources.files("northfinder.driver.protocol") / "protocol.dbc") as path:
+        db = cantools.database.load_file(str(path))
+    assert isinstance(db, cantools.database.can.Database)
+    for function in CanFunction:  # every frame of the protocol has its message
+        assert db.get_message_by_frame_id(function | DBC_NODE).name == function.name
+
+
+@pytest.mark.subprocess
+def test_an_installed_northfinder_dumps_with_its_own_dbc(tmp_path):
+    """The package as setuptools builds it for a wheel (build_py: packages and package data,
+    from pyproject.toml) holds protocol.dbc; run from that tree, away from the checkout,
+    ``dump`` decodes with it."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    built = tmp_path / "site"
+    subprocess.run(
+        [sys.executable, "-c", "import setuptools; setuptools.setup()", "-q", "build_py",
+         "--build-lib", str(built)],
+        cwd=root, check=True, capture_output=True, timeout=120,
+    )  # fmt: skip
+    dbc = built / "northfinder" / "driver" / "protocol" / "protocol.dbc"
+    assert dbc.read_bytes() == (root / "protocol.dbc").read_bytes()
+    assert (built / "northfinder" / "firmware_sim" / "presets" / "paper-rlg.toml").is_file()
+    log = tmp_path / "one.log"
+    log.write_text("(1796388050.226000) can0 101#0540E20100D20400\n")  # protocol.md's example
+    script = (
+        "import sys, northfinder; from northfinder.cli import main; "
+        f"assert northfinder.__file__.startswith({str(built)!r}), northfinder.__file__; "
+        f"sys.exit(main(['dump', {str(log)!r}]))"
+    )
+    env = {**os.environ, "PYTHONPATH": str(built)}
+    res = subprocess.run(
+        [sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
+        timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert ":: SAMPLE_X(Tick: 5, " in res.stdout

@@ -15,7 +15,6 @@ from northfinder.cli import main
 from northfinder.driver.protocol.units import DPSH, OMEGA_IE
 from northfinder.embed import SimulatedInstrument
 from northfinder.firmware_sim.batch import simulate_spin
-from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.accuracy import bound_deg, spin_bound_deg
@@ -83,10 +82,30 @@ def test_batch_generator_and_batch_solver_are_exact_without_noise(rate):
     assert_allclose(wrapv(az - b.azimuth_deg), 0.0, atol=1e-9)
 
 
-def test_the_batch_generator_refuses_terms_it_does_not_model():
-    with pytest.raises(SimConfigError, match="flicker"):
-        simulate_spin(load_spec("paper-rlg"), Truth(), 6.0, 60.0, n_runs=1,
-                      rng=np.random.default_rng(0))  # fmt: skip
+def test_batch_generator_is_the_instrument_for_every_deterministic_term():
+    """Warm-up, temperature, ramps, the table's ripple and wobble and the encoder's periodic error:
+    the batch generator's samples and encoder angles are the instrument's, sample by sample."""
+    spec = IDEAL.with_values({
+        "gyro.warmup_bias_dph": [0.5, -0.3, 0.2], "gyro.rate_ramp_dph_per_h": [0.2, 0.1, 0.0],
+        "gyro.temp_coeff_dph_per_c": [0.05, -0.03, 0.0], "thermal.warmup_rise_c": 5.0,
+        "accel.warmup_bias_ug": [50.0, -30.0, 0.0], "table.rate_ripple": 0.01,
+        "table.rate_ripple_phase_deg": 40.0, "table.wobble_urad": 300.0,
+        "table.wobble_phase_deg": 70.0, "table.encoder_error_deg": 0.01,
+        "table.encoder_error_harmonic": 2.0, "table.max_accel_dps2": 10.0,
+    })  # fmt: skip
+    truth = Truth(azimuth_deg=33.0, pitch_deg=2.0, roll_deg=-1.0, latitude_deg=LAT)
+    ins = Instrument(spec, truth, np.random.default_rng(4), sample_rate_hz=200.0)
+    ins.generate(10)
+    steady = ins.table.spin(ins.time_s, 10.0)  # 1 s of acceleration: a whole sample boundary
+    assert steady == pytest.approx(1.05)
+    ins.generate(210 - 10)
+    blk = ins.generate(4000)
+    b = simulate_spin(spec, truth, 10.0, 20.0, n_runs=1, rng=np.random.default_rng(0),
+                      sample_rate_hz=200.0, start_deg=5.0, start_s=1.05)  # fmt: skip
+    assert_allclose(b.gyro_rps[0], blk.gyro_rps, rtol=0, atol=1e-12)  # z: the table rate
+    assert_allclose(b.accel_mps2[0], blk.accel_mps2, rtol=0, atol=1e-11)
+    enc = np.degrees(b.read1_rad[0]) % 360.0
+    assert_allclose(wrapv(enc - blk.table_deg), 0.0, atol=1e-9)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -206,13 +206,19 @@ REGISTRY: dict[str, Check] = {}
 that package puts them in the order the suite runs them (``CHECKS``)."""
 
 
-def check(name: str, summary: str) -> Callable[[Callable[[Ctx], None]], Callable[[Ctx], None]]:
-    """Register a check function under ``name``."""
+def check(
+    name: str, summary: str | None = None
+) -> Callable[[Callable[[Ctx], None]], Callable[[Ctx], None]]:
+    """Register a check function under ``name``. ``summary`` says what a pass means, with the
+    sections of protocol.md; by default it is the function's docstring, folded onto one line."""
 
     def register(fn: Callable[[Ctx], None]) -> Callable[[Ctx], None]:
         if name in REGISTRY:
             raise ConformanceError(f"check {name!r} registered twice")
-        REGISTRY[name] = Check(name, summary, fn)
+        text = summary if summary is not None else " ".join((fn.__doc__ or "").split())
+        if not text:
+            raise ConformanceError(f"check {name!r} has no summary (nor a docstring)")
+        REGISTRY[name] = Check(name, text, fn)
         return fn
 
     return register

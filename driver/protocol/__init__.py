@@ -14,7 +14,12 @@ Pure code: no I/O, no clock, no threads. Byte order is little-endian everywhere.
 - :mod:`~northfinder.driver.protocol.units`: units and physical constants.
 - :mod:`~northfinder.driver.protocol.errors`: :class:`ProtocolError` and its family; the codec raises
   nothing else for any input, and imports nothing outside this package.
+- :func:`dbc_path`: the protocol's CAN database (``protocol.dbc``) for cantools and CAN tools,
+  installed with the package.
 """
+
+from importlib import resources as _resources
+from importlib.resources.abc import Traversable as _Traversable
 
 from northfinder.driver.protocol import messages as _messages
 from northfinder.driver.protocol.constants import (
@@ -37,6 +42,7 @@ from northfinder.driver.protocol.constants import (
 from northfinder.driver.protocol.messages import *  # noqa: F403 (the messages: their __all__)
 
 __all__ = [
+    "DBC_NODE",
     "PROTOCOL_VERSION_MAJOR",
     "PROTOCOL_VERSION_MINOR",
     "Axis",
@@ -51,6 +57,18 @@ __all__ = [
     "SerialType",
     "VALIDITY_STEADY_RATE",
     "Validity",
+    "dbc_path",
     "result_meaning",
     *_messages.__all__,
 ]
+
+#: The node whose identifiers the DBC's messages carry (the low four bits of an id are the node:
+#: another node's frame decodes as node 1's message of the same function).
+DBC_NODE = 1
+
+
+def dbc_path() -> _Traversable:
+    """``protocol.dbc``, the protocol's CAN database, as installed with this package (a copy of
+    the repository's ``protocol.dbc``); ``cantools.database.load_file(str(dbc_path()))`` loads
+    it. Use :func:`importlib.resources.as_file` where a file system path is required."""
+    return _resources.files(__name__).joinpath("protocol.dbc")

@@ -12,6 +12,9 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from northfinder.driver.protocol.constants import ConfigKey
 
 __all__ = [
@@ -19,9 +22,12 @@ __all__ = [
     "DEFAULT_MAX_RATE_DPS",
     "DEFAULT_SETTLE_S",
     "TableLimits",
+    "encoder_angle_deg",
     "move_phases_s",
     "move_time_s",
     "shortest_delta_deg",
+    "spin_angle_deg",
+    "wobble_matrix",
 ]
 
 #: The table's limits when none are configured: the simulated table's and the plans' defaults.
@@ -98,3 +104,66 @@ class TableLimits:
     def ready_after_s(self, distance_deg: float) -> float:
         """Time from the start of a move over ``|distance_deg|`` to READY: motion and settling, s."""
         return self.move_time_s(distance_deg) + self.settle_s
+
+
+# ----------------------------------------------------------------------------------------------
+# A turning table's imperfections (the simulated table and the host's prediction share them)
+# ----------------------------------------------------------------------------------------------
+
+
+def spin_angle_deg(
+    rate_dps: float,
+    start_deg: ArrayLike,
+    dt_s: ArrayLike,
+    ripple: float = 0.0,
+    ripple_phase_deg: float = 0.0,
+) -> NDArray[np.float64]:
+    """Continuous table angle of a steady spin ``dt_s`` after it started at ``start_deg``, deg.
+
+    With a once-per-turn rate ripple ``k`` the rate is ``v (1 + k cos(mu_n - phase))`` with
+    ``mu_n = start + v dt`` the nominal angle, so the angle is
+    ``mu_n + k |v| (sin(mu_n - phase) - sin(start - phase)) / v`` (v in rad/s in the last
+    denominator). Arguments broadcast.
+    """
+    a0 = np.asarray(start_deg, dtype=float)
+    angle = a0 + rate_dps * np.asarray(dt_s, dtype=float)
+    if ripple and rate_dps:
+        x = np.radians(angle - ripple_phase_deg)
+        x0 = np.radians(a0 - ripple_phase_deg)
+        angle = angle + ripple * abs(rate_dps) * (np.sin(x) - np.sin(x0)) / math.radians(rate_dps)
+    return np.asarray(angle, dtype=float)
+
+
+def encoder_angle_deg(
+    angle_deg: ArrayLike,
+    error_deg: float = 0.0,
+    harmonic: float = 1.0,
+    phase_deg: float = 0.0,
+    resolution_deg: float = 0.0,
+) -> NDArray[np.float64]:
+    """What an encoder reads for true continuous table angles, deg, not taken modulo a turn:
+    ``mu + e sin(n mu + phase)`` (its periodic error, e.g. eccentricity for n = 1), rounded to its
+    resolution (0: exact)."""
+    a = np.asarray(angle_deg, dtype=float)
+    if error_deg:
+        a = a + error_deg * np.sin(np.radians(harmonic * a + phase_deg))
+    if resolution_deg > 0:
+        a = np.round(a / resolution_deg) * resolution_deg
+    return np.asarray(a, dtype=float)
+
+
+def wobble_matrix(wobble_urad: float, phase_deg: float) -> NDArray[np.float64] | None:
+    """Sensor frame from table frame for a table top tilted by ``wobble_urad`` towards the
+    table-frame direction ``phase_deg`` (a small rotation about the horizontal axis at right
+    angles to it), (3, 3), or None when there is no wobble: a vector ``v`` of the table frame
+    has the sensor-frame coordinates ``matrix @ v``."""
+    if not wobble_urad:
+        return None
+    w = wobble_urad * 1e-6
+    p = math.radians(phase_deg)
+    # The top's normal leans towards (cos p, sin p): a rotation by w about (-sin p, cos p, 0).
+    k = np.array([-math.sin(p), math.cos(p), 0.0])
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    rot = np.eye(3) + math.sin(w) * kx + (1.0 - math.cos(w)) * kx @ kx
+    out: NDArray[np.float64] = rot.T  # coordinates in the tilted frame
+    return out

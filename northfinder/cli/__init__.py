@@ -29,6 +29,7 @@ from northfinder.cli.common import (
     EXIT_RUNTIME,
     EXIT_USAGE,
     SUMMARIES,
+    OneLineParser,
     SignalInterrupt,
     common_group,
     ending_of,
@@ -121,9 +122,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     (the others are listed by name and summary); otherwise every command's."""
     from northfinder.host.results import package_version
 
-    parser = argparse.ArgumentParser(
-        prog="northfinder", description="Workbench for gyro north finders."
-    )
+    parser = OneLineParser(prog="northfinder", description="Workbench for gyro north finders.")
     parser.add_argument("--version", action="version", version=f"northfinder {package_version()}")
     add_global_options(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)

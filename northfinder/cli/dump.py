@@ -1,7 +1,7 @@
-"""``northfinder dump LOG | -i INTERFACE -c CHANNEL``: decode CAN frames with protocol.dbc.
+"""``northfinder dump LOG [LOG ...] | -i INTERFACE -c CHANNEL``: decode CAN frames with protocol.dbc.
 
-Reads a CAN log in any format python-can reads (candump .log, .asc, .blf, .csv, .db, .trc) or a
-live python-can bus, and prints one line per frame decoded by cantools with the protocol's DBC,
+Reads a CAN log in any format python-can reads (candump .log, .asc, .blf, .csv, .db, .trc), the
+parts of a rotated log in order (several files or a quoted glob), or a live python-can bus, and prints one line per frame decoded by cantools with the protocol's DBC,
 as ``candump -L | cantools decode --single-line protocol.dbc`` would. Filters: ``--id``,
 ``--time-from``/``--time-to`` (seconds from the first frame), ``--session N`` (a host session of
 a ``sim --log``).
@@ -27,24 +27,20 @@ from northfinder.cli.common import (
 )
 from northfinder.host.errors import HostConfigError, RecordingError
 
-#: Ids of the DBC's messages are those of node 1: another node's frame is decoded as node 1's
-#: message of the same function (the low four bits of an id are the node).
-DBC_NODE = 1
-
 
 def _dbc_path(given: str | None) -> Path:
-    """The DBC: ``--dbc``, else the protocol's own (protocol.dbc of the project's checkout)."""
+    """The DBC: ``--dbc``, else the protocol's own, installed with the package."""
     if given:
         return Path(given)
-    import northfinder
+    from northfinder.driver.protocol import dbc_path
 
-    here = Path(northfinder.__file__).resolve().parents[1] / "protocol.dbc"
-    if here.is_file():
-        return here
-    raise HostConfigError(
-        "--dbc: protocol.dbc is not beside this installation; give --dbc PATH (the file is at "
-        "the root of the northfinder repository)"
-    )
+    installed = dbc_path()
+    if not installed.is_file():  # pragma: no cover - a broken installation
+        raise HostConfigError(
+            "--dbc: protocol.dbc is missing from this installation; reinstall northfinder or "
+            "give --dbc PATH"
+        )
+    return Path(str(installed))
 
 
 def _frame_id(text: str) -> int:
@@ -69,8 +65,8 @@ def _id_list(text: str) -> list[str]:
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(sub, "dump", __doc__)
     p.add_argument(
-        "log", nargs="?", default=None, metavar="LOG",
-        help="CAN log to decode (or give a bus with -i/-c)",
+        "log", nargs="*", default=None, metavar="LOG",
+        help="CAN log to decode, or the parts of a rotated log (or give a bus with -i/-c)",
     )  # fmt: skip
     g = p.add_argument_group("filters")
     g.add_argument(
@@ -90,7 +86,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="only the frames of host session N (1-based; each host's IDENTIFY begins one)",
     )  # fmt: skip
     g = p.add_argument_group("output")
-    g.add_argument("--dbc", metavar="FILE", help="the DBC (default: the project's protocol.dbc)")
+    g.add_argument("--dbc", metavar="FILE", help="the DBC (default: the protocol's own)")
     g.add_argument(
         "--count", type=bounded_int(1, 10**12), default=None, metavar="N",
         help="stop after N frames printed",
@@ -141,6 +137,7 @@ def _frames_of_bus(args: argparse.Namespace) -> Iterator[Any]:
 
 def decode_line(db: Any, msg: Any) -> str:
     """One frame as ``(t) CHANNEL ID#DATA :: NAME(Signal: value unit, ...)``."""
+    from northfinder.driver.protocol import DBC_NODE
     from northfinder.driver.protocol.can import split_can_id
 
     channel = msg.channel if msg.channel is not None else "can"
@@ -195,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
     import cantools
 
     live = bus_given(args)
-    if live == (args.log is not None):
+    if live == bool(args.log):
         raise HostConfigError("give a CAN log, or a bus with -i/-c (not both)")
     if live and args.session is not None:
         raise HostConfigError("--session applies to a CAN log")
@@ -207,15 +204,22 @@ def run(args: argparse.Namespace) -> int:
     wanted = _wanted_ids(db, args.ids)
     skipped: list[tuple[int, str]] = []
     cut: list[str] = []
+    gaps: list[str] = []
+    name = "bus"
     if live:
         frames: Iterable[Any] = _frames_of_bus(args)
     else:
-        from northfinder.host.canlog import read_frames
+        from northfinder.driver.framelog import expand_log_names
+        from northfinder.host.canlog import LogSet, read_frames
 
-        path = Path(args.log)
-        if not path.is_file():
-            raise RecordingError(f"{path}: no such file")
-        frames = read_frames(path, skip_damaged=not args.strict, skipped=skipped, cut=cut)
+        logs = LogSet(expand_log_names(args.log))
+        for path in logs.files:
+            if not path.is_file():
+                raise RecordingError(f"{path}: no such file")
+        name = logs.name
+        frames = read_frames(
+            logs.files, skip_damaged=not args.strict, skipped=skipped, cut=cut, gaps=gaps
+        )
     t0: float | None = None
     printed = 0
     out = sys.stdout
@@ -238,15 +242,17 @@ def run(args: argparse.Namespace) -> int:
                 break
     finally:
         out.flush()
+        for gap in gaps:
+            warn("dump", f"{name}: {gap}")
         if skipped:
             warn(
                 "dump",
-                f"{args.log}: skipped {len(skipped)} damaged line(s) (first: line "
+                f"{name}: skipped {len(skipped)} damaged line(s) (first: line "
                 f"{skipped[0][0]}, {skipped[0][1]})",
             )
         if not args.strict:
             for note in cut:
-                warn("dump", f"{args.log}: {note}")
-    if args.strict and cut:
-        raise RecordingError(f"{args.log}: {cut[0]}")
+                warn("dump", f"{name}: {note}")
+    if args.strict and (cut or gaps):
+        raise RecordingError(f"{name}: {(cut or gaps)[0]}")
     return 0

@@ -18,12 +18,14 @@ import numpy as np
 from northfinder.cli.common import (
     add_latitude_argument,
     add_link_arguments,
+    add_log_rotation,
     add_solver_argument,
     add_truth_arguments,
     angle_list,
     bounded_float,
     bus_given,
     can_log_path,
+    check_log_rotation,
     common_group,
     latitude_source,
     load_sensor,
@@ -37,7 +39,7 @@ from northfinder.cli.common import (
 from northfinder.cli.progress import progress_mode
 from northfinder.driver.device import Device
 from northfinder.driver.errors import DriverError
-from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
+from northfinder.driver.framelog import FrameLog
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG
@@ -85,8 +87,9 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         "--can-log",
         type=can_log_path,
         metavar="FILE",
-        help=f"log every frame to a CAN log, its format by the ending ({', '.join(LOG_SUFFIXES)})",
+        help="log every frame (.log, .asc, .blf, ...: by the ending)",
     )
+    add_log_rotation(g, "--can-log")
     g = common_group(p, "embedded simulator (--sim only)")
     g.add_argument(
         "--sim",
@@ -181,6 +184,7 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise HostConfigError(
             "choose exactly one device: -i/-c (python-can), --serial PORT, or --sim"
         )
+    check_log_rotation(args.can_log, args.can_log_rotate, "--can-log")
     if not args.sim:
         given = [name for name in SIM_ONLY if getattr(args, name, None) is not None]
         if given:
@@ -207,7 +211,8 @@ def open_device(
     with contextlib.ExitStack() as stack:
         tap = None
         if args.can_log:
-            tap = FrameLog(args.can_log)
+            max_bytes, max_seconds = args.can_log_rotate
+            tap = FrameLog(args.can_log, max_bytes=max_bytes, max_seconds=max_seconds)
             stack.push(functools.partial(_close_log, tap, deferred))
         if args.sim:
             with embedded_simulator(args, tap) as (device, truth):

@@ -19,12 +19,14 @@ import numpy as np
 
 from northfinder.cli.common import (
     add_link_arguments,
+    add_log_rotation,
     add_sensor_argument,
     add_truth_arguments,
     bounded_float,
     bounded_int,
     bus_given,
     can_log_path,
+    check_log_rotation,
     command_parser,
     load_sensor,
     open_can_bus,
@@ -116,6 +118,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="FILE",
         help=f"log every frame to a CAN log, its format by the ending ({', '.join(LOG_SUFFIXES)})",
     )
+    add_log_rotation(p, "--log")
     return p
 
 
@@ -138,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
         raise HostConfigError(
             "choose exactly one link: -i/-c (python-can), --serial PORT, --pty or --slcan-pty"
         )
+    check_log_rotation(args.log, args.log_rotate, "--log")
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr
     )
@@ -148,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
     closers: list[Callable[[], None]] = []
     frame_log = None
     if args.log:
-        frame_log = FrameLog(args.log)
+        max_bytes, max_seconds = args.log_rotate
+        frame_log = FrameLog(args.log, max_bytes=max_bytes, max_seconds=max_seconds)
         closers.append(frame_log.close)
     pty = None
     if args.pty or args.slcan_pty:

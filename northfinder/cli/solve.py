@@ -1,7 +1,8 @@
-"""``northfinder solve FILE``: solve a recording or a CAN log offline.
+"""``northfinder solve FILE [FILE ...]``: solve a recording or a CAN log offline.
 
 FILE is a recording of ``northfinder record`` (.csv, .npz) or a CAN log in a format python-can
-reads. A log carries no latitude: give ``--latitude``. From a log, damaged lines are skipped and
+reads; several files (or a quoted glob) are the parts of one rotated log, read in order. A log
+carries no latitude: give ``--latitude``. From a log, damaged lines are skipped and
 windows with samples missing left out, each with a warning (``--strict`` refuses such a log);
 ``--session N`` and ``--windows 1,2`` pick what to solve. Exit status 3: the windows failed their
 consistency check.
@@ -26,7 +27,8 @@ from northfinder.cli.common import (
     say,
     warn,
 )
-from northfinder.host.canlog import is_can_log, read_can_log
+from northfinder.driver.framelog import expand_log_names
+from northfinder.host.canlog import LogSet, is_can_log, read_can_log
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError, QualityError
 from northfinder.host.procedure import (
@@ -41,7 +43,11 @@ from northfinder.host.recording import Recording
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(sub, "solve", __doc__)
-    p.add_argument("file", help="recording (.csv, .npz) or CAN log (.log, .asc, .blf, ...)")
+    p.add_argument(
+        "file", nargs="+", metavar="FILE",
+        help="recording (.csv, .npz) or CAN log (.log, .asc, .blf, ...); several files or a "
+        "glob: the parts of a rotated log",
+    )  # fmt: skip
     p.add_argument(
         "--latitude",
         type=bounded_float(-90.0, 90.0, "deg"),
@@ -122,19 +128,30 @@ def solve_recording(
 
 
 def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
-    """The recording named by the arguments (read from a CAN log if it is one) and where it
-    came from."""
-    path = Path(args.file)
+    """The recording named by the arguments (read from a CAN log if it is one, from its parts
+    if several) and where it came from."""
+    names = expand_log_names(args.file)
+    path = Path(names[0])
     source: dict[str, Any]
+    if len(names) > 1 and not all(is_can_log(n) for n in names):
+        other = next(n for n in names if not is_can_log(n))
+        raise HostConfigError(
+            f"{other}: several files are the parts of one CAN log; a recording is solved alone"
+        )
     if is_can_log(path):
+        logs = LogSet(names)
+        path = Path(logs.name)
         session = read_can_log(
-            path, node_id=args.node_id, window_s=args.window, skip_damaged=not args.strict,
+            logs.files, node_id=args.node_id, window_s=args.window, skip_damaged=not args.strict,
             session=args.session, windows=args.windows, min_windows=1,
         )  # fmt: skip
-        if args.strict and session.incomplete:
-            raise QualityError(f"{path}: " + "; ".join(session.incomplete))
+        if args.strict and (session.incomplete or session.part_gaps):
+            raise QualityError(f"{path}: " + "; ".join(session.incomplete or session.part_gaps))
         complete = session.complete()
-        warned = [n for n in session.notes if n in session.incomplete or n.startswith("skipped ")]
+        warned = [
+            n for n in session.notes
+            if n in session.incomplete or n in session.part_gaps or n.startswith("skipped ")
+        ]  # fmt: skip
         for note in warned:
             warn("solve", f"{path}: {note}")
         if len(complete.windows) < len(session.windows):
@@ -151,6 +168,7 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
             )
         source = {
             "file": str(path), "format": "can-log", "node_id": session.node_id,
+            **({"parts": [str(f) for f in logs.files]} if len(logs.files) > 1 else {}),
             "frames": session.frames, "sample_rate_hz": session.sample_rate_hz,
             "window_s": args.window, "notes": list(session.notes),
             "session": session.session, "sessions": [list(s) for s in session.sessions],

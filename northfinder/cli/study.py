@@ -1,8 +1,10 @@
 """``northfinder study``: Monte Carlo accuracy of a north-finding plan, and a planner.
 
 Study mode solves N seeded simulated runs and reports the azimuth bias and RMSE beside the
-white-noise bound of the same plan; planning mode (``--plan-budget`` or ``--plan-target``) lists
-the plans with the smallest predicted error. The results for a seed are the same wherever they run.
+white-noise bound of the same plan (a spin with ``--spin RATE``); planning mode
+(``--plan-budget`` or ``--plan-target``) lists the plans with the smallest predicted error, and
+``--plan-budget`` sets the best spins beside the best stop-and-go plans. The results for a seed
+are the same wherever they run.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from concurrent.futures import Executor
 from dataclasses import replace
 from typing import Any
 
+from northfinder.cli import spinfind
 from northfinder.cli.common import (
     EXIT_RUNTIME,
     add_execution_arguments,
@@ -51,10 +54,18 @@ from northfinder.host.plan import (
     PLANS,
     SOLVERS,
     Plan,
+    SpinPlan,
     plan_time_s,
     settle_time_s,
+    spin_ramp_s,
 )
-from northfinder.host.plan_search import PlanCandidate, search_plans, shortest_plan
+from northfinder.host.plan_search import (
+    PlanCandidate,
+    SpinCandidate,
+    search_plans,
+    search_spin_plans,
+    shortest_plan,
+)
 from northfinder.host.results import envelope
 from northfinder.simwindows import SimulatedWindows, error_model, simulator_identity
 
@@ -131,6 +142,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--rate", type=bounded_float(0.0, MAX_RATE_HZ, "Hz", open_lo=True), default=200.0,
         help=f"sample rate, Hz, up to {MAX_RATE_HZ:g} (200)",
     )  # fmt: skip
+    spinfind.add_arguments(p)
     g = p.add_argument_group("processing")
     g.add_argument(
         "--denoise",
@@ -223,6 +235,38 @@ def _processing(args: argparse.Namespace, plan: Plan) -> Plan:
     )
 
 
+#: The stop-and-go options and their defaults (refused with ``--spin`` when changed).
+STOP_AND_GO_DEFAULTS: dict[str, Any] = {
+    "positions": None, "named_plan": None, "window": None, "settle": None, "denoise": "none",
+    "solver": "auto", "denoise_options": [], "denoise_accel": False, "angles": "encoder",
+    "plot": None, "sweep": None,
+}  # fmt: skip
+
+
+def _check_spin(args: argparse.Namespace) -> None:
+    """Refuse what a spin study does not use (it would be ignored)."""
+    if args.spin is None:
+        for name in ("spin_time", "spin_drift"):
+            if getattr(args, name):
+                raise HostConfigError(f"--{name.replace('_', '-')}: needs --spin RATE_DPS")
+        return
+    if args.plan_budget is not None or args.plan_target is not None:
+        raise HostConfigError(
+            "--spin: give it without --plan-budget or --plan-target (the budget search tries "
+            "spins by itself)"
+        )
+    for name, default in STOP_AND_GO_DEFAULTS.items():
+        if getattr(args, name) != default:
+            option = "plan" if name == "named_plan" else name.replace("_", "-")
+            raise HostConfigError(
+                f"--{option}: a stop-and-go plan option; with --spin the table turns instead"
+            )
+
+
+def _spin_plan(args: argparse.Namespace) -> SpinPlan:
+    return SpinPlan(args.spin, spinfind.spin_seconds(args), args.spin_drift)
+
+
 def _plan(args: argparse.Namespace) -> Plan:
     if args.named_plan and args.positions:
         raise HostConfigError("give either --plan or --positions, not both")
@@ -252,8 +296,20 @@ def _settings(args: argparse.Namespace, latitude_deg: float) -> StudySettings:
     )
 
 
-def _plan_json(plan: Plan, model: ErrorModel, warmup_s: float) -> dict[str, Any]:
+def _plan_json(plan: Plan | SpinPlan, model: ErrorModel, warmup_s: float) -> dict[str, Any]:
     t = plan_time_s(plan, model.table)
+    if isinstance(plan, SpinPlan):
+        return {
+            "kind": "spin",
+            "rate_dps": plan.rate_dps,
+            "spin_s": plan.spin_s,
+            "turns": plan.turns,
+            "drift": plan.drift,
+            "ramp_s": spin_ramp_s(plan, model.table),
+            "plan_time_s": t,
+            "warmup_s": warmup_s,
+            "total_time_s": t + warmup_s,
+        }
     return {
         "positions_deg": list(plan.positions_deg),
         "window_s": plan.window_s,
@@ -264,26 +320,36 @@ def _plan_json(plan: Plan, model: ErrorModel, warmup_s: float) -> dict[str, Any]
     }
 
 
-def _candidate_json(c: PlanCandidate, model: ErrorModel, warmup_s: float) -> dict[str, Any]:
-    return {
+def _candidate_json(
+    c: PlanCandidate | SpinCandidate, model: ErrorModel, warmup_s: float
+) -> dict[str, Any]:
+    out = {
         **_plan_json(c.plan, model, warmup_s),
         "predicted_deg": c.sigma_deg,
         "bound_deg": c.prediction.bound_deg,
         "predicted_parts_deg": c.prediction.parts_deg,
-        "allan_limited": c.allan_limited,
     }
+    if isinstance(c, PlanCandidate):
+        out["allan_limited"] = c.allan_limited
+    return out
+
+
+def _row_label(r: dict[str, Any]) -> str:
+    if "rate_dps" in r:
+        return f"{r['rate_dps']:+g} deg/s"
+    if "mu_deg" in r:
+        return f"{r['mu_deg']:g}"
+    return ",".join(f"{p:g}" for p in r["positions_deg"])
 
 
 def _print_rows(rows: list[dict[str, Any]]) -> None:
-    first = "mu deg" if "mu_deg" in rows[0] else "positions"
+    first = "mu deg" if "mu_deg" in rows[0] else "spin" if "rate_dps" in rows[0] else "positions"
     say(
         f"{first:>14} {'bias deg':>10} {'RMSE deg':>10} {'+-':>6} {'bound deg':>10} "
         f"{'RMSE/bound':>10} {'predicted':>10}"
     )
     for r in rows:
-        label = (
-            f"{r['mu_deg']:g}" if "mu_deg" in r else ",".join(f"{p:g}" for p in r["positions_deg"])
-        )
+        label = _row_label(r)
         say(
             f"{label:>14} {r['bias_deg']:10.4f} {r['rmse_deg']:10.4f} "
             f"{100 * r['rmse_rel_se']:5.1f}% {r['bound_deg']:10.4f} {r['ratio']:10.3f} "
@@ -308,6 +374,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         "latitude_deg": args.latitude,
     }
     best_plan: Plan | None = None
+    best_spin: SpinPlan | None = None
     if args.plan_budget is not None:
         cands = search_plans(model, args.latitude, args.plan_budget, **common)
         report["budget_s"] = args.plan_budget
@@ -317,6 +384,14 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
         )
         report["plans"] = [_candidate_json(c, model, args.warmup) for c in cands[: args.top]]
         best_plan = cands[0].plan if cands else None
+        spins: list[SpinCandidate] = []
+        if args.angles == "encoder":  # a spin reads the encoder at every sample
+            spins = search_spin_plans(
+                model, args.latitude, args.plan_budget,
+                **{k: v for k, v in common.items() if k != "settle_s"},
+            )  # fmt: skip
+        report["spin_plans"] = [_candidate_json(c, model, args.warmup) for c in spins[: args.top]]
+        best_spin = spins[0].plan if spins else None
     else:
         cand = shortest_plan(model, args.latitude, args.plan_target, **common)
         report["target_deg"] = args.plan_target
@@ -343,6 +418,22 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
             "runs": args.runs,
             "wall_time_s": time.perf_counter() - t0,
         }
+    if best_spin is not None and args.runs > 0:
+        t0 = time.perf_counter()
+        with study_executor(args) as executor, _progress(args) as bar:
+            bar.step("Monte Carlo of the best spin")
+            errors = monte_carlo(
+                SimulatedWindows(spec), best_spin, settings, args.runs, args.seed,
+                executor=executor, progress=bar.count,
+            )  # fmt: skip
+        report["verified_spin"] = {
+            **_plan_json(best_spin, model, args.warmup),
+            **study_rows(model, best_spin, settings, errors)[0],
+            "runs": args.runs,
+            "wall_time_s": time.perf_counter() - t0,
+        }
+    if args.plan_budget is not None:
+        report["best"] = _best_of_budget(report)
     what = (
         f"plan time <= {args.plan_budget:g} s"
         if args.plan_budget is not None
@@ -350,7 +441,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
     )
     # No feasible plan is a failed search (exit 1), said on stderr; --json still prints the
     # (empty) result on stdout.
-    failed = not report["plans"]
+    failed = not report["plans"] and not report.get("spin_plans")
     if failed:
         say(
             f"northfinder study: error: no plan reaches {what} (within 4 h, or the budget "
@@ -368,6 +459,74 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
     say(f"sensor {spec.name}, latitude {args.latitude:g} deg: plans for {what}{bound}")
     if failed:
         return EXIT_RUNTIME
+    if report["plans"]:
+        _print_stop_and_go(args, report)
+    if args.plan_budget is not None:
+        _print_spins(report)
+    return 0
+
+
+def _best_of_budget(report: dict[str, Any]) -> dict[str, Any]:
+    """The best stop-and-go plan, the best spin and the better of the two (by the Monte Carlo
+    when both were simulated, else by the prediction)."""
+    out: dict[str, Any] = {"stop_and_go": None, "spin": None, "overall": None, "judged_by": None}
+    scores = {}
+    for kind, plans, verified in (
+        ("stop_and_go", report["plans"], report.get("verified")),
+        ("spin", report["spin_plans"], report.get("verified_spin")),
+    ):
+        if plans:
+            out[kind] = {
+                **{k: v for k, v in plans[0].items() if k != "predicted_parts_deg"},
+                "rmse_deg": None if verified is None else verified["rmse_deg"],
+            }
+            scores[kind] = (plans[0]["predicted_deg"], out[kind]["rmse_deg"])
+    if scores:
+        by_mc = all(rmse is not None for _, rmse in scores.values())
+        out["judged_by"] = "monte-carlo" if by_mc else "prediction"
+        out["overall"] = min(scores, key=lambda k: scores[k][1] if by_mc else scores[k][0])
+    return out
+
+
+def _print_spins(report: dict[str, Any]) -> None:
+    if report["spin_plans"]:
+        say(
+            f"{'spins (ramps counted)':>34} {'spin s':>9} {'plan s':>8} {'predicted deg':>14} "
+            f"{'bound deg':>10}  note"
+        )
+        for c in report["spin_plans"]:
+            label = f"{c['rate_dps']:+g} deg/s, {c['turns']:.2f} turns"
+            say(
+                f"{label:>34} {c['spin_s']:9.1f} {c['plan_time_s']:8.1f} "
+                f"{c['predicted_deg']:14.4f} {c['bound_deg']:10.4f}  "
+                + ("drift fitted" if c["drift"] else "")
+            )
+    if "verified_spin" in report:
+        v = report["verified_spin"]
+        say(
+            f"Monte Carlo of the first spin ({v['runs']} runs, {v['rate_dps']:+g} deg/s for "
+            f"{v['spin_s']:.1f} s, plan {v['plan_time_s']:.1f} s): RMSE {v['rmse_deg']:.4f} deg "
+            f"(+-{100 * v['rmse_rel_se']:.1f}%), bound {v['bound_deg']:.4f}, ratio {v['ratio']:.3f}"
+        )
+    best = report["best"]
+    if best["overall"] is not None:
+        names = {"stop_and_go": "stop-and-go", "spin": "spin"}
+        parts = []
+        for kind in ("stop_and_go", "spin"):
+            b = best[kind]
+            if b is None:
+                parts.append(f"no {names[kind]} plan fits")
+                continue
+            mc = "" if b["rmse_deg"] is None else f", Monte Carlo {b['rmse_deg']:.4f}"
+            parts.append(f"best {names[kind]} predicted {b['predicted_deg']:.4f} deg{mc}")
+        say(
+            "; ".join(parts)
+            + f". Best overall: {names[best['overall']]} (by the {best['judged_by']}); physical "
+            f"bound of the budget {report['budget_bound_deg']:.4f} deg"
+        )
+
+
+def _print_stop_and_go(args: argparse.Namespace, report: dict[str, Any]) -> None:
     say(
         f"{'positions':>34} {'window s':>9} {'plan s':>8} {'predicted deg':>14} "
         f"{'bound deg':>10}  note"
@@ -387,7 +546,6 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
             f"(+-{100 * v['rmse_rel_se']:.1f}%), bound {v['bound_deg']:.4f}, ratio {v['ratio']:.3f}"
             + ("" if args.plan_target is None else f", meets target: {v['meets_target']}")
         )
-    return 0
 
 
 def _sweep(
@@ -466,6 +624,56 @@ def _check_early(args: argparse.Namespace) -> None:
         check_denoise(args.denoise, options, n, "--denoise-option")
 
 
+def _run_spin(
+    args: argparse.Namespace, spec: SensorSpec, model: ErrorModel, settings: StudySettings
+) -> int:
+    """``study --spin RATE``: the Monte Carlo of a spin beside its bound and prediction."""
+    plan = _spin_plan(args)
+    plan_json = _plan_json(plan, model, args.warmup)  # checks the rate against the table
+    with study_executor(args) as executor, _progress(args) as bar:
+        t0 = time.perf_counter()
+        errors = monte_carlo(
+            SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor,
+            progress=bar.count,
+        )  # fmt: skip
+        wall = time.perf_counter() - t0
+    rows = study_rows(model, plan, settings, errors)
+    report: dict[str, Any] = {
+        "kind": "monte-carlo",
+        "sensor": spec.name,
+        "latitude_deg": args.latitude,
+        "plan": plan_json,
+        "solver": "spin",
+        "tilt": args.tilt,
+        "runs": args.runs,
+        "seed": args.seed,
+        "results": rows,
+        "wall_time_s": wall,
+    }
+    if args.json:
+        say(dumps(envelope("study", simulator_identity(spec.name), report)))
+        return 0
+    say(
+        f"sensor {spec.name}, latitude {args.latitude:g} deg, spin {plan.rate_dps:+g} deg/s for "
+        f"{plan.spin_s:g} s ({plan.turns:.2f} turns), drift "
+        f"{'fitted' if plan.drift else 'not fitted'}, tilt {args.tilt}, {args.runs} runs "
+        f"(seed {args.seed})"
+    )
+    say(
+        f"plan time {plan_json['plan_time_s']:.1f} s (ramps to the rate and back, "
+        f"{plan_json['ramp_s']:.2f} s each; {plan_json['total_time_s']:.1f} s with "
+        f"{args.warmup:g} s warm-up); Monte Carlo {wall:.2f} s"
+    )
+    _print_rows(rows)
+    if rows[0]["rejected"]:
+        say(
+            f"{rows[0]['rejected']} of {args.runs} runs had no solution (tilt beyond "
+            f"+-{MAX_TILT_DEG:g} deg or a fit that did not converge); the statistics are over "
+            "the others"
+        )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     _check_early(args)
     spec = _load(args)
@@ -474,10 +682,13 @@ def run(args: argparse.Namespace) -> int:
         raise HostConfigError("give either --plan-budget or --plan-target, not both")
     if args.runs < 0 or (args.runs < 2 and args.plan_budget is None and args.plan_target is None):
         raise HostConfigError(f"--runs: need at least 2 runs for statistics, got {args.runs}")
+    _check_spin(args)
     if args.plan_budget is not None or args.plan_target is not None:
         return _run_planner(args, spec, settings)
-    plan = _plan(args)
     model = error_model(spec)
+    if args.spin is not None:
+        return _run_spin(args, spec, model, settings)
+    plan = _plan(args)
     with study_executor(args) as executor, _progress(args) as bar:
         t0 = time.perf_counter()
         errors = monte_carlo(

@@ -454,25 +454,30 @@ class MonitorApp(App[int]):
 
         self.run_worker(work, thread=True, group="commands", name=label)
 
-    def action_rotate_to(self) -> None:
+    def _move_asked(self, prompt: str, label: str, move: Any) -> None:
+        """Ask for an angle (``prompt``), then run ``move(device, angle)`` as :meth:`_command`."""
         if self._active() is None:
             return
 
         def go(angle: float | None) -> None:
             if angle is not None:
-                self._command("rotate to", lambda d: d.rotate_to(angle, wait=False))
+                self._command(label, lambda d: move(d, angle))
 
-        self.push_screen(AskAngle("Rotate the table to (deg, encoder):"), go)
+        self.push_screen(AskAngle(prompt), go)
+
+    def action_rotate_to(self) -> None:
+        self._move_asked(
+            "Rotate the table to (deg, encoder):",
+            "rotate to",
+            lambda d, angle: d.rotate_to(angle, wait=False),
+        )
 
     def action_rotate_by(self) -> None:
-        if self._active() is None:
-            return
-
-        def go(delta: float | None) -> None:
-            if delta is not None:
-                self._command("rotate by", lambda d: d.rotate_by(delta, wait=False))
-
-        self.push_screen(AskAngle("Rotate the table by (deg, + counter-clockwise):"), go)
+        self._move_asked(
+            "Rotate the table by (deg, + counter-clockwise):",
+            "rotate by",
+            lambda d, delta: d.rotate_by(delta, wait=False),
+        )
 
     def action_stop(self) -> None:
         self._command("stop", lambda d: d.stop())

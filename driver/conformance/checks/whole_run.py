@@ -9,11 +9,9 @@ from northfinder.driver.conformance.core import Ctx, check
 from northfinder.driver.protocol.constants import REPLY_DEADLINE_MS, Opcode
 
 
-@check(
-    "timing.reply",
-    "every reply within the reply limit (host-measured; the unit's deadline is 20 ms) (6)",
-)
+@check("timing.reply")
 def timing_reply(c: Ctx) -> None:
+    """every reply within the reply limit (host-measured; the unit's deadline is 20 ms) (6)"""
     answers = [a for a in c.s.answers if a.opcode != Opcode.SELF_TEST]
     lat = sorted(c.ms(a.latency) for a in answers if a.latency is not None)
     missing = [a for a in answers if a.reply is None and a.opcode != Opcode.RESET]
@@ -54,11 +52,10 @@ def timing_reply(c: Ctx) -> None:
         c.late(text, a.sent, now, now - a.sent - c.reply_limit_wall)
 
 
-@check(
-    "link.integrity",
-    "over the whole run: every frame from the unit decodes, no reply without a command, no serial frame lost (2, 8, 9)",
-)
+@check("link.integrity")
 def link_integrity(c: Ctx) -> None:
+    """over the whole run: every frame from the unit decodes, no reply without a command, no serial
+    frame lost (2, 8, 9)"""
     s = c.s
     c.fig("link errors", len(s.link_errors))
     c.fig("unanswered replies", len(s.unsolicited))
