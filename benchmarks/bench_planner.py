@@ -23,7 +23,7 @@ import time
 from northfinder.firmware_sim.sensors import load_spec, preset_names
 from northfinder.host.accuracy import budget_bound_deg
 from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
-from northfinder.host.plan import PAPER_SWEEP
+from northfinder.host.plan import PAPER_SWEEP, SpinPlan
 from northfinder.host.plan_search import search_plans, search_spin_plans
 from northfinder.simwindows import SimulatedWindows, error_model
 
@@ -121,7 +121,7 @@ def compare_table(runs: int, seed: int) -> None:
                 label = (
                     f"{plan.rate_dps:+g} deg/s x {plan.spin_s:.1f} s"
                     + (", drift" if plan.drift else "")
-                    if kind == "spin"
+                    if isinstance(plan, SpinPlan)
                     else f"{plan.label()} x {plan.window_s:.1f} s"
                 )
                 cells += [

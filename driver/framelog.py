@@ -33,6 +33,7 @@ incomplete.
 
 from __future__ import annotations
 
+import copy
 import glob
 import itertools
 import os
@@ -326,21 +327,8 @@ class FrameLog:
             stamp = self._epoch + clock.now()
         else:
             stamp = msg.timestamp or time.time()
-        msg = can.Message(
-            timestamp=stamp,
-            arbitration_id=msg.arbitration_id,
-            is_extended_id=msg.is_extended_id,
-            is_remote_frame=msg.is_remote_frame,
-            is_error_frame=msg.is_error_frame,
-            channel=self.channel,
-            dlc=msg.dlc,
-            data=msg.data,
-            is_fd=msg.is_fd,
-            is_rx=msg.is_rx,
-            bitrate_switch=msg.bitrate_switch,
-            error_state_indicator=msg.error_state_indicator,
-            check=False,
-        )
+        msg = copy.copy(msg)  # the caller's frame keeps its own stamp and channel
+        msg.timestamp, msg.channel = stamp, self.channel
         with self._lock:
             if self._closed or self.error is not None:
                 self.lost += 1

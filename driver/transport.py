@@ -271,7 +271,24 @@ def _virtual_batch(bus: VirtualBus) -> Callable[[int], list[can.Message]]:
     return take
 
 
-class CanTransport:
+class _Releasing:
+    """A transport's ``close``: the bus or port it was given is released once, and only if the
+    transport owns it (``_release``, set by the transport: None when it does not)."""
+
+    _release: Callable[[], object] | None = None
+    _closed = False
+
+    def close(self) -> None:
+        """Release the bus (``shutdown``) or the port (``close``) if this transport owns it
+        (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._release is not None:
+            self._release()
+
+
+class CanTransport(_Releasing):
     """The protocol on a python-can bus, for one node.
 
     Parameters
@@ -301,13 +318,13 @@ class CanTransport:
         self.tap = tap
         self.node_id = node_id
         self.own_bus = own_bus
+        self._release = bus.shutdown if own_bus else None
         self.receiver = CanReceiver(node_id=node_id)
         self.rcvbuf = enlarge_receive_buffer(bus)
         self.garbled = 0  # SLCAN lines that did not parse (frame errors)
         self._take = frame_batch(bus, self._garbled)
         self._send_lock = threading.Lock()
         self._rx_lock = threading.RLock()
-        self._closed = False
 
     def send(self, command: Command) -> None:
         """Send one command (one frame).
@@ -400,14 +417,6 @@ class CanTransport:
             "duplicates": r.ticks.duplicates,
         }
 
-    def close(self) -> None:
-        """Shut the bus down if this transport owns it (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        if self.own_bus:
-            self.bus.shutdown()
-
     def _name(self) -> str:
         return str(getattr(self.bus, "channel_info", type(self.bus).__name__))
 
@@ -441,7 +450,7 @@ def open_serial_port(
     return port
 
 
-class SerialTransport:
+class SerialTransport(_Releasing):
     """The protocol's binary frames on a serial port (pyserial ``Serial`` or URL handler).
 
     Lost frames show in the frame sequence counter (:class:`Deframer`), lost samples in the
@@ -474,6 +483,7 @@ class SerialTransport:
         self.tap = tap
         self.tap_node_id = tap_node_id
         self.own_port = own_port
+        self._release = port.close if own_port else None
         self.deframer = Deframer()
         self.encoder = SerialEncoder()
         self._send_lock = threading.Lock()
@@ -482,7 +492,10 @@ class SerialTransport:
         self.ticks_lost = 0
         self.counter_restarts = 0
         self.samples = 0
-        self._closed = False
+        #: Bytes read, and bytes read since the last frame that parsed: bytes that keep arriving
+        #: while no frame parses are a line at another baud rate or another protocol.
+        self.bytes_received = 0
+        self.bytes_unparsed = 0
 
     def send(self, command: Command) -> None:
         """Send one command frame.
@@ -540,7 +553,14 @@ class SerialTransport:
 
     def _decode(self, data: bytes) -> list[Received]:
         out: list[Received] = []
-        for frame in self.deframer.feed(data):
+        self.bytes_received += len(data)
+        parsed = self.deframer.frames
+        frames = self.deframer.feed(data)
+        if self.deframer.frames > parsed:
+            self.bytes_unparsed = 0
+        else:
+            self.bytes_unparsed += len(data)
+        for frame in frames:
             try:
                 message = decode_payload(frame.msg_type, frame.payload)
             except ProtocolError as exc:
@@ -589,12 +609,6 @@ class SerialTransport:
             "ticks_lost": self.ticks_lost,
             "ticks_incomplete": 0,
             "duplicates": 0,
+            "bytes_received": self.bytes_received,
+            "bytes_unparsed": self.bytes_unparsed,
         }
-
-    def close(self) -> None:
-        """Close the port if this transport owns it (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        if self.own_port:
-            self.port.close()

@@ -429,11 +429,7 @@ class Firmware:
         tt = np.asarray(times, dtype=float)
         angles = _angle_counts_array(table.encoder(table.state(tt)[0])).tolist()
         temperatures = _temperature_counts_array(self.instrument.temperature(tt)).tolist()
-        rx, tx, rejected = (
-            self.rx_malformed & 0xFFFF,
-            self.tx_dropped & 0xFF,
-            self.cmd_rejected & 0xFF,
-        )
+        rx, tx, rejected = self._wrapped_counters()
         return [
             Status(
                 state=self.state_at(t),
@@ -449,6 +445,11 @@ class Firmware:
                 times, sample_counters, angles, temperatures, strict=True
             )
         ]
+
+    def _wrapped_counters(self) -> tuple[int, int, int]:
+        """``rx_malformed``, ``tx_dropped`` and ``cmd_rejected`` as a status carries them: wrapped
+        to their fields' widths (u16, u8, u8; protocol.md 4.6)."""
+        return self.rx_malformed & 0xFFFF, self.tx_dropped & 0xFF, self.cmd_rejected & 0xFF
 
     def note_malformed(self) -> None:
         """A frame addressed to the device could not be decoded at all: count it, nothing else."""
@@ -672,11 +673,7 @@ class Firmware:
         if not any(isinstance(o.message, Status) for o in out):
             return out
         # Counters are the link's, not the computation's: a status carries their values when sent.
-        rx, tx, rejected = (
-            self.rx_malformed & 0xFFFF,
-            self.tx_dropped & 0xFF,
-            self.cmd_rejected & 0xFF,
-        )
+        rx, tx, rejected = self._wrapped_counters()
         return [
             Outgoing(
                 o.time_s,

@@ -49,7 +49,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from northfinder.driver.protocol.units import DPH, DPS, G0, OMEGA_IE, UG, normal_gravity
+from northfinder.driver.protocol.units import (
+    DPH,
+    DPS,
+    G0,
+    OMEGA_IE,
+    UG,
+    finite_float,
+    normal_gravity,
+)
 from northfinder.host.accuracy import bound_deg
 from northfinder.host.errors import GeometryError, HostConfigError, InputError, TiltError
 from northfinder.host.kernels import (
@@ -235,12 +243,7 @@ def _noise(
 
 
 def _check_mu(mu_deg: float, name: str = "mu_deg") -> float:
-    try:
-        mu = float(mu_deg)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{name}: must be a number, got {mu_deg!r}") from exc
-    if not math.isfinite(mu):
-        raise InputError(f"{name}: must be finite, got {mu}")
+    mu = finite_float(mu_deg, InputError, name)
     wrapped = mu % 360.0
     separation = min(wrapped, 360.0 - wrapped)
     if separation < MIN_MU_SEPARATION_DEG:

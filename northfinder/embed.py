@@ -91,16 +91,35 @@ class _DeviceEndBus(VirtualBus):
     python-can's virtual bus gives every receiver a deep copy of each message sent, in case a
     receiver changes it; that copy costs more than the rest of a frame's journey. The device
     builds a new message for every frame and never touches it again, and receivers only read
-    them, so this end hands every receiver on the channel the same message (stamped once), and
-    hands over all the frames of one sending (:meth:`send_many`) under one lock per receiver.
+    them, so this end hands every receiver on the channel the same message (stamped once).
     Receivers are ordinary ``virtual`` buses on the same channel.
+
+    Noted 2026-12-04: python-can (4.6.1) has no public way to hand a message to the other
+    receivers of a virtual channel without that copy: ``VirtualBus.send`` deep-copies it for
+    every receiver. The review of hardbyte/python-can#779 (which added ``is_rx`` there) holds
+    that a message should be seen as immutable and that one instance was shared for
+    performance. So this end reads the bus's ``channel`` (the receivers' queues) and ``queue``
+    (its own), attributes of ``VirtualBus`` without a leading underscore but not documented, and
+    uses only the public API of :class:`queue.Queue` on them.
     """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self._ended = False
+        super().__init__(*args, **kwargs)
+
+    def shutdown(self) -> None:
+        self._ended = True
+        super().shutdown()
+
+    def _refuse_if_ended(self) -> None:
+        if self._ended:
+            raise can.CanOperationError("Cannot operate on a closed bus")
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """python-can's ``recv``, which returns at once when nothing waits and no wait is asked
         (the device polls at every instant of a virtual clock)."""
-        if timeout == 0 and not self.queue.queue:  # a look without the lock
-            self._check_if_open()
+        if timeout == 0 and self.queue.empty():
+            self._refuse_if_ended()
             return None
         return super().recv(timeout)
 
@@ -109,9 +128,9 @@ class _DeviceEndBus(VirtualBus):
             raise can.CanOperationError("Could not send message to one or more recipients")
 
     def send_many(self, msgs: list[can.Message], timeout: float | None = None) -> list[can.Message]:
-        """Send frames in order, handed to each receiver at once; return those that some
-        receiver could not take (its queue full)."""
-        self._check_if_open()
+        """Send frames in order, handed to each receiver; return those that some receiver could
+        not take (its queue full)."""
+        self._refuse_if_ended()
         stamp = time.time()
         for msg in msgs:
             msg.timestamp = stamp
@@ -120,12 +139,6 @@ class _DeviceEndBus(VirtualBus):
         dropped: list[can.Message] = []
         for bus_queue in self.channel:
             if bus_queue is self.queue:
-                continue
-            if bus_queue.maxsize <= 0:  # unbounded (python-can's default): all in one go
-                with bus_queue.mutex:
-                    bus_queue.queue.extend(msgs)
-                    bus_queue.unfinished_tasks += len(msgs)
-                    bus_queue.not_empty.notify_all()
                 continue
             for msg in msgs:
                 try:

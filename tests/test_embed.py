@@ -3,11 +3,16 @@ the wall clock or in virtual time."""
 
 from __future__ import annotations
 
+import ast
+import inspect
+import textwrap
 import time
 
+import can
 import numpy as np
 import pytest
 
+from northfinder import embed
 from northfinder.driver.clock import VirtualClock
 from northfinder.driver.errors import ReplyTimeout
 from northfinder.driver.protocol.constants import DeviceState
@@ -151,3 +156,44 @@ def test_pausing_a_virtual_simulator_is_a_silent_device_to_the_host():
         with sim.open_device() as again:  # and it answers again, its time continuing
             assert again.wait_ready().state == DeviceState.READY
             assert sim.firmware.now - frozen_at < 0.01
+
+
+# -- the device's end of a virtual channel ---------------------------------------------------------
+def test_the_device_end_of_a_virtual_channel_uses_python_can_s_public_api_only():
+    """No private attribute of python-can or of :class:`queue.Queue` (its lock, its deque), and
+    the attributes it does read without documentation are under a dated note naming the issue."""
+    source = inspect.getsource(embed._DeviceEndBus)
+    tree = ast.parse(textwrap.dedent(source))
+    own = {"_ended", "_refuse_if_ended"}
+    private = {
+        node.attr
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and node.attr not in own
+    }
+    assert not private - {"__init__"}, private
+    for internal in ("mutex", "not_empty", "unfinished_tasks", "queue.queue"):
+        assert internal not in source
+    assert "Noted 2026-12-04" in source and "python-can#779" in source
+
+
+def test_the_device_end_hands_every_receiver_the_frames_in_order_and_refuses_when_closed():
+    end = embed._DeviceEndBus(channel="device-end-test")
+    host = can.Bus(interface="virtual", channel="device-end-test")
+    small = can.Bus(interface="virtual", channel="device-end-test", rx_queue_size=1)
+    frames = [can.Message(arbitration_id=i, data=[i]) for i in range(3)]
+    try:
+        dropped = end.send_many(frames, timeout=0)
+        assert dropped == frames[1:]  # the one-frame queue took the first only
+        got = [host.recv(0) for _ in frames]
+        assert [m.arbitration_id for m in got if m is not None] == [0, 1, 2]
+        assert all(m is f and m.is_rx for m, f in zip(got, frames, strict=True))  # not copied
+        assert end.recv(0) is None  # no frame of its own
+        small.recv(0)
+    finally:
+        end.shutdown()
+        host.shutdown()
+        small.shutdown()
+    with pytest.raises(can.CanOperationError):
+        end.send_many(frames)
+    with pytest.raises(can.CanOperationError):
+        end.recv(0)

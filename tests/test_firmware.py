@@ -7,6 +7,7 @@ import math
 import can
 import numpy as np
 import pytest
+from lockstep import IDEAL, make, run
 
 from northfinder.driver.protocol import (
     ConfigKey,
@@ -40,25 +41,7 @@ from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import LockstepClock, Runner
 from northfinder.firmware_sim.sensors import load_spec
 
-IDEAL = load_spec("ideal")
 DPH = math.pi / 180 / 3600
-
-
-def make(warmup_s: float = 0.0, seed: int = 0, spec=IDEAL, **kw) -> Firmware:
-    return Firmware(
-        spec,
-        Truth(azimuth_deg=30.0, latitude_deg=34.0),
-        np.random.default_rng(seed),
-        warmup_s=warmup_s,
-        **kw,
-    )
-
-
-def run(fw: Firmware, seconds: float, step: float = 0.01) -> list:
-    out = []
-    for _ in range(round(seconds / step)):
-        out += [o.message for o in fw.process(step)]
-    return out
 
 
 def ask(fw: Firmware, command, seconds: float = 0.02) -> tuple[Reply, list]:

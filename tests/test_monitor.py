@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
+from typing import Any
 
 import can
 import pytest
@@ -31,6 +32,7 @@ from northfinder.driver.protocol.messages import (
     Reply,
     RotateTo,
     Sample,
+    Spin,
     Status,
     Validity,
 )
@@ -136,6 +138,40 @@ def test_observer_shows_the_target_while_the_table_moves():
     assert obs.view().target_deg is None
 
 
+def test_observer_names_spinning_and_measures_the_table_rate_on_the_units_own_time():
+    clock = StepClock()
+    obs = LinkObserver(clock)
+    obs.configured_rate_hz = 200
+    feed(obs, clock, status(0), 0.0)
+    feed(obs, clock, Spin(3, -6000), 0.05)
+    feed(obs, clock, Reply(3, Opcode.SPIN, Result.OK), 0.06)
+    # Heartbeats every 20 ticks (0.1 s of unit time) at -6 deg/s across 0 deg, read with 40 ms
+    # of arrival jitter: the rate comes from the counters, not from the arrivals.
+    angle = 2.0
+    for k in range(1, 16):
+        angle = (angle - 0.6) % 360.0
+        feed(obs, clock, status(20 * k, DeviceState.SPINNING, round(angle * 1e6)),
+             0.1 * k + (0.04 if k % 2 else 0.0))  # fmt: skip
+    obs.drain()
+    v = obs.view()
+    assert v.state == "SPINNING"
+    assert v.table_rate_dps == pytest.approx(-6.0, abs=1e-6)
+    assert v.spin_rate_dps == pytest.approx(-6.0)
+    assert "SPIN -6.000 deg/s -> OK in 10.0 ms" in [e.text for e in v.log]
+    assert "state READY -> SPINNING" in [e.text for e in v.log]
+    # At rest: no rate, the spin forgotten.
+    feed(obs, clock, status(400, DeviceState.READY, round(angle * 1e6)), 2.0)
+    obs.drain()
+    v = obs.view()
+    assert v.table_rate_dps is None and v.spin_rate_dps is None
+    # Without the sample rate the arrivals are the clock (here without jitter).
+    obs = LinkObserver(clock)
+    for k in range(12):
+        feed(obs, clock, status(k, DeviceState.ROTATING, round(10e6 * k * 0.1)), 5.0 + 0.1 * k)
+    obs.drain()
+    assert obs.view().table_rate_dps == pytest.approx(10.0, rel=1e-9)
+
+
 def test_observer_says_silent_after_three_heartbeats_without_status():
     clock = StepClock()
     obs = LinkObserver(clock, silent_after_s=0.0)
@@ -179,6 +215,16 @@ def simulated(*, warmup_s=0.0, seed=7, stream=True, sensor="paper-rlg"):
             session.close()
 
 
+@contextlib.asynccontextmanager
+async def on_screen(*, plan: Plan | None = None, size: tuple[int, int] = SIZE, **unit: Any):
+    """The monitor on a simulated unit (:func:`simulated`, given ``unit``), run headless:
+    ``(sim, session, app, pilot)``."""
+    with simulated(**unit) as (sim, session):
+        app = MonitorApp(session, refresh_hz=0, plan=plan)
+        async with app.run_test(size=size) as pilot:
+            yield sim, session, app, pilot
+
+
 def text(app, wid):
     return str(app.query_one(f"#{wid}", Static).content)
 
@@ -208,167 +254,169 @@ async def settle(app, pilot, sim, seconds=0.5):
 
 @sync
 async def test_the_main_screen_shows_the_unit_and_its_stream():
-    with simulated() as (sim, session):
-        app = MonitorApp(session, refresh_hz=0)
-        async with app.run_test(size=SIZE) as pilot:
-            await advance(app, pilot, sim, 3.0)
-            unit, stream = text(app, "unit"), text(app, "stream")
-            assert "NF-SIM #1" in unit and "READY" in unit
-            assert "truth    azimuth 42.000 deg" in unit
-            assert "rate      200.0 / 200 Hz" in stream
-            assert "gaps      0  lost 0" in stream
-            assert text(app, "banner").startswith("READY")
-            assert "received" in text(app, "link")
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 3.0)
+        unit, stream = text(app, "unit"), text(app, "stream")
+        assert "NF-SIM #1" in unit and "READY" in unit
+        assert "truth    azimuth 42.000 deg" in unit
+        assert "rate      200.0 / 200 Hz" in stream
+        assert "gaps      0  lost 0" in stream
+        assert text(app, "banner").startswith("READY")
+        assert "received" in text(app, "link")
 
 
 @sync
 async def test_keys_rotate_the_table_and_the_log_shows_command_and_reply():
-    with simulated() as (sim, session):
-        app = MonitorApp(session, refresh_hz=0)
-        async with app.run_test(size=SIZE) as pilot:
-            await advance(app, pilot, sim, 0.5)
-            await pilot.press("t")
-            await pilot.press("9", "0", "enter")
-            await settle(app, pilot, sim, 1.0)
-            assert "target     90.0000 deg" in text(app, "unit")
-            assert "ROTATE_TO 90.000 deg -> OK in" in log_text(app)
-            await advance(app, pilot, sim, 40.0)  # the table turns and settles
-            assert table_deg(app) == pytest.approx(90.0, abs=0.02)  # the encoder's indexing
-            await pilot.press("b")
-            await pilot.press("-", "3", "0", "enter")
-            await settle(app, pilot, sim, 30.0)
-            assert table_deg(app) == pytest.approx(60.0, abs=0.02)
-            assert "ROTATE_BY -30.000 deg -> OK" in log_text(app)
-            await pilot.press("h")
-            await settle(app, pilot, sim, 40.0)
-            assert table_deg(app) == pytest.approx(0.0, abs=0.02)
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("t")
+        await pilot.press("9", "0", "enter")
+        await settle(app, pilot, sim, 1.0)
+        assert "target     90.0000 deg" in text(app, "unit")
+        assert "ROTATE_TO 90.000 deg -> OK in" in log_text(app)
+        await advance(app, pilot, sim, 40.0)  # the table turns and settles
+        assert table_deg(app) == pytest.approx(90.0, abs=0.02)  # the encoder's indexing
+        await pilot.press("b")
+        await pilot.press("-", "3", "0", "enter")
+        await settle(app, pilot, sim, 30.0)
+        assert table_deg(app) == pytest.approx(60.0, abs=0.02)
+        assert "ROTATE_BY -30.000 deg -> OK" in log_text(app)
+        await pilot.press("h")
+        await settle(app, pilot, sim, 40.0)
+        assert table_deg(app) == pytest.approx(0.0, abs=0.02)
 
 
 @sync
 async def test_a_bad_angle_is_refused_in_the_question_and_escape_cancels():
-    with simulated() as (sim, session):
-        app = MonitorApp(session, refresh_hz=0)
-        async with app.run_test(size=SIZE) as pilot:
-            await pilot.press("t", "x", "enter")
-            assert "not an angle" in str(app.screen.query_one("#problem", Static).content)
-            await pilot.press("escape")
-            await settle(app, pilot, sim)
-            assert session.observer.commands == 10  # what opening and streaming sent, no more
-            assert "ROTATE" not in log_text(app)
+    async with on_screen() as (sim, session, app, pilot):
+        await pilot.press("t", "x", "enter")
+        assert "not an angle" in str(app.screen.query_one("#problem", Static).content)
+        await pilot.press("escape")
+        await settle(app, pilot, sim)
+        assert session.observer.commands == 10  # what opening and streaming sent, no more
+        assert "ROTATE" not in log_text(app)
 
 
 @sync
 async def test_stream_key_stops_and_starts_the_stream():
-    with simulated() as (sim, session):
-        app = MonitorApp(session, refresh_hz=0)
-        async with app.run_test(size=SIZE) as pilot:
-            await advance(app, pilot, sim, 1.0)
-            await pilot.press("o")
-            await settle(app, pilot, sim, 1.0)
-            assert "stream    off" in text(app, "stream")
-            assert "STREAM_STOP -> OK" in log_text(app)
-            n = session.observer.samples
-            await advance(app, pilot, sim, 1.0)
-            assert session.observer.samples == n
-            await pilot.press("o")
-            await settle(app, pilot, sim, 1.0)
-            assert "stream    on" in text(app, "stream")
-            assert session.observer.samples >= n + 190
-            assert "gaps      0  lost 0" in text(app, "stream")  # a stream off is no loss
+    async with on_screen() as (sim, session, app, pilot):
+        await advance(app, pilot, sim, 1.0)
+        await pilot.press("o")
+        await settle(app, pilot, sim, 1.0)
+        assert "stream    off" in text(app, "stream")
+        assert "STREAM_STOP -> OK" in log_text(app)
+        n = session.observer.samples
+        await advance(app, pilot, sim, 1.0)
+        assert session.observer.samples == n
+        await pilot.press("o")
+        await settle(app, pilot, sim, 1.0)
+        assert "stream    on" in text(app, "stream")
+        assert session.observer.samples >= n + 190
+        assert "gaps      0  lost 0" in text(app, "stream")  # a stream off is no loss
 
 
 @sync
 async def test_a_find_started_from_the_monitor_forms_its_heading():
     plan = Plan((0.0, 180.0, 180.0, 0.0), 5.0)
+    async with on_screen(plan=plan) as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("f")
+        await settle(app, pilot, sim, 0.5)
+        run = app.find_run
+        assert run is not None and run.finished and run.error is None
+        assert len(run.windows) == 4
+        # a heading after 2, 3 and 4 windows, each with its sigma
+        assert [s.windows for s in run.solutions] == [2, 3, 4]
+        r = run.result
+        assert r is not None and r.sigma_deg is not None
+        err = (r.azimuth_deg - TRUTH_DEG + 180.0) % 360.0 - 180.0
+        assert abs(err) < 4.0 * r.sigma_deg
+        find = text(app, "find")
+        assert f"azimuth {r.azimuth_deg:.3f}" in find and "truth   42.000" in find
+        assert "consistent" in find
+        assert "find: azimuth" in log_text(app)
+
+
+@sync
+async def test_a_spinning_table_is_named_with_its_rate():
     with simulated() as (sim, session):
-        app = MonitorApp(session, refresh_hz=0, plan=plan)
+        app = MonitorApp(session, refresh_hz=0)
         async with app.run_test(size=SIZE) as pilot:
             await advance(app, pilot, sim, 0.5)
-            await pilot.press("f")
-            await settle(app, pilot, sim, 0.5)
-            run = app.find_run
-            assert run is not None and run.finished and run.error is None
-            assert len(run.windows) == 4
-            # a heading after 2, 3 and 4 windows, each with its sigma
-            assert [s.windows for s in run.solutions] == [2, 3, 4]
-            r = run.result
-            assert r is not None and r.sigma_deg is not None
-            err = (r.azimuth_deg - TRUTH_DEG + 180.0) % 360.0 - 180.0
-            assert abs(err) < 4.0 * r.sigma_deg
-            find = text(app, "find")
-            assert f"azimuth {r.azimuth_deg:.3f}" in find and "truth   42.000" in find
-            assert "consistent" in find
-            assert "find: azimuth" in log_text(app)
+            session.require().spin(-6.0, wait=True)  # moves the virtual clock itself
+            await advance(app, pilot, sim, 3.0)
+            unit = text(app, "unit")
+            assert "SPINNING" in unit
+            assert "rate     -6.000 / -6.000 deg/s" in unit
+            assert text(app, "banner").startswith("SPINNING -6.000 deg/s")
+            assert "SPIN -6.000 deg/s -> OK" in log_text(app)
+            assert "state ROTATING -> SPINNING" in log_text(app)
+            session.require().stop(wait=True)
+            await advance(app, pilot, sim, 1.0)
+            unit = text(app, "unit")
+            assert "READY" in unit and "rate     ---" in unit
 
 
 @sync
 async def test_a_unit_in_fault_is_shown_and_reset_clears_it():
-    with simulated() as (sim, session):
-        app = MonitorApp(session, refresh_hz=0)
-        async with app.run_test(size=SIZE) as pilot:
-            with sim.runner.lock:
-                sim.firmware.stall_table(True)
-            await pilot.press("t", "9", "0", "enter")
-            await settle(app, pilot, sim, 60.0)
-            banner = text(app, "banner")
-            assert banner.startswith("FAULT: DRIVE") and "r resets" in banner
-            assert "-> FAULT (faults DRIVE)" in log_text(app)
-            with sim.runner.lock:
-                sim.firmware.stall_table(False)
-            await pilot.press("r")
-            await settle(app, pilot, sim, 2.0)
-            assert "RESET -> OK" in log_text(app)
-            assert not text(app, "banner").startswith("FAULT")
+    async with on_screen() as (sim, _session, app, pilot):
+        with sim.runner.lock:
+            sim.firmware.stall_table(True)
+        await pilot.press("t", "9", "0", "enter")
+        await settle(app, pilot, sim, 60.0)
+        banner = text(app, "banner")
+        assert banner.startswith("FAULT: DRIVE") and "r resets" in banner
+        assert "-> FAULT (faults DRIVE)" in log_text(app)
+        with sim.runner.lock:
+            sim.firmware.stall_table(False)
+        await pilot.press("r")
+        await settle(app, pilot, sim, 2.0)
+        assert "RESET -> OK" in log_text(app)
+        assert not text(app, "banner").startswith("FAULT")
 
 
 @sync
 async def test_a_silent_unit_is_shown_and_its_return_too():
-    with simulated() as (sim, session):
-        app = MonitorApp(session, refresh_hz=0)
-        async with app.run_test(size=SIZE) as pilot:
-            await advance(app, pilot, sim, 1.0)
-            with sim.runner.lock:
-                sim.firmware.faults.silent = True
-            await advance(app, pilot, sim, 2.0)
-            assert text(app, "banner").startswith("SILENT: no status for 2.0 s")
-            with sim.runner.lock:
-                sim.firmware.faults.silent = False
-            await advance(app, pilot, sim, 1.0)
-            assert text(app, "banner").startswith("READY")
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 1.0)
+        with sim.runner.lock:
+            sim.firmware.faults.silent = True
+        await advance(app, pilot, sim, 2.0)
+        assert text(app, "banner").startswith("SILENT: no status for 2.0 s")
+        with sim.runner.lock:
+            sim.firmware.faults.silent = False
+        await advance(app, pilot, sim, 1.0)
+        assert text(app, "banner").startswith("READY")
 
 
 @sync
 async def test_a_lost_link_is_reopened_and_said_so():
-    with simulated() as (sim, session):
-        app = MonitorApp(session, refresh_hz=0)
-        async with app.run_test(size=SIZE) as pilot:
-            await advance(app, pilot, sim, 0.5)
+    async with on_screen() as (sim, session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
 
-            def unplugged(timeout):
-                raise LinkLost("the adapter was unplugged")
+        def unplugged(timeout):
+            raise LinkLost("the adapter was unplugged")
 
-            session.require()._transport.recv = unplugged
-            await advance(app, pilot, sim, 0.1)
-            assert text(app, "banner").startswith("LINK LOST")
-            for _ in range(100):  # the session reopens in a thread, on the virtual clock
-                if session.connected:
-                    break
-                await advance(app, pilot, sim, 0.2)
-            assert session.connected
-            await advance(app, pilot, sim, 0.5)
-            assert text(app, "banner").startswith("READY")
-            assert "link back" in log_text(app)
+        session.require()._transport.recv = unplugged
+        await advance(app, pilot, sim, 0.1)
+        assert text(app, "banner").startswith("LINK LOST")
+        for _ in range(100):  # the session reopens in a thread, on the virtual clock
+            if session.connected:
+                break
+            await advance(app, pilot, sim, 0.2)
+        assert session.connected
+        await advance(app, pilot, sim, 0.5)
+        assert text(app, "banner").startswith("READY")
+        assert "link back" in log_text(app)
 
 
 @sync
 async def test_a_terminal_too_small_says_so():
-    with simulated(stream=False) as (_sim, session):
-        app = MonitorApp(session, refresh_hz=0)
-        async with app.run_test(size=(60, 20)) as pilot:
-            await pilot.pause()
-            assert "needs at least 100 x 30" in text(app, "toosmall")
-            assert app.query_one("#toosmall").display
-            assert not app.query_one("#top").display
+    async with on_screen(stream=False, size=(60, 20)) as (_sim, _session, app, pilot):
+        await pilot.pause()
+        assert "needs at least 100 x 30" in text(app, "toosmall")
+        assert app.query_one("#toosmall").display
+        assert not app.query_one("#top").display
 
 
 @sync
@@ -423,6 +471,19 @@ def test_snapshot_find_done(snap_compare):
 
         app = MonitorApp(session, refresh_hz=0, plan=plan)
         assert snap_compare(app, terminal_size=SIZE, run_before=before)
+
+
+def test_snapshot_spinning(snap_compare):
+    with simulated() as (sim, session):
+
+        async def before(pilot):
+            await advance(pilot.app, pilot, sim, 0.5)
+            session.require().spin(6.0, wait=True)
+            await advance(pilot.app, pilot, sim, 3.0)
+
+        assert snap_compare(
+            MonitorApp(session, refresh_hz=0), terminal_size=SIZE, run_before=before
+        )
 
 
 def test_snapshot_silent_unit(snap_compare):

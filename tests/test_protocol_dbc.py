@@ -56,6 +56,24 @@ _FAULT_SIGNALS = {
 }
 
 
+#: The signals of frames whose fields map one to one onto signals: signal -> field.
+_FIELD_SIGNALS: dict[type, dict[str, str]] = {
+    SampleAux: {"Tick": "tick", "TableAngle": "angle", "Temperature": "temperature"},
+    StatusMain: {"State": "state", "TableAngle": "angle", "Temperature": "temperature"},
+    StatusCounters: {
+        "SampleCounter": "sample_counter",
+        "RxMalformed": "rx_malformed",
+        "TxDropped": "tx_dropped",
+        "CmdRejected": "cmd_rejected",
+    },
+}
+#: Flag fields, one signal a bit: field and its bits' signals.
+_FLAG_SIGNALS: dict[type, tuple[str, Mapping[str, int]]] = {
+    SampleAux: ("validity", _VALIDITY_SIGNALS),
+    StatusMain: ("faults", _FAULT_SIGNALS),
+}
+
+
 @pytest.fixture(scope="module")
 def db() -> cantools.database.can.Database:
     loaded = cantools.database.load_file(str(DBC))
@@ -94,25 +112,12 @@ def expected_signals(part) -> dict[str, int]:
     if isinstance(part, SampleAxis):
         axis = part.axis.name
         return {"Tick": part.tick, f"Gyro{axis}": part.gyro, f"Accel{axis}": part.accel}
-    if isinstance(part, SampleAux):
-        return {
-            "Tick": part.tick,
-            "TableAngle": part.angle,
-            "Temperature": part.temperature,
-        } | _bits(part.validity, _VALIDITY_SIGNALS)
-    if isinstance(part, StatusMain):
-        return {
-            "State": part.state,
-            "TableAngle": part.angle,
-            "Temperature": part.temperature,
-        } | _bits(part.faults, _FAULT_SIGNALS)
-    if isinstance(part, StatusCounters):
-        return {
-            "SampleCounter": part.sample_counter,
-            "RxMalformed": part.rx_malformed,
-            "TxDropped": part.tx_dropped,
-            "CmdRejected": part.cmd_rejected,
-        }
+    if isinstance(part, SampleAux | StatusMain | StatusCounters):
+        sig = {name: getattr(part, field) for name, field in _FIELD_SIGNALS[type(part)].items()}
+        if type(part) in _FLAG_SIGNALS:
+            field, table = _FLAG_SIGNALS[type(part)]
+            sig |= _bits(getattr(part, field), table)
+        return sig
     if isinstance(part, IdentifyPage):
         return {"IdentPage": part.index, "IdentLastPage": part.last}
     raise AssertionError(part)

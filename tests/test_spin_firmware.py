@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from lockstep import IDEAL, make, run
 from numpy.testing import assert_allclose
 
 from northfinder.driver.protocol.constants import (
@@ -28,26 +29,7 @@ from northfinder.driver.protocol.messages import (
 )
 from northfinder.firmware_sim.firmware import Firmware
 from northfinder.firmware_sim.imu import Instrument, Truth
-from northfinder.firmware_sim.sensors import load_spec
 from northfinder.firmware_sim.turntable import Turntable
-
-IDEAL = load_spec("ideal")
-
-
-def make(warmup_s: float = 0.0, spec=IDEAL) -> Firmware:
-    return Firmware(
-        spec,
-        Truth(azimuth_deg=30.0, latitude_deg=34.0),
-        np.random.default_rng(0),
-        warmup_s=warmup_s,
-    )
-
-
-def run(fw: Firmware, seconds: float, step: float = 0.01) -> list:
-    out = []
-    for _ in range(round(seconds / step)):
-        out += [o.message for o in fw.process(step)]
-    return out
 
 
 def ask(fw: Firmware, command) -> Result:

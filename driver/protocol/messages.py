@@ -101,12 +101,21 @@ def _state(code: int) -> DeviceState:
 
 _COMMAND_TYPES: dict[int, type[Command]] = {}
 
+#: The range of a command argument by its ``struct`` code.
+_WIRE_RANGE: dict[str, tuple[int, int]] = {
+    "B": (0, 0xFF),
+    "I": (0, UINT32_MAX),
+    "i": (INT32_MIN, INT32_MAX),
+}
+
 
 @dataclass(frozen=True, slots=True)
 class Command:
     """Base of all commands: payload ``[u8 seq, u8 opcode, arguments...]``.
 
-    ``Command.decode`` returns the subclass named by the opcode. Subclasses set ``OPCODE``.
+    ``Command.decode`` returns the subclass named by the opcode. Subclasses set ``OPCODE`` and,
+    when the command has arguments, ``_FIELDS``: each argument's field name and its ``struct``
+    code, in wire order (protocol.md 4.1); the wire range follows from the code.
 
     Attributes
     ----------
@@ -116,11 +125,14 @@ class Command:
 
     seq: int
     OPCODE: ClassVar[Opcode]
+    _FIELDS: ClassVar[tuple[tuple[str, str], ...]] = ()
     _ARGS: ClassVar[struct.Struct | None] = None
 
     def __init_subclass__(cls) -> None:
         # No super(): slotted dataclasses are rebuilt, which breaks its implicit class cell.
         # The rebuilt class registers last, so the registry ends up holding it.
+        if cls._FIELDS:
+            cls._ARGS = struct.Struct("<" + "".join(code for _, code in cls._FIELDS))
         if "OPCODE" in cls.__dict__:
             _COMMAND_TYPES[cls.OPCODE] = cls
 
@@ -130,10 +142,11 @@ class Command:
         return self.OPCODE
 
     def _args(self) -> tuple[int, ...]:
-        return ()
+        return tuple(getattr(self, name) for name, _ in self._FIELDS)
 
     def _check_args(self) -> None:
-        pass
+        for name, code in self._FIELDS:
+            _check(name, getattr(self, name), *_WIRE_RANGE[code])
 
     def encode(self) -> bytes:
         """Payload bytes: seq, opcode, arguments (little-endian)."""
@@ -212,14 +225,7 @@ class RotateTo(Command):
     angle: int = 0
     direction: Direction = Direction.SHORTEST
     OPCODE: ClassVar[Opcode] = Opcode.ROTATE_TO
-    _ARGS: ClassVar[struct.Struct] = struct.Struct("<IB")
-
-    def _args(self) -> tuple[int, ...]:
-        return (self.angle, self.direction)
-
-    def _check_args(self) -> None:
-        _check("angle", self.angle, 0, UINT32_MAX)
-        _check("direction", int(self.direction), 0, 0xFF)
+    _FIELDS = (("angle", "I"), ("direction", "B"))
 
     @classmethod
     def _from_args(cls, seq: int, args: tuple[int, ...]) -> Self:
@@ -246,13 +252,7 @@ class RotateBy(Command):
 
     delta: int = 0
     OPCODE: ClassVar[Opcode] = Opcode.ROTATE_BY
-    _ARGS: ClassVar[struct.Struct] = struct.Struct("<i")
-
-    def _args(self) -> tuple[int, ...]:
-        return (self.delta,)
-
-    def _check_args(self) -> None:
-        _check("delta", self.delta, INT32_MIN, INT32_MAX)
+    _FIELDS = (("delta", "i"),)
 
 
 @dataclass(frozen=True, slots=True)
@@ -285,13 +285,7 @@ class Spin(Command):
 
     rate: int = 0
     OPCODE: ClassVar[Opcode] = Opcode.SPIN
-    _ARGS: ClassVar[struct.Struct] = struct.Struct("<i")
-
-    def _args(self) -> tuple[int, ...]:
-        return (self.rate,)
-
-    def _check_args(self) -> None:
-        _check("rate", self.rate, INT32_MIN, INT32_MAX)
+    _FIELDS = (("rate", "i"),)
 
 
 @dataclass(frozen=True, slots=True)
@@ -320,13 +314,7 @@ class GetConfig(Command):
 
     key: ConfigKey | int = ConfigKey.SAMPLE_RATE_HZ
     OPCODE: ClassVar[Opcode] = Opcode.GET_CONFIG
-    _ARGS: ClassVar[struct.Struct] = struct.Struct("<B")
-
-    def _args(self) -> tuple[int, ...]:
-        return (self.key,)
-
-    def _check_args(self) -> None:
-        _check_u8("key", int(self.key))
+    _FIELDS = (("key", "B"),)
 
     @classmethod
     def _from_args(cls, seq: int, args: tuple[int, ...]) -> Self:
@@ -348,14 +336,7 @@ class SetConfig(Command):
     key: ConfigKey | int = ConfigKey.SAMPLE_RATE_HZ
     value: int = 0
     OPCODE: ClassVar[Opcode] = Opcode.SET_CONFIG
-    _ARGS: ClassVar[struct.Struct] = struct.Struct("<BI")
-
-    def _args(self) -> tuple[int, ...]:
-        return (self.key, self.value)
-
-    def _check_args(self) -> None:
-        _check_u8("key", int(self.key))
-        _check("value", self.value, 0, UINT32_MAX)
+    _FIELDS = (("key", "B"), ("value", "I"))
 
     @classmethod
     def _from_args(cls, seq: int, args: tuple[int, ...]) -> Self:

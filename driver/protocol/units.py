@@ -58,6 +58,18 @@ DEFAULT_LATITUDE_DEG = 34.0
 MAX_LATITUDE_DEG = 89.0
 
 
+def finite_float(value: Any, error: Callable[[str], Exception], field: str) -> float:
+    """``value`` as a finite float, else raise ``error`` (each package passes its own error
+    class) with a message that starts with ``field``."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError) as exc:
+        raise error(f"{field}: must be a number, got {value!r}") from exc
+    if not math.isfinite(x):
+        raise error(f"{field}: must be a finite number, got {value!r}")
+    return x
+
+
 def check_latitude_deg(
     latitude_deg: Any, error: Callable[[str], Exception], field: str = "latitude_deg"
 ) -> float:
@@ -70,12 +82,7 @@ def check_latitude_deg(
         Not a number, not finite, outside [-90, 90] deg, or beyond +-:data:`MAX_LATITUDE_DEG`
         (the horizontal Earth rate Omega*cos(lat) vanishes towards a pole).
     """
-    try:
-        lat = float(latitude_deg)
-    except (TypeError, ValueError) as exc:
-        raise error(f"{field}: must be a number, got {latitude_deg!r}") from exc
-    if not math.isfinite(lat):
-        raise error(f"{field}: must be a finite number, got {latitude_deg!r}")
+    lat = finite_float(latitude_deg, error, field)
     if abs(lat) > 90.0:
         raise error(f"{field}: must lie in [-90, 90] deg, got {lat}")
     if abs(lat) > MAX_LATITUDE_DEG:

@@ -272,7 +272,8 @@ class MonitorApp(App[int]):
             return Text(f"FAULT: {v.faults}; r resets the unit  {where}")
         banner.set_classes("")
         rec = f"  recording {s.record_path}" if s.record_path else ""
-        return Text(f"{v.state}  {where}{rec}")
+        turning = "" if v.table_rate_dps is None else f" {v.table_rate_dps:+.3f} deg/s"
+        return Text(f"{v.state}{turning}  {where}{rec}")
 
     def _unit(self, v: View) -> Text:
         t = Text()
@@ -295,6 +296,12 @@ class MonitorApp(App[int]):
             t.append(f"target   {v.target_deg:9.4f} deg\n", style="cyan")
         else:
             t.append("target   ---\n", style="dim")
+        if v.table_rate_dps is not None:
+            # measured / the rate SPIN asked for, as the stream's rate reads
+            spin = "" if v.spin_rate_dps is None else f" / {v.spin_rate_dps:+.3f}"
+            t.append(f"rate     {v.table_rate_dps:+.3f}{spin} deg/s\n", style="cyan")
+        else:
+            t.append("rate     ---\n", style="dim")
         t.append(f"temp     {_num(v.temperature_c, '7.2f')} degC\n")
         age = "---" if v.status_age_s is None else f"{v.status_age_s:.2f} s ago"
         t.append(f"status   {age}\n", style="dim")
@@ -454,25 +461,30 @@ class MonitorApp(App[int]):
 
         self.run_worker(work, thread=True, group="commands", name=label)
 
-    def action_rotate_to(self) -> None:
+    def _move_asked(self, prompt: str, label: str, move: Any) -> None:
+        """Ask for an angle (``prompt``), then run ``move(device, angle)`` as :meth:`_command`."""
         if self._active() is None:
             return
 
         def go(angle: float | None) -> None:
             if angle is not None:
-                self._command("rotate to", lambda d: d.rotate_to(angle, wait=False))
+                self._command(label, lambda d: move(d, angle))
 
-        self.push_screen(AskAngle("Rotate the table to (deg, encoder):"), go)
+        self.push_screen(AskAngle(prompt), go)
+
+    def action_rotate_to(self) -> None:
+        self._move_asked(
+            "Rotate the table to (deg, encoder):",
+            "rotate to",
+            lambda d, angle: d.rotate_to(angle, wait=False),
+        )
 
     def action_rotate_by(self) -> None:
-        if self._active() is None:
-            return
-
-        def go(delta: float | None) -> None:
-            if delta is not None:
-                self._command("rotate by", lambda d: d.rotate_by(delta, wait=False))
-
-        self.push_screen(AskAngle("Rotate the table by (deg, + counter-clockwise):"), go)
+        self._move_asked(
+            "Rotate the table by (deg, + counter-clockwise):",
+            "rotate by",
+            lambda d, delta: d.rotate_by(delta, wait=False),
+        )
 
     def action_stop(self) -> None:
         self._command("stop", lambda d: d.stop())

@@ -39,11 +39,10 @@ def command_frame(link: SerialRawLink, cmd: Command) -> bytes:
     return SerialFrame(SerialType.COMMAND, link.seq, cmd.encode()).encode()
 
 
-@check(
-    "bad_input.short_command",
-    "a command of 0 or 1 bytes (no opcode) is not answered, is counted in rx malformed, and the stream goes on (4.2, 9)",
-)
+@check("bad_input.short_command")
 def bad_input_short_command(c: Ctx) -> None:
+    """a command of 0 or 1 bytes (no opcode) is not answered, is counted in rx malformed, and the
+    stream goes on (4.2, 9)"""
     s = c.s
 
     def send() -> None:
@@ -53,11 +52,10 @@ def bad_input_short_command(c: Ctx) -> None:
     dropped_silently(c, send, 2, "a command without an opcode", "two commands without an opcode")
 
 
-@check(
-    "bad_input.unknown_id",
-    "CAN frames of other identifiers, other nodes and extended ids are ignored without counting (2.1, 9)",
-)
+@check("bad_input.unknown_id")
 def bad_input_unknown_id(c: Ctx) -> None:
+    """CAN frames of other identifiers, other nodes and extended ids are ignored without counting
+    (2.1, 9)"""
     s = c.s
     link = can_link(c, "CAN only (serial: see bad_input.unknown_type)")
     node = c.opt.node_id
@@ -82,11 +80,9 @@ def bad_input_unknown_id(c: Ctx) -> None:
     )
 
 
-@check(
-    "bad_input.unknown_type",
-    "serial frames with a good CRC and an undefined type are dropped and counted, not answered (9)",
-)
+@check("bad_input.unknown_type")
 def bad_input_unknown_type(c: Ctx) -> None:
+    """serial frames with a good CRC and an undefined type are dropped and counted, not answered (9)"""
     s = c.s
     link = serial_link(c, "serial only (CAN: see bad_input.unknown_id)")
     types = (0x00, 0x06, 0x7F, 0xFF)
@@ -104,11 +100,10 @@ def bad_input_unknown_type(c: Ctx) -> None:
     )
 
 
-@check(
-    "bad_input.bad_crc",
-    "serial frames with a bad CRC or a length above 64 are dropped and counted, not answered (2.2, 9)",
-)
+@check("bad_input.bad_crc")
 def bad_input_bad_crc(c: Ctx) -> None:
+    """serial frames with a bad CRC or a length above 64 are dropped and counted, not answered
+    (2.2, 9)"""
     s = c.s
     link = serial_link(c, "serial only (the CAN controller checks the CRC)")
 
@@ -121,11 +116,10 @@ def bad_input_bad_crc(c: Ctx) -> None:
     dropped_silently(c, send, 2, "a frame with a bad CRC", "one bad CRC and one length above 64")
 
 
-@check(
-    "bad_input.resync",
-    "after a false sync only the first sync byte is discarded: frames behind it and after garbage are answered (2.2)",
-)
+@check("bad_input.resync")
 def bad_input_resync(c: Ctx) -> None:
+    """after a false sync only the first sync byte is discarded: frames behind it and after garbage
+    are answered (2.2)"""
     s = c.s
     link = serial_link(c, "serial only")
     c.ready()

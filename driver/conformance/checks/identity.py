@@ -22,8 +22,9 @@ from northfinder.driver.protocol.constants import (
 from northfinder.driver.protocol.messages import GetConfig, GetStatus, RequestIdentify
 
 
-@check("identify", "IDENTIFY answered OK, then a whole identify message of protocol major 1 (4.7)")
+@check("identify")
 def identify(c: Ctx) -> None:
+    """IDENTIFY answered OK, then a whole identify message of protocol major 1 (4.7)"""
     s = c.s
     n = len(s.identifies)
     errors = len(s.link_errors)
@@ -56,8 +57,9 @@ def identify(c: Ctx) -> None:
         c.fail(f"while identifying: {s.link_errors[errors][1]}")
 
 
-@check("state.ready", "the unit reaches READY (after boot and warm-up) without a fault (5)")
+@check("state.ready")
 def state_ready(c: Ctx) -> None:
+    """the unit reaches READY (after boot and warm-up) without a fault (5)"""
     st = c.s.get_status()
     c.fig("state", st.state.name)
     t0 = c.s.now()
@@ -68,8 +70,9 @@ def state_ready(c: Ctx) -> None:
         c.fail(f"READY with fault flags 0x{int(st.faults):02X}")
 
 
-@check("command.get_status", "GET_STATUS answered OK and a status follows at once (4.1, 4.6)")
+@check("command.get_status")
 def command_get_status(c: Ctx) -> None:
+    """GET_STATUS answered OK and a status follows at once (4.1, 4.6)"""
     s = c.s
     a = s.request(GetStatus(0))
     if not c.expect(a, Result.OK, "GET_STATUS") or a.received is None:
@@ -101,8 +104,9 @@ def command_get_status(c: Ctx) -> None:
         c.fail(f"status angle {st.angle} outside [0, 360e6)")
 
 
-@check("command.get_config", "GET_CONFIG of every key answered OK with a value in range (4.4, 7)")
+@check("command.get_config")
 def command_get_config(c: Ctx) -> None:
+    """GET_CONFIG of every key answered OK with a value in range (4.4, 7)"""
     s = c.s
     values: dict[ConfigKey, int] = {}
     for key in ConfigKey:

@@ -495,11 +495,9 @@ IN_WARMUP = (
 )
 
 
-@check(
-    "refusal.busy",
-    "moves, SELF_TEST and motion keys refused with BUSY while ROTATING and while SETTLING (4.3, 5)",
-)
+@check("refusal.busy")
 def refusal_busy(c: Ctx) -> None:
+    """moves, SELF_TEST and motion keys refused with BUSY while ROTATING and while SETTLING (4.3, 5)"""
     s = c.s
     c.config()
     m = begin_long_move(c)
@@ -521,11 +519,9 @@ def refusal_busy(c: Ctx) -> None:
     c.fig("refusals judged", judged)
 
 
-@check(
-    "refusal.check_order",
-    "while ROTATING the checks run in the order of table 4.3: opcode, length, state, range (4.3)",
-)
+@check("refusal.check_order")
 def refusal_check_order(c: Ctx) -> None:
+    """while ROTATING the checks run in the order of table 4.3: opcode, length, state, range (4.3)"""
     m = begin_long_move(c)
     if m is None:
         return
@@ -533,11 +529,10 @@ def refusal_check_order(c: Ctx) -> None:
     finish_move(c, m)
 
 
-@check(
-    "refusal.not_ready",
-    "in BOOT only IDENTIFY, GET_STATUS, GET_CONFIG are served, the rest NOT_READY (before the range and key checks); in WARMUP moves are NOT_READY (4.3, 5)",
-)
+@check("refusal.not_ready")
 def refusal_not_ready(c: Ctx) -> None:
+    """in BOOT only IDENTIFY, GET_STATUS, GET_CONFIG are served, the rest NOT_READY (before the
+    range and key checks); in WARMUP moves are NOT_READY (4.3, 5)"""
     s = c.s
     c.ready()
     c.config()  # read before the reset: BOOT is short

@@ -35,11 +35,9 @@ from northfinder.driver.protocol.messages import (
 from northfinder.driver.protocol.motion import shortest_delta_deg
 
 
-@check(
-    "command.rotate_to",
-    "ROTATE_TO answered OK; ROTATING -> SETTLING -> READY; ends on target (4.1, 5)",
-)
+@check("command.rotate_to")
 def command_rotate_to(c: Ctx) -> None:
+    """ROTATE_TO answered OK; ROTATING -> SETTLING -> READY; ends on target (4.1, 5)"""
     c.ready()
     start = deg(c, c.s.get_status().angle)
     target = (start + 30.0) % 360.0
@@ -51,11 +49,9 @@ def command_rotate_to(c: Ctx) -> None:
         c.fig("reply to READY", f"{c.s.unit(m.t_ready - m.answer.received):.2f} s")
 
 
-@check(
-    "command.rotate_to_direction",
-    "ROTATE_TO with direction NEGATIVE / POSITIVE takes the long way round when told (4.1)",
-)
+@check("command.rotate_to_direction")
 def command_rotate_to_direction(c: Ctx) -> None:
+    """ROTATE_TO with direction NEGATIVE / POSITIVE takes the long way round when told (4.1)"""
     c.ready()
     start = deg(c, c.s.get_status().angle)
     for direction, target, travel in (
@@ -74,11 +70,9 @@ def command_rotate_to_direction(c: Ctx) -> None:
             c.fail(f"{what}: the table travelled {m.travel_deg:+.2f} deg, expected {travel:+.0f}")
 
 
-@check(
-    "command.rotate_by",
-    "ROTATE_BY +-25 deg answered OK and ends 25 deg away in the right sense (4.1)",
-)
+@check("command.rotate_by")
 def command_rotate_by(c: Ctx) -> None:
+    """ROTATE_BY +-25 deg answered OK and ends 25 deg away in the right sense (4.1)"""
     for delta in (25.0, -25.0):
         c.ready()
         start = deg(c, c.s.get_status().angle)
@@ -91,8 +85,9 @@ def command_rotate_by(c: Ctx) -> None:
                 c.fail(f"ROTATE_BY {delta:+g}: the table travelled {m.travel_deg:+.3f} deg")
 
 
-@check("command.home", "HOME answered OK and ends at encoder zero by the shortest way (4.1)")
+@check("command.home")
 def command_home(c: Ctx) -> None:
+    """HOME answered OK and ends at encoder zero by the shortest way (4.1)"""
     c.ready()
     start = deg(c, c.s.get_status().angle)
     way = shortest_delta_deg(start, 0.0)
@@ -108,22 +103,19 @@ def command_home(c: Ctx) -> None:
             )
 
 
-@check(
-    "command.rotate_to_present",
-    "ROTATE_TO the present angle is OK and still passes through ROTATING and SETTLING (4.1)",
-)
+@check("command.rotate_to_present")
 def command_rotate_to_present(c: Ctx) -> None:
+    """ROTATE_TO the present angle is OK and still passes through ROTATING and SETTLING (4.1)"""
     c.ready()
     here = c.s.get_status().angle
     m = move(c, RotateTo(0, here), "ROTATE_TO the present angle", deg(c, here), 0.0)
     c.fig("states", " -> ".join(x.name for x in m.states))
 
 
-@check(
-    "command.stop_while_rotating",
-    "STOP during a move answered OK; the table decelerates to SETTLING, then READY, short of its target (4.1, 5)",
-)
+@check("command.stop_while_rotating")
 def command_stop_while_rotating(c: Ctx) -> None:
+    """STOP during a move answered OK; the table decelerates to SETTLING, then READY, short of its
+    target (4.1, 5)"""
     s = c.s
     limits = table(c)
     v, acc = limits.max_rate_dps, limits.max_accel_dps2
@@ -156,11 +148,10 @@ def command_stop_while_rotating(c: Ctx) -> None:
             c.fail(f"the table travelled {m.travel_deg:+.2f} deg of {d:.1f}: STOP did not stop it")
 
 
-@check(
-    "command.while_rotating",
-    "queries, streaming and non-motion settings are accepted while ROTATING; the stream shows TABLE_MOVING (5)",
-)
+@check("command.while_rotating")
 def command_while_rotating(c: Ctx) -> None:
+    """queries, streaming and non-motion settings are accepted while ROTATING; the stream shows
+    TABLE_MOVING (5)"""
     s = c.s
     cfg = c.config()
     m = begin_long_move(c)
@@ -203,8 +194,9 @@ def rotations(c: Ctx) -> list[tuple[float, Move, float]]:
     return done
 
 
-@check("rotation.accuracy", "ROTATE_TO each --angles target ends within the stated accuracy (4.1)")
+@check("rotation.accuracy")
 def rotation_accuracy(c: Ctx) -> None:
+    """ROTATE_TO each --angles target ends within the stated accuracy (4.1)"""
     for angle, m, _ in rotations(c):
         if not m.ok:
             c.fail(f"{m.what}: not accepted")
@@ -215,11 +207,10 @@ def rotation_accuracy(c: Ctx) -> None:
     c.fig("limit", f"+-{c.opt.accuracy_deg * 1000:g} mdeg")
 
 
-@check(
-    "rotation.settle_time",
-    "READY within profile time (rate, acceleration) + SETTLE_TIME_MS + margin; SETTLING lasts SETTLE_TIME_MS (5)",
-)
+@check("rotation.settle_time")
 def rotation_settle_time(c: Ctx) -> None:
+    """READY within profile time (rate, acceleration) + SETTLE_TIME_MS + margin; SETTLING lasts
+    SETTLE_TIME_MS (5)"""
     s = c.s
     settle = table(c).settle_s
     for angle, m, dist in rotations(c):
@@ -249,11 +240,10 @@ def rotation_settle_time(c: Ctx) -> None:
                 )
 
 
-@check(
-    "rotation.validity",
-    "during the moves samples carry TABLE_MOVING, then TABLE_SETTLING, then are clean in READY (4.5)",
-)
+@check("rotation.validity")
 def rotation_validity(c: Ctx) -> None:
+    """during the moves samples carry TABLE_MOVING, then TABLE_SETTLING, then are clean in READY
+    (4.5)"""
     rot = rotations(c)
     if not rot:
         c.skip("no rotations")

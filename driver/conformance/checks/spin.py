@@ -36,13 +36,11 @@ def _spin_rate_dps(c: Ctx) -> float:
     return min(6.0, table(c).max_rate_dps / 2.0)
 
 
-@check(
-    "spin.steady",
-    "SPIN +-rate: ROTATING then SPINNING; steady samples carry TABLE_MOVING|TABLE_SETTLING; "
-    "mean rate within 1 %, every tick within 5 %, angle monotonic; BUSY while spinning; STOP "
-    "brakes to SETTLING and READY (4.1, 4.5, 5.1)",
-)
+@check("spin.steady")
 def spin_steady(c: Ctx) -> None:
+    """SPIN +-rate: ROTATING then SPINNING; steady samples carry TABLE_MOVING|TABLE_SETTLING; mean
+    rate within 1 %, every tick within 5 %, angle monotonic; BUSY while spinning; STOP brakes to
+    SETTLING and READY (4.1, 4.5, 5.1)"""
     _needs_spin(c)
     s = c.s
     limits = table(c)
@@ -124,12 +122,10 @@ def _judge_steady(c: Ctx, what: str, recs: list, rate_dps: float, fs: float) -> 
         c.fail(f"{what}: the angle did not advance monotonically in the commanded sense")
 
 
-@check(
-    "spin.refusals",
-    "SPIN with rate 0 or beyond TABLE_MAX_RATE_MDPS either way is refused with OUT_OF_RANGE, "
-    "and the table stays READY (4.3)",
-)
+@check("spin.refusals")
 def spin_refusals(c: Ctx) -> None:
+    """SPIN with rate 0 or beyond TABLE_MAX_RATE_MDPS either way is refused with OUT_OF_RANGE, and
+    the table stays READY (4.3)"""
     _needs_spin(c)
     s = c.s
     c.ready()
