@@ -341,8 +341,18 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 @pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Iterator[None]:
+    """The same while a ``realtime`` test's fixtures are set up (a device waited for on a link)."""
+    yield from _measured(item)
+
+
+@pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
     """Measure the host's pace while a ``realtime`` test runs (see :data:`STARVED_FRACTION`)."""
+    yield from _measured(item)
+
+
+def _measured(item: pytest.Item) -> Iterator[None]:
     marker = item.get_closest_marker("realtime")
     if marker is None or not marker.kwargs.get("judge_host", True):
         yield
@@ -385,7 +395,9 @@ def pytest_runtest_makereport(
     outcome = yield
     report = outcome.get_result()
     pace = item.stash.get(_PACE, None)
-    if call.when != "call" or not report.failed or pace is None or call.excinfo is None:
+    if call.when not in ("setup", "call") or not report.failed or pace is None:
+        return
+    if call.excinfo is None:
         return
     if call.excinfo.errisinstance(CODE_ERRORS):
         return  # a mistake in the code fails whatever the host did
