@@ -391,6 +391,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
                 **{k: v for k, v in common.items() if k != "settle_s"},
             )  # fmt: skip
         report["spin_plans"] = [_candidate_json(c, model, args.warmup) for c in spins[: args.top]]
+        report["spins_searched"] = args.angles == "encoder"
         best_spin = spins[0].plan if spins else None
     else:
         cand = shortest_plan(model, args.latitude, args.plan_target, **common)
@@ -515,7 +516,12 @@ def _print_spins(report: dict[str, Any]) -> None:
         for kind in ("stop_and_go", "spin"):
             b = best[kind]
             if b is None:
-                parts.append(f"no {names[kind]} plan fits")
+                searched = kind != "spin" or report["spins_searched"]
+                parts.append(
+                    f"no {names[kind]} plan fits"
+                    if searched
+                    else "spins not searched (a spin needs --angles encoder)"
+                )
                 continue
             mc = "" if b["rmse_deg"] is None else f", Monte Carlo {b['rmse_deg']:.4f}"
             parts.append(f"best {names[kind]} predicted {b['predicted_deg']:.4f} deg{mc}")
