@@ -707,6 +707,28 @@ def add_truth_arguments(parser: argparse.ArgumentParser, *, latitude: bool = Tru
     )
 
 
+def add_session_argument(group: argparse._ArgumentGroup, help: str) -> None:
+    """``--session N``: one host session of a CAN log, 1-based (each host's IDENTIFY begins
+    one), as ``dump`` and ``solve`` spell it."""
+    group.add_argument(
+        "--session", type=bounded_int(1, 1_000_000), default=None, metavar="N", help=help
+    )
+
+
+def add_duration_argument(
+    group: argparse._ArgumentGroup, help: str, metavar: str = "SECONDS"
+) -> None:
+    """``--duration``: a live command stops after this many wall seconds (``dump``,
+    ``monitor``)."""
+    group.add_argument(
+        "--duration",
+        type=bounded_float(0.0, 1e7, "s", open_lo=True),
+        default=None,
+        metavar=metavar,
+        help=help,
+    )
+
+
 def add_solver_argument(
     parser: argparse.ArgumentParser | argparse._ArgumentGroup, choices: Sequence[str]
 ) -> None:
