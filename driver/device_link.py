@@ -127,6 +127,12 @@ class DeviceStatus:
     received_at: float
 
 
+#: Bytes read since the last frame that parsed beyond which a silent serial link is reported as
+#: garbled (wrong baud rate or protocol) rather than silent: several of the longest frames, and
+#: a thirtieth of a second of a streaming unit at 115200 baud.
+GARBLED_BYTES = 256
+
+
 @dataclass(frozen=True, slots=True)
 class LinkStats:
     """What the driver received and what it could not use, since the device object was created.
@@ -689,7 +695,22 @@ class DeviceLink:
         return LinkLost(
             f"no status from the device for {self._status_age_s():.2f} s "
             f"(limit {self._supervision_s():.2f} s, {HEARTBEATS_UNTIL_LOST} heartbeat periods): "
-            "the device is silent, off or restarting, or the link is down"
+            + (
+                self._garbled_text()
+                or "the device is silent, off or restarting, or the link is down"
+            )
+        )
+
+    def _garbled_text(self) -> str | None:
+        """What a serial link says when bytes keep arriving but no frame parses (the other end at
+        another baud rate, or speaking another protocol); None when that is not the case."""
+        counters = self._transport.counters()
+        unparsed = counters.get("bytes_unparsed", 0)
+        if unparsed < GARBLED_BYTES:
+            return None
+        return (
+            f"bytes arrive but no frame parses ({unparsed} bytes since the last frame that did): "
+            "wrong baud rate or protocol? (check the baud rate and that the port is the unit's)"
         )
 
     def _request(
@@ -748,6 +769,8 @@ class DeviceLink:
         text = f"no reply to {opcode.name} within {deadline:.2f} s ({attempts} attempt(s) of {per:.2f} s)"
         if alive:
             text += "; the device's heartbeat still arrives: the command or its reply was lost"
+        elif (garbled := self._garbled_text()) is not None:
+            text += f"; {garbled}"
         else:
             text += (
                 f"; no status for {self._status_age_s():.2f} s either: the device is silent or "

@@ -492,6 +492,10 @@ class SerialTransport(_Releasing):
         self.ticks_lost = 0
         self.counter_restarts = 0
         self.samples = 0
+        #: Bytes read, and bytes read since the last frame that parsed: bytes that keep arriving
+        #: while no frame parses are a line at another baud rate or another protocol.
+        self.bytes_received = 0
+        self.bytes_unparsed = 0
 
     def send(self, command: Command) -> None:
         """Send one command frame.
@@ -549,7 +553,14 @@ class SerialTransport(_Releasing):
 
     def _decode(self, data: bytes) -> list[Received]:
         out: list[Received] = []
-        for frame in self.deframer.feed(data):
+        self.bytes_received += len(data)
+        parsed = self.deframer.frames
+        frames = self.deframer.feed(data)
+        if self.deframer.frames > parsed:
+            self.bytes_unparsed = 0
+        else:
+            self.bytes_unparsed += len(data)
+        for frame in frames:
             try:
                 message = decode_payload(frame.msg_type, frame.payload)
             except ProtocolError as exc:
@@ -598,4 +609,6 @@ class SerialTransport(_Releasing):
             "ticks_lost": self.ticks_lost,
             "ticks_incomplete": 0,
             "duplicates": 0,
+            "bytes_received": self.bytes_received,
+            "bytes_unparsed": self.bytes_unparsed,
         }

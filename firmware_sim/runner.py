@@ -605,7 +605,10 @@ class PacedSender:
         self._sleep = sleep
         self._monotonic = monotonic
         self._items: deque[Outgoing] = deque()
-        self._cond = threading.Condition()
+        # Taken as itself in ``with`` statements, never through Condition.__enter__ (a raising
+        # signal handler can leave a lock held there: driver/clock.py says how).
+        self._lock = threading.RLock()
+        self._cond = threading.Condition(self._lock)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="simulator-sender", daemon=True)
         self.error: BaseException | None = None
@@ -615,7 +618,7 @@ class PacedSender:
         return len(self._items)
 
     def put(self, outgoing: list[Outgoing]) -> None:
-        with self._cond:
+        with self._lock:
             self._items.extend(outgoing)
             self._cond.notify()
 
@@ -625,7 +628,7 @@ class PacedSender:
 
     def stop(self) -> None:
         self._stop.set()
-        with self._cond:
+        with self._lock:
             self._cond.notify()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout=5.0)
@@ -640,7 +643,7 @@ class PacedSender:
 
     def send_next(self, idle: float = 0.05) -> bool:
         """Wait for the next item's due time and send it and all others due with it."""
-        with self._cond:
+        with self._lock:
             if not self._items:
                 self._cond.wait(idle)
                 if not self._items:
@@ -665,7 +668,7 @@ class PacedSender:
             with self.runner.lock:
                 self.runner._slip(clock, late)
         now = clock.now()
-        with self._cond:
+        with self._lock:
             due = []
             while self._items and self._items[0].time_s <= now:
                 due.append(self._items.popleft())

@@ -28,12 +28,14 @@ _POSITIVE = "positive"
 _ANY = "any"
 
 
-def _f(default: float, check: str = _NONNEG, doc: str = "") -> Any:
-    return field(default=default, metadata={"check": check, "doc": doc})
+def _f(default: float, check: str = _NONNEG, doc: str = "", *, lo: float, hi: float) -> Any:
+    """A figure of the spec: its default, sign check, meaning with its unit, and the range a
+    sensor file may give it (refused beyond, naming the key, the value and the range)."""
+    return field(default=default, metadata={"check": check, "doc": doc, "range": (lo, hi)})
 
 
-def _v(doc: str = "") -> Any:
-    return field(default=(0.0, 0.0, 0.0), metadata={"check": _VEC3, "doc": doc})
+def _v(doc: str = "", *, lo: float, hi: float) -> Any:
+    return field(default=(0.0, 0.0, 0.0), metadata={"check": _VEC3, "doc": doc, "range": (lo, hi)})
 
 
 @dataclass(frozen=True)
@@ -45,127 +47,200 @@ class GyroSpec:
     leaves a powered sensor alone. Move terms are drawn at the start of every table move.
     """
 
-    bias_dph: tuple[float, float, float] = _v("constant bias per axis, deg/h")
+    bias_dph: tuple[float, float, float] = _v("constant bias per axis, deg/h", lo=-1e5, hi=1e5)
     turn_on_bias_dph: float = _f(
-        0.0, doc="turn-on to turn-on bias repeatability (per power-on), 1 sigma, deg/h"
+        0.0,
+        doc="turn-on to turn-on bias repeatability (per power-on), 1 sigma, deg/h",
+        lo=0.0,
+        hi=1e5,
     )
     bias_instability_dph: float = _f(
-        0.0, doc="flicker bias instability B; Allan floor 0.664 B, deg/h"
+        0.0, doc="flicker bias instability B; Allan floor 0.664 B, deg/h", lo=0.0, hi=1e4
     )
-    arw_dpsh: float = _f(0.0, doc="angle random walk, deg/sqrt(h)")
-    rrw_dphpsh: float = _f(0.0, doc="rate random walk, deg/h/sqrt(h)")
-    scale_factor_ppm: float = _f(0.0, doc="scale-factor error per axis, 1 sigma, ppm")
-    misalignment_urad: float = _f(0.0, doc="axis misalignment, 1 sigma per off-diagonal, urad")
-    lsb_dph: float = _f(0.0, doc="output quantisation (pulse weight as a rate), deg/h; 0 = none")
-    range_dps: float = _f(200.0, _POSITIVE, "measurement range, deg/s")
+    arw_dpsh: float = _f(0.0, doc="angle random walk, deg/sqrt(h)", lo=0.0, hi=100.0)
+    rrw_dphpsh: float = _f(0.0, doc="rate random walk, deg/h/sqrt(h)", lo=0.0, hi=1e4)
+    scale_factor_ppm: float = _f(
+        0.0, doc="scale-factor error per axis, 1 sigma, ppm", lo=0.0, hi=1e5
+    )
+    misalignment_urad: float = _f(
+        0.0, doc="axis misalignment, 1 sigma per off-diagonal, urad", lo=0.0, hi=1e5
+    )
+    lsb_dph: float = _f(
+        0.0, doc="output quantisation (pulse weight as a rate), deg/h; 0 = none", lo=0.0, hi=1e4
+    )
+    range_dps: float = _f(200.0, _POSITIVE, "measurement range, deg/s", lo=0.0, hi=1e5)
     temp_coeff_dph_per_c: tuple[float, float, float] = _v(
-        "bias temperature sensitivity, deg/h/degC"
+        "bias temperature sensitivity, deg/h/degC", lo=-1e3, hi=1e3
     )
-    warmup_bias_dph: tuple[float, float, float] = _v("warm-up transient at power-on, deg/h")
-    warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s")
+    warmup_bias_dph: tuple[float, float, float] = _v(
+        "warm-up transient at power-on, deg/h", lo=-1e5, hi=1e5
+    )
+    warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s", lo=0.0, hi=1e6)
     rate_ramp_dph_per_h: tuple[float, float, float] = _v(
-        "rate ramp: linear bias trend from power-on, deg/h per hour"
+        "rate ramp: linear bias trend from power-on, deg/h per hour", lo=-1e6, hi=1e6
     )
     move_walk_dph_per_rtdeg: float = _f(
         0.0,
         doc="bias random walk in the angle turned: each move adds a lasting bias step of "
         "1 sigma this times sqrt(|move| in deg), deg/h/sqrt(deg)",
+        lo=0.0,
+        hi=1e3,
     )
     move_transient_dph_per_rtdeg: float = _f(
         0.0,
         doc="each move starts a bias transient of random amplitude, 1 sigma this times "
         "sqrt(|move| in deg) at the start of the move, deg/h/sqrt(deg)",
+        lo=0.0,
+        hi=1e3,
     )
     move_transient_tau_s: float = _f(
-        10.0, _POSITIVE, "time constant of the move transient's decay from the start of the move, s"
+        10.0,
+        _POSITIVE,
+        "time constant of the move transient's decay from the start of the move, s",
+        lo=0.0,
+        hi=1e6,
     )
-    impulse_dph: float = _f(0.0, doc="peak rate of one impulse (shock), deg/h")
-    vibration_dph: float = _f(0.0, doc="vibration amplitude seen by each gyro axis, deg/h")
+    impulse_dph: float = _f(0.0, doc="peak rate of one impulse (shock), deg/h", lo=0.0, hi=1e8)
+    vibration_dph: float = _f(
+        0.0, doc="vibration amplitude seen by each gyro axis, deg/h", lo=0.0, hi=1e8
+    )
 
 
 @dataclass(frozen=True)
 class AccelSpec:
     """Accelerometer triad errors, micro-g based (1 ug = 9.80665e-6 m/s^2)."""
 
-    bias_ug: tuple[float, float, float] = _v("constant bias per axis, ug")
-    turn_on_bias_ug: float = _f(0.0, doc="turn-on bias repeatability, 1 sigma, ug")
-    bias_instability_ug: float = _f(0.0, doc="flicker bias instability, ug")
-    vrw_ug_rthz: float = _f(0.0, doc="velocity random walk (white noise density), ug/sqrt(Hz)")
-    random_walk_ug_rts: float = _f(0.0, doc="bias random walk, ug/sqrt(s)")
-    scale_factor_ppm: float = _f(0.0, doc="scale-factor error per axis, 1 sigma, ppm")
-    misalignment_urad: float = _f(0.0, doc="axis misalignment, 1 sigma, urad")
-    lsb_ug: float = _f(0.0, doc="output quantisation, ug; 0 = none")
-    range_g: float = _f(10.0, _POSITIVE, "measurement range, g")
-    temp_coeff_ug_per_c: tuple[float, float, float] = _v("bias temperature sensitivity, ug/degC")
-    warmup_bias_ug: tuple[float, float, float] = _v("warm-up transient at power-on, ug")
-    warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s")
-    ramp_ug_per_h: tuple[float, float, float] = _v("linear bias trend from power-on, ug per hour")
+    bias_ug: tuple[float, float, float] = _v("constant bias per axis, ug", lo=-1e6, hi=1e6)
+    turn_on_bias_ug: float = _f(0.0, doc="turn-on bias repeatability, 1 sigma, ug", lo=0.0, hi=1e6)
+    bias_instability_ug: float = _f(0.0, doc="flicker bias instability, ug", lo=0.0, hi=1e5)
+    vrw_ug_rthz: float = _f(
+        0.0, doc="velocity random walk (white noise density), ug/sqrt(Hz)", lo=0.0, hi=1e5
+    )
+    random_walk_ug_rts: float = _f(0.0, doc="bias random walk, ug/sqrt(s)", lo=0.0, hi=1e5)
+    scale_factor_ppm: float = _f(
+        0.0, doc="scale-factor error per axis, 1 sigma, ppm", lo=0.0, hi=1e5
+    )
+    misalignment_urad: float = _f(0.0, doc="axis misalignment, 1 sigma, urad", lo=0.0, hi=1e5)
+    lsb_ug: float = _f(0.0, doc="output quantisation, ug; 0 = none", lo=0.0, hi=1e5)
+    range_g: float = _f(10.0, _POSITIVE, "measurement range, g", lo=0.0, hi=1e3)
+    temp_coeff_ug_per_c: tuple[float, float, float] = _v(
+        "bias temperature sensitivity, ug/degC", lo=-1e4, hi=1e4
+    )
+    warmup_bias_ug: tuple[float, float, float] = _v(
+        "warm-up transient at power-on, ug", lo=-1e6, hi=1e6
+    )
+    warmup_tau_s: float = _f(60.0, _POSITIVE, "warm-up transient time constant, s", lo=0.0, hi=1e6)
+    ramp_ug_per_h: tuple[float, float, float] = _v(
+        "linear bias trend from power-on, ug per hour", lo=-1e7, hi=1e7
+    )
     move_walk_ug_per_rtdeg: float = _f(
-        0.0, doc="lasting bias step per move, 1 sigma per sqrt(deg turned), ug/sqrt(deg)"
+        0.0,
+        doc="lasting bias step per move, 1 sigma per sqrt(deg turned), ug/sqrt(deg)",
+        lo=0.0,
+        hi=1e4,
     )
     move_transient_ug_per_rtdeg: float = _f(
-        0.0, doc="decaying bias transient per move, 1 sigma per sqrt(deg turned), ug/sqrt(deg)"
+        0.0,
+        doc="decaying bias transient per move, 1 sigma per sqrt(deg turned), ug/sqrt(deg)",
+        lo=0.0,
+        hi=1e4,
     )
-    move_transient_tau_s: float = _f(10.0, _POSITIVE, "time constant of that transient, s")
-    impulse_ug: float = _f(0.0, doc="peak specific force of one impulse, ug")
-    vibration_ug: float = _f(0.0, doc="vibration amplitude seen by each accelerometer axis, ug")
+    move_transient_tau_s: float = _f(
+        10.0, _POSITIVE, "time constant of that transient, s", lo=0.0, hi=1e6
+    )
+    impulse_ug: float = _f(0.0, doc="peak specific force of one impulse, ug", lo=0.0, hi=1e8)
+    vibration_ug: float = _f(
+        0.0, doc="vibration amplitude seen by each accelerometer axis, ug", lo=0.0, hi=1e8
+    )
 
 
 @dataclass(frozen=True)
 class ThermalSpec:
     """Sensor temperature: T(t) = ambient + rise (1 - exp(-t / tau)) + ramp t."""
 
-    ambient_c: float = _f(20.0, _ANY, "ambient temperature at power-on, degC")
-    warmup_rise_c: float = _f(0.0, _ANY, "self-heating rise after power-on, degC")
-    warmup_tau_s: float = _f(600.0, _POSITIVE, "self-heating time constant, s")
-    ramp_c_per_h: float = _f(0.0, _ANY, "slow ambient drift, degC/h (gives linear bias trends)")
+    ambient_c: float = _f(20.0, _ANY, "ambient temperature at power-on, degC", lo=-100.0, hi=150.0)
+    warmup_rise_c: float = _f(
+        0.0, _ANY, "self-heating rise after power-on, degC", lo=-50.0, hi=150.0
+    )
+    warmup_tau_s: float = _f(600.0, _POSITIVE, "self-heating time constant, s", lo=0.0, hi=1e6)
+    ramp_c_per_h: float = _f(
+        0.0, _ANY, "slow ambient drift, degC/h (gives linear bias trends)", lo=-100.0, hi=100.0
+    )
 
 
 @dataclass(frozen=True)
 class DisturbanceSpec:
     """Environment: random impulses (doors, footsteps) and a vibration line (engines, pumps)."""
 
-    impulse_rate_hz: float = _f(0.0, doc="mean rate of impulses (Poisson), 1/s")
-    impulse_duration_s: float = _f(0.05, _POSITIVE, "duration of one half-sine impulse, s")
-    vibration_hz: float = _f(0.0, doc="vibration frequency, Hz; 0 = none")
+    impulse_rate_hz: float = _f(0.0, doc="mean rate of impulses (Poisson), 1/s", lo=0.0, hi=1e3)
+    impulse_duration_s: float = _f(
+        0.05, _POSITIVE, "duration of one half-sine impulse, s", lo=0.0, hi=10.0
+    )
+    vibration_hz: float = _f(0.0, doc="vibration frequency, Hz; 0 = none", lo=0.0, hi=1e4)
 
 
 @dataclass(frozen=True)
 class TableSpec:
     """Turntable about body z."""
 
-    max_rate_dps: float = _f(DEFAULT_MAX_RATE_DPS, _POSITIVE, "speed limit, deg/s")
-    max_accel_dps2: float = _f(DEFAULT_MAX_ACCEL_DPS2, _POSITIVE, "acceleration limit, deg/s^2")
-    settle_s: float = _f(DEFAULT_SETTLE_S, doc="settling time after the motion profile ends, s")
-    encoder_resolution_deg: float = _f(360.0 / 2**24, doc="encoder resolution, deg; 0 = exact")
-    indexing_error_deg: float = _f(0.0, doc="stop-position error per move, 1 sigma, deg")
-    overshoot_deg: float = _f(0.0, doc="amplitude of the damped oscillation after a stop, deg")
-    overshoot_hz: float = _f(4.0, _POSITIVE, "frequency of that oscillation, Hz")
+    max_rate_dps: float = _f(DEFAULT_MAX_RATE_DPS, _POSITIVE, "speed limit, deg/s", lo=0.0, hi=1e3)
+    max_accel_dps2: float = _f(
+        DEFAULT_MAX_ACCEL_DPS2, _POSITIVE, "acceleration limit, deg/s^2", lo=0.0, hi=1e4
+    )
+    settle_s: float = _f(
+        DEFAULT_SETTLE_S, doc="settling time after the motion profile ends, s", lo=0.0, hi=600.0
+    )
+    encoder_resolution_deg: float = _f(
+        360.0 / 2**24, doc="encoder resolution, deg; 0 = exact", lo=0.0, hi=1.0
+    )
+    indexing_error_deg: float = _f(
+        0.0, doc="stop-position error per move, 1 sigma, deg", lo=0.0, hi=10.0
+    )
+    overshoot_deg: float = _f(
+        0.0, doc="amplitude of the damped oscillation after a stop, deg", lo=0.0, hi=10.0
+    )
+    overshoot_hz: float = _f(4.0, _POSITIVE, "frequency of that oscillation, Hz", lo=0.0, hi=1e3)
     heat_tau_s: float = _f(
         0.0,
         doc="time constant of the heat the motor holds, s: the bias disturbance a move starts has "
         "the variance of all angles turned, each decayed with it; 0 = of this move's angle alone",
+        lo=0.0,
+        hi=1e6,
     )
     rate_ripple: float = _f(
         0.0,
         doc="while spinning: once-per-turn rate ripple, amplitude as a fraction of the rate "
         "(0.001 = 0.1 %); the rate is v (1 + k cos(mu - rate_ripple_phase_deg))",
+        lo=0.0,
+        hi=0.5,
     )
-    rate_ripple_phase_deg: float = _f(0.0, _ANY, "table angle of the ripple's fastest point, deg")
+    rate_ripple_phase_deg: float = _f(
+        0.0, _ANY, "table angle of the ripple's fastest point, deg", lo=-360.0, hi=360.0
+    )
     wobble_urad: float = _f(
         0.0,
         doc="tilt of the table top (and the sensor block on it) against the axis it turns "
         "about, urad: seen from the base it wobbles once per turn; in the sensor frame it is a "
         "fixed tilt, so the gyros see the table rate and the vertical Earth rate through it",
+        lo=0.0,
+        hi=1e5,
     )
-    wobble_phase_deg: float = _f(0.0, _ANY, "table-frame direction the top tilts towards, deg")
+    wobble_phase_deg: float = _f(
+        0.0, _ANY, "table-frame direction the top tilts towards, deg", lo=-360.0, hi=360.0
+    )
     encoder_error_deg: float = _f(
         0.0,
         doc="periodic encoder error, amplitude, deg (e.g. eccentricity for harmonic 1): the "
         "encoder reads mu + e sin(n mu + phase)",
+        lo=0.0,
+        hi=10.0,
     )
-    encoder_error_harmonic: float = _f(1.0, _POSITIVE, "cycles of the encoder error per turn")
-    encoder_error_phase_deg: float = _f(0.0, _ANY, "phase of the encoder error, deg")
+    encoder_error_harmonic: float = _f(
+        1.0, _POSITIVE, "encoder error cycles per turn, 1/turn", lo=0.0, hi=1e3
+    )
+    encoder_error_phase_deg: float = _f(
+        0.0, _ANY, "phase of the encoder error, deg", lo=-360.0, hi=360.0
+    )
 
 
 _SECTIONS: dict[str, type] = {
@@ -213,19 +288,35 @@ class SensorSpec:
         return spec_from_dict(data, source=self.name)
 
 
-def _check_value(where: str, check: str, value: Any) -> float | tuple[float, float, float]:
+def _check_value(where: str, spec: Any, value: Any) -> float | tuple[float, float, float]:
+    """A value of the field ``spec`` (a dataclass field) from a sensor file, checked: a number
+    (three for a vector), of the field's sign, within its range."""
+    check, (lo, hi), doc = spec.metadata["check"], spec.metadata["range"], spec.metadata["doc"]
     if check == _VEC3:
         if not isinstance(value, list | tuple) or len(value) != 3:
             raise SimConfigError(f"{where}: expected a list of three numbers, got {value!r}")
-        x, y, z = (_check_number(f"{where}[{i}]", _ANY, v) for i, v in enumerate(value))
+        x, y, z = (
+            _in_range(f"{where}[{i}]", _check_number(f"{where}[{i}]", _ANY, v), lo, hi, doc)
+            for i, v in enumerate(value)
+        )
         return x, y, z
-    return _check_number(where, check, value)
+    return _in_range(where, _check_number(where, check, value), lo, hi, doc)
 
 
-#: Largest magnitude of any figure in its datasheet unit. Beyond any instrument (a gyro range of
-#: 200 deg/s is 7.2e5 deg/h), and far enough below the float range that the physics never
-#: overflows (squares and sums of samples stay finite).
-MAX_FIGURE = 1e9
+def _in_range(where: str, x: float, lo: float, hi: float, doc: str) -> float:
+    if not lo <= x <= hi:
+        raise SimConfigError(f"{where} = {x:g} is outside its range {lo:g} to {hi:g} ({doc})")
+    return x
+
+
+def field_ranges() -> dict[str, tuple[float, float, str]]:
+    """``section.field`` -> (lowest, highest, meaning and unit) of every figure a sensor file
+    may give (docs/instrument.md lists them)."""
+    return {
+        f"{section}.{f.name}": (*f.metadata["range"], f.metadata["doc"])
+        for section, cls in _SECTIONS.items()
+        for f in dataclasses.fields(cls)
+    }
 
 
 def _check_number(where: str, check: str, value: Any) -> float:
@@ -237,8 +328,6 @@ def _check_number(where: str, check: str, value: Any) -> float:
         x = math.inf
     if not math.isfinite(x):
         raise SimConfigError(f"{where}: must be finite, got {value!r}")
-    if abs(x) > MAX_FIGURE:
-        raise SimConfigError(f"{where}: {x:g} exceeds the largest figure allowed, {MAX_FIGURE:g}")
     if check == _NONNEG and x < 0:
         raise SimConfigError(f"{where}: must not be negative, got {x}")
     if check == _POSITIVE and x <= 0:
@@ -255,9 +344,7 @@ def _section_from_dict(cls: type, data: Any, where: str) -> Any:
         raise SimConfigError(
             f"{where}.{unknown[0]}: unknown field; known fields are {', '.join(fields)}"
         )
-    kwargs = {
-        k: _check_value(f"{where}.{k}", fields[k].metadata["check"], v) for k, v in data.items()
-    }
+    kwargs = {k: _check_value(f"{where}.{k}", fields[k], v) for k, v in data.items()}
     return cls(**kwargs)
 
 

@@ -99,7 +99,8 @@ _CSV_HEADER = "timestamp,arbitration_id,extended,remote,error,dlc,data"
 #: python-can's own errors for a file that is not of the format its ending names.
 _FORMAT_ERRORS: tuple[type[Exception], ...] = (can.io.blf.BLFParseError,)
 _OPEN_ERRORS: tuple[type[Exception], ...] = (
-    OSError, ValueError, ImportError, NotImplementedError, *_FORMAT_ERRORS,
+    OSError, ValueError, ImportError, NotImplementedError, EOFError, struct.error, zlib.error,
+    *_FORMAT_ERRORS,
 )  # fmt: skip
 _READ_ERRORS: tuple[type[Exception], ...] = (
     OSError, ValueError, EOFError, IndexError, KeyError, zlib.error, struct.error, sqlite3.Error,

@@ -403,11 +403,45 @@ def _concat(windows: tuple[RecordedWindow, ...]) -> dict[str, NDArray[Any]]:
     }
 
 
+def _npz_size(p: Path) -> int:
+    """Bytes the arrays of an NPZ file take once loaded, from their headers (a small compressed
+    file may hold arrays far larger than itself)."""
+    total = 0
+    with zipfile.ZipFile(p) as zf:
+        for info in zf.infolist():
+            with zf.open(info) as fh:
+                version = np.lib.format.read_magic(fh)
+                read = (
+                    np.lib.format.read_array_header_1_0
+                    if version == (1, 0)
+                    else np.lib.format.read_array_header_2_0
+                )
+                shape, _, dtype = read(fh)
+                total += math.prod(shape) * dtype.itemsize
+    return total
+
+
 def _read_npz(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
+    try:
+        size = _npz_size(p)
+    except (ValueError, zipfile.BadZipFile, EOFError, OSError, TypeError):
+        size = 0  # np.load below says what is wrong with it
+    if size > _MAX_ARRAY_BYTES:
+        raise RecordingError(
+            f"{p}: its arrays take {size / 2**30:.1f} GiB loaded; a recording holds at most "
+            f"{MAX_SAMPLES} samples (split the session)"
+        )
     try:
         with np.load(p, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-    except (ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except ValueError as exc:
+        if "pickled" in str(exc):  # numpy's advice to load it unsafely is not for a user
+            raise RecordingError(
+                f"{p}: not a readable NPZ file of arrays (numpy could only unpickle it, and "
+                "pickled data is never loaded)"
+            ) from exc
+        raise RecordingError(f"{p}: not a readable NPZ file ({exc})") from exc
+    except (zipfile.BadZipFile, EOFError) as exc:
         raise RecordingError(f"{p}: not a readable NPZ file ({exc})") from exc
     if "meta_json" not in arrays:
         raise RecordingError(f"{p}: no meta_json array; not a northfinder recording")
@@ -625,59 +659,95 @@ class RecordingWriter:
             raise self.error
 
 
+#: Most samples a recording may hold (about 29 hours at 200 Hz; 1.1 GB as numbers in memory),
+#: and most windows (a plan takes at most 64 positions; calibrations a handful): a file beyond
+#: either is refused while it is read, before it fills the memory.
+MAX_SAMPLES = 20_000_000
+MAX_WINDOWS = 1024
+#: Rows parsed into one block of numbers at a time (the text is never held whole).
+_CSV_BLOCK_ROWS = 4096
+#: Largest NPZ arrays loaded: MAX_SAMPLES samples of 13 numbers, and the metadata.
+_MAX_ARRAY_BYTES = MAX_SAMPLES * 13 * 8 + (16 << 20)
+
+
 def _read_csv(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
-    text = p.read_text(errors="replace")
     meta: dict[str, Any] = {}
-    lines = text.splitlines()
-    body_start = 0
-    for i, line in enumerate(lines):
-        if not line.startswith("#"):
-            body_start = i
-            break
-        key, sep, value = line[1:].partition("=")
-        if sep:
-            try:
-                meta[key.strip()] = json.loads(value.strip())
-            except json.JSONDecodeError:
-                raise RecordingError(
-                    f"{p}: line {i + 1}: metadata value is not JSON: {value.strip()!r}"
-                ) from None
-    else:
-        body_start = len(lines)
-    reader = csv.reader(io.StringIO("\n".join(lines[body_start:])))
-    header = next(reader, None)
-    if header is None:
-        raise RecordingError(f"{p}: no header line")
-    missing = [c for c in COLUMNS if c not in header]
-    if missing:
-        raise RecordingError(
-            f"{p}: missing column {missing[0]!r}; columns are {', '.join(COLUMNS)}"
-        )
-    idx = [header.index(c) for c in COLUMNS]
-    rows = []
-    for lineno, row in enumerate(reader, start=body_start + 2):
-        if not row:
-            continue
-        if row[0].startswith("#"):  # the tail: how the recording ended
-            key, sep, value = ",".join(row)[1:].partition("=")
-            with contextlib.suppress(json.JSONDecodeError):
-                if sep:
+    with p.open(errors="replace", newline="") as fh:
+        lineno = 0
+        line = ""
+        for line in fh:
+            lineno += 1
+            if not line.startswith("#"):
+                break
+            key, sep, value = line[1:].rstrip("\r\n").partition("=")
+            if sep:
+                try:
                     meta[key.strip()] = json.loads(value.strip())
-            continue
-        try:
-            values = [float(row[k]) for k in idx]
-        except (ValueError, IndexError):
-            bad = next(
-                (COLUMNS[n] for n, k in enumerate(idx) if k >= len(row) or not _is_number(row[k])),
-                "?",
-            )
+                except json.JSONDecodeError:
+                    raise RecordingError(
+                        f"{p}: line {lineno}: metadata value is not JSON: {value.strip()!r}"
+                    ) from None
+        else:
+            line = ""
+        header = next(csv.reader([line]), None) if line.strip() else None
+        if header is None:
+            raise RecordingError(f"{p}: no header line")
+        missing = [c for c in COLUMNS if c not in header]
+        if missing:
             raise RecordingError(
-                f"{p}: line {lineno}: column {bad!r} is missing or not a number"
-            ) from None
-        rows.append(values)
-    if not rows:
+                f"{p}: missing column {missing[0]!r}; columns are {', '.join(COLUMNS)}"
+            )
+        idx = [header.index(c) for c in COLUMNS]
+        blocks: list[NDArray[np.float64]] = []
+        rows: list[list[float]] = []
+        count = 0
+        windows: set[float] = set()
+        first_row = lineno + 1
+        for lineno, row in enumerate(csv.reader(fh), start=first_row):
+            if not row:
+                continue
+            if row[0].startswith("#"):  # the tail: how the recording ended
+                key, sep, value = ",".join(row)[1:].partition("=")
+                with contextlib.suppress(json.JSONDecodeError):
+                    if sep:
+                        meta[key.strip()] = json.loads(value.strip())
+                continue
+            try:
+                values = [float(row[k]) for k in idx]
+            except (ValueError, IndexError):
+                bad = next(
+                    (
+                        COLUMNS[n]
+                        for n, k in enumerate(idx)
+                        if k >= len(row) or not _is_number(row[k])
+                    ),
+                    "?",
+                )
+                raise RecordingError(
+                    f"{p}: line {lineno}: column {bad!r} is missing or not a number"
+                ) from None
+            if values[0] not in windows:
+                windows.add(values[0])
+                if len(windows) > MAX_WINDOWS:
+                    raise RecordingError(
+                        f"{p}: line {lineno}: more than {MAX_WINDOWS} windows; a recording holds "
+                        "at most that many (split the session)"
+                    )
+            count += 1
+            if count > MAX_SAMPLES:
+                raise RecordingError(
+                    f"{p}: line {lineno}: more than {MAX_SAMPLES} samples; a recording holds at "
+                    "most that many (split the session)"
+                )
+            rows.append(values)
+            if len(rows) >= _CSV_BLOCK_ROWS:
+                blocks.append(np.array(rows, dtype=np.float64))
+                rows = []
+    if rows:
+        blocks.append(np.array(rows, dtype=np.float64))
+    if not blocks:
         raise RecordingError(f"{p}: no samples")
-    a = np.array(rows)
+    a = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]
     arrays = {  # whole-number columns stay floats here: _split checks and converts them
         "window": a[:, 0],
         "commanded_deg": a[:, 1],
@@ -708,6 +778,10 @@ def _split(
         if name not in arrays:
             raise RecordingError(f"{p}: missing array {name!r}")
     n = len(arrays["window"])
+    if n > MAX_SAMPLES:
+        raise RecordingError(
+            f"{p}: {n} samples; a recording holds at most {MAX_SAMPLES} (split the session)"
+        )
     for name in needed:
         shape = (n, 3) if name in ("gyro_dph", "accel_mps2") else (n,)
         if arrays[name].shape != shape:
@@ -716,6 +790,13 @@ def _split(
             )
         if arrays[name].dtype.kind not in "iuf":
             raise RecordingError(f"{p}: array {name!r} must hold numbers, got {arrays[name].dtype}")
+        if arrays[name].dtype.kind == "f" and arrays[name].dtype.itemsize < 4:
+            # Half precision keeps three significant digits (a counter stops at 2048, a gyro
+            # reading of 100 deg/h is 0.06 deg/h coarse): never a recording's own data.
+            raise RecordingError(
+                f"{p}: array {name!r} is {arrays[name].dtype} (half precision, 3 significant "
+                "digits): too coarse for a recording; store it as float32 or float64"
+            )
         if arrays[name].dtype.kind == "f" and not np.all(np.isfinite(arrays[name])):
             raise RecordingError(f"{p}: array {name!r} holds NaN or infinite values")
         limit = SAMPLE_LIMITS.get(name)
@@ -727,8 +808,14 @@ def _split(
     window_index = _whole("window", arrays["window"], p, 0, 1e6)
     counter = _whole("counter", arrays["counter"], p, 0, 2.0**53)
     validity = _whole("validity", arrays["validity"], p, 0, 255).astype(np.uint8)
+    numbers = np.unique(window_index)
+    if len(numbers) > MAX_WINDOWS:
+        raise RecordingError(
+            f"{p}: {len(numbers)} windows; a recording holds at most {MAX_WINDOWS} (split the "
+            "session)"
+        )
     windows = []
-    for w in np.unique(window_index):
+    for w in numbers:
         sel = window_index == w
         commanded = arrays["commanded_deg"][sel]
         if not math.isfinite(float(commanded[0])) or np.ptp(commanded) != 0:

@@ -59,6 +59,7 @@ __all__ = [
     "SpinSamples",
     "SpinSolution",
     "amplitude_pinv",
+    "fitted_rates",
     "heading_weights",
     "interval_rotation",
     "nuisance_design",
@@ -517,6 +518,39 @@ def solve_spin(data: SpinSamples, *, latitude_deg: float, drift: bool = False) -
         consistent=consistent,
         drift=drift,
     )
+
+
+def fitted_rates(
+    data: SpinSamples, solution: SpinSolution, latitude_deg: float
+) -> tuple[Array, Array, Array]:
+    """The spin fit on its own samples (what ``find --spin --plot`` draws), rad/s.
+
+    Returns
+    -------
+    model : ndarray, shape (N, 2)
+        The fitted x and y gyro means, ``R(mu) h + b`` (+ the drift when it was fitted).
+    demodulated : ndarray, shape (N, 2)
+        Each sample's x and y gyro less the fitted bias (and drift), turned back to table angle
+        0 (``R(mu)^-1 (w - b)``): the Earth rate ``h`` plus noise, the same at every table angle
+        when the model holds (a once-per-turn error shows as a ripple in it).
+    h : ndarray, shape (2,)
+        The fitted Earth rate on the x and y gyros at table angle 0.
+    """
+    lat = latitude_rad(latitude_deg, "the spin solution")
+    on, ou = OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)
+    alpha = -math.radians(solution.azimuth_deg)
+    h, _ = earth_rate_body(
+        alpha, math.radians(solution.pitch_deg), math.radians(solution.roll_deg), on, ou
+    )
+    rot = interval_rotation(data.mu0_rad, data.mu1_rad)  # (N, 2, 2)
+    nuisance = nuisance_design(data.time_s, solution.drift)[0]  # (2N, k)
+    bias = (nuisance @ (np.asarray(solution.gyro_bias_dph, dtype=float) * DPH)).reshape(data.n, 2)
+    model = np.einsum("nij,j->ni", rot, h) + bias
+    # The interval means of the rotation are rotations scaled by |sinc| <= 1: the inverse is
+    # the transpose over the determinant.
+    det = rot[:, 0, 0] * rot[:, 1, 1] - rot[:, 0, 1] * rot[:, 1, 0]
+    demodulated = np.einsum("nji,nj->ni", rot, data.gyro_rps[:, :2] - bias) / det[:, None]
+    return model, demodulated, np.asarray(h, dtype=float)
 
 
 def spin_weights_level(

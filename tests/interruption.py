@@ -18,7 +18,19 @@ from typing import Any
 
 from simprocess import sim_process
 
-FIND = [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit(main())", "find"]
+#: ``-X faulthandler``: a host that does not exit after the signal is sent SIGABRT, which makes it
+#: write every thread's stack to stderr (in :class:`HostHung`) before it ends.
+FIND = [sys.executable, "-X", "faulthandler", "-c",
+        "from northfinder.cli import main; raise SystemExit(main())", "find"]  # fmt: skip
+#: Seconds a host may take to exit after the signal before it counts as hung.
+EXIT_TIMEOUT_S = 30.0
+
+
+class HostHung(RuntimeError):
+    """The host did not exit within :data:`EXIT_TIMEOUT_S` of the signal; the message ends with
+    its stderr, every thread's stack among it."""
+
+
 LINKS = ("serial-pty", "slcan-pty", "socketcan")
 VCAN = "vcan0"
 #: The plan of the interrupted run: long windows, so that the moves stand out.
@@ -97,7 +109,19 @@ def interrupt_during_move(
                 time.sleep(0.005)
             sent_at = time.monotonic()
             proc.send_signal(signum)
-            _, err = proc.communicate(timeout=30)
+            try:
+                _, err = proc.communicate(timeout=EXIT_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                proc.send_signal(signal.SIGABRT)
+                try:
+                    _, err = proc.communicate(timeout=10.0)
+                except subprocess.TimeoutExpired:
+                    err = "(no stack: the host did not end on SIGABRT either)"
+                raise HostHung(
+                    f"find did not exit within {EXIT_TIMEOUT_S:g} s of "
+                    f"{signal.Signals(signum).name} (caught moving: {caught}); its stderr:\n"
+                    + "\n".join(err.strip().splitlines()[-80:])
+                ) from None
             exit_s = time.monotonic() - sent_at
         finally:
             if proc.poll() is None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -365,3 +366,144 @@ def test_the_probes_figures_alone_show_a_slow_vm(tmp_path, monkeypatch):
 )
 def test_a_wrong_answer_is_never_taken_for_a_starved_vm(name, message, starved):
     assert rehearsal.starved_symptom(name, message) == starved
+
+
+# -- the rehearsal's spin find ----------------------------------------------------------------
+
+
+def test_the_rehearsals_spin_bound_is_the_closed_form_for_the_simulators_sensor():
+    from northfinder.firmware_sim.sensors import load_spec
+    from northfinder.host.accuracy import spin_bound_deg
+
+    assert load_spec(rehearsal.SENSOR).gyro.arw_dpsh == rehearsal.SENSOR_ARW_DPSH
+    lat = rehearsal.TRUTH["latitude"]
+    # ARW 0.002 deg/sqrt(h) over one minute at 34 deg N: N / (Omega cos(lat) sqrt(T)).
+    n = 0.002 * math.pi / 180.0 / 60.0
+    closed = math.degrees(n / (7.292115e-5 * math.cos(math.radians(lat)) * math.sqrt(60.0)))
+    assert rehearsal.spin_bound_deg(60.0, 0.002, lat) == pytest.approx(closed, rel=1e-12)
+    assert closed == pytest.approx(0.07122, abs=5e-5)
+    # The accuracy module's exact covariance agrees over whole turns.
+    exact = spin_bound_deg(60.0, rehearsal.SPIN_RATE_DPS, 0.002, lat)
+    assert rehearsal.spin_bound_deg(60.0, 0.002, lat) == pytest.approx(exact, rel=1e-4)
+
+
+def spin_result(azimuth: float, sigma: float, *, solver: str = "spin") -> dict:
+    """A ``find --json --spin`` result as the command line writes it (the keys judged)."""
+    return {
+        "azimuth_deg": azimuth, "sigma_deg": sigma, "pitch_deg": 1.5, "roll_deg": -0.8,
+        "consistent": True, "solver": solver,
+        "spin": {"duration_s": 59.995, "rate_dps": 6.0, "sweep_deg": 359.97, "samples": 11999,
+                 "dropped": 1},
+    }  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("azimuth", "sigma", "solver", "wrong"),
+    [
+        (123.456 + 0.02, 0.0712, "spin", None),
+        (123.456 - 0.35, 0.0712, "spin", None),  # 4.9 sigma
+        (123.456 - 0.36, 0.0712, "spin", "exceeds 5 sigma"),  # 5.06 sigma
+        (123.456 + 0.60, 0.2000, "spin", "exceeds 5 sigma"),  # within 5 sigma, not 0.5 deg
+        (123.456 + 360.01, 0.0712, "spin", None),  # angles wrap
+        (123.456, 0.0670, "spin", "beats the white-noise bound"),  # 0.94 of it
+        (123.456, 0.0680, "spin", None),  # 0.955 of it: the sigma's own scatter
+        (123.456, 0.0712, "windows", "not a spin's"),
+    ],
+)
+def test_the_spin_find_is_judged_against_the_truth_and_the_bound(azimuth, sigma, solver, wrong):
+    figures, problems = rehearsal.judge_spin(spin_result(azimuth, sigma, solver=solver))
+    if wrong is None:
+        assert problems == []
+        assert figures["bound_deg"] == pytest.approx(0.07122, abs=5e-5)
+        assert figures["sigma_over_bound"] == pytest.approx(sigma / figures["bound_deg"], abs=1e-3)
+        assert figures["turns"] == pytest.approx(1.0, abs=1e-3)
+    else:
+        assert len(problems) == 1 and wrong in problems[0], problems
+
+
+def test_a_spin_find_of_the_simulator_passes_the_rehearsals_judge(capsys):
+    # The rehearsal's own command against the simulator in virtual time: the product's JSON has
+    # what the judge reads, and a healthy run passes it.
+    from northfinder.cli import main
+
+    t = rehearsal.TRUTH
+    argv = ["find", "--sim", "--sensor", rehearsal.SENSOR, "--seed", "7", "--json",
+            "--azimuth", str(t["azimuth"]), "--latitude", str(t["latitude"]),
+            "--pitch", str(t["pitch"]), "--roll", str(t["roll"]),
+            "--spin", f"{rehearsal.SPIN_RATE_DPS:g}"]  # fmt: skip
+    assert main(argv) == 0
+    figures, problems = rehearsal.judge_spin(json.loads(capsys.readouterr().out))
+    assert problems == []
+    assert rehearsal.SPIN_SIGMA_FLOOR <= figures["sigma_over_bound"] <= 1.3, figures
+    assert figures["turns"] == pytest.approx(1.0, abs=0.01)
+
+
+def test_the_summary_prints_the_spin_find_and_the_interrupted_runs(tmp_path):
+    out = make_out(tmp_path, "pass", {"probe": 0, "rehearsal": 0, "interrupt": 0})
+    path = out / "steps" / "rehearsal" / "result.json"
+    res = json.loads(path.read_text())
+    res["spin"], _ = rehearsal.judge_spin(spin_result(123.476, 0.0712))
+    res["spin_conformance"] = {"spin.steady": "pass", "spin.refusals": "pass"}
+    path.write_text(json.dumps(res))
+    rows = [{"link": "socketcan", "signal": sig, "runs": 20, "caught_moving": 20, "status_ok": 20,
+             "at_rest": 20, "rotating": 0, "streaming": 0, "exit_s_median": 0.41,
+             "states": ["READY"], "errors": 0} for sig in ("SIGINT", "SIGTERM")]  # fmt: skip
+    (out / "steps" / "interrupt" / "result.json").write_text(
+        json.dumps({"tests": 3, "failures": 0, "runs": 40, "at_rest": 40, "rows": rows})
+    )
+    run = subprocess.run(
+        [sys.executable, str(HIL_D / "summarize.py"), str(out)], capture_output=True, text=True
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert (
+        "spin +6.00 deg/s, 1.0 turns: azimuth error +0.020 deg, sigma 0.071 deg = 1.00 x the "
+        "white-noise bound 0.071 deg; spin.refusals pass, spin.steady pass" in run.stdout
+    )
+    assert "socketcan SIGTERM: 20/20 at rest, 20/20 caught moving, 0 left ROTATING" in run.stdout
+
+
+# -- the interrupt step's judgement -----------------------------------------------------------
+
+interrupt_result = load("interrupt_result")
+
+JUNIT_OK = (
+    '<?xml version="1.0"?><testsuites><testsuite name="pytest" tests="3" failures="0" '
+    'errors="0" skipped="0"></testsuite></testsuites>'
+)
+
+
+def bench_row(signal: str, runs=20, at_rest=20, rotating=0, errors=()) -> dict:
+    return {"link": "socketcan", "signal": signal, "runs": runs, "caught_moving": runs,
+            "status_ok": runs, "at_rest": at_rest, "rotating": rotating, "streaming": 0,
+            "exit_s_median": 0.18, "states": ["SETTLING"], "errors": list(errors),
+            "not_at_rest": []}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("rows", "junit", "failed"),
+    [
+        ([bench_row("SIGINT"), bench_row("SIGTERM")], JUNIT_OK, []),
+        ([bench_row("SIGINT", at_rest=19, rotating=1), bench_row("SIGTERM")], JUNIT_OK,
+         ["socketcan SIGINT: 1 of 20 runs not at rest"]),
+        ([bench_row("SIGINT", runs=19, at_rest=19, errors=["find did not exit within 30 s"]),
+          bench_row("SIGTERM")], JUNIT_OK, ["socketcan SIGINT: 1 runs in error: find did not"]),
+        ([bench_row("SIGINT"), bench_row("SIGTERM")], JUNIT_OK.replace('failures="0"', 'failures="1"'),
+         ["tests: 1 failed, 0 errors"]),
+        ([], JUNIT_OK, ["the bench ran no link"]),
+        (None, JUNIT_OK, ["no figures from the bench"]),
+    ],
+)  # fmt: skip
+def test_the_interrupt_step_fails_unless_every_run_left_the_unit_at_rest(
+    tmp_path, rows, junit, failed
+):
+    (tmp_path / "junit.xml").write_text(junit)
+    if rows is not None:
+        (tmp_path / "bench.json").write_text(json.dumps({"interrupt": {"rows": rows}}))
+    assert interrupt_result.main(str(tmp_path)) == (1 if failed else 0)
+    res = json.loads((tmp_path / "result.json").read_text())
+    assert len(res["failed"]) == len(failed)
+    for got, want in zip(res["failed"], failed, strict=True):
+        assert got.startswith(want), got
+    if rows:
+        assert [r["signal"] for r in res["rows"]] == ["SIGINT", "SIGTERM"]
+        assert res["runs"] == sum(r["runs"] for r in rows)

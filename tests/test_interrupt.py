@@ -7,21 +7,90 @@ unit's state read afterwards through the simulator's control channel (``tests/in
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
+import threading
 
 import can
 import pytest
 from interruption import FIND, PLAN, host_link_args, interrupt_during_move, sim_link_args
 from simprocess import sim_process
 
+from northfinder.driver.clock import VirtualClock, WallClock
 from northfinder.driver.errors import ReplyTimeout
 from northfinder.driver.protocol.can import decode_can
 from northfinder.driver.protocol.constants import DeviceState, Opcode
 from northfinder.driver.protocol.messages import Command
 from northfinder.embed import SimulatedInstrument
+
+
+def _interrupt_as_a_python_enter_returns(frame, event, arg):
+    """A trace function that raises KeyboardInterrupt as any Python-level ``__enter__`` of the
+    threading module returns: where a signal handler can run after the lock was taken and before
+    the ``with`` statement guards it (CPython issue 29988)."""
+    if event == "call" and frame.f_code.co_name == "__enter__":
+        caller = frame.f_back.f_code.co_filename if frame.f_back is not None else ""
+        # only the product's own locks (not a finalizer's that the collector runs meanwhile)
+        if frame.f_code.co_filename == threading.__file__ and caller.endswith(
+            ("clock.py", "runner.py")
+        ):
+
+            def at_return(frame, event, arg):
+                if event == "return":
+                    raise KeyboardInterrupt
+                return at_return
+
+            return at_return
+    return None
+
+
+@pytest.mark.parametrize("clock", [WallClock, VirtualClock])
+def test_an_interrupt_as_the_clock_takes_its_lock_leaves_the_lock_free(clock):
+    # Seen on vcan0 (2 of 80 runs of find sent SIGINT during a move): the interrupted wait left
+    # the clock's lock held; the reader thread's notify and the clean-up's next wait then blocked
+    # for good. The clocks take their lock through its own C-level __enter__, which leaves no gap.
+    c = clock()
+
+    def interrupted(call):
+        previous = sys.gettrace()
+        sys.settrace(_interrupt_as_a_python_enter_returns)
+        try:
+            with contextlib.suppress(KeyboardInterrupt):
+                call()
+        finally:
+            sys.settrace(previous)
+
+    def lock_free() -> bool:  # another thread's notify, as the driver's reader makes it
+        other = threading.Thread(target=c.notify, daemon=True)
+        other.start()
+        other.join(5.0)
+        return not other.is_alive()
+
+    interrupted(lambda: c.wait_until(lambda: True, None))
+    assert lock_free(), "an interrupted wait_until left the clock's lock held"
+    interrupted(c.notify)
+    assert lock_free(), "an interrupted notify left the clock's lock held"
+    assert c.wait_until(lambda: True, c.now() + 1.0)
+
+
+def test_an_interrupt_as_the_simulators_sender_takes_its_lock_leaves_the_lock_free():
+    from northfinder.firmware_sim.runner import PacedSender
+
+    sender = PacedSender(runner=None)  # type: ignore[arg-type]  # put() needs no runner
+    previous = sys.gettrace()
+    sys.settrace(_interrupt_as_a_python_enter_returns)
+    try:
+        with contextlib.suppress(KeyboardInterrupt):
+            sender.put([])
+    finally:
+        sys.settrace(previous)
+    other = threading.Thread(target=sender.put, args=([],), daemon=True)
+    other.start()
+    other.join(5.0)
+    assert not other.is_alive(), "an interrupted put left the sender's lock held"
 
 
 def _instrument() -> SimulatedInstrument:

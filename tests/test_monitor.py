@@ -32,6 +32,7 @@ from northfinder.driver.protocol.messages import (
     Reply,
     RotateTo,
     Sample,
+    Spin,
     Status,
     Validity,
 )
@@ -135,6 +136,40 @@ def test_observer_shows_the_target_while_the_table_moves():
     feed(obs, clock, status(2, DeviceState.READY, angle=90_000_000), 0.2)
     obs.drain()
     assert obs.view().target_deg is None
+
+
+def test_observer_names_spinning_and_measures_the_table_rate_on_the_units_own_time():
+    clock = StepClock()
+    obs = LinkObserver(clock)
+    obs.configured_rate_hz = 200
+    feed(obs, clock, status(0), 0.0)
+    feed(obs, clock, Spin(3, -6000), 0.05)
+    feed(obs, clock, Reply(3, Opcode.SPIN, Result.OK), 0.06)
+    # Heartbeats every 20 ticks (0.1 s of unit time) at -6 deg/s across 0 deg, read with 40 ms
+    # of arrival jitter: the rate comes from the counters, not from the arrivals.
+    angle = 2.0
+    for k in range(1, 16):
+        angle = (angle - 0.6) % 360.0
+        feed(obs, clock, status(20 * k, DeviceState.SPINNING, round(angle * 1e6)),
+             0.1 * k + (0.04 if k % 2 else 0.0))  # fmt: skip
+    obs.drain()
+    v = obs.view()
+    assert v.state == "SPINNING"
+    assert v.table_rate_dps == pytest.approx(-6.0, abs=1e-6)
+    assert v.spin_rate_dps == pytest.approx(-6.0)
+    assert "SPIN -6.000 deg/s -> OK in 10.0 ms" in [e.text for e in v.log]
+    assert "state READY -> SPINNING" in [e.text for e in v.log]
+    # At rest: no rate, the spin forgotten.
+    feed(obs, clock, status(400, DeviceState.READY, round(angle * 1e6)), 2.0)
+    obs.drain()
+    v = obs.view()
+    assert v.table_rate_dps is None and v.spin_rate_dps is None
+    # Without the sample rate the arrivals are the clock (here without jitter).
+    obs = LinkObserver(clock)
+    for k in range(12):
+        feed(obs, clock, status(k, DeviceState.ROTATING, round(10e6 * k * 0.1)), 5.0 + 0.1 * k)
+    obs.drain()
+    assert obs.view().table_rate_dps == pytest.approx(10.0, rel=1e-9)
 
 
 def test_observer_says_silent_after_three_heartbeats_without_status():
@@ -303,6 +338,26 @@ async def test_a_find_started_from_the_monitor_forms_its_heading():
 
 
 @sync
+async def test_a_spinning_table_is_named_with_its_rate():
+    with simulated() as (sim, session):
+        app = MonitorApp(session, refresh_hz=0)
+        async with app.run_test(size=SIZE) as pilot:
+            await advance(app, pilot, sim, 0.5)
+            session.require().spin(-6.0, wait=True)  # moves the virtual clock itself
+            await advance(app, pilot, sim, 3.0)
+            unit = text(app, "unit")
+            assert "SPINNING" in unit
+            assert "rate     -6.000 / -6.000 deg/s" in unit
+            assert text(app, "banner").startswith("SPINNING -6.000 deg/s")
+            assert "SPIN -6.000 deg/s -> OK" in log_text(app)
+            assert "state ROTATING -> SPINNING" in log_text(app)
+            session.require().stop(wait=True)
+            await advance(app, pilot, sim, 1.0)
+            unit = text(app, "unit")
+            assert "READY" in unit and "rate     ---" in unit
+
+
+@sync
 async def test_a_unit_in_fault_is_shown_and_reset_clears_it():
     async with on_screen() as (sim, _session, app, pilot):
         with sim.runner.lock:
@@ -416,6 +471,19 @@ def test_snapshot_find_done(snap_compare):
 
         app = MonitorApp(session, refresh_hz=0, plan=plan)
         assert snap_compare(app, terminal_size=SIZE, run_before=before)
+
+
+def test_snapshot_spinning(snap_compare):
+    with simulated() as (sim, session):
+
+        async def before(pilot):
+            await advance(pilot.app, pilot, sim, 0.5)
+            session.require().spin(6.0, wait=True)
+            await advance(pilot.app, pilot, sim, 3.0)
+
+        assert snap_compare(
+            MonitorApp(session, refresh_hz=0), terminal_size=SIZE, run_before=before
+        )
 
 
 def test_snapshot_silent_unit(snap_compare):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -19,7 +20,13 @@ from northfinder.firmware_sim.imu import Instrument, Truth
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.accuracy import bound_deg, spin_bound_deg
 from northfinder.host.errors import GeometryError
-from northfinder.host.spin import SpinSamples, solve_spin, solve_spin_batch, spin_samples
+from northfinder.host.spin import (
+    SpinSamples,
+    fitted_rates,
+    solve_spin,
+    solve_spin_batch,
+    spin_samples,
+)
 
 IDEAL = load_spec("ideal")
 LAT = 34.0
@@ -320,3 +327,49 @@ def test_record_then_solve_a_spin_reproduces_find(tmp_path, capsys, suffix):
     assert json.loads(capsys.readouterr().out)["spin"]["drift"] is True
     assert main(["solve", path, "--denoise", "hampel"]) == 2
     assert "--denoise: not available for a spin recording" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------------
+# The fit on its samples, and find --spin --plot
+# ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("drift", [False, True])
+def test_the_fitted_rates_are_the_samples_without_noise(drift):
+    rng = np.random.default_rng(5)
+    truth = Truth(azimuth_deg=211.0, pitch_deg=4.0, roll_deg=-6.0, latitude_deg=LAT)
+    spec = IDEAL.with_values({"gyro.bias_dph": (3.0, -2.0, 1.0)})
+    b = simulate_spin(spec, truth, -6.0, 90.0, n_runs=1, rng=rng, sample_rate_hz=20.0)
+    gyro = b.gyro_rps[0].copy()
+    if drift:
+        gyro[:, :2] += np.radians(np.array([0.4, -0.3]) / 3600.0) * (b.time_s / 90.0)[:, None]
+    data = SpinSamples(gyro, b.accel_mps2[0], b.mu0_rad[0], b.mu1_rad[0], b.time_s)
+    sol = solve_spin(data, latitude_deg=LAT, drift=drift)
+    model, demod, h = fitted_rates(data, sol, LAT)
+    earth_h = OMEGA_IE * math.cos(math.radians(LAT))
+    # The model is the samples; demodulated, every sample is the Earth rate at table angle 0.
+    assert_allclose(model, gyro[:, :2], rtol=0, atol=1e-9 * earth_h)
+    assert_allclose(demod, np.broadcast_to(h, demod.shape), rtol=0, atol=1e-9 * earth_h)
+    # A solution one degree off does not fit: the demodulated rates turn away from its h.
+    _, demod_wrong, h_wrong = fitted_rates(data, replace(sol, azimuth_deg=sol.azimuth_deg + 1), LAT)
+    assert np.max(np.abs(demod_wrong - h_wrong)) > 1e-3 * earth_h
+
+
+def test_find_spin_plots_the_fit_and_solve_plots_the_recording(tmp_path, capsys):
+    common = ["--sim", "--warmup", "0", "--sensor", "nav-fog", "--seed", "4", "--spin", "-6"]
+    png, rec = tmp_path / "spin.png", tmp_path / "spin.npz"
+    assert main(["find", *common, "--plot", str(png)]) == 0
+    assert "error" in capsys.readouterr().out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    assert main(["record", str(rec), *common]) == 0
+    svg = tmp_path / "solved.svg"
+    assert main(["solve", str(rec), "--plot", str(svg)]) == 0
+    assert svg.read_text().lstrip().startswith("<?xml") and "<svg" in svg.read_text()
+    capsys.readouterr()
+    # A file that cannot be written is refused before the run, in one line, exit 2.
+    assert main(["find", *common, "--plot", str(tmp_path / "spin.nope")]) == 2
+    err = capsys.readouterr().err
+    assert ".nope is no plot format" in err and len(err.strip().splitlines()) == 1
+    # --record stays refused with --spin (record --spin writes spin recordings).
+    assert main(["find", *common, "--record", str(tmp_path / "x.npz")]) == 2
+    assert "northfinder record --spin" in capsys.readouterr().err

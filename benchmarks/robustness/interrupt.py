@@ -26,7 +26,14 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 
-from interruption import LINKS, VCAN, Interrupted, interrupt_during_move, sim_link_args
+from interruption import (
+    LINKS,
+    VCAN,
+    HostHung,
+    Interrupted,
+    interrupt_during_move,
+    sim_link_args,
+)
 from simprocess import sim_process
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -60,7 +67,8 @@ def interrupt_runs(args: argparse.Namespace) -> dict[str, Any]:
                 except Exception as exc:  # a simulator that died: counted, started again
                     stack.close()
                     log = (facts or {}).get("stderr", "").strip().splitlines()
-                    errors.append(f"{exc!r}; simulator: {log[-1] if log else '?'}")
+                    what = str(exc) if isinstance(exc, HostHung) else repr(exc)
+                    errors.append(f"{what}\nsimulator: {log[-1] if log else '?'}")
                     facts, stack = None, contextlib.ExitStack()
             row = {
                 "link": link,
@@ -82,6 +90,6 @@ def interrupt_runs(args: argparse.Namespace) -> dict[str, Any]:
                   f"{row['streaming']:>9} {row['exit_s_median']:>15.3f} {len(errors):>6}",
                   flush=True)  # fmt: skip
             for e in errors:
-                print(f"  error: {e}", flush=True)
+                print("  error: " + e.replace("\n", "\n    "), flush=True)
         stack.close()
     return {"rows": rows}

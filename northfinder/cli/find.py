@@ -126,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
 def _find_spin(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
     found, truth, identity = spinfind.run(args)
     sol = found.solution
+    if args.plot:
+        spinfind.plot(args.plot, found, truth)
     out = spinfind.as_json(found, truth, identity) if args.json else spinfind.text(found, truth)
     print(out, file=sys.stderr if to_stdout else sys.stdout, flush=True)
     if nmea is not None:

@@ -218,14 +218,14 @@ def run(args: argparse.Namespace) -> int:
 def _solve_spin(args: argparse.Namespace, rec: Recording, source: dict[str, Any]) -> int:
     """A spin recording (``record --spin``): the spin solution; the stop-and-go options are
     refused, not ignored."""
-    for name in ("denoise", "plot"):
-        value = getattr(args, name)
-        if value not in (None, "none"):
-            raise HostConfigError(f"--{name}: not available for a spin recording")
+    if args.denoise not in (None, "none"):
+        raise HostConfigError("--denoise: not available for a spin recording")
     if args.solver not in (None, "auto"):
         raise HostConfigError("--solver: a spin recording has its own solver")
     found = spinfind.solve_recording(rec, args.latitude, True if args.spin_drift else None)
     truth = rec.meta.get("truth")
+    if args.plot:
+        spinfind.plot(args.plot, found, truth, float(rec.meta["sample_rate_hz"]))
     if args.json:
         say(spinfind.as_json(found, truth, rec.meta.get("device"), "solve", source=source))
     else:

@@ -68,12 +68,11 @@ def check(args: argparse.Namespace, plan_defaults: dict[str, Any]) -> None:
             raise HostConfigError(
                 f"--{name}: a stop-and-go plan option; with --spin the table turns instead"
             )
-    for name in ("record", "plot"):
-        if getattr(args, name, None):
-            raise HostConfigError(
-                f"--{name}: not available with --spin in this version (northfinder record "
-                "--spin writes a spin recording)"
-            )
+    if getattr(args, "record", None):
+        raise HostConfigError(
+            "--record: not available with --spin in this version (northfinder record "
+            "--spin writes a spin recording)"
+        )
 
 
 def run(args: argparse.Namespace) -> tuple[Any, dict[str, Any] | None, dict[str, Any]]:
@@ -205,3 +204,141 @@ def solve_recording(rec: Any, latitude: float | None, drift: bool | None) -> Any
                         float(rec.meta["sample_rate_hz"]), w.validity)  # fmt: skip
     source = "--latitude" if latitude is not None else "the recording"
     return SpinFind(solve_spin(data, latitude_deg=lat, drift=fit_drift), w, lat, source)
+
+
+#: Bins of table angle per turn in the plot's demodulated panel.
+PLOT_BINS_PER_TURN = 36
+#: Most raw samples drawn per gyro (every k-th sample beyond it).
+PLOT_MAX_POINTS = 8000
+
+
+def plot(
+    path: str,
+    found: Any,
+    truth: dict[str, Any] | None = None,
+    sample_rate_hz: float | None = None,
+) -> None:
+    """The figure of a spin: the x and y gyro over the table angle with the fitted sinusoids;
+    the gyros demodulated (bias removed, turned back to table angle 0) in bins of table angle,
+    which the fit says are the Earth rate at every angle; the azimuths of the two halves with
+    their 1-sigma bars beside the solution (and the simulated truth). ``sample_rate_hz``: of a
+    recorded window (which does not carry it); a live window's own by default.
+
+    Raises
+    ------
+    HostConfigError
+        matplotlib is not installed.
+    OutputError
+        The file cannot be written.
+    """
+    import numpy as np
+
+    from northfinder.driver.protocol.units import DPH
+    from northfinder.host.errors import OutputError
+    from northfinder.host.spin import fitted_rates, spin_samples
+
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
+    sol, w = found.solution, found.window
+    rate_hz = float(w.sample_rate_hz if sample_rate_hz is None else sample_rate_hz)
+    data = spin_samples(w.gyro_dph, w.accel_mps2, w.table_deg, w.counter, rate_hz, w.validity)
+    model, demod, h = fitted_rates(data, sol, found.latitude_deg)
+    angle = np.degrees(np.unwrap(data.mu1_rad))
+    angle -= angle[0] - math.degrees(data.mu1_rad[0] - data.mu0_rad[0]) * 0.5
+    gyro = data.gyro_rps[:, :2] / DPH
+    model, demod, h = model / DPH, demod / DPH, h / DPH
+    step = max(1, len(angle) // PLOT_MAX_POINTS)
+
+    fig, axes = plt.subplots(3, 1, figsize=(10, 9), constrained_layout=True,
+                             gridspec_kw={"height_ratios": [1.2, 1, 0.9]})  # fmt: skip
+    failed = sol.consistent is False
+    err = _error(sol, truth)
+    head = (
+        ("CONSISTENCY CHECK FAILED: " if failed else "")
+        + f"azimuth {sol.azimuth_deg:.3f} ± {sol.sigma_deg:.3f}° (1σ)"
+        + ("" if err is None else f", error {err:+.3f}° against the simulated truth")
+    )
+    sub = (
+        f"spin {sol.rate_dps:+.2f} deg/s for {sol.duration_s:.1f} s ({sol.sweep_deg / 360.0:+.2f} "
+        f"turns, {sol.samples} samples), pitch {sol.pitch_deg:.3f}°, roll {sol.roll_deg:.3f}°, "
+        f"latitude {found.latitude_deg:g}°" + (", drift fitted" if sol.drift else "")
+        + (f", sensor {truth['sensor']}" if truth and "sensor" in truth else "")
+    )  # fmt: skip
+    fig.suptitle(plain_numbers(head + "\n" + sub), fontsize=10.5,
+                 color="tab:red" if failed else "black")  # fmt: skip
+    colours = ("tab:blue", "tab:orange")
+
+    ax = axes[0]
+    for j, name in enumerate("xy"):
+        ax.plot(angle[::step], gyro[::step, j], lw=0, marker=".", ms=1.0, alpha=0.3,
+                color=colours[j])  # fmt: skip
+        ax.plot(angle, model[:, j], lw=1.6, color=colours[j], label=f"gyro {name}: fit")
+    lo, hi = np.percentile(gyro, [1, 99])
+    lo, hi = min(lo, model.min()), max(hi, model.max())
+    pad = 0.05 * (hi - lo or 1.0)
+    ax.set_ylim(lo - pad, hi + pad)
+    ax.set_ylabel("gyro, deg/h")
+    ax.set_title("gyro x and y over the table angle: samples (dots) and the fitted "
+                 "Earth rate + bias (line)", fontsize=9)  # fmt: skip
+    ax.legend(fontsize=8, loc="upper right")
+    ax.grid(True, alpha=0.3)
+
+    ax = axes[1]
+    turns = abs(sol.sweep_deg) / 360.0
+    nbins = int(min(max(8, round(PLOT_BINS_PER_TURN * turns)), max(8, len(angle) // 8)))
+    edges = np.linspace(angle.min(), angle.max(), nbins + 1)
+    which = np.clip(np.searchsorted(edges, angle, side="right") - 1, 0, nbins - 1)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    for j, name in enumerate("xy"):
+        count = np.bincount(which, minlength=nbins).astype(float)
+        total = np.bincount(which, weights=demod[:, j], minlength=nbins)
+        sq = np.bincount(which, weights=demod[:, j] ** 2, minlength=nbins)
+        keep = count >= 2
+        mean = total[keep] / count[keep]
+        var = np.maximum(sq[keep] / count[keep] - mean**2, 0.0) * count[keep] / (count[keep] - 1)
+        label = f"gyro {name} demodulated, bin mean ± 1σ"
+        ax.errorbar(centres[keep], mean, yerr=np.sqrt(var / count[keep]), fmt="o", ms=3,
+                    capsize=2, color=colours[j], label=label)  # fmt: skip
+        ax.axhline(
+            h[j], color=colours[j], lw=1.2, ls="--", label=f"fitted h_{name} {h[j]:.3f} deg/h"
+        )
+    ax.set_ylabel("Earth rate at table angle 0, deg/h")
+    ax.set_xlabel("table angle turned since the first sample, deg")
+    ax.set_title("the gyros less their fitted bias, turned back to table angle 0: flat where the "
+                 "model holds (a once-per-turn error shows as a ripple)", fontsize=9)  # fmt: skip
+    ax.legend(fontsize=8, loc="best", ncol=2)
+    ax.grid(True, alpha=0.3)
+    axes[0].sharex(axes[1])
+
+    ax = axes[2]
+    ref = sol.azimuth_deg
+    if sol.halves_deg is not None and sol.halves_sigma_deg is not None:
+        y = [ref + (a - ref + 180.0) % 360.0 - 180.0 for a in sol.halves_deg]
+        ax.errorbar([1, 2], y, yerr=list(sol.halves_sigma_deg), fmt="o", capsize=3,
+                    label="half azimuth ± 1σ")  # fmt: skip
+    ax.set_xticks([1, 2], ["first half", "second half"], fontsize=8)
+    ax.set_xlim(0.5, 2.5)
+    ax.axhline(ref, color="k", lw=1.0, label="solution")
+    ax.axhspan(ref - sol.sigma_deg, ref + sol.sigma_deg, color="k", alpha=0.1,
+               label="solution ± 1σ")  # fmt: skip
+    if truth is not None and err is not None:
+        ax.axhline(ref - err, color="tab:red", lw=1.0, ls="--", label="simulated truth")
+    ax.set_ylabel("azimuth, deg")
+    ax.set_title(
+        "azimuth of each half of the samples alone"
+        + (": they disagree beyond their noise" if failed else ""),
+        fontsize=9, color="tab:red" if failed else "black",
+    )  # fmt: skip
+    ax.legend(fontsize=8, loc="best")
+    ax.grid(True, alpha=0.3)
+    try:
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise OutputError(f"--plot {path}: cannot write ({exc.strerror})") from exc
+    finally:
+        plt.close(fig)

@@ -272,7 +272,8 @@ class MonitorApp(App[int]):
             return Text(f"FAULT: {v.faults}; r resets the unit  {where}")
         banner.set_classes("")
         rec = f"  recording {s.record_path}" if s.record_path else ""
-        return Text(f"{v.state}  {where}{rec}")
+        turning = "" if v.table_rate_dps is None else f" {v.table_rate_dps:+.3f} deg/s"
+        return Text(f"{v.state}{turning}  {where}{rec}")
 
     def _unit(self, v: View) -> Text:
         t = Text()
@@ -295,6 +296,12 @@ class MonitorApp(App[int]):
             t.append(f"target   {v.target_deg:9.4f} deg\n", style="cyan")
         else:
             t.append("target   ---\n", style="dim")
+        if v.table_rate_dps is not None:
+            # measured / the rate SPIN asked for, as the stream's rate reads
+            spin = "" if v.spin_rate_dps is None else f" / {v.spin_rate_dps:+.3f}"
+            t.append(f"rate     {v.table_rate_dps:+.3f}{spin} deg/s\n", style="cyan")
+        else:
+            t.append("rate     ---\n", style="dim")
         t.append(f"temp     {_num(v.temperature_c, '7.2f')} degC\n")
         age = "---" if v.status_age_s is None else f"{v.status_age_s:.2f} s ago"
         t.append(f"status   {age}\n", style="dim")

@@ -43,6 +43,7 @@ from northfinder.driver.protocol.messages import (
     RotateTo,
     Sample,
     SetConfig,
+    Spin,
     Status,
 )
 from northfinder.driver.window import CountScales
@@ -64,6 +65,8 @@ SILENT_AFTER_PERIODS = 3
 #: ...and not less than this, s, by default: on a busy host a status is often read a few tenths
 #: of a second late, and a screen that flickers SILENT says nothing.
 SILENT_AFTER_S = 1.0
+#: The table's rate is measured over the statuses of about this span, s (ten heartbeats).
+TABLE_RATE_SPAN_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,12 @@ class View:
     target_deg: float | None
     temperature_c: float | None
     faults: str
+    table_rate_dps: float | None
+    """The table's rate from the latest statuses while it turns (ROTATING, SPINNING,
+    SETTLING), deg/s, positive counter-clockwise; None at rest or before two statuses."""
+    spin_rate_dps: float | None
+    """The rate the SPIN command seen on the link asked for while the unit spins (ROTATING
+    up to the rate, SPINNING), deg/s; None otherwise."""
     sample_counter: int | None
     samples: int
     rate_hz: float | None
@@ -175,6 +184,9 @@ class LinkObserver:
         self.heartbeat_s = HEARTBEAT_PERIOD_DEFAULT_MS / 1000.0
         self.configured_rate_hz: int | None = None
         self.target_deg: float | None = None
+        self.spin_rate_dps: float | None = None
+        # (unit time, table angle deg) of the latest statuses: the table's rate.
+        self._angles: deque[tuple[float, float]] = deque(maxlen=64)
         self.streaming = False
         # The trace ring: counter, arrival time, gyro x/y/z, accel x/y/z (in counts).
         cap = int(MAX_RATE_HZ * self.trace_seconds)
@@ -265,6 +277,15 @@ class LinkObserver:
     def _status(self, st: Status, t: float) -> None:
         previous = self.status
         self.status, self.status_at = st, t
+        # The unit's own time where the sample rate is known (the counter in the status counts
+        # its ticks whether it streams or not): arrival times carry the link's jitter.
+        rate = self.configured_rate_hz
+        when = st.sample_counter / rate if rate else t
+        if self._angles and not when > self._angles[-1][0]:
+            self._angles.clear()  # a restart, or the time base changed
+        self._angles.append((when, st.angle * self.scales.angle_deg))
+        if st.state not in (DeviceState.ROTATING, DeviceState.SPINNING):
+            self.spin_rate_dps = None
         if previous is not None and previous.state != st.state:
             level = "error" if st.state == DeviceState.FAULT else "info"
             text = f"state {previous.state.name} -> {st.state.name}"
@@ -297,6 +318,8 @@ class LinkObserver:
             self.target_deg = (angle + c.delta * sc) % 360.0
         elif isinstance(c, Home):
             self.target_deg = 0.0
+        elif isinstance(c, Spin):
+            self.spin_rate_dps = c.rate * 1e-3
         if c.opcode in (Opcode.STREAM_START, Opcode.STREAM_STOP) or (
             isinstance(c, SetConfig) and c.key == ConfigKey.STREAMING
         ):
@@ -340,6 +363,7 @@ class LinkObserver:
         if key == ConfigKey.SAMPLE_RATE_HZ:
             self.configured_rate_hz = int(value)
             self._late_base = None
+            self._angles.clear()
         elif key == ConfigKey.HEARTBEAT_PERIOD_MS and value > 0:
             self.heartbeat_s = value / 1000.0
         elif key == ConfigKey.STREAMING:
@@ -357,6 +381,22 @@ class LinkObserver:
                 )
 
     # -- reading ------------------------------------------------------------------------------
+    def table_rate_dps(self) -> float | None:
+        """The table's rate over the statuses of the last :data:`TABLE_RATE_SPAN_S` (at least
+        the last two), their angles unwrapped step by step, deg/s; None with fewer than two."""
+        pts = list(self._angles)
+        if len(pts) < 2:
+            return None
+        t_end = pts[-1][0]
+        first = len(pts) - 2
+        while first > 0 and t_end - pts[first - 1][0] <= TABLE_RATE_SPAN_S:
+            first -= 1
+        turned = sum(
+            (b[1] - a[1] + 180.0) % 360.0 - 180.0
+            for a, b in zip(pts[first:-1], pts[first + 1 :], strict=True)
+        )
+        return turned / (t_end - pts[first][0])
+
     def rate_hz(self) -> float | None:
         """Samples per second of the stream over the last two seconds of arrivals (None: fewer
         than two samples in that time, or the stream is off)."""
@@ -429,6 +469,9 @@ class LinkObserver:
             SILENT_AFTER_PERIODS * self.heartbeat_s, self.silent_after_s
         )
         moving = st is not None and st.state in (DeviceState.ROTATING, DeviceState.SETTLING)
+        turning = st is not None and st.state in (
+            DeviceState.ROTATING, DeviceState.SPINNING, DeviceState.SETTLING,
+        )  # fmt: skip
         return View(
             now_s=now,
             t0_s=self.t0,
@@ -441,6 +484,8 @@ class LinkObserver:
             target_deg=self.target_deg if moving else None,
             temperature_c=None if st is None else sc.temperature(st.temperature),
             faults="" if st is None else _fault_text(int(st.faults)),
+            table_rate_dps=self.table_rate_dps() if turning else None,
+            spin_rate_dps=self.spin_rate_dps,
             sample_counter=self.last_counter if st is None else st.sample_counter,
             samples=self.samples,
             rate_hz=self.rate_hz() if self.streaming else None,
@@ -482,6 +527,8 @@ def _command_text(c: Command, scales: CountScales) -> str:
         return f"{name} {c.angle * scales.angle_deg:.3f} deg"
     if isinstance(c, RotateBy):
         return f"{name} {c.delta * scales.angle_deg:+.3f} deg"
+    if isinstance(c, Spin):
+        return f"{name} {c.rate * 1e-3:+.3f} deg/s"
     if isinstance(c, SetConfig):
         key = c.key.name.lower() if isinstance(c.key, ConfigKey) else str(c.key)
         return f"{name} {key}={c.value}"

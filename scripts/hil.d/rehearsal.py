@@ -4,6 +4,9 @@
 2. ``northfinder sim -i socketcan -c IF`` runs as its own process (real time).
 3. ``northfinder find -i socketcan -c IF --json`` finds north against it; the result is checked
    against the simulator's truth (within 5 sigma and 0.5 deg).
+3b. ``northfinder find -i socketcan -c IF --json --spin 6`` finds north on the turning table
+   (protocol 1.1, one whole turn): within 5 sigma and 0.5 deg of the truth, and a sigma no
+   lower than the white-noise bound of the spin (``judge_spin``).
 4. ``northfinder conformance -i socketcan -c IF --junit ...`` checks the unit against protocol.md.
 5. The candump log is decoded with cantools against protocol.dbc: every frame known, sample
    ticks contiguous within each stream burst, cycle times of samples and heartbeats measured.
@@ -12,15 +15,14 @@ How strict depends on where it runs (``--mode``, default ``$HIL_MODE``); see ``R
 on a host with vcan0 and under user-mode Linux every check counts except the ones listed for
 that mode, which are run, reported with their reason, and not counted.
 
-Writes ``result.json`` (azimuth error, frames, lost ticks, arrival jitter p50/p99, conformance
-counted/passed, guest CPU use, the verdict). Exit status: 0 every counted part held; 1 a counted
-part failed; 3 not judged: parts failed the way a starved VM fails them, and the VM was measured
-unable to carry a real-time instrument (see ``judge``; the reasons are printed and in
-``not_judged_because``). A wrong heading, an unknown or undecodable frame, a hang, a missing
-report, an internal error, a wrong conformance answer or a simulator that died always fails.
-Reaches the product
-only through the ``northfinder`` command line, python-can's SocketCAN (through candump) and
-cantools.
+Writes ``result.json`` (azimuth error; the spin find's error, sigma and bound; frames, lost
+ticks, arrival jitter p50/p99, conformance counted/passed, guest CPU use, the verdict). Exit
+status: 0 every counted part held; 1 a counted part failed; 3 not judged: parts failed the way a
+starved VM fails them, and the VM was measured unable to carry a real-time instrument (see
+``judge``; the reasons are printed and in ``not_judged_because``). A wrong heading, a sigma below
+the physical bound, an unknown or undecodable frame, a hang, a missing report, an internal error,
+a wrong conformance answer or a simulator that died always fails. Reaches the product only
+through the ``northfinder`` command line, python-can's SocketCAN (through candump) and cantools.
 """
 
 from __future__ import annotations
@@ -40,6 +42,18 @@ import time
 from pathlib import Path
 
 TRUTH = {"azimuth": 123.456, "latitude": 34.0, "pitch": 1.5, "roll": -0.8}
+#: The simulator's sensor, and its gyro angle random walk (deg/sqrt(h); the preset's own figure,
+#: checked by tests/test_hil_scripts.py): the white-noise bound of the spin find.
+SENSOR = "nav-fog"
+SENSOR_ARW_DPSH = 0.002
+#: The spin find (protocol 1.1): table rate, deg/s; its default spin time is the fewest whole
+#: turns lasting 60 s (one turn at 6 deg/s).
+SPIN_RATE_DPS = 6.0
+#: The spin's reported sigma may fall this far below the white-noise bound (the sigma is itself
+#: estimated from the residuals: about 0.5 % scatter over one turn at 200 Hz); further below, the
+#: result claims more than the physics allows, which is a bug.
+SPIN_SIGMA_FLOOR = 0.95
+EARTH_RATE_RPS = 7.292115e-5
 
 #: Conformance checks that time the unit against the host's wall clock.
 TIMING_SENSITIVE = frozenset(
@@ -240,6 +254,62 @@ def judge(result: dict, hard: list[str], soft: list[str], sim_log: Path, mode: s
                else " alone: the instrument kept real time")
         )  # fmt: skip
     return 1
+
+
+def spin_bound_deg(duration_s: float, arw_dpsh: float, latitude_deg: float) -> float:
+    """White-noise bound of a spin over whole turns, level, both horizontal gyros, biases fitted:
+    N / (Omega_H sqrt(T)), 1 sigma, deg (docs/spin.md, "How accurate"); written out here so that
+    the rehearsal judges the product by the physics, not by the product's own figure."""
+    n = math.radians(arw_dpsh) / 60.0  # rad/sqrt(s)
+    omega_h = EARTH_RATE_RPS * math.cos(math.radians(latitude_deg))
+    return math.degrees(n / (omega_h * math.sqrt(duration_s)))
+
+
+def judge_spin(
+    res: dict,
+    truth_deg: float = TRUTH["azimuth"],
+    latitude_deg: float = TRUTH["latitude"],
+    arw_dpsh: float = SENSOR_ARW_DPSH,
+) -> tuple[dict, list[str]]:
+    """The figures of a spin ``find --json`` result and what is wrong with it (failures that no
+    starved VM excuses: a heading off the truth by more than 5 sigma or 0.5 deg, a sigma below
+    the white-noise bound, a result that is not a spin's).
+
+    The bound is for the time the spin lasted (``spin.duration_s``); a spin of part turns, or
+    samples lost on the way, only raise the sigma over it."""
+    problems: list[str] = []
+    spin = res.get("spin")
+    if res.get("solver") != "spin" or not isinstance(spin, dict):
+        return {}, [f"the spin find's result is not a spin's (solver {res.get('solver')!r})"]
+    err = (res["azimuth_deg"] - truth_deg + 180.0) % 360.0 - 180.0
+    sigma = float(res["sigma_deg"])
+    bound = spin_bound_deg(float(spin["duration_s"]), arw_dpsh, latitude_deg)
+    figures = {
+        "azimuth_deg": res["azimuth_deg"],
+        "azimuth_error_deg": err,
+        "sigma_deg": sigma,
+        "bound_deg": bound,
+        "sigma_over_bound": round(sigma / bound, 3),
+        "error_over_sigma": round(err / sigma, 2) if sigma > 0 else math.inf,
+        "pitch_deg": res.get("pitch_deg"),
+        "roll_deg": res.get("roll_deg"),
+        "rate_dps": spin.get("rate_dps"),
+        "duration_s": spin.get("duration_s"),
+        "turns": round(float(spin.get("sweep_deg", math.nan)) / 360.0, 3),
+        "samples": spin.get("samples"),
+        "dropped": spin.get("dropped"),
+        "consistent": res.get("consistent"),
+    }
+    if not abs(err) <= min(0.5, 5.0 * sigma):
+        problems.append(
+            f"spin: azimuth error {err:+.4f} deg exceeds 5 sigma ({sigma:.4f}) or 0.5 deg"
+        )
+    if not sigma >= SPIN_SIGMA_FLOOR * bound:
+        problems.append(
+            f"spin: sigma {sigma:.4f} deg beats the white-noise bound {bound:.4f} deg "
+            f"({sigma / bound:.3f} of it)"
+        )
+    return figures, problems
 
 
 def junit_cases(path: Path) -> dict[str, tuple[str, str]]:
@@ -511,7 +581,7 @@ def main() -> int:
         hard.append(f"candump did not start: {(dump_dir / 'candump.out').read_text()[-300:]}")
         dump_log = dump_dir / "candump.log"
         dump_log.touch()
-    sim_cmd = [nf, "sim", "-i", "socketcan", "-c", ch, "--warmup", "0", "--sensor", "nav-fog", "--seed", "7",
+    sim_cmd = [nf, "sim", "-i", "socketcan", "-c", ch, "--warmup", "0", "--sensor", SENSOR, "--seed", "7",
                "--azimuth", str(TRUTH["azimuth"]), "--latitude", str(TRUTH["latitude"]),
                "--pitch", str(TRUTH["pitch"]), "--roll", str(TRUTH["roll"])]  # fmt: skip
     if args.mode != "direct":
@@ -576,6 +646,31 @@ def main() -> int:
                 hard.append(
                     f"azimuth error {err:+.4f} deg exceeds 5 sigma ({res['sigma_deg']:.4f})"
                 )
+        # The spin find (protocol 1.1): the table turns at a constant rate for one whole turn,
+        # and the heading is the phase of the Earth rate on the horizontal gyros.
+        progress(f"running find --spin {SPIN_RATE_DPS:g}")
+        t0 = time.monotonic()
+        c0 = cpu_seconds_children()
+        spin = subprocess.run(
+            [nf, "find", "-i", "socketcan", "-c", ch, "--json", "--latitude", str(TRUTH["latitude"]),
+             "--spin", f"{SPIN_RATE_DPS:g}",
+             "--link-timeout", "3", "--reply-timeout", "2", "--timeout", "300"],
+            capture_output=True, text=True, timeout=args.find_timeout,
+        )  # fmt: skip
+        progress(f"find --spin exited {spin.returncode} after {time.monotonic() - t0:.1f} s")
+        cpu["find_spin"] = cpu_seconds_children() - c0
+        result["spin_find_wall_s"] = round(time.monotonic() - t0, 1)
+        (out / "find-spin.json").write_text(spin.stdout)
+        (out / "find-spin.err").write_text(spin.stderr)
+        if spin.returncode != 0:
+            internal = "internal error" in spin.stderr or "Traceback" in spin.stderr
+            (failures if spin.returncode == 1 and not internal else hard).append(
+                f"find --spin exited {spin.returncode}: {spin.stderr.strip()[-300:]}"
+            )
+        else:
+            figures, problems = judge_spin(json.loads(spin.stdout))
+            result["spin"] = figures
+            hard.extend(problems)
         conformance_start = time.time()
         margins = CONFORMANCE_MARGINS.get(args.mode, [])
         result["conformance_timing"] = " ".join(margins) if margins else "protocol defaults"
@@ -602,6 +697,10 @@ def main() -> int:
             "passed": len(counted) - len(failed),
             "failed": failed,
             "skipped": sorted(n for n, r in cases.items() if r[0] == "skip"),
+        }
+        # The conformance checks of the spin command (protocol 1.1), by name in the summary.
+        result["spin_conformance"] = {
+            n: status for n, (status, _) in cases.items() if n.startswith("spin.")
         }
         for name, (status, message) in cases.items():
             if name in report_only:

@@ -137,10 +137,30 @@ def main(out: str) -> int:
                 f"; driver tests on SocketCAN: {r.get('tests')} run, {r.get('failures')} failed, "
                 f"{r.get('errors')} errors, {r.get('skipped')} skipped"
             )
+        if s["name"] == "interrupt" and r:
+            if "tests" in r:
+                line += f"; tests {r.get('tests')} run, {r.get('failures')} failed"
+            for row in r.get("rows") or []:
+                line += (
+                    f"; {row['link']} {row['signal']}: {row['at_rest']}/{row['runs']} at rest, "
+                    f"{row['caught_moving']}/{row['runs']} caught moving, {row['rotating']} "
+                    f"left ROTATING, exit {row['exit_s_median']:.2f} s (median)"
+                )
         if s["name"] == "rehearsal" and r:
             err, sigma = r.get("azimuth_error_deg"), r.get("sigma_deg")
             if err is not None and sigma is not None:
                 line += f"; azimuth error {err:+.3f} deg, sigma {sigma:.3f} deg"
+            spin = r.get("spin") or {}
+            if spin:
+                line += (
+                    f"; spin {spin.get('rate_dps', 0):+.2f} deg/s, {spin.get('turns')} turns: "
+                    f"azimuth error {spin['azimuth_error_deg']:+.3f} deg, sigma "
+                    f"{spin['sigma_deg']:.3f} deg = {spin['sigma_over_bound']:.2f} x the "
+                    f"white-noise bound {spin['bound_deg']:.3f} deg"
+                )
+            checks = r.get("spin_conformance") or {}
+            if checks:
+                line += "; " + ", ".join(f"{n} {st}" for n, st in sorted(checks.items()))
             line += (
                 f"; candump {r.get('frames')} frames, {r.get('unknown_frames')} unknown, "
                 f"{r.get('undecodable_frames')} undecodable, {r.get('ticks_lost')} ticks lost"
