@@ -49,6 +49,7 @@ from northfinder.host.errors import (
     HostConfigError,
     HostError,
     LatitudeError,
+    OutputError,
     RecordingError,
 )
 
@@ -604,6 +605,40 @@ def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) ->
     if not os.access(folder, os.W_OK):
         raise HostConfigError(f"{option} {path}: the folder {folder} is not writable")
     return path
+
+
+def pyplot() -> Any:
+    """matplotlib's ``pyplot`` on the Agg backend (files only, no window).
+
+    Raises
+    ------
+    HostConfigError
+        matplotlib is not installed.
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
+    return plt
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 110) -> None:
+    """Write ``fig`` to the ``--plot`` file ``path`` and close it.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written.
+    """
+    try:
+        fig.savefig(path, dpi=dpi)
+    except OSError as exc:
+        raise OutputError(f"--plot {path}: cannot write ({exc.strerror})") from exc
+    finally:
+        pyplot().close(fig)
 
 
 def check_plot_path(path: str, option: str = "--plot") -> str:

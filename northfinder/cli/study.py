@@ -31,6 +31,7 @@ from northfinder.cli.common import (
     dumps,
     finite_float,
     load_sensor,
+    pyplot,
     say,
     seed_value,
     study_executor,
@@ -579,15 +580,7 @@ def _progress(args: argparse.Namespace) -> Progress:
 
 
 def _plot(path: str, sweep: list[dict[str, Any]], title: str) -> None:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise HostConfigError(
-            "--plot needs matplotlib: install the plot extra (pip install 'northfinder[plot]')"
-        ) from exc
+    plt = pyplot()
     t = [s["plan_time_s"] for s in sweep]
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ax.errorbar(
