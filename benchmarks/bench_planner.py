@@ -116,7 +116,8 @@ def compare_table(runs: int, seed: int) -> None:
                 row = study_rows(model, plan, settings, errors)[0]
                 rmse[kind] = row["rmse_deg"]
                 worst = max(worst, abs(row["predicted_deg"] / row["rmse_deg"] - 1.0))
-                below += row["rmse_deg"] < bound
+                # Beating the bound by more than the Monte Carlo's own scatter would be a bug.
+                below += row["rmse_deg"] < bound * (1.0 - 3.0 * row["rmse_rel_se"])
                 label = (
                     f"{plan.rate_dps:+g} deg/s x {plan.spin_s:.1f} s"
                     + (", drift" if plan.drift else "")
@@ -137,7 +138,7 @@ def compare_table(runs: int, seed: int) -> None:
             )
     print(
         f"\nlargest |predicted/RMSE - 1|: {100 * worst:.1f} % (target <= 15 %); "
-        f"RMSE below the budget bound: {below} (must be 0)"
+        f"RMSE below the budget bound by more than 3 standard errors: {below} (must be 0)"
     )
 
 

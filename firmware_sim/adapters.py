@@ -396,6 +396,7 @@ class SlcanAdapter:
         self._frames: list[can.Message] = []
         self.open = False
         self.errors = 0
+        self.dropped_acks = 0
 
     def send(self, msg: can.Message) -> None:
         if not self.open:
@@ -427,6 +428,15 @@ class SlcanAdapter:
             del self._buf[: i + 1]
             self._answer(line)
 
+    def _ack(self, data: bytes) -> None:
+        """The adapter's answer to a line from the host. When the host has not read the link for
+        so long that it is full, the answer is dropped, as a real adapter's transmit queue would
+        drop it: the adapter goes on (the host's command was taken all the same)."""
+        try:
+            self.stream.write(data)
+        except OSError:  # BlockingIOError included
+            self.dropped_acks += 1
+
     def _answer(self, line: bytes) -> None:
         ok, bell = b"\r", b"\x07"
         if not line:
@@ -444,28 +454,28 @@ class SlcanAdapter:
                     self._frames.append(
                         can.Message(arbitration_id=arb, data=payload, is_extended_id=cmd == "T")
                     )
-                self.stream.write(b"z\r" if cmd == "t" else b"Z\r")
+                self._ack(b"z\r" if cmd == "t" else b"Z\r")
             elif cmd in "rR":
-                self.stream.write(ok)
+                self._ack(ok)
             elif cmd in "OL":
                 self.open = True
-                self.stream.write(ok)
+                self._ack(ok)
             elif cmd == "C":
                 self.open = False
-                self.stream.write(ok)
+                self._ack(ok)
             elif cmd in "SsMmXWZQ":
-                self.stream.write(ok)
+                self._ack(ok)
             elif cmd == "F":
-                self.stream.write(b"F00\r")
+                self._ack(b"F00\r")
             elif cmd in "Vv":
-                self.stream.write(cmd.encode() + b"0101\r")
+                self._ack(cmd.encode() + b"0101\r")
             elif cmd == "N":
-                self.stream.write(b"NSIM1\r")
+                self._ack(b"NSIM1\r")
             else:
                 raise ValueError("command")
         except (ValueError, UnicodeDecodeError):
             self.errors += 1
-            self.stream.write(bell)
+            self._ack(bell)
 
     def shutdown(self) -> None:
         self.open = False

@@ -176,10 +176,12 @@ def _start_subprocess(kind: str, speed: float, seed: int) -> SimHandle:
 
 
 REALTIME_ENV = "NORTHFINDER_REALTIME"
-"""How this pytest process takes part in a run (unset: decided in :func:`pytest_configure`):
+"""How this pytest process takes part in a run (unset, the default: every test selected runs in
+this run, the ``realtime`` ones as one xdist group, see :func:`pytest_xdist_auto_num_workers`):
 
-- ``beside``: an xdist controller or worker whose ``realtime`` tests run in a pytest process of
-  their own, started beside it (its workers, one per core but one, leave them out);
+- ``beside`` (set it to choose this): an xdist controller or worker whose ``realtime`` tests run
+  in a pytest process of their own, started beside it (its workers, one per core but one, leave
+  them out);
 - ``alone``: that process (``-m realtime -n 0``): only the ``realtime`` tests that need the
   machine to themselves;
 - ``separate``: leave the ``realtime`` tests out (``.ci/run`` used to run them in a step of its
@@ -188,7 +190,8 @@ REALTIME_ENV = "NORTHFINDER_REALTIME"
 STARVED_FRACTION = 0.10
 STARVED_STALL_S = 0.1
 """A ``realtime`` test that failed while the host lost this share of its run (the timer loop of
-:class:`northfinder.driver.conformance.pace.HostPace`), or stood still this long at once, is
+:class:`northfinder.driver.conformance.pace.HostPace`), or stood still this long at once, or
+while the simulator of its ``sim`` fixture slipped its clock (the host starved the unit), is
 reported **not judged** (skipped, with the host's figures and the failure), not failed: five
 times the conformance suite's threshold of keeping pace (docs/conformance.md), because these tests
 judge whole conversations, not one measurement. ``realtime(judge_host=False)`` marks a test that
@@ -196,15 +199,18 @@ must hold whatever the host does (the suite's own discrimination tests)."""
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
-    """``-n auto``: one worker per core this process may use but one, the core left to the
-    ``realtime`` tests, which run in a process of their own beside the workers (``beside``), so
-    that CPU-bound tests never compete with them; at least one worker. Lowering the workers'
-    priority instead (tried: niceness 10) starved them behind other jobs on a shared machine: not
-    one test done in 12 minutes at load 20."""
+    """``-n auto``: one worker per core this process may use. The ``realtime`` tests form one
+    xdist group, the largest, which pytest-xdist's ``loadgroup`` hands out first: one worker runs
+    them one after the other from the start while the others (one per core but one) take the
+    CPU-bound tests, so no more than cores - 1 CPU-bound workers ever run beside a realtime test;
+    once the group is done that worker takes CPU-bound tests too. (``NORTHFINDER_REALTIME=beside``
+    runs them in a pytest process of their own instead, beside one worker per core but one, which
+    leaves that core idle once they are done.) Lowering the workers' priority instead (tried:
+    niceness 10) starved them behind other jobs on a shared machine: not one test done in 12
+    minutes at load 20."""
     affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere all the cores
     cores = len(affinity(0)) if affinity is not None else (os.cpu_count() or 1)
-    phase = os.environ.get(REALTIME_ENV)  # read before pytest_configure decides it
-    beside = phase == "beside" or (phase is None and not config.getoption("-m"))
+    beside = os.environ.get(REALTIME_ENV) == "beside"
     return max(1, cores - 1) if beside else cores
 
 
@@ -218,10 +224,16 @@ def _xdist_controller(config: pytest.Config) -> bool:
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """The README's command (``-n auto``, no ``-m``): the realtime tests run in a pytest process of
-    their own beside the xdist workers."""
+    """With ``NORTHFINDER_REALTIME=beside`` (``-n auto``, no ``-m``) the realtime tests run in a
+    pytest process of their own beside the xdist workers; by default they are one xdist group
+    (:func:`pytest_xdist_auto_num_workers`)."""
     phase = os.environ.get(REALTIME_ENV)
-    if phase is None and not config.getoption("-m") and _xdist_controller(config):
+    if (
+        phase == "beside"
+        and not hasattr(config, "workerinput")
+        and not config.getoption("-m")
+        and _xdist_controller(config)
+    ):
         if not config.getoption("collectonly") and not config.getoption("help", False):
             os.environ[REALTIME_ENV] = "beside"  # the workers inherit it
             config.stash[_BESIDE] = _RealtimeBeside(config)
@@ -337,14 +349,31 @@ def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
         return
     from northfinder.driver.conformance.pace import HostPace
 
+    sim = getattr(item, "funcargs", {}).get("sim")
+    slipped = _slipped(sim)
     clock = WallClock()
     with HostPace(clock) as pace:
         t0 = clock.now()
         yield
         item.stash[_PACE] = pace.during(t0, clock.now())
+    item.stash[_SLIPPED] = _slipped(sim) - slipped
+
+
+def _slipped(sim: Any) -> float:
+    """Simulated seconds the test's simulator (the ``sim`` fixture) has lost so far by slipping
+    its clock: a paced simulator slips when the host did not run it for 50 ms past a message's
+    due time, so any slip during a test is the host starving the unit, whatever the test's own
+    timer loop saw (0 without such a simulator)."""
+    if not isinstance(sim, SimHandle) or sim.virtual:
+        return 0.0
+    try:
+        return float(sim.control.call("status")["lag"]["slipped_s"])
+    except Exception:  # a simulator that died says so in the test's own failure
+        return 0.0
 
 
 _PACE = pytest.StashKey[Any]()
+_SLIPPED = pytest.StashKey[float]()
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -358,19 +387,26 @@ def pytest_runtest_makereport(
     pace = item.stash.get(_PACE, None)
     if call.when != "call" or not report.failed or pace is None or call.excinfo is None:
         return
-    if pace.lost_fraction < STARVED_FRACTION and pace.stall_s < STARVED_STALL_S:
+    if call.excinfo.errisinstance(CODE_ERRORS):
+        return  # a mistake in the code fails whatever the host did
+    slipped = item.stash.get(_SLIPPED, 0.0)
+    starved = pace.lost_fraction >= STARVED_FRACTION or pace.stall_s >= STARVED_STALL_S
+    if not starved and slipped <= 0.0:
         return
     why = call.excinfo.exconly().strip().splitlines()
     first = why[0][:300] if why else "failed"
+    unit = f"; the simulated unit slipped {slipped:.2f} s" if slipped > 0.0 else ""
     report.outcome = "skipped"
     report.longrepr = (
         str(item.path),
         item.location[1] or 0,
-        f"NOT JUDGED: the host could not keep pace ({pace.text()}); it failed: {first}",
+        f"NOT JUDGED: the host could not keep pace ({pace.text()}{unit}); it failed: {first}",
     )
 
 
 REALTIME_GROUP = "realtime"
+CODE_ERRORS = (NameError, AttributeError, TypeError, ImportError, SyntaxError)
+"""Failures never excused by the host's pace: mistakes in the code, not late data."""
 
 
 def link_params(links: tuple[str, ...] = LINKS) -> list[Any]:

@@ -46,16 +46,25 @@ from northfinder.driver.conformance import (
 )
 from northfinder.driver.conformance.checks import refusals, select_checks
 from northfinder.driver.conformance.checks.refusals import Case, Raw, send_cases
-from northfinder.driver.conformance.core import Ctx
-from northfinder.driver.conformance.session import Answer
+from northfinder.driver.conformance.core import REGISTRY, Ctx
+from northfinder.driver.conformance.runner import judge
+from northfinder.driver.conformance.session import Answer, Session
+from northfinder.driver.conformance.wire import Arrival, SerialRawLink, TickParts
 from northfinder.driver.protocol.constants import (
     CONFIG_LIMITS,
     ConfigKey,
     DeviceState,
     Opcode,
     Result,
+    Validity,
 )
-from northfinder.driver.protocol.messages import Home, Reply, RotateBy, SetConfig
+from northfinder.driver.protocol.messages import (
+    Home,
+    Reply,
+    RotateBy,
+    Sample,
+    SetConfig,
+)
 from northfinder.embed import SimulatedInstrument
 from northfinder.firmware_sim.control import ControlClient
 from northfinder.firmware_sim.imu import Truth
@@ -319,7 +328,9 @@ def test_suite_passes_on_slcan_pty(sensor_file, capsys):
 @pytest.mark.subprocess
 def test_skipped_counter_fails_stream_counters(sensor_file, tmp_path, capsys):
     junit = tmp_path / "fail.xml"
-    with simulator("--slcan-pty", sensor_file) as (path, control):
+    # At real time, python-can's slcan reader keeps up: a counter that jumps with the reader
+    # behind by more than the link holds would be not judged (frames may have been lost).
+    with simulator("--slcan-pty", sensor_file, speed=1.0) as (path, control):
         with ControlClient(control) as ctl:
 
             def skip_during_the_window() -> None:
@@ -333,9 +344,8 @@ def test_skipped_counter_fails_stream_counters(sensor_file, tmp_path, capsys):
             injector = threading.Thread(target=skip_during_the_window)
             injector.start()
             only = "command.stream_start,stream.counters,stream.rate"
-            status = main(
-                ["conformance", *slcan_args(path), *QUICK, "--only", only, "--junit", str(junit)]
-            )
+            args = [*slcan_args(path), *QUICK, "--time-scale", "1", "--only", only]
+            status = main(["conformance", *args, "--junit", str(junit)])
             injector.join()
     out = capsys.readouterr().out
     assert status == 1, out
@@ -579,7 +589,12 @@ def test_a_unit_really_off_fails_idle_and_under_load(paced_unit, defect, load, c
     outcomes = {c["name"]: (c["outcome"], c["message"]) for c in result["checks"]}
     assert status == 1, out
     assert outcomes[check][0] == "fail", out
-    assert evidence in outcomes[check][1], out
+    if defect == "late_replies" and load == "loaded":
+        # Two CPU-bound processes and other jobs can hold the simulator's reply beyond the 2 s
+        # the suite listens (twice its wait): then it is rightly missing, still a FAIL.
+        assert evidence in outcomes[check][1] or "GET_STATUS: no reply in 2." in out, out
+    else:
+        assert evidence in outcomes[check][1], out
 
 
 @pytest.mark.realtime(judge_host=False)
@@ -594,9 +609,16 @@ def test_a_correct_unit_is_never_failed_under_load(paced_unit, capsys, tmp_path)
     # the full suite runs idle above.
     only = "identify,command.get_status,command.stream*,heartbeat.*,stream.*,timing.reply"
     only += ",bad_input.wrong_length" if link[0] == "--serial" else ",refusal.unknown_command"
+    slipped = ctl.call("status")["lag"]["slipped_s"]
     with cpu_load(LOAD["loaded"]):
         status = main(["conformance", *link, "--only", only, "--junit", str(junit)])
     out = capsys.readouterr().out
+    slipped = ctl.call("status")["lag"]["slipped_s"] - slipped
+    if status == 1 and failed_names(out) <= TIMING and slipped > 0:
+        # The simulated unit shares this host: when the host starved the unit itself (it slipped
+        # its clock, as a paced simulator does when it cannot keep time), a late reply is the
+        # host's doing, though the suite's own timer loop, in another process, lost less.
+        pytest.skip(f"NOT JUDGED: the simulated unit was starved (slipped {slipped:.2f} s): {out}")
     assert status in (0, NOT_JUDGED), out
     assert failed_names(out) == set(), out
     # Not judged: a skip in the JUnit, its message the reason and the host's figures.
@@ -608,3 +630,163 @@ def test_a_correct_unit_is_never_failed_under_load(paced_unit, capsys, tmp_path)
     assert all("the host could not keep pace (host lost" in m for m in unjudged.values())
     assert (status == NOT_JUDGED) == bool(unjudged), out
     assert "host pace over the run: host lost" in out
+
+
+# -- frames lost on the link: the host's doing only when its reader fell behind what the link holds
+
+
+class _NoLink:
+    kind = "serial"
+    tick_bytes = SerialRawLink.tick_bytes
+    after_send = None
+
+    def receive(self, timeout: float) -> list:
+        return []
+
+
+def _session_with(arrivals: list[float], lost_at: float, stalls: list[tuple[float, float]]):
+    """A serial session on the wall clock fed by hand: samples 0.. at 200 Hz arriving at
+    ``arrivals`` (host time of each counter), 20 serial frames lost found at ``lost_at``, and the
+    host's timer loop waking every 5 ms from 0 to the last arrival except in ``stalls`` (start,
+    seconds), as a starved host's would."""
+    s = Session(_NoLink(), clock=WallClock())  # type: ignore[arg-type]
+    pace = s.pace
+    pace._thread = threading.Thread()  # measuring, with the records below, not a loop
+    seq, skipped = 0, False
+    for counter, t in enumerate(arrivals):
+        if t >= lost_at and not skipped:
+            seq, skipped = seq + 20, True  # 20 frames lost
+        sample = Sample(counter, (0, 0, 0), (0, 0, 0), 0, 2000, Validity(3))
+        s._record(Arrival(t, sample, seq & 0xFF))
+        seq += 1
+    t = 0.005
+    while t < arrivals[-1]:
+        if not any(t0 <= t < t0 + d for t0, d in stalls):
+            pace.timer.add(t, 0.0)
+        t += 0.005
+    for t0, d in stalls:
+        pace.timer.add(t0 + d, d)
+        pace.reader.add(t0 + d, d)
+    return s
+
+
+def _judge_integrity(s: Session) -> tuple[str, str]:
+    shared = {"config": {ConfigKey.SAMPLE_RATE_HZ: 200}}
+    ctx = Ctx(s, SuiteOptions(), shared)
+    REGISTRY["link.integrity"].fn(ctx)
+    return judge(s, ctx)
+
+
+def test_frames_lost_while_the_reader_was_behind_a_starved_host_are_not_judged():
+    """The reader stood still 1.5 s (the host starved): the samples queued in the link arrived
+    1.5 s late, more than the 4 KB a tty holds (0.49 s of the serial stream at 200 Hz), and then
+    frames were missing: not judged, with the figures."""
+    on_time = [c / 200 for c in range(400)]
+    late = [3.5 + c * 1e-5 for c in range(100)]  # 400..499 read at once after the stall
+    after = [3.5 + (c - 500) / 200 for c in range(500, 700)]
+    s = _session_with(on_time + late + after, 3.5, stalls=[(2.0, 1.5)])
+    outcome, message = _judge_integrity(s)
+    assert outcome == "not judged", message
+    assert "20 serial frame(s) from the unit lost" in message
+    assert "the reader 1500 ms behind the unit's stream then; the link holds 488 ms" in message
+    assert "not judged: the host could not keep pace" in message
+
+
+def test_frames_a_unit_drops_while_the_host_keeps_pace_fail():
+    """The same loss with every sample read on time and the host keeping pace: the unit's."""
+    s = _session_with([c / 200 for c in range(700)], 2.0, stalls=[])
+    outcome, message = _judge_integrity(s)
+    assert outcome == "fail", message
+    assert "the reader 0 ms behind" in message and "not the host's doing" in message
+
+
+def test_frames_lost_on_a_starved_host_whose_reader_kept_up_fail():
+    """The host stood still 0.3 s elsewhere, but its reader was never behind by what the link
+    holds when the frames went missing: a FAIL."""
+    s = _session_with([c / 200 for c in range(700)], 3.0, stalls=[(1.0, 0.3)])
+    outcome, message = _judge_integrity(s)
+    assert outcome == "fail", message
+    assert "frame(s) from the unit lost" in message
+
+
+class _StallingLink(CanRawLink):
+    """The suite's end of an SLCAN bus whose reader stands still once, 1 s into the stream, for
+    ``STALL_S`` (a host that starved its reader)."""
+
+    STALL_S = 2.0
+
+    def __init__(self, bus: can.BusABC) -> None:
+        super().__init__(bus)
+        self.ticks = 0
+        self.stalled = False
+
+    def receive(self, timeout: float) -> list[Arrival]:
+        if self.ticks >= 200 and not self.stalled:
+            self.stalled = True
+            time.sleep(self.STALL_S)
+        out = super().receive(timeout)
+        self.ticks += sum(isinstance(a.message, TickParts) for a in out)
+        return out
+
+
+LOSS_CHECKS = ("command.stream_start", "stream.counters", "link.integrity")
+
+
+def _loss_run(path: str, make_link: Any = CanRawLink) -> Any:
+    """The stream checks and link.integrity over SLCAN on ``path``, 6 s of stream at real time."""
+    options = SuiteOptions(
+        stream_seconds=6.0, reply_limit_ms=400.0, jitter_margin_ms=60.0, only=LOSS_CHECKS
+    )
+    with can.Bus(interface="slcan", channel=path, bitrate=500_000, sleep_after_open=0) as bus:
+        return run_suite(make_link(bus), options)
+
+
+@pytest.mark.realtime
+@pytest.mark.subprocess
+def test_frames_lost_on_the_slcan_pty_while_the_reader_stood_still_are_not_judged(sensor_file):
+    """The suite's reader stands still 2 s in the stream (more than the pseudo-terminal holds,
+    about 1 s of it): the simulator finds the link full and drops frames. The checks that see
+    the loss say NOT JUDGED, with the reader's lag and the host's figures, not FAIL."""
+    with simulator("--slcan-pty", sensor_file, speed=1.0) as (path, control):
+        with ControlClient(control) as ctl:
+            until_ready(ctl)  # out of BOOT
+        report = _loss_run(path, _StallingLink)
+    text = format_report(report)
+    assert report.passed, text
+    saw = [report.result(n) for n in ("stream.counters", "link.integrity")]
+    assert any(r.outcome == "not judged" for r in saw), text
+    for r in saw:
+        if r.outcome == "not judged":
+            assert "behind the unit's stream then; the link holds" in r.message, text
+            assert "not judged: the host could not keep pace" in r.message, text
+
+
+@pytest.mark.realtime
+@pytest.mark.subprocess
+@pytest.mark.parametrize("fault", ["drop", "corrupt"])
+def test_frames_a_unit_drops_or_corrupts_on_the_slcan_pty_fail(sensor_file, fault):
+    """The unit itself drops or corrupts frames (ordered through its control channel) while the
+    host reads on time: link.integrity (or stream.counters) FAILS, naming the frames."""
+    with simulator("--slcan-pty", sensor_file, speed=1.0) as (path, control):
+        with ControlClient(control) as ctl:
+
+            def during_the_stream() -> None:
+                wall = WallClock()
+                end = wall.now() + 20
+                while not ctl.call("status")["streaming"] and wall.now() < end:
+                    wall.sleep(0.05)
+                wall.sleep(1.0)  # inside the stream window
+                ctl.call(fault, count=6)
+
+            until_ready(ctl)  # out of BOOT
+            injector = threading.Thread(target=during_the_stream)
+            injector.start()
+            try:
+                report = _loss_run(path)
+            finally:
+                injector.join()
+    text = format_report(report)
+    failed = {r.name for r in report.results if r.outcome == "fail"}
+    assert failed & {"link.integrity", "stream.counters"}, text
+    messages = " ".join(r.message for r in report.results if r.outcome == "fail")
+    assert "not the host's doing" in messages or "bad frame" in messages, text

@@ -147,12 +147,42 @@ def _files(tmp: str) -> dict[str, str]:
     )
     out["no-meta.npz"] = os.path.join(tmp, "no-meta.npz")
     write("garbage.npz", "PK\x03\x04 not really a zip")
+    write("pickle.npz", "x")  # numpy could only unpickle it
+    np.savez(os.path.join(tmp, "half.npz"),
+             **{**arrays, "gyro_dph": arrays["gyro_dph"].astype(np.float16)})  # fmt: skip
+    out["half.npz"] = os.path.join(tmp, "half.npz")
+    for name, body in {
+        "ambient-1e9.toml": "[thermal]\nambient_c = 1e9\n",
+        "misalignment-1e9.toml": "[gyro]\nmisalignment_urad = 1e9\n",
+        "indexing-45.toml": "[table]\nindexing_error_deg = 45\n",
+    }.items():
+        write(name, body)
+    write("short.blf", "LOGG")  # a BLF too short for its header
+    # A CSV of more windows than a recording holds (two samples each, under a megabyte).
+    many = [rows[0]] + [
+        f"{w},0.000000,{2 * w + i},{(2 * w + i) / 200:.6f},1,1,1,0,0,9.8,0,20,3"
+        for w in range(1100) for i in range(2)
+    ]  # fmt: skip
+    write("windows-1100.csv", head + "\n".join(many) + "\n")
+    # A rotated CAN log of a four-window find, and the same without one of its middle parts.
+    rotated = os.path.join(tmp, "rot", "run.log")
+    os.makedirs(os.path.dirname(rotated))
+    with contextlib.redirect_stdout(io.StringIO()):
+        cli(["find", *QUICK, "--window", "2", "--can-log", rotated, "--can-log-rotate", "64K"])
+    from northfinder.driver.framelog import log_parts
+
+    parts = [str(x) for x in log_parts(rotated)] + [rotated]
+    out["rotated"] = " ".join(parts)
+    out["rotated-gap"] = " ".join(parts[:1] + parts[2:])
     return out
 
 
-def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[CliCase]:
+def cli_cases(
+    f: dict[str, str], control: str, silent: str, tmp: str, garbage: str | None = None
+) -> list[CliCase]:
     """Every bad-input case of the sweep. ``control``: a live simulator's control address;
-    ``silent``: a TCP address that accepts connections and never answers."""
+    ``silent``: a TCP address that accepts connections and never answers; ``garbage``: one that
+    sends random bytes (a serial line at another baud rate, through pyserial's socket://)."""
     c: list[CliCase] = []
 
     def add(command: str, argv: list[str], exit: int, names: str) -> None:
@@ -283,6 +313,30 @@ def cli_cases(f: dict[str, str], control: str, silent: str, tmp: str) -> list[Cl
     add("solve", [f["good.csv"], "--denoise", "magic"], 2, "--denoise")
     add("solve", [f["good.csv"], "--plot", os.path.join(missing_dir, "p.png")], 2, "--plot")
     add("solve", [], 2, "file")
+    # recordings and logs the reader must bound or refuse (issue 25 item 7)
+    add("solve", [f["half.npz"]], 2, "float16")
+    add("solve", [f["pickle.npz"]], 2, "pickle.npz")
+    add("solve", [f["windows-1100.csv"]], 2, "windows")
+    add("solve", [f["short.blf"]], 2, "short.blf")
+    add("solve", [*f["rotated-gap"].split(), "--latitude", "34", "--strict"], 1, "missing")
+    add("dump", [f["short.blf"]], 2, "short.blf")
+    add("dump", [*f["rotated-gap"].split(), "--strict"], 2, "missing")
+    add("dump", [os.path.join(tmp, "no-such-*.log")], 2, "no file matches")
+    for name, field in (("ambient-1e9.toml", "ambient_c"), ("misalignment-1e9.toml",
+                        "misalignment_urad"), ("indexing-45.toml", "indexing_error_deg")):  # fmt: skip
+        add("simulate", ["--sensor", f[name]], 2, field)
+        add("find", [*QUICK, "--sensor", f[name]], 2, field)
+    # log rotation refused before any work
+    for argv, names in [
+        (["--can-log-rotate", "1M"], "--can-log-rotate"),
+        (["--can-log", os.path.join(tmp, "r.db"), "--can-log-rotate", "1h"], "rotates"),
+        (["--can-log", os.path.join(tmp, "r.log"), "--can-log-rotate", "10m"], "--can-log-rotate"),
+        (["--can-log", os.path.join(tmp, "r.log"), "--can-log-rotate", "12B"], "4K"),
+    ]:
+        add("find", [*QUICK, *argv], 2, names)
+    add("sim", ["--pty", "--log-rotate", "1h"], 2, "--log-rotate")
+    if garbage is not None:  # a serial link whose bytes never parse: another baud rate
+        add("find", ["--serial", f"socket://{garbage}", "--latitude", "34"], 1, "wrong baud rate")
 
     # study
     for argv, exit, names in [
@@ -481,6 +535,44 @@ def silent_listener() -> Iterator[str]:
         server.close()
 
 
+@contextlib.contextmanager
+def garbage_listener() -> Iterator[str]:
+    """A loopback TCP address that sends random bytes to whoever connects: what a host reads
+    from a serial unit at another baud rate."""
+    import random
+
+    server = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def serve() -> None:
+        rng = random.Random(1)
+        server.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                continue
+            threading.Thread(target=feed, args=(conn, rng), daemon=True).start()
+
+    def feed(conn: socket.socket, rng: Any) -> None:
+        with conn:
+            while not stop.is_set():
+                try:
+                    conn.sendall(rng.randbytes(256))
+                except OSError:
+                    return
+                stop.wait(0.005)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield f"127.0.0.1:{server.getsockname()[1]}"
+    finally:
+        stop.set()
+        thread.join(2)
+        server.close()
+
+
 def run_case(case: CliCase, timeout_s: float) -> dict[str, Any]:
     """Run one case as its own process; what came back."""
     t0 = time.monotonic()
@@ -492,8 +584,13 @@ def run_case(case: CliCase, timeout_s: float) -> dict[str, Any]:
     except subprocess.TimeoutExpired:
         return {"case": case, "hang": True, "exit": None, "line": "", "seconds": timeout_s}
     err = [line for line in res.stderr.splitlines() if line.strip()]
-    # The one line: argparse's "error:" line or ours; log lines of `sim` come before it.
-    lines = [line for line in err if "error" in line]
+    # The one line: argparse's "error:" line or ours; log lines of `sim` (a time first) and
+    # progress lines (`find: warm-up`) come before it. Anything else is a second line.
+    lines = [
+        line for line in err
+        if "error" in line
+        or not (line[:1].isdigit() or line.startswith(f"{case.command}: ") or "warning:" in line)
+    ]  # fmt: skip
     return {
         "case": case,
         "hang": False,
@@ -511,9 +608,10 @@ def cli_sweep(args: argparse.Namespace) -> dict[str, Any]:
     from concurrent.futures import ThreadPoolExecutor
 
     with tempfile.TemporaryDirectory(dir="/tmp") as tmp, silent_listener() as silent, \
+            garbage_listener() as garbage, \
             simulator("--control", "127.0.0.1:0") as (_, facts):  # fmt: skip
         files = _files(tmp)
-        cases = cli_cases(files, facts["control"], silent, tmp)
+        cases = cli_cases(files, facts["control"], silent, tmp, garbage)
         if args.only_cli:
             cases = [c for c in cases if args.only_cli in " ".join(c.argv)]
         with ThreadPoolExecutor(max_workers=args.jobs) as pool:

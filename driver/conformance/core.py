@@ -14,7 +14,7 @@ from northfinder.driver.conformance.errors import (
     Skipped,
     SuiteConfigError,
 )
-from northfinder.driver.conformance.pace import PaceFigures
+from northfinder.driver.conformance.pace import TTY_BUFFER_BYTES, PaceFigures
 from northfinder.driver.conformance.session import Answer, Session, describe_result
 from northfinder.driver.protocol.constants import (
     NODE_ID_MAX,
@@ -36,6 +36,9 @@ __all__ = [
     "TimingProblem",
     "check",
 ]
+
+LOSS_WORDS = ("incomplete", "tick(s) missing", "frame(s) lost")
+"""Words of the session's gaps that say frames went missing (see :meth:`Ctx.gaps`)."""
 
 Outcome = str
 """``"pass"``, ``"fail"``, ``"not judged"`` (a timing check that failed while the host could not
@@ -176,13 +179,17 @@ class TimingProblem:
 
     ``excess_s``: how late the unit was beyond its limit, wall s; None for a check over the
     observation window whose unit counters showed nothing wrong. The runner asks the host's pace
-    over the interval whether it excuses the failure (:func:`~.pace.excused`).
+    over the interval whether it excuses the failure (:func:`~.pace.excused`). For frames lost on
+    the link, ``behind_s`` is how far the reader was behind and ``excess_s`` what the link holds.
     """
 
     text: str
     t0: float
     t1: float
     excess_s: float | None = None
+    behind_s: float | None = None
+    """Frames lost: how far the reader was behind the unit's stream, wall s (``excess_s`` is then
+    what the link holds, wall s)."""
 
 
 @dataclass(frozen=True)
@@ -241,6 +248,41 @@ class Ctx:
         """Record a failure about time, judged over ``[t0, t1]`` (see :class:`TimingProblem`):
         not judged if the host could not keep pace then, a failure otherwise."""
         self.timing_problems.append(TimingProblem(text, t0, t1, excess_s))
+
+    def lost(self, text: str, t: float) -> None:
+        """Frames from the unit lost or broken, found at ``t``: a timing problem judged by how far
+        the reader was behind the unit's stream then (:meth:`Session.behind`) against what the
+        link holds (:data:`~.pace.TTY_BUFFER_BYTES` of the stream at its configured rate); a FAIL
+        if the reader kept up or the host kept pace."""
+        rate = self.config()[ConfigKey.SAMPLE_RATE_HZ]
+        behind = self.s.behind(t, rate)
+        holds = self.s.wall(TTY_BUFFER_BYTES / (self.s.link.tick_bytes * rate))
+        text += (
+            ""
+            if not text
+            else (
+                f" (the reader {behind * 1e3:.0f} ms behind the unit's stream then; the link holds "
+                f"{holds * 1e3:.0f} ms)"
+            )
+        )
+        self.timing_problems.append(TimingProblem(text, t - behind, t, holds, behind))
+
+    def gaps(self, found: list[tuple[float, str]], head: str) -> None:
+        """Judge the session's gaps ``found`` ((time, text) pairs), the message starting with
+        ``head``: frames missing (an incomplete tick, ticks or serial frames lost) are judged as
+        frames lost on the link (:meth:`lost`); a counter repeated or going back is the unit's
+        whatever the host did, and fails them all."""
+        if not found:
+            return
+        texts = [text for _, text in found]
+        summary = (
+            head + "; ".join(texts[:3]) + (f" (+{len(texts) - 3} more)" if len(texts) > 3 else "")
+        )
+        if all(any(k in text for k in LOSS_WORDS) for text in texts):
+            for i, (t, _) in enumerate(found):
+                self.lost(summary if i == 0 else "", t)
+        else:
+            self.fail(summary)
 
     def note(self, text: str) -> None:
         self.notes.append(text)

@@ -21,7 +21,10 @@ when the host lost, inside the interval the check judged, at least as much time 
 late beyond its limit (a reply, a first sample, a move), or, for the checks over the observation
 window (rate, period, jitter), when the host did not keep pace in the window (:data:`STALL_S`,
 :data:`LOST_FRACTION`) while the unit's own counters show nothing wrong (the checks themselves
-look at the counters first). On a virtual clock nothing is measured: the host always keeps pace.
+look at the counters first). Frames lost on the link are excused when the reader was further
+behind the unit's stream than the link can hold (:data:`TTY_BUFFER_BYTES`) while the host did not
+keep pace: a full buffer drops what comes next. On a virtual clock nothing is measured: the host
+always keeps pace.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ __all__ = [
     "LOST_FRACTION",
     "PERIOD_S",
     "STALL_S",
+    "TTY_BUFFER_BYTES",
     "HostPace",
     "PaceFigures",
     "excused",
@@ -53,6 +57,13 @@ LOST_FRACTION = 0.02
 rate tolerance (1 %), the bias such a loss can put on a rate or period measured on arrival times.
 A quiet host loses well under 1 %; with two CPU-bound processes on two cores the loop measured
 50 % and more."""
+TTY_BUFFER_BYTES = 4096
+"""What a link to a unit holds at the least while its reader is away, bytes: the line discipline's
+buffer of a Linux tty (``N_TTY_BUF_SIZE``), which a serial port, a USB adapter and a
+pseudo-terminal all pass through (a pseudo-terminal holds 16 to 21 KB in all, measured: 0.9 to
+1.2 s of the SLCAN stream at 200 Hz). A reader behind the stream by more than this may have let
+the buffer fill, and a full buffer drops what the unit sends next; a reader behind by less cannot
+have lost a frame that way."""
 GRACE_S = 0.005
 """A read later than asked by less than this is not counted as lost: Python hands its interpreter
 lock between threads every 5 ms (``sys.getswitchinterval``), so the suite's own threads delay each
@@ -114,14 +125,20 @@ class PaceFigures:
         )
 
 
-def excused(p: PaceFigures, excess_s: float | None) -> bool:
+def excused(p: PaceFigures, excess_s: float | None, behind_s: float | None = None) -> bool:
     """Whether a timing failure judged over the interval of ``p`` is the host's doing.
 
     ``excess_s``: how late the unit was beyond its limit, wall s (a reply, a sample, a move); the
     host excuses it when it stood still, or lost in all, at least that long in the interval.
     None for a window check whose unit counters agreed: the host excuses it when it did not keep
     pace in the window.
+    ``behind_s``: for frames lost on the link, how far the reader was behind the unit's stream when
+    they went missing (by the unit's own sample counters), wall s; ``excess_s`` is then the time
+    the link holds (:data:`TTY_BUFFER_BYTES` of the stream). The host excuses the loss when its
+    reader was at least that far behind and it did not keep pace over the interval.
     """
+    if behind_s is not None:
+        return excess_s is not None and behind_s >= excess_s and not p.kept_pace
     if excess_s is None:
         return not p.kept_pace
     return p.stall_s >= excess_s or p.lost_s >= excess_s

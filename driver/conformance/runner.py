@@ -156,16 +156,21 @@ def judge(session: Session, ctx: Ctx) -> tuple[str, str]:
         max(p.t1 for p in ctx.timing_problems),
     )
     ctx.fig("host pace", pace.during(*span).text())
-    unexcused = [p for p in ctx.timing_problems if not excused(pace.during(p.t0, p.t1), p.excess_s)]
+    unexcused = [
+        p
+        for p in ctx.timing_problems
+        if not excused(pace.during(p.t0, p.t1), p.excess_s, p.behind_s)
+    ]
     if ctx.problems or unexcused:
         if not ctx.problems:
             p = unexcused[0]
             figures = pace.during(p.t0, p.t1).text()
-            message += (
-                f" (the host kept pace: {figures})"
-                if p.excess_s is None
-                else f" (more than the host explains: {p.excess_s:.2f} s beyond the limit, {figures})"
-            )
+            if p.behind_s is not None:
+                message += f" (not the host's doing: {figures})"
+            elif p.excess_s is None:
+                message += f" (the host kept pace: {figures})"
+            else:
+                message += f" (more than the host explains: {p.excess_s:.2f} s beyond the limit, {figures})"
         return "fail", message
     worst = max(
         (pace.during(p.t0, p.t1) for p in ctx.timing_problems), key=lambda f: f.lost_fraction

@@ -156,6 +156,8 @@ class Session:
         self._last_seq: int | None = None
         self.seq_restart_pending = False
         self.serial_frames_lost = 0
+        self.losses: list[tuple[float, str]] = []
+        """Serial frames lost (sequence counter gaps), when found; never cleared."""
         if self.clock.virtual:
             self.clock.add_poller(self._poll)
 
@@ -260,12 +262,9 @@ class Session:
             else:
                 lost = (seq - self._last_seq - 1) & 0xFF
                 self.serial_frames_lost += lost
-                self.gaps.append(
-                    (
-                        a.t,
-                        f"serial sequence counter {self._last_seq} -> {seq}: {lost} frame(s) lost",
-                    )
-                )
+                text = f"serial sequence counter {self._last_seq} -> {seq}: {lost} frame(s) lost"
+                self.gaps.append((a.t, text))
+                self.losses.append((a.t, text))
         elif self.seq_restart_pending and seq == 0:
             self.seq_restart_pending = False
         self._last_seq = seq
@@ -466,8 +465,36 @@ class Session:
     def samples_between(self, t0: float, t1: float) -> list[SampleRecord]:
         return [s for s in self.samples if t0 <= s.t <= t1]
 
+    def behind(self, t: float, rate_hz: float, lookback_s: float = 1.0) -> float:
+        """How far the reader was behind the unit's stream around ``t``, wall s: the largest delay
+        of a sample that arrived in ``[t - lookback_s, t]`` against the earliest any sample of the
+        same run of the stream arrived, by the unit's own sample counter (``rate_hz`` ticks a
+        unit second). A reader that keeps up reads each sample a few ms after it is sent; one that
+        fell behind reads it as late as the data waiting in the link."""
+        per_tick = self.wall(1.0 / rate_hz)
+        earliest: float | None = None
+        last: SampleRecord | None = None
+        worst = 0.0
+        for r in self.samples:
+            if r.t > t:
+                break
+            # The counter counts every tick since boot, streamed or not: only a reset (the
+            # counter going back) starts afresh.
+            if last is None or counter_diff(r.counter, last.counter) <= 0:
+                earliest = None
+            offset = r.t - r.counter * per_tick
+            earliest = offset if earliest is None else min(earliest, offset)
+            if r.t >= t - lookback_s:
+                worst = max(worst, offset - earliest)
+            last = r
+        return worst
+
     def gaps_since(self, t0: float) -> list[str]:
         return [text for t, text in self.gaps if t >= t0]
+
+    def gaps_found_since(self, t0: float) -> list[tuple[float, str]]:
+        """The gaps found since ``t0``: (time, text)."""
+        return [(t, text) for t, text in self.gaps if t >= t0]
 
 
 def describe_result(code: int) -> str:

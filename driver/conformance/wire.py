@@ -31,10 +31,15 @@ from northfinder.driver.protocol.messages import (
     StatusCounters,
     StatusMain,
 )
-from northfinder.driver.protocol.serial import Deframer, SerialFrame, decode_payload
+from northfinder.driver.protocol.serial import SYNC, Deframer, SerialFrame, decode_payload
 from northfinder.driver.transport import enlarge_receive_buffer, frame_drain
 
 __all__ = ["Arrival", "CanRawLink", "RawLink", "SerialRawLink", "TickParts"]
+
+SLCAN_LINE_BYTES = len("t1018") + 2 * 8 + len("\r")
+"""An SLCAN line of a standard frame with 8 data bytes: ``tIIIL``, the data in hex, CR."""
+SAMPLE_PAYLOAD_BYTES = 35
+"""The serial SAMPLE payload (protocol.md 3)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,6 +91,8 @@ class RawLink(Protocol):
 
     kind: str
     """``"can"`` or ``"serial"``."""
+    tick_bytes: int
+    """Bytes one sample tick takes on the link as a tty carries it (what a full buffer holds)."""
     after_send: Callable[[], None] | None
     """Called after every send (a virtual clock's ``notify``), or None."""
 
@@ -114,6 +121,8 @@ class CanRawLink:
     """
 
     kind = "can"
+    tick_bytes = 4 * SLCAN_LINE_BYTES
+    """Four frames of 8 bytes a tick, as an SLCAN adapter writes them on its tty."""
 
     def __init__(self, bus: can.BusABC, node_id: int = 1) -> None:
         self.bus = bus
@@ -229,6 +238,8 @@ class SerialRawLink:
     """
 
     kind = "serial"
+    tick_bytes = len(SYNC) + 3 + SAMPLE_PAYLOAD_BYTES + 2
+    """One SAMPLE frame a tick: sync, length, type, seq, payload, CRC."""
 
     def __init__(self, port: serial.Serial) -> None:
         self.port = port

@@ -51,7 +51,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     spinfind.add_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument(
-        "--plot", metavar="FILE", help="plot the windows and pairwise azimuths (matplotlib)"
+        "--plot", metavar="FILE", help="plot the windows, or the spin's fit (matplotlib)"
     )
     p.add_argument("--record", metavar="FILE", help="also write the raw windows (.csv or .npz)")
     g = p.add_argument_group("NMEA 0183 output")

@@ -84,7 +84,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument(
-        "--plot", metavar="FILE", help="plot the windows and per-pair azimuths (needs matplotlib)"
+        "--plot", metavar="FILE", help="plot the windows, or the spin's fit (matplotlib)"
     )
     return p
 

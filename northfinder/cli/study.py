@@ -185,7 +185,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=bounded_float(0.0, MAX_BUDGET_S, "s", open_lo=True),
         default=None,
         metavar="SECONDS",
-        help="list the plans with the smallest predicted error within this plan time",
+        help="list the plans and spins with the smallest predicted error within this plan time",
     )
     g.add_argument(
         "--plan-target",
