@@ -3,7 +3,9 @@
 
 The stream at 200 Hz is 4 sample frames per tick plus two status frames per 100 ms heartbeat:
 820 frames/s; a tap must take that with room to spare, or logging slows the link's reader.
-Median over repeats of writing ``--frames`` sample frames (and closing the file).
+Median over repeats of writing ``--frames`` sample frames (and closing the file); the formats
+python-can rotates are measured again rotated every 64 KiB (``FrameLog(max_bytes=...)``: a part
+closed and renamed every few hundred frames, far more often than any real rotation).
 Run: ``.venv/bin/python benchmarks/bench_framelog.py [--frames N] [--repeats R]``.
 """
 
@@ -43,10 +45,17 @@ def frames(n: int) -> list[can.Message]:
     return out[:n]
 
 
-def rate(suffix: str, msgs: list[can.Message], d: Path) -> float:
-    path = d / f"bench{suffix}"
+#: Formats measured rotated too, and the part size, bytes.
+ROTATED = (".log", ".asc", ".blf", ".csv")
+PART_BYTES = 64 * 1024
+
+
+def rate(suffix: str, msgs: list[can.Message], d: Path, max_bytes: int = 0) -> float:
+    path = d / f"bench{max_bytes}{suffix}"
+    for old in d.glob(f"bench{max_bytes}_#*"):
+        old.unlink()
     t0 = time.perf_counter()
-    with FrameLog(path) as log:
+    with FrameLog(path, max_bytes=max_bytes) as log:
         for m in msgs:
             log(m)
     return len(msgs) / (time.perf_counter() - t0)
@@ -65,6 +74,12 @@ def main() -> None:
         for suffix in FORMATS:
             r = statistics.median(rate(suffix, msgs, Path(tmp)) for _ in range(a.repeats))
             print(f"{suffix:>7} {r:10.0f} {r / STREAM_FRAMES_PER_S:9.1f}")
+        for suffix in ROTATED:
+            r = statistics.median(
+                rate(suffix, msgs, Path(tmp), PART_BYTES) for _ in range(a.repeats)
+            )
+            name = f"{suffix} rot"
+            print(f"{name:>7} {r:10.0f} {r / STREAM_FRAMES_PER_S:9.1f}")
 
 
 if __name__ == "__main__":

@@ -62,7 +62,6 @@ from northfinder.firmware_sim.error_terms import (
     random_directions,
     slow_noise_jump,
     slow_noise_window,
-    temperature_c,
     vibration,
 )
 from northfinder.firmware_sim.errors import SimConfigError
@@ -274,13 +273,7 @@ def _timeline(
     # Sample times: sample k covers ((k)/fs, (k+1)/fs].
     k = starts[:, None] + np.arange(n)[None, :]
     t = (k + 1) / fs  # (P, n)
-    det = np.zeros((starts.size, n, 6))
-    if terms.warmup_bias.any():
-        det += terms.warmup(t)
-    if terms.temp_coeff.any():
-        det += terms.thermal(temperature_c(spec.thermal, t), spec.thermal)
-    if terms.ramp.any():
-        det += terms.ramp_bias(t)
+    det = terms.drift(t, spec.thermal)
     drift = np.ascontiguousarray(np.moveaxis(det, -1, 0)) if det.any() else None
     ringing, dmu, rate, offset = _ring_down(spec.table, move_end, delta, starts, n, fs)
     grid = _grid_windows((t - 0.5 / fs) / FLICKER_GRID_S)
@@ -837,13 +830,7 @@ def simulate_spin(
         out += white.standard_normal((n_runs, n, 6)) * sigma
     # -- terms of time since power-on ---------------------------------------------------------
     t_on = start_s + t  # (n,)
-    det = np.zeros((n, 6))
-    if terms.warmup_bias.any():
-        det += terms.warmup(t_on)
-    if terms.temp_coeff.any():
-        det += terms.thermal(temperature_c(spec.thermal, t_on), spec.thermal)
-    if terms.ramp.any():
-        det += terms.ramp_bias(t_on)
+    det = terms.drift(t_on, spec.thermal)
     if det.any():
         out += det[None]
     slow_chans = [ch for ch in range(6) if terms.flicker_b[ch] + terms.walk_k[ch]]

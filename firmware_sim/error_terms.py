@@ -275,8 +275,15 @@ class ErrorTerms:
 
     def drift(self, t: NDArray[np.float64], thermal: ThermalSpec) -> NDArray[np.float64]:
         """Deterministic bias of time since power-on: warm-up, temperature and rate ramp,
-        ``t.shape + (6,)``."""
-        return self.warmup(t) + self.thermal(temperature_c(thermal, t), thermal) + self.ramp_bias(t)
+        ``t.shape + (6,)``; each term is computed only when the spec has it (zeros if none)."""
+        out = np.zeros((*np.shape(t), 6))
+        if self.warmup_bias.any():
+            out += self.warmup(t)
+        if self.temp_coeff.any():
+            out += self.thermal(temperature_c(thermal, t), thermal)
+        if self.ramp.any():
+            out += self.ramp_bias(t)
+        return out
 
     @property
     def has_move_terms(self) -> bool:

@@ -35,37 +35,35 @@ __all__ = [
 ]
 
 
+class _Predicted:
+    """What a candidate reads from its prediction."""
+
+    prediction: Prediction
+
+    @property
+    def sigma_deg(self) -> float:
+        return self.prediction.sigma_deg
+
+    @property
+    def plan_time_s(self) -> float:
+        return self.prediction.plan_time_s
+
+
 @dataclass(frozen=True)
-class PlanCandidate:
+class PlanCandidate(_Predicted):
     """A plan with its predicted error and time."""
 
     plan: Plan
     prediction: Prediction
     allan_limited: bool
 
-    @property
-    def sigma_deg(self) -> float:
-        return self.prediction.sigma_deg
-
-    @property
-    def plan_time_s(self) -> float:
-        return self.prediction.plan_time_s
-
 
 @dataclass(frozen=True)
-class SpinCandidate:
+class SpinCandidate(_Predicted):
     """A spin plan with its predicted error and time."""
 
     plan: SpinPlan
     prediction: Prediction
-
-    @property
-    def sigma_deg(self) -> float:
-        return self.prediction.sigma_deg
-
-    @property
-    def plan_time_s(self) -> float:
-        return self.prediction.plan_time_s
 
 
 #: Position patterns the planner tries: two positions at several angles, equally spaced sets,

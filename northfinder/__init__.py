@@ -55,8 +55,12 @@ _PUBLIC: dict[str, str] = {
     # finding north
     "Plan": "northfinder.host.plan",
     "TableModel": "northfinder.host.plan",
+    "SpinPlan": "northfinder.host.plan",
     "find_north": "northfinder.host.procedure",
     "FindResult": "northfinder.host.procedure",
+    "find_north_spin": "northfinder.host.procedure",
+    "SpinFind": "northfinder.host.procedure",
+    "SpinSolution": "northfinder.host.spin",
     "solve_windows": "northfinder.host.procedure",
     "Recording": "northfinder.host.recording",
     "RecordedWindow": "northfinder.host.recording",
@@ -111,6 +115,9 @@ __all__ = [
     "SimConfigError",
     "SimError",
     "SimulatedInstrument",
+    "SpinFind",
+    "SpinPlan",
+    "SpinSolution",
     "StreamGap",
     "StreamTimeout",
     "TableModel",
@@ -120,6 +127,7 @@ __all__ = [
     "Window",
     "__version__",
     "find_north",
+    "find_north_spin",
     "load_spec",
     "preset_names",
     "solve_windows",
@@ -151,9 +159,16 @@ if _TYPE_CHECKING:  # what static tools and the API reference see
     from northfinder.firmware_sim.imu import Truth
     from northfinder.firmware_sim.sensors import SensorSpec, load_spec, preset_names
     from northfinder.host.errors import HostConfigError, HostError, QualityError, RecordingError
-    from northfinder.host.plan import Plan, TableModel
-    from northfinder.host.procedure import FindResult, find_north, solve_windows
+    from northfinder.host.plan import Plan, SpinPlan, TableModel
+    from northfinder.host.procedure import (
+        FindResult,
+        SpinFind,
+        find_north,
+        find_north_spin,
+        solve_windows,
+    )
     from northfinder.host.recording import RecordedWindow, Recording
+    from northfinder.host.spin import SpinSolution
 
 
 def __getattr__(name: str) -> _Any:

@@ -140,3 +140,16 @@ def test_the_readme_example_finds_north_through_the_public_names():
             result, _ = northfinder.find_north(device, plan, latitude_deg=34.0)
     assert isinstance(result, northfinder.FindResult)
     assert result.azimuth_deg == pytest.approx(42.0, abs=1e-6)
+
+
+def test_a_spin_finds_north_through_the_public_names():
+    truth = northfinder.Truth(azimuth_deg=123.0)
+    sensor = northfinder.load_spec("ideal")
+    with northfinder.SimulatedInstrument(sensor, truth, seed=1, clock="virtual") as sim:
+        with sim.open_device() as device:
+            found = northfinder.find_north_spin(device, 10.0, 36.0, latitude_deg=34.0)
+    assert isinstance(found, northfinder.SpinFind)
+    assert isinstance(found.solution, northfinder.SpinSolution)
+    assert found.solution.azimuth_deg == pytest.approx(123.0, abs=1e-6)
+    plan = northfinder.SpinPlan(10.0, 36.0)
+    assert plan.rate_dps == 10.0

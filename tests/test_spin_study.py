@@ -160,3 +160,25 @@ def test_spin_search_fills_the_budget_within_the_table_limit():
     assert not search_spin_plans(model, LAT, 0.5)  # no quarter turn within half a second
     assert search_plans(model, LAT, 0.5) == []
     assert math.isfinite(cands[0].sigma_deg) and np.isfinite(cands[0].prediction.bound_deg)
+
+
+def test_plan_budget_with_runs_verifies_the_best_of_each_kind(capsys):
+    args = ["study", "--sensor", "paper-prototype", "--plan-budget", "60", "--runs", "40",
+            "--rate", "20", "--seed", "4"]  # fmt: skip
+    assert main([*args, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    v, vs = out["verified"], out["verified_spin"]
+    assert vs["kind"] == "spin" and vs["runs"] == 40 and vs["plan_time_s"] <= 60.0 + 1e-9
+    assert (vs["rate_dps"], vs["spin_s"]) == (
+        out["spin_plans"][0]["rate_dps"],
+        out["spin_plans"][0]["spin_s"],
+    )
+    best = out["best"]
+    assert best["judged_by"] == "monte-carlo"
+    assert best["spin"]["rmse_deg"] == vs["rmse_deg"]
+    assert best["stop_and_go"]["rmse_deg"] == v["rmse_deg"]
+    assert best["overall"] == ("spin" if vs["rmse_deg"] < v["rmse_deg"] else "stop_and_go")
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "Monte Carlo of the first spin (40 runs" in text
+    assert "Best overall: spin (by the monte-carlo); physical bound of the budget" in text

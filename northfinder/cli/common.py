@@ -49,6 +49,7 @@ from northfinder.host.errors import (
     HostConfigError,
     HostError,
     LatitudeError,
+    OutputError,
     RecordingError,
 )
 
@@ -606,6 +607,40 @@ def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) ->
     return path
 
 
+def pyplot() -> Any:
+    """matplotlib's ``pyplot`` on the Agg backend (files only, no window).
+
+    Raises
+    ------
+    HostConfigError
+        matplotlib is not installed.
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
+    return plt
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 110) -> None:
+    """Write ``fig`` to the ``--plot`` file ``path`` and close it.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written.
+    """
+    try:
+        fig.savefig(path, dpi=dpi)
+    except OSError as exc:
+        raise OutputError(f"--plot {path}: cannot write ({exc.strerror})") from exc
+    finally:
+        pyplot().close(fig)
+
+
 def check_plot_path(path: str, option: str = "--plot") -> str:
     """Refuse, before any work, a plot file that cannot be written: as
     :func:`check_output_path`, matplotlib not installed, or a name whose ending is no format
@@ -704,6 +739,28 @@ def add_truth_arguments(parser: argparse.ArgumentParser, *, latitude: bool = Tru
         type=seed_value,
         default=None,
         help="random seed (default: a fresh one, reported)",
+    )
+
+
+def add_session_argument(group: argparse._ArgumentGroup, help: str) -> None:
+    """``--session N``: one host session of a CAN log, 1-based (each host's IDENTIFY begins
+    one), as ``dump`` and ``solve`` spell it."""
+    group.add_argument(
+        "--session", type=bounded_int(1, 1_000_000), default=None, metavar="N", help=help
+    )
+
+
+def add_duration_argument(
+    group: argparse._ArgumentGroup, help: str, metavar: str = "SECONDS"
+) -> None:
+    """``--duration``: a live command stops after this many wall seconds (``dump``,
+    ``monitor``)."""
+    group.add_argument(
+        "--duration",
+        type=bounded_float(0.0, 1e7, "s", open_lo=True),
+        default=None,
+        metavar=metavar,
+        help=help,
     )
 
 

@@ -18,6 +18,8 @@ from typing import Any
 
 from northfinder.cli.common import (
     add_bus_arguments,
+    add_duration_argument,
+    add_session_argument,
     bounded_float,
     bounded_int,
     bus_given,
@@ -81,20 +83,16 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--time-to", type=bounded_float(0.0, 1e9, "s"), default=None, metavar="SECONDS",
         help="only frames at most this long after the first frame",
     )  # fmt: skip
-    g.add_argument(
-        "--session", type=bounded_int(1, 1_000_000), default=None, metavar="N",
-        help="only the frames of host session N (1-based; each host's IDENTIFY begins one)",
-    )  # fmt: skip
+    add_session_argument(
+        g, "only the frames of host session N (1-based; each host's IDENTIFY begins one)"
+    )
     g = p.add_argument_group("output")
     g.add_argument("--dbc", metavar="FILE", help="the DBC (default: the protocol's own)")
     g.add_argument(
         "--count", type=bounded_int(1, 10**12), default=None, metavar="N",
         help="stop after N frames printed",
     )  # fmt: skip
-    g.add_argument(
-        "--duration", type=bounded_float(0.0, 1e7, "s", open_lo=True), default=None,
-        metavar="SECONDS", help="a live bus: stop after this many wall seconds",
-    )  # fmt: skip
+    add_duration_argument(g, "a live bus: stop after this many wall seconds")
     g.add_argument(
         "--strict", action="store_true",
         help="a damaged line of a log is an error (default: skipped with a warning)",

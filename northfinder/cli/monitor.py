@@ -25,6 +25,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from northfinder.cli.common import (
+    add_duration_argument,
     bounded_float,
     bus_given,
     check_output_path,
@@ -68,10 +69,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--record", default="monitor.asc", metavar="FILE",
         help="the CAN log the w key writes (ending: python-can's format; default monitor.asc)",
     )  # fmt: skip
-    g.add_argument(
-        "--duration", type=bounded_float(0.0, 1e7, "s", open_lo=True), default=None,
-        metavar="S", help="quit after S seconds (a measurement run)",
-    )  # fmt: skip
+    add_duration_argument(g, "quit after S seconds (a measurement run)", metavar="S")
     g.add_argument(
         "--summary", metavar="FILE",
         help="on quitting, write the stream's counters and the monitor's CPU use as JSON",

@@ -8,8 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from northfinder.cli.common import dumps, plain_numbers
-from northfinder.host.errors import HostConfigError, OutputError
+from northfinder.cli.common import dumps, plain_numbers, pyplot, save_figure
 from northfinder.host.procedure import FindResult, pairwise_solutions
 from northfinder.host.results import envelope
 
@@ -105,13 +104,7 @@ def plot(
     HostConfigError
         matplotlib is not installed, or the file cannot be written.
     """
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
+    plt = pyplot()
     from northfinder.host.denoise import denoise
 
     fig, axes = plt.subplots(
@@ -195,9 +188,4 @@ def plot(
         ax.set_title("azimuth of each pair of consecutive windows", fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="best")
-    try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise OutputError(f"--plot {path}: cannot write ({exc.strerror})") from exc
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)

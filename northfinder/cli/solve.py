@@ -16,9 +16,9 @@ from typing import Any
 
 from northfinder.cli import report, spinfind
 from northfinder.cli.common import (
+    add_session_argument,
     add_solver_argument,
     bounded_float,
-    bounded_int,
     check_plot_path,
     command_parser,
     node_id,
@@ -67,10 +67,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--node-id", type=node_id, default=None,
         help="the device's node id (default: the only node in the log)",
     )  # fmt: skip
-    g.add_argument(
-        "--session", type=bounded_int(1, 1_000_000), default=None, metavar="N",
-        help="the host session to solve, 1-based (required when the log holds several)",
-    )  # fmt: skip
+    add_session_argument(
+        g, "the host session to solve, 1-based (required when the log holds several)"
+    )
     g.add_argument(
         "--windows", type=_window_list, default=None, metavar="I,J,...",
         help="solve only these windows of the session, 1-based (e.g. 1,2)",

@@ -16,6 +16,8 @@ from northfinder.cli.common import (
     finite_float,
     latitude_source,
     plain_numbers,
+    pyplot,
+    save_figure,
     sim_latitude,
 )
 from northfinder.host.errors import HostConfigError
@@ -234,16 +236,9 @@ def plot(
     import numpy as np
 
     from northfinder.driver.protocol.units import DPH
-    from northfinder.host.errors import OutputError
     from northfinder.host.spin import fitted_rates, spin_samples
 
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise HostConfigError("--plot needs matplotlib: pip install 'northfinder[plot]'") from exc
+    plt = pyplot()
     sol, w = found.solution, found.window
     rate_hz = float(w.sample_rate_hz if sample_rate_hz is None else sample_rate_hz)
     data = spin_samples(w.gyro_dph, w.accel_mps2, w.table_deg, w.counter, rate_hz, w.validity)
@@ -336,9 +331,4 @@ def plot(
     )  # fmt: skip
     ax.legend(fontsize=8, loc="best")
     ax.grid(True, alpha=0.3)
-    try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise OutputError(f"--plot {path}: cannot write ({exc.strerror})") from exc
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)

@@ -31,6 +31,7 @@ from northfinder.cli.common import (
     dumps,
     finite_float,
     load_sensor,
+    pyplot,
     say,
     seed_value,
     study_executor,
@@ -391,6 +392,7 @@ def _run_planner(args: argparse.Namespace, spec: SensorSpec, settings: StudySett
                 **{k: v for k, v in common.items() if k != "settle_s"},
             )  # fmt: skip
         report["spin_plans"] = [_candidate_json(c, model, args.warmup) for c in spins[: args.top]]
+        report["spins_searched"] = args.angles == "encoder"
         best_spin = spins[0].plan if spins else None
     else:
         cand = shortest_plan(model, args.latitude, args.plan_target, **common)
@@ -515,7 +517,12 @@ def _print_spins(report: dict[str, Any]) -> None:
         for kind in ("stop_and_go", "spin"):
             b = best[kind]
             if b is None:
-                parts.append(f"no {names[kind]} plan fits")
+                searched = kind != "spin" or report["spins_searched"]
+                parts.append(
+                    f"no {names[kind]} plan fits"
+                    if searched
+                    else "spins not searched (a spin needs --angles encoder)"
+                )
                 continue
             mc = "" if b["rmse_deg"] is None else f", Monte Carlo {b['rmse_deg']:.4f}"
             parts.append(f"best {names[kind]} predicted {b['predicted_deg']:.4f} deg{mc}")
@@ -579,15 +586,7 @@ def _progress(args: argparse.Namespace) -> Progress:
 
 
 def _plot(path: str, sweep: list[dict[str, Any]], title: str) -> None:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise HostConfigError(
-            "--plot needs matplotlib: install the plot extra (pip install 'northfinder[plot]')"
-        ) from exc
+    plt = pyplot()
     t = [s["plan_time_s"] for s in sweep]
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ax.errorbar(
@@ -631,12 +630,7 @@ def _run_spin(
     plan = _spin_plan(args)
     plan_json = _plan_json(plan, model, args.warmup)  # checks the rate against the table
     with study_executor(args) as executor, _progress(args) as bar:
-        t0 = time.perf_counter()
-        errors = monte_carlo(
-            SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor,
-            progress=bar.count,
-        )  # fmt: skip
-        wall = time.perf_counter() - t0
+        errors, wall = _simulated_monte_carlo(args, spec, plan, settings, executor, bar)
     rows = study_rows(model, plan, settings, errors)
     report: dict[str, Any] = {
         "kind": "monte-carlo",
@@ -674,6 +668,24 @@ def _run_spin(
     return 0
 
 
+def _simulated_monte_carlo(
+    args: argparse.Namespace,
+    spec: SensorSpec,
+    plan: Any,
+    settings: StudySettings,
+    executor: Executor | None,
+    bar: Progress,
+) -> tuple[Any, float]:
+    """The Monte Carlo of ``plan`` on the simulated ``spec`` (``--runs``, ``--seed``): the
+    errors and the wall time it took, s."""
+    t0 = time.perf_counter()
+    errors = monte_carlo(
+        SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor,
+        progress=bar.count,
+    )  # fmt: skip
+    return errors, time.perf_counter() - t0
+
+
 def run(args: argparse.Namespace) -> int:
     _check_early(args)
     spec = _load(args)
@@ -690,12 +702,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_spin(args, spec, model, settings)
     plan = _plan(args)
     with study_executor(args) as executor, _progress(args) as bar:
-        t0 = time.perf_counter()
-        errors = monte_carlo(
-            SimulatedWindows(spec), plan, settings, args.runs, args.seed, executor=executor,
-            progress=bar.count,
-        )  # fmt: skip
-        wall = time.perf_counter() - t0
+        errors, wall = _simulated_monte_carlo(args, spec, plan, settings, executor, bar)
         sweep = None
         if args.plot:
             windows = args.sweep or [plan.window_s * f for f in (0.25, 0.5, 1.0, 2.0, 4.0)]
