@@ -348,6 +348,9 @@ def test_skipped_counter_fails_stream_counters(sensor_file, tmp_path, capsys):
             status = main(["conformance", *args, "--junit", str(junit)])
             injector.join()
     out = capsys.readouterr().out
+    row = next((line for line in out.splitlines() if line.startswith("stream.counters")), "")
+    if status == 3 and "NOT JUDGED" in row:
+        judged(out)  # the reader fell behind more than the link holds: the loss is not judged
     assert status == 1, out
     assert "stream.counters" in failed_names(out)
     row = next(line for line in out.splitlines() if line.startswith("stream.counters"))
