@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from northfinder.driver.protocol.messages import Reply
 from northfinder.firmware_sim.firmware import Firmware
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.sensors import SensorSpec, load_spec
@@ -30,3 +31,13 @@ def run(fw: Firmware, seconds: float, step: float = 0.01) -> list[Any]:
     for _ in range(round(seconds / step)):
         out += [o.message for o in fw.process(step)]
     return out
+
+
+def ask(fw: Firmware, command: Any, seconds: float = 0.02) -> tuple[Any, list[Any]]:
+    """Hand ``fw`` one command and step ``seconds``: its one reply (matched by sequence number)
+    and everything it sent meanwhile."""
+    fw.handle(command)
+    out = run(fw, seconds)
+    replies = [m for m in out if isinstance(m, Reply) and m.seq == command.seq]
+    assert len(replies) == 1, out
+    return replies[0], out

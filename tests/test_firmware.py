@@ -7,7 +7,7 @@ import math
 import can
 import numpy as np
 import pytest
-from lockstep import IDEAL, make, run
+from lockstep import IDEAL, ask, make, run
 
 from northfinder.driver.protocol import (
     ConfigKey,
@@ -36,20 +36,12 @@ from northfinder.driver.protocol import (
 )
 from northfinder.driver.protocol.can import CanReceiver, encode_can
 from northfinder.firmware_sim.adapters import CanLink
-from northfinder.firmware_sim.firmware import Firmware, LinkInfo
+from northfinder.firmware_sim.firmware import LinkInfo
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import LockstepClock, Runner
 from northfinder.firmware_sim.sensors import load_spec
 
 DPH = math.pi / 180 / 3600
-
-
-def ask(fw: Firmware, command, seconds: float = 0.02) -> tuple[Reply, list]:
-    fw.handle(command)
-    out = run(fw, seconds)
-    replies = [m for m in out if isinstance(m, Reply) and m.seq == command.seq]
-    assert len(replies) == 1, out
-    return replies[0], out
 
 
 def test_boot_warmup_ready_and_the_state_log():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import lockstep
 import numpy as np
 import pytest
 from lockstep import IDEAL, make, run
@@ -33,10 +34,8 @@ from northfinder.firmware_sim.turntable import Turntable
 
 
 def ask(fw: Firmware, command) -> Result:
-    fw.handle(command)
-    replies = [m for m in run(fw, 0.02) if not isinstance(m, Sample | Status)]
-    assert len(replies) == 1
-    return replies[0].result
+    """The result of the one reply to ``command`` (:func:`lockstep.ask`)."""
+    return lockstep.ask(fw, command)[0].result
 
 
 @pytest.mark.parametrize("rate_dps", [6.0, -2.5])
