@@ -12,11 +12,10 @@ import math
 import numpy as np
 
 from northfinder.cli.common import (
+    add_positions_argument,
     add_sensor_argument,
     add_truth_arguments,
-    angle_list,
     bounded_float,
-    command_parser,
     dumps,
     load_sensor,
     run_seed,
@@ -26,21 +25,14 @@ from northfinder.cli.common import (
 from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, body_rates
-from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 from northfinder.host.results import envelope
 from northfinder.simwindows import simulator_identity
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "simulate", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     add_sensor_argument(p)
     add_truth_arguments(p)
-    p.add_argument(
-        "--positions",
-        type=angle_list,
-        default=list(DEFAULT_POSITIONS_DEG),
-        help="table angles, deg (default 0,180,180,0, as find)",
-    )
+    add_positions_argument(p)
     p.add_argument(
         "--window",
         type=bounded_float(0.0, MAX_WINDOW_S, "s", open_lo=True),
@@ -54,7 +46,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=f"sample rate, Hz, up to {MAX_RATE_HZ:g} (default: 200)",
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    return p
 
 
 #: Longest window, s, and highest sample rate, Hz: a window holds at most 3.6 million samples
