@@ -60,7 +60,8 @@ def read_serial(
     until: Callable[[list], bool] | None = None,
 ) -> list:
     """Messages read for ``seconds``, or until ``until`` holds of them."""
-    out, end = [], time.monotonic() + seconds
+    out: list = []
+    end = time.monotonic() + seconds
     while time.monotonic() < end and not (until is not None and until(out)):
         out += deframer.feed_messages(port.read(4096))
     return out
@@ -97,7 +98,8 @@ def read_can(
     bus: can.BusABC, rx: CanReceiver, seconds: float, until: Callable[[list], bool] | None = None
 ) -> list:
     """Messages read for ``seconds``, or until ``until`` holds of them."""
-    out, end = [], time.monotonic() + seconds
+    out: list = []
+    end = time.monotonic() + seconds
     while time.monotonic() < end and not (until is not None and until(out)):
         msg = bus.recv(0.05)
         if msg is not None:
