@@ -141,6 +141,9 @@ class Session:
         self.unsolicited: list[tuple[float, Reply]] = []
         self.answers: list[Answer] = []
         self.transitions: list[tuple[float, DeviceState | None, DeviceState]] = []
+        self.changes: list[tuple[float, int, DeviceState]] = []
+        """Each state change as the unit stamped it: (arrival time, the sample counter its status
+        carries, the new state). The counter places the change among the unit's own ticks."""
         self.state: DeviceState | None = None
         self.streaming = False
         """Whether the suite believes the stream is on (it switched it on, or saw samples)."""
@@ -273,6 +276,7 @@ class Session:
         self.statuses.append((t, s))
         if s.state != self.state:
             self.transitions.append((t, self.state, s.state))
+            self.changes.append((t, s.sample_counter, s.state))
             if s.state == DeviceState.BOOT:
                 self.begin_segment()
                 self.streaming = False
@@ -455,6 +459,31 @@ class Session:
             if tt > t:
                 break
             state = new
+        return state
+
+    def state_of(self, rec: SampleRecord, guard_ticks: int = 2) -> DeviceState | None:
+        """The state the unit was in when it took sample ``rec``, by its own counters: the state
+        of its latest change whose status carries a counter below the sample's (a status carries
+        the counter of the latest tick queued before it), among the changes since the unit last
+        booted before the sample arrived. None when unknown (no change seen before it) or when
+        the sample is within ``guard_ticks`` of a change (its validity may show either state).
+        Arrival times do not order them: a host that reads late reads a status and the samples
+        around it at once."""
+        epoch = 0
+        for i, (t, _, new) in enumerate(self.changes):
+            if t > rec.t:
+                break
+            if new == DeviceState.BOOT:
+                epoch = i
+        state: DeviceState | None = None
+        for _, counter, new in self.changes[epoch:]:
+            if new == DeviceState.BOOT and state is not None:
+                break  # the next boot: a later epoch
+            d = counter_diff(rec.counter, counter)
+            if abs(d) <= guard_ticks:
+                return None
+            if d > 0:
+                state = new
         return state
 
     def state_when_answered(self, answer: Answer) -> DeviceState | None:
