@@ -92,8 +92,8 @@ STOP_WAIT_S = 2.0
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
-_HEARD = ("frames_received", "frames_rejected", "frames_foreign", "bytes_received")
-"""The transport's counters that grow with whatever it takes in (:meth:`DeviceLink._heard_more`)."""
+_HEARD = ("frames_received", "frames_rejected", "frames_foreign")
+"""The transport's counters of frames taken in (:meth:`DeviceLink._heard_more`)."""
 T = TypeVar("T")
 
 
@@ -526,10 +526,13 @@ class DeviceLink:
         return got
 
     def _heard_more(self) -> bool:
-        """Whether the transport took in frames or bytes since the previous call (a read may
-        take part of a message and return nothing yet)."""
+        """Whether the transport took in frames, or bytes of a frame in progress, since the
+        previous call (a read may take part of a message and return nothing yet); bytes that
+        parse as nothing for :data:`GARBLED_BYTES` do not count (no unit is heard in them)."""
         c = self._transport.counters()
         heard = sum(c.get(k, 0) for k in _HEARD)
+        if c.get("bytes_unparsed", 0) < GARBLED_BYTES:
+            heard += c.get("bytes_received", 0)
         more, self._heard = heard != self._heard, heard
         return more
 
