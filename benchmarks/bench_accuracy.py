@@ -18,20 +18,18 @@ from __future__ import annotations
 import argparse
 import time
 
-from northfinder.firmware_sim.sensors import load_spec, preset_names
-from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows, verify_plan
+from studies import LATITUDE, SETTINGS, WARMUP, noisy_presets
+
+from northfinder.firmware_sim.sensors import load_spec
+from northfinder.host.montecarlo import monte_carlo, study_rows, verify_plan
 from northfinder.host.plan import PAPER_SWEEP, Plan, plan_time_s
 from northfinder.host.plan_search import search_plans, shortest_plan
 from northfinder.simwindows import SimulatedWindows, error_model
-
-LATITUDE = 34.0
-WARMUP = 120.0
 
 
 def ratio_table(runs: int, seed: int) -> None:
     spec = load_spec("ideal").with_values({"gyro.arw_dpsh": 0.0015})
     generator, model = SimulatedWindows(spec), error_model(spec)
-    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
     print(
         f"\n### RMSE/bound, white noise, 2 x 10 s, {runs} runs per row\n\n"
         "| mu deg | bias deg | RMSE deg | +- (1 s.e.) | bound deg | RMSE/bound | <= 1.05 |\n"
@@ -40,8 +38,8 @@ def ratio_table(runs: int, seed: int) -> None:
     worst = 0.0
     for mu in (30.0, 60.0, 90.0, 120.0, 150.0, 180.0):
         plan = Plan((0.0, mu), 10.0)
-        errors = monte_carlo(generator, plan, settings, runs, seed)
-        row = study_rows(model, plan, settings, errors)[0]
+        errors = monte_carlo(generator, plan, SETTINGS, runs, seed)
+        row = study_rows(model, plan, SETTINGS, errors)[0]
         worst = max(worst, row["ratio"])
         print(
             f"| {mu:g} | {row['bias_deg']:+.4f} | {row['rmse_deg']:.4f} | "
@@ -54,11 +52,10 @@ def ratio_table(runs: int, seed: int) -> None:
 def paper_table(runs: int, seed: int) -> None:
     spec = load_spec("paper-rlg")
     model = error_model(spec)
-    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
     plan = PAPER_SWEEP  # pairwise against the first position
     t0 = time.perf_counter()
-    errors = monte_carlo(SimulatedWindows(spec), plan, settings, runs, seed)
-    rows = study_rows(model, plan, settings, errors)
+    errors = monte_carlo(SimulatedWindows(spec), plan, SETTINGS, runs, seed)
+    rows = study_rows(model, plan, SETTINGS, errors)
     wall = time.perf_counter() - t0
     print(
         f"\n### The paper's plan with the paper-rlg preset, {runs} runs "
@@ -75,18 +72,13 @@ def paper_table(runs: int, seed: int) -> None:
 
 
 def time_table(verify_runs: int, seed: int) -> None:
-    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
     print(
         f"\n### Time to 0.05 deg and 0.02 deg (planner, verified by {verify_runs} Monte Carlo runs)"
         "\n\n| preset | target deg | positions | window s | plan time s | with warm-up s | "
         "predicted deg | simulated RMSE deg | bound deg | meets |\n"
         "|---|---:|---|---:|---:|---:|---:|---:|---:|:---:|"
     )
-    for name in preset_names():
-        if name == "ideal":
-            continue  # no noise: any plan is exact
-        spec = load_spec(name)
-        model = error_model(spec)
+    for name, spec, model in noisy_presets():
         generator = SimulatedWindows(spec)
         for target in (0.05, 0.02):
             cand = shortest_plan(model, LATITUDE, target, warmup_s=WARMUP)
@@ -99,7 +91,7 @@ def time_table(verify_runs: int, seed: int) -> None:
                 )
                 continue
             plan, row = verify_plan(
-                generator, model, cand.plan, settings, verify_runs, seed, target
+                generator, model, cand.plan, SETTINGS, verify_runs, seed, target
             )
             t = plan_time_s(plan, model.table)
             print(

@@ -20,24 +20,23 @@ from __future__ import annotations
 import argparse
 import time
 
-from northfinder.firmware_sim.sensors import load_spec, preset_names
+from studies import LATITUDE, SETTINGS, WARMUP, noisy_presets
+
+from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.accuracy import budget_bound_deg
-from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows
+from northfinder.host.montecarlo import monte_carlo, study_rows
 from northfinder.host.plan import PAPER_SWEEP, SpinPlan
 from northfinder.host.plan_search import search_plans, search_spin_plans
 from northfinder.simwindows import SimulatedWindows, error_model
 
-LATITUDE = 34.0
-WARMUP = 120.0
 BUDGETS = (60.0, 160.0, 600.0)
 
 
 def sweep_table(runs: int, seed: int) -> None:
     spec = load_spec("paper-prototype")
-    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
     t0 = time.perf_counter()
-    errors = monte_carlo(SimulatedWindows(spec), PAPER_SWEEP, settings, runs, seed)
-    rows = study_rows(error_model(spec), PAPER_SWEEP, settings, errors)
+    errors = monte_carlo(SimulatedWindows(spec), PAPER_SWEEP, SETTINGS, runs, seed)
+    rows = study_rows(error_model(spec), PAPER_SWEEP, SETTINGS, errors)
     print(
         f"\n### paper-prototype on the paper's sweep, {runs} runs "
         f"(Monte Carlo {time.perf_counter() - t0:.0f} s)\n\n"
@@ -53,7 +52,6 @@ def sweep_table(runs: int, seed: int) -> None:
 
 
 def budget_table(runs: int, seed: int) -> None:
-    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
     print(
         f"\n### Best stop-and-go plan of a budget, {runs} runs per plan\n\n"
         "| preset | budget s | positions | window s | plan s | RMSE deg | +- | predicted deg | "
@@ -61,19 +59,15 @@ def budget_table(runs: int, seed: int) -> None:
         "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"
     )
     worst = 0.0
-    for name in preset_names():
-        if name == "ideal":
-            continue  # no noise: any plan is exact
-        spec = load_spec(name)
-        model = error_model(spec)
+    for name, spec, model in noisy_presets():
         for budget in BUDGETS:
             cands = search_plans(model, LATITUDE, budget, warmup_s=WARMUP)
             if not cands:
                 print(f"| {name} | {budget:g} | no plan fits | | | | | | | | |")
                 continue
             best = cands[0]
-            errors = monte_carlo(SimulatedWindows(spec), best.plan, settings, runs, seed)
-            row = study_rows(model, best.plan, settings, errors)[0]
+            errors = monte_carlo(SimulatedWindows(spec), best.plan, SETTINGS, runs, seed)
+            row = study_rows(model, best.plan, SETTINGS, errors)[0]
             ratio = row["predicted_deg"] / row["rmse_deg"]
             worst = max(worst, abs(ratio - 1.0))
             print(
@@ -88,7 +82,6 @@ def budget_table(runs: int, seed: int) -> None:
 
 
 def compare_table(runs: int, seed: int) -> None:
-    settings = StudySettings(latitude_deg=LATITUDE, warmup_s=WARMUP)
     print(
         f"\n### Best stop-and-go plan and best spin of a budget, {runs} runs per plan\n\n"
         "| preset | budget s | stop-and-go | RMSE deg | predicted deg | spin | RMSE deg | "
@@ -96,11 +89,7 @@ def compare_table(runs: int, seed: int) -> None:
         "|---|---:|---|---:|---:|---|---:|---:|---:|---|"
     )
     worst, below = 0.0, 0
-    for name in preset_names():
-        if name == "ideal":
-            continue  # no noise: any plan is exact
-        spec = load_spec(name)
-        model = error_model(spec)
+    for name, spec, model in noisy_presets():
         for budget in BUDGETS:
             bound = budget_bound_deg(budget, model.arw_dpsh, LATITUDE)
             cells, rmse = [], {}
@@ -112,8 +101,8 @@ def compare_table(runs: int, seed: int) -> None:
                     cells += ["none fits", "", ""]
                     continue
                 plan = cands[0].plan
-                errors = monte_carlo(SimulatedWindows(spec), plan, settings, runs, seed)
-                row = study_rows(model, plan, settings, errors)[0]
+                errors = monte_carlo(SimulatedWindows(spec), plan, SETTINGS, runs, seed)
+                row = study_rows(model, plan, SETTINGS, errors)[0]
                 rmse[kind] = row["rmse_deg"]
                 worst = max(worst, abs(row["predicted_deg"] / row["rmse_deg"] - 1.0))
                 # Beating the bound by more than the Monte Carlo's own scatter would be a bug.

@@ -89,18 +89,28 @@ CHUNK_SAMPLES = 2**18
 MAX_RUN_VALUES = 24_000_000
 
 
-class WindowBatch(Protocol):
-    """The recording windows of many runs, as a window generator returns them."""
+class _Runs(Protocol):
+    """The samples of many runs, as a window generator returns them (a leading ``runs`` axis,
+    then ``positions`` for a plan's windows, then ``samples``)."""
 
     @property
     def gyro_rps(self) -> NDArray[np.float64]:
-        """(runs, positions, samples, 3): gyro triad, mean rate over each sample, rad/s."""
+        """(runs, [positions,] samples, 3): gyro triad, mean rate over each sample, rad/s."""
         ...
 
     @property
     def accel_mps2(self) -> NDArray[np.float64]:
-        """(runs, positions, samples, 3): specific force, m/s^2."""
+        """(runs, [positions,] samples, 3): specific force, m/s^2."""
         ...
+
+    @property
+    def azimuth_deg(self) -> NDArray[np.float64]:
+        """(runs,): true azimuth of each run, deg."""
+        ...
+
+
+class WindowBatch(_Runs, Protocol):
+    """The recording windows of many runs, as a window generator returns them."""
 
     @property
     def table_deg(self) -> NDArray[np.float64]:
@@ -110,11 +120,6 @@ class WindowBatch(Protocol):
     @property
     def commanded_deg(self) -> NDArray[np.float64]:
         """(positions,): commanded table angle of each window, deg."""
-        ...
-
-    @property
-    def azimuth_deg(self) -> NDArray[np.float64]:
-        """(runs,): true azimuth of each run, deg."""
         ...
 
 
@@ -158,19 +163,9 @@ class RunRequest:
         return int(self.azimuth_deg.size)
 
 
-class SpinRuns(Protocol):
+class SpinRuns(_Runs, Protocol):
     """The samples of many runs of a spin, as a window generator returns them for a
     :class:`~northfinder.host.plan.SpinPlan`."""
-
-    @property
-    def gyro_rps(self) -> NDArray[np.float64]:
-        """(runs, samples, 3): gyro triad, mean rate over each sample, rad/s."""
-        ...
-
-    @property
-    def accel_mps2(self) -> NDArray[np.float64]:
-        """(runs, samples, 3): specific force, m/s^2."""
-        ...
 
     @property
     def read0_rad(self) -> NDArray[np.float64]:
@@ -185,11 +180,6 @@ class SpinRuns(Protocol):
     @property
     def time_s(self) -> NDArray[np.float64]:
         """(samples,): end of each sample from the start of the steady spin, s."""
-        ...
-
-    @property
-    def azimuth_deg(self) -> NDArray[np.float64]:
-        """(runs,): true azimuth of each run, deg."""
         ...
 
 

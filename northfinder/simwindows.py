@@ -16,7 +16,7 @@ in worker processes).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -125,21 +125,7 @@ def table_model(spec: SensorSpec) -> TableModel:
     """The planner's view of a sensor spec's turntable (every field of its ``table`` section but
     the post-stop ring-down, which is over before a window starts)."""
     t = spec.table
-    return TableModel(
-        max_rate_dps=t.max_rate_dps,
-        max_accel_dps2=t.max_accel_dps2,
-        settle_s=t.settle_s,
-        indexing_error_deg=t.indexing_error_deg,
-        encoder_resolution_deg=t.encoder_resolution_deg,
-        heat_tau_s=t.heat_tau_s,
-        rate_ripple=t.rate_ripple,
-        rate_ripple_phase_deg=t.rate_ripple_phase_deg,
-        wobble_urad=t.wobble_urad,
-        wobble_phase_deg=t.wobble_phase_deg,
-        encoder_error_deg=t.encoder_error_deg,
-        encoder_error_harmonic=t.encoder_error_harmonic,
-        encoder_error_phase_deg=t.encoder_error_phase_deg,
-    )
+    return TableModel(**{f.name: getattr(t, f.name) for f in fields(TableModel)})
 
 
 def error_model(spec: SensorSpec) -> ErrorModel:

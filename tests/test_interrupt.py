@@ -205,7 +205,11 @@ def _commands(log_path: str) -> list[Opcode]:
 @pytest.mark.realtime
 def test_sigterm_during_a_window_stops_the_stream_and_flushes_the_can_log(tmp_path):
     log = tmp_path / "run.log"
+    # Ten times real time: the first window begins after the move to 0 and its settle time
+    # (10 s of the unit's time), 1 s of wall time instead of 10; the signal and what it leaves
+    # are the same at any speed.
     args = [*sim_link_args("serial-pty"), "--warmup", "0", "--control", "127.0.0.1:0"]
+    args += ["--speed", "10"]
     with sim_process(*args, ready=True) as facts:
         from northfinder.firmware_sim.control import ControlClient
 

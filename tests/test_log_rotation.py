@@ -239,6 +239,7 @@ def test_sim_log_rotated_by_age_on_a_serial_pty_solves_as_the_run_found(tmp_path
     with sim_process(*args, "--log", str(log), "--log-rotate", "1s", wanted={"pty"}) as facts:
         found = run_json(
             "find", "--serial", facts["pty"], "--latitude", "34", "--window", "2",
+            "--positions", "0,180",  # one move and two settles: 5 s of wall time at speed 10
             "--reply-timeout", "2", "--link-timeout", "3",
         )  # fmt: skip
     parts = _set(log)

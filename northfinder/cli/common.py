@@ -546,6 +546,20 @@ def angle_list(text: str) -> list[float]:
     return [_table_angle(p) for p in parts]
 
 
+def add_positions_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--positions``: the table angles of a plan, as ``find``, ``record`` and ``simulate``
+    spell it."""
+    from northfinder.host.plan import DEFAULT_POSITIONS_DEG  # numpy: not for --help
+
+    default = list(DEFAULT_POSITIONS_DEG)
+    parser.add_argument(
+        "--positions",
+        type=angle_list,
+        default=default,
+        help=f"table angles, deg (default {','.join(f'{a:g}' for a in default)})",
+    )
+
+
 def sim_latitude(args: argparse.Namespace) -> float:
     from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
 

@@ -23,13 +23,9 @@ from northfinder.cli.common import (
     result_status,
     whole_number,
 )
-from northfinder.cli.measure import (
-    DEFAULT_POSITIONS_DEG,
-    Measured,
-    add_arguments,
-    run_plan,
-)
+from northfinder.cli.measure import Measured, add_arguments, run_plan
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
+from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 
 #: The stop-and-go plan options and their defaults (refused with ``--spin`` when changed).
 PLAN_DEFAULTS = {

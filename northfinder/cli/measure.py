@@ -19,9 +19,9 @@ from northfinder.cli.common import (
     add_latitude_argument,
     add_link_arguments,
     add_log_rotation,
+    add_positions_argument,
     add_solver_argument,
     add_truth_arguments,
-    angle_list,
     bounded_float,
     bus_given,
     can_log_path,
@@ -42,7 +42,6 @@ from northfinder.driver.errors import DriverError
 from northfinder.driver.framelog import FrameLog
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError, HostError
-from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 from northfinder.host.procedure import (
     MAX_SETTLE_S,
     METHOD_CHOICES,
@@ -122,12 +121,7 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("plan")
-    g.add_argument(
-        "--positions",
-        type=angle_list,
-        default=list(DEFAULT_POSITIONS_DEG),
-        help="table angles, deg (default 0,180,180,0)",
-    )
+    add_positions_argument(g)
     g.add_argument(
         "--window",
         type=bounded_float(*WINDOW_RANGE_S, "s"),

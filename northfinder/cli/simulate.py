@@ -12,9 +12,9 @@ import math
 import numpy as np
 
 from northfinder.cli.common import (
+    add_positions_argument,
     add_sensor_argument,
     add_truth_arguments,
-    angle_list,
     bounded_float,
     command_parser,
     dumps,
@@ -26,7 +26,6 @@ from northfinder.cli.common import (
 from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, body_rates
-from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 from northfinder.host.results import envelope
 from northfinder.simwindows import simulator_identity
 
@@ -35,12 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = command_parser(sub, "simulate", __doc__)
     add_sensor_argument(p)
     add_truth_arguments(p)
-    p.add_argument(
-        "--positions",
-        type=angle_list,
-        default=list(DEFAULT_POSITIONS_DEG),
-        help="table angles, deg (default 0,180,180,0, as find)",
-    )
+    add_positions_argument(p)
     p.add_argument(
         "--window",
         type=bounded_float(0.0, MAX_WINDOW_S, "s", open_lo=True),
