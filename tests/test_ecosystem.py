@@ -270,7 +270,7 @@ def test_sim_log_on_a_serial_pty_logs_the_can_frames_of_its_messages(tmp_path, v
     with sim_process(*args, "--log", str(log), wanted={"pty"}) as facts:
         found = run_json(
             "find", "--serial", facts["pty"], "--latitude", "34", "--window", "2",
-            "--reply-timeout", "2", "--link-timeout", "3",
+            "--positions", "0,180", "--reply-timeout", "2", "--link-timeout", "3",
         )  # fmt: skip
     validator.validate(found)
     assert found["device"]["simulated"] is False  # a unit on a port: find cannot know

@@ -530,7 +530,9 @@ async def test_the_screen_on_a_pty_to_a_simulator_process():
 
     from northfinder.driver.device import Device
 
-    with sim_process("--pty", "--warmup", "0", "--control", "127.0.0.1:0", ready=True) as facts:
+    # Twice real time: the 600 samples in 1.5 s of wall time (the screen shows the configured rate).
+    args = ["--pty", "--warmup", "0", "--speed", "2", "--control", "127.0.0.1:0"]
+    with sim_process(*args, ready=True) as facts:
 
         @contextlib.contextmanager
         def opener(tap):

@@ -26,7 +26,6 @@ from northfinder.cli.common import (
     bounded_float,
     bus_given,
     check_output_path,
-    command_parser,
     open_can_bus,
     open_serial_port,
 )
@@ -75,8 +74,7 @@ _FLAGS: tuple[tuple[str, str, Callable[[str], Any], str | None, str], ...] = (
 )  # fmt: skip
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "conformance", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     group = add_link_arguments(p, "serial link and simulation")
     group.add_argument(
         "--sim",
@@ -106,7 +104,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the checks and exit")
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML to FILE")
     p.add_argument("--json", action="store_true", help="print the result as JSON (no report)")
-    return p
 
 
 def _identity(report: Report) -> dict[str, Any] | None:
