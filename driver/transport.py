@@ -271,12 +271,20 @@ def _virtual_batch(bus: VirtualBus) -> Callable[[int], list[can.Message]]:
     return take
 
 
-class _Releasing:
-    """A transport's ``close``: the bus or port it was given is released once, and only if the
-    transport owns it (``_release``, set by the transport: None when it does not)."""
+class _TransportBase:
+    """What every transport holds: its tap, a lock for sending and one for receiving, and its
+    ``close``: the bus or port it was given is released once, and only if the transport owns it
+    (``release``: None when it does not)."""
 
-    _release: Callable[[], object] | None = None
     _closed = False
+
+    def __init__(
+        self, tap: Callable[[can.Message], None] | None, release: Callable[[], object] | None
+    ) -> None:
+        self.tap = tap
+        self._release = release
+        self._send_lock = threading.Lock()
+        self._rx_lock = threading.RLock()
 
     def close(self) -> None:
         """Release the bus (``shutdown``) or the port (``close``) if this transport owns it
@@ -288,7 +296,7 @@ class _Releasing:
             self._release()
 
 
-class CanTransport(_Releasing):
+class CanTransport(_TransportBase):
     """The protocol on a python-can bus, for one node.
 
     Parameters
@@ -314,17 +322,14 @@ class CanTransport(_Releasing):
         own_bus: bool = False,
         tap: Callable[[can.Message], None] | None = None,
     ) -> None:
+        super().__init__(tap, bus.shutdown if own_bus else None)
         self.bus = bus
-        self.tap = tap
         self.node_id = node_id
         self.own_bus = own_bus
-        self._release = bus.shutdown if own_bus else None
         self.receiver = CanReceiver(node_id=node_id)
         self.rcvbuf = enlarge_receive_buffer(bus)
         self.garbled = 0  # SLCAN lines that did not parse (frame errors)
         self._take = frame_batch(bus, self._garbled)
-        self._send_lock = threading.Lock()
-        self._rx_lock = threading.RLock()
 
     def send(self, command: Command) -> None:
         """Send one command (one frame).
@@ -450,7 +455,7 @@ def open_serial_port(
     return port
 
 
-class SerialTransport(_Releasing):
+class SerialTransport(_TransportBase):
     """The protocol's binary frames on a serial port (pyserial ``Serial`` or URL handler).
 
     Lost frames show in the frame sequence counter (:class:`Deframer`), lost samples in the
@@ -479,15 +484,12 @@ class SerialTransport(_Releasing):
         tap: Callable[[can.Message], None] | None = None,
         tap_node_id: int = 1,
     ) -> None:
+        super().__init__(tap, port.close if own_port else None)
         self.port = port
-        self.tap = tap
         self.tap_node_id = tap_node_id
         self.own_port = own_port
-        self._release = port.close if own_port else None
         self.deframer = Deframer()
         self.encoder = SerialEncoder()
-        self._send_lock = threading.Lock()
-        self._rx_lock = threading.RLock()
         self._last_counter: int | None = None
         self.ticks_lost = 0
         self.counter_restarts = 0

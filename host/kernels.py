@@ -252,7 +252,9 @@ def solve_two_position_batch(
 # ----------------------------------------------------------------------------------------------
 
 
-def lstsq(a: Array, b: Array, weights: Array | None = None) -> tuple[Array, Array, Array]:
+def lstsq(
+    a: Array, b: Array, weights: Array | None = None, *, factor: tuple[Array, Array] | None = None
+) -> tuple[Array, Array, Array]:
     """Weighted least squares for stacks of small systems, by QR of the weighted design.
 
     Parameters
@@ -263,6 +265,9 @@ def lstsq(a: Array, b: Array, weights: Array | None = None) -> tuple[Array, Arra
         Observations.
     weights : ndarray, shape (R, M) or (M,), optional
         Weight of each equation (1 / sigma); default 1.
+    factor : (q, r), optional
+        ``numpy.linalg.qr`` of the weighted design, when the caller has it already (one
+        factorisation for several right-hand sides of the same design).
 
     Returns
     -------
@@ -273,10 +278,11 @@ def lstsq(a: Array, b: Array, weights: Array | None = None) -> tuple[Array, Arra
         (A_w^T A_w)^-1, the covariance of x for unit-weight noise.
     """
     if weights is None:
-        aw, bw = a, b
+        bw = b
+        q, r = np.linalg.qr(a) if factor is None else factor
     else:
-        aw, bw = a * weights[..., None], b * weights
-    q, r = np.linalg.qr(aw)
+        bw = b * weights
+        q, r = np.linalg.qr(a * weights[..., None]) if factor is None else factor
     x = np.linalg.solve(r, np.einsum("rmp,rm->rp", q, bw)[..., None])[..., 0]
     residuals = b - np.einsum("rmp,rp->rm", a, x)
     rinv = np.linalg.inv(r)
@@ -344,6 +350,22 @@ def bias_design(r_count: int, n: int) -> Array:
     return np.broadcast_to(np.eye(2), (r_count, n, 2, 2)).reshape(r_count, 2 * n, 2)
 
 
+@dataclass(frozen=True)
+class LinearDesign:
+    """The unweighted design of ``w_i = R(mu_i) u + nuisance`` and its QR factorisation: the tilt
+    and the heading fits of one set of table angles share it."""
+
+    a: Array
+    qr: tuple[Array, Array]
+
+
+def linear_design(rot: Array, nuisance: Array | None = None) -> LinearDesign:
+    """:class:`LinearDesign` of the table rotations ``rot`` (R, N, 2, 2) and the nuisance design."""
+    a = _linear_design(rot, nuisance)
+    q, r = np.linalg.qr(a)
+    return LinearDesign(a, (q, r))
+
+
 def _linear_design(rot: Array, nuisance: Array | None = None) -> Array:
     """Design of w_i = R(mu_i) u + nuisance for every run: (R, N, 2, 2) -> (R, 2N, 2 + k)."""
     r_count, n = rot.shape[:2]
@@ -357,6 +379,8 @@ def fit_tilt(
     g: float,
     weights: Array | None = None,
     nuisance: Array | None = None,
+    *,
+    design: LinearDesign | None = None,
 ) -> tuple[Array, Array, Array, Array, Array]:
     """Tilt and accelerometer biases from ``f_i = R(mu_i) f0 + b_a`` (linear) for every run.
 
@@ -372,6 +396,8 @@ def fit_tilt(
         1 / sigma of each mean (x, y of each position in turn).
     nuisance : ndarray, shape (R, 2N, k), optional
         Design of what else the means hold (default :func:`bias_design`: a constant bias each).
+    design : LinearDesign, optional
+        :func:`linear_design` of ``rot`` and ``nuisance`` when the caller has it (unweighted fits).
 
     Returns
     -------
@@ -384,7 +410,11 @@ def fit_tilt(
         Unit-weight covariance of x.
     """
     r_count, n = accel.shape[:2]
-    x, res, ninv = lstsq(_linear_design(rot, nuisance), accel.reshape(r_count, 2 * n), weights)
+    b = accel.reshape(r_count, 2 * n)
+    if design is None or weights is not None:
+        x, res, ninv = lstsq(_linear_design(rot, nuisance), b, weights)
+    else:
+        x, res, ninv = lstsq(design.a, b, factor=design.qr)
     theta, gamma = tilt_from_f0(x[:, 0], x[:, 1], g)
     return theta, gamma, x, res, ninv
 
@@ -401,6 +431,7 @@ def fit_heading(
     max_iterations: int = 50,
     tolerance: float = 1e-12,
     nuisance: Array | None = None,
+    design: LinearDesign | None = None,
 ) -> HeadingFit:
     """Heading and gyro biases of every run: least squares of ``w_i = R(mu_i) h(alpha) + b``.
 
@@ -412,6 +443,11 @@ def fit_heading(
     (where that curvature is not positive, far from a minimum, the Gauss-Newton step is taken).
     A run has converged when its alpha step is below ``tolerance`` rad; converged runs are no
     longer changed.
+
+    The cost and its derivatives are quadratic forms in the 2-vector h(alpha) (with P the
+    projection that removes the nuisance terms, X the weighted rotations, y the weighted means:
+    e = P (y - X h)), so the means enter once, through G = (P X)^T (P X) and c = (P X)^T y, and
+    each Newton step costs the same whatever the number of means (a spin fits every sample).
 
     Parameters
     ----------
@@ -432,10 +468,15 @@ def fit_heading(
     nuisance : ndarray, shape (R, 2N, k), optional
         Design of what else the means hold (default :func:`bias_design`: a constant bias each);
         the fit's ``bias`` then holds its k coefficients.
+    design : LinearDesign, optional
+        :func:`linear_design` of ``rot`` and ``nuisance`` when the caller has it (unweighted fits).
     """
     r_count, n = gyro.shape[:2]
     w = np.ones((r_count, 2 * n)) if weights is None else np.broadcast_to(weights, (r_count, 2 * n))
-    x_lin, _, _ = lstsq(_linear_design(rot, nuisance), gyro.reshape(r_count, 2 * n), weights)
+    if design is None or weights is not None:
+        x_lin, _, _ = lstsq(_linear_design(rot, nuisance), gyro.reshape(r_count, 2 * n), weights)
+    else:
+        x_lin, _, _ = lstsq(design.a, gyro.reshape(r_count, 2 * n), factor=design.qr)
     st, ct, sg, cg = np.sin(theta), np.cos(theta), np.sin(gamma), np.cos(gamma)
     # h = M (cos a, sin a) + c0 with M = [[on ct, 0], [on st sg, -on cg]]: solve for (cos a, sin a).
     c0 = np.stack([-omega_u * st, omega_u * ct * sg], -1)
@@ -445,23 +486,33 @@ def fit_heading(
     # Weighted bias design B (R, 2N, 2) and the projection P v = v - B (B^T B)^-1 B^T v.
     nu = bias_design(r_count, n) if nuisance is None else nuisance
     b_w = nu * w[..., None]
-    b_pinv = np.linalg.solve(np.swapaxes(b_w, 1, 2) @ b_w, np.swapaxes(b_w, 1, 2))  # (R, 2, 2N)
+    b_wt = np.swapaxes(b_w, 1, 2)  # (R, k, 2N)
+    b_normal = b_wt @ b_w  # (R, k, k)
+
+    def nuisance_fit(v: Array) -> Array:
+        """(B^T B)^-1 B^T v, (R, k)."""
+        return np.linalg.solve(b_normal, (b_wt @ v[..., None]))[..., 0]
 
     def project(v: Array) -> Array:
-        return v - np.einsum("rmk,rk->rm", b_w, np.einsum("rkm,rm->rk", b_pinv, v))
+        return v - (b_w @ nuisance_fit(v)[..., None])[..., 0]
 
     def weighted(v: Array) -> Array:
         return v.reshape(r_count, 2 * n) * w
 
+    # e = P (y - X h): slope d1.e = dh.(c - G h), Gauss-Newton curvature d1.d1 = dh.G dh, and
+    # the residual term d2.e with d2 = P X (c0 - h) (h'' = c0 - h).
+    x_w = rot.reshape(r_count, 2 * n, 2) * w[..., None]  # X, (R, 2N, 2)
+    px = np.stack([project(x_w[..., 0]), project(x_w[..., 1])], -1)  # P X
+    gram = np.einsum("rmi,rmj->rij", px, px)  # G, (R, 2, 2)
+    corr = np.einsum("rmi,rm->ri", px, weighted(gyro))  # c, (R, 2)
     converged = np.zeros(r_count, dtype=bool)
     for _ in range(int(max_iterations)):
         h, dh = earth_rate_body(alpha, theta, gamma, omega_n, omega_u)
-        e = project(weighted(gyro - np.einsum("rnij,rj->rni", rot, h)))
-        d1 = project(weighted(np.einsum("rnij,rj->rni", rot, dh[..., 0])))
-        d2 = project(weighted(-np.einsum("rnij,rj->rni", rot, h - c0)))  # R h'', h'' = c0 - h
-        slope = np.sum(d1 * e, axis=1)
-        curv_gn = np.sum(d1 * d1, axis=1)
-        curv = curv_gn - np.sum(d2 * e, axis=1)
+        d = dh[..., 0]
+        fit = corr - np.einsum("rij,rj->ri", gram, h)  # X^T P e
+        slope = np.sum(d * fit, axis=1)
+        curv_gn = np.einsum("ri,rij,rj->r", d, gram, d)
+        curv = curv_gn - np.sum((c0 - h) * fit, axis=1)
         step = slope / np.where(curv > 0.0, curv, curv_gn)
         active = ~converged
         alpha = np.where(active, alpha + step, alpha)
@@ -469,7 +520,7 @@ def fit_heading(
         if converged.all():
             break
     h, _ = earth_rate_body(alpha, theta, gamma, omega_n, omega_u)
-    bias = np.einsum("rkm,rm->rk", b_pinv, weighted(gyro - np.einsum("rnij,rj->rni", rot, h)))
+    bias = nuisance_fit(weighted(gyro - np.einsum("rnij,rj->rni", rot, h)))
     return HeadingFit(alpha, bias, converged)
 
 
@@ -546,11 +597,14 @@ def azimuths_of_rotated(
     r_count = gyro.shape[0]
     if accel is not None:
         f = np.asarray(accel, dtype=float)[..., :2]
-        theta, gamma, _, _, _ = fit_tilt(f, rot, float(normal_gravity(lat_rad)), nuisance=nuisance)
+        design = linear_design(rot, nuisance)
+        g = float(normal_gravity(lat_rad))
+        theta, gamma, _, _, _ = fit_tilt(f, rot, g, nuisance=nuisance, design=design)
         ok = tilt_within_limit(theta, gamma)
         # Rejected runs are solved level (finite numbers throughout) and masked at the end.
         theta, gamma = np.where(ok, theta, 0.0), np.where(ok, gamma, 0.0)
     else:
+        design = None
         theta = gamma = np.zeros(r_count)
         ok = np.ones(r_count, dtype=bool)
     fit = fit_heading(
@@ -562,6 +616,7 @@ def azimuths_of_rotated(
         OMEGA_IE * math.sin(lat_rad),
         max_iterations=max_iterations,
         nuisance=nuisance,
+        design=design,
     )
     az = np.mod(-np.degrees(fit.alpha), 360.0)
     return np.where(ok & fit.converged, az, np.nan)

@@ -347,6 +347,25 @@ def test_suite_passes_on_slcan_pty(sensor_file, capsys):
     judged(out, again)
 
 
+def in_the_stream(
+    ctl: ControlClient, after_s: float, operation: str, **values: Any
+) -> threading.Thread:
+    """A started thread that orders ``operation`` through the control channel ``after_s`` into
+    the stream window (once the unit streams, 20 s at most)."""
+
+    def order() -> None:
+        wall = WallClock()
+        end = wall.now() + 20
+        while not ctl.call("status")["streaming"] and wall.now() < end:
+            wall.sleep(0.05)
+        wall.sleep(after_s)
+        ctl.call(operation, **values)
+
+    thread = threading.Thread(target=order)
+    thread.start()
+    return thread
+
+
 @pytest.mark.realtime
 @pytest.mark.subprocess
 def test_skipped_counter_fails_stream_counters(units, tmp_path, capsys):
@@ -354,17 +373,7 @@ def test_skipped_counter_fails_stream_counters(units, tmp_path, capsys):
     # At real time, python-can's slcan reader keeps up: a counter that jumps with the reader
     # behind by more than the link holds would be not judged (frames may have been lost).
     path, ctl = units.get("--slcan-pty", 1.0)
-
-    def skip_during_the_window() -> None:
-        wall = WallClock()
-        end = wall.now() + 20
-        while not ctl.call("status")["streaming"] and wall.now() < end:
-            wall.sleep(0.05)
-        wall.sleep(0.5)  # inside the stream window
-        ctl.call("skip_counter", count=5)
-
-    injector = threading.Thread(target=skip_during_the_window)
-    injector.start()
+    injector = in_the_stream(ctl, 0.5, "skip_counter", count=5)
     only = "command.stream_start,stream.counters,stream.rate"
     args = [*slcan_args(path), *QUICK, "--time-scale", "1", "--only", only]
     try:
@@ -792,17 +801,7 @@ def test_frames_a_unit_drops_or_corrupts_on_the_slcan_pty_fail(units, fault):
     """The unit itself drops or corrupts frames (ordered through its control channel) while the
     host reads on time: link.integrity (or stream.counters) FAILS, naming the frames."""
     path, ctl = units.get("--slcan-pty", 1.0)
-
-    def during_the_stream() -> None:
-        wall = WallClock()
-        end = wall.now() + 20
-        while not ctl.call("status")["streaming"] and wall.now() < end:
-            wall.sleep(0.05)
-        wall.sleep(0.5)  # inside the stream window
-        ctl.call(fault, count=6)
-
-    injector = threading.Thread(target=during_the_stream)
-    injector.start()
+    injector = in_the_stream(ctl, 0.5, fault, count=6)
     try:
         report = _loss_run(path, stream_s=3.0)
     finally:

@@ -14,28 +14,15 @@ from northfinder.driver.protocol import (
     DeviceState,
     Direction,
     Fault,
-    GetConfig,
-    GetStatus,
-    Home,
     Identify,
     Opcode,
     Reply,
-    RequestIdentify,
-    Reset,
     Result,
-    RotateBy,
-    RotateTo,
     Sample,
     SampleAux,
     SampleAxis,
     Scale,
-    SelfTest,
-    SetConfig,
-    Spin,
     Status,
-    Stop,
-    StreamStart,
-    StreamStop,
     Validity,
 )
 from northfinder.driver.protocol.can import (
@@ -57,14 +44,19 @@ i24 = st.integers(-(1 << 23), (1 << 23) - 1)
 i32 = st.integers(-(1 << 31), (1 << 31) - 1)
 keys = st.one_of(st.sampled_from(ConfigKey), u8)
 
+#: Every command class, one per opcode (as decoding names it).
+COMMAND_TYPES = sorted(
+    {type(Command.decode(c(0).encode())) for c in Command.__subclasses__()},
+    key=lambda c: c.OPCODE,
+)
+#: Each argument's values: by its name where it has a type of its own, else by its struct code.
+_BY_NAME = {"direction": st.sampled_from(Direction), "key": keys}
+_BY_CODE = {"B": u8, "I": u32, "i": i32}
 commands = st.one_of(
-    *(st.builds(c, u8) for c in (RequestIdentify, GetStatus, Stop, Home, StreamStart)),
-    *(st.builds(c, u8) for c in (StreamStop, Reset, SelfTest)),
-    st.builds(RotateTo, u8, u32, st.sampled_from(Direction)),
-    st.builds(RotateBy, u8, i32),
-    st.builds(Spin, u8, i32),
-    st.builds(GetConfig, u8, keys),
-    st.builds(SetConfig, u8, keys, u32),
+    *(
+        st.builds(c, u8, *(_BY_NAME.get(name, _BY_CODE[code]) for name, code in c._FIELDS))
+        for c in COMMAND_TYPES
+    )
 )
 
 _unknown_opcode = u8.filter(lambda v: v not in set(Opcode))
@@ -121,6 +113,10 @@ messages = st.one_of(commands, replies, samples(), statuses, identifies)
 """Every message kind, with fields that fit both links."""
 
 EXAMPLES = settings(max_examples=150, deadline=None)
+
+
+def test_every_opcode_has_its_command():
+    assert [c.OPCODE for c in COMMAND_TYPES] == sorted(Opcode)
 
 
 @EXAMPLES

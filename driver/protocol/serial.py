@@ -295,20 +295,18 @@ class Deframer:
                 cut = i
                 break
             length = buf[i + 2]
-            if length > MAX_PAYLOAD:
-                if not in_tail:
-                    self.length_errors += 1
-                    self.discarded_bytes += 1
-                    pos = i + 1
-                scan = i + 1
-                continue
             end = i + HEADER_SIZE + length + CRC_SIZE
-            if end > n:
+            too_long = length > MAX_PAYLOAD
+            if not too_long and end > n:
                 cut = i
                 break
-            if crc(buf[i + 2 : end - 2], CRC_INIT) != buf[end - 2] | (buf[end - 1] << 8):
+            if too_long or crc(buf[i + 2 : end - 2], CRC_INIT) != buf[end - 2] | buf[end - 1] << 8:
+                # No frame starts here: skip the sync byte (counted unless a good frame's own).
                 if not in_tail:
-                    self.crc_errors += 1
+                    if too_long:
+                        self.length_errors += 1
+                    else:
+                        self.crc_errors += 1
                     self.discarded_bytes += 1
                     pos = i + 1
                 scan = i + 1

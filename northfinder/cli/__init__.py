@@ -31,6 +31,7 @@ from northfinder.cli.common import (
     SUMMARIES,
     OneLineParser,
     SignalInterrupt,
+    command_parser,
     common_group,
     ending_of,
     order_groups,
@@ -131,7 +132,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
             sub.add_parser(name, help=SUMMARIES[name], add_help=False)
             continue
         module = importlib.import_module(module_name)
-        p = module.add_parser(sub)
+        p = command_parser(sub, name, module.__doc__)
+        module.add_arguments(p)
         add_global_options(p, sub=True)
         order_groups(p)
         p.set_defaults(_run=module.run)

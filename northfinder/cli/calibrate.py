@@ -15,7 +15,6 @@ from northfinder.cli.common import (
     bounded_float,
     check_output_path,
     check_plot_path,
-    command_parser,
     dumps,
     load_sensor,
     say,
@@ -28,8 +27,7 @@ from northfinder.host.errors import QualityError
 from northfinder.host.results import envelope
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "calibrate", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "recordings", nargs="+", metavar="RECORDING",
         help=f"recordings, one per power-on ({', '.join(sorted(READERS))})",
@@ -63,7 +61,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="per-run: each recording its own heading; same-mount: one plan on one mount, "
         "repeated effects at a position removed (default per-run)",
     )  # fmt: skip
-    return p
 
 
 def run(args: argparse.Namespace) -> int:

@@ -26,7 +26,6 @@ from northfinder.cli.common import (
     bounded_float,
     bus_given,
     check_output_path,
-    command_parser,
     open_can_bus,
     open_serial_port,
 )
@@ -75,8 +74,7 @@ _FLAGS: tuple[tuple[str, str, Callable[[str], Any], str | None, str], ...] = (
 )  # fmt: skip
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "conformance", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     group = add_link_arguments(p, "serial link and simulation")
     group.add_argument(
         "--sim",
@@ -90,6 +88,14 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default = getattr(_DEFAULTS, field)
         g.add_argument(flag, dest=field, type=kind, default=default, metavar=metavar, help=text)
     g.add_argument(
+        "--unit-pid",
+        type=int,
+        default=None,
+        metavar="PID",
+        help="the unit is this process on this host (a simulator): its waits for a CPU count as "
+        "the host's (found by itself for a unit on a pseudo-terminal)",
+    )
+    g.add_argument(
         "--only",
         metavar="PATTERNS",
         default="",
@@ -98,7 +104,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the checks and exit")
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML to FILE")
     p.add_argument("--json", action="store_true", help="print the result as JSON (no report)")
-    return p
 
 
 def _identity(report: Report) -> dict[str, Any] | None:
@@ -146,7 +151,7 @@ def _options(args: argparse.Namespace) -> SuiteOptions:
     values = {field: getattr(args, field) for _, field, _, _, _ in _FLAGS}
     values["angles_deg"] = tuple(values["angles_deg"])
     only = tuple(p.strip() for p in args.only.split(",") if p.strip())
-    return SuiteOptions(node_id=args.node_id, only=only, **values)
+    return SuiteOptions(node_id=args.node_id, only=only, unit_pid=args.unit_pid, **values)
 
 
 def run(args: argparse.Namespace) -> int:

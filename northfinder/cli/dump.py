@@ -23,7 +23,6 @@ from northfinder.cli.common import (
     bounded_float,
     bounded_int,
     bus_given,
-    command_parser,
     open_can_bus,
     warn,
 )
@@ -64,8 +63,7 @@ def _id_list(text: str) -> list[str]:
     return parts
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "dump", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "log", nargs="*", default=None, metavar="LOG",
         help="CAN log to decode, or the parts of a rotated log (or give a bus with -i/-c)",
@@ -98,7 +96,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="a damaged line of a log is an error (default: skipped with a warning)",
     )  # fmt: skip
     add_bus_arguments(p)
-    return p
 
 
 def _wanted_ids(db: Any, names: list[str] | None) -> set[int] | None:

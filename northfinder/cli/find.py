@@ -13,17 +13,16 @@ import contextlib
 import sys
 import time
 
-from northfinder.cli import report, spinfind
+from northfinder.cli import measure, report, spinfind
 from northfinder.cli.common import (
     baud_rate,
     check_output_path,
     check_plot_path,
-    command_parser,
     positive_float,
     result_status,
     whole_number,
 )
-from northfinder.cli.measure import Measured, add_arguments, run_plan
+from northfinder.cli.measure import Measured, run_plan
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 
@@ -41,9 +40,8 @@ def _count(text: str) -> int:
     return value
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "find", __doc__)
-    add_arguments(p)
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    measure.add_arguments(p)
     spinfind.add_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument(
@@ -72,7 +70,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--nmea-max-sigma", type=positive_float, default=1.0, metavar="DEG",
         help="not valid (V) above this 1-sigma (default 1 deg)",
     )  # fmt: skip
-    return p
 
 
 def send_nmea(args: argparse.Namespace, m: Measured, out: NmeaOutput) -> int:

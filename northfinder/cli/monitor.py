@@ -29,7 +29,6 @@ from northfinder.cli.common import (
     bounded_float,
     bus_given,
     check_output_path,
-    command_parser,
     open_can_bus,
 )
 from northfinder.cli.measure import (
@@ -44,8 +43,7 @@ from northfinder.host.errors import HostConfigError
 SIM_ONLY = ("warmup", "sensor", "azimuth", "pitch", "roll", "seed")
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "monitor", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     add_device_arguments(p)
     add_plan_arguments(p)
     g = p.add_argument_group("monitor")
@@ -74,7 +72,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--summary", metavar="FILE",
         help="on quitting, write the stream's counters and the monitor's CPU use as JSON",
     )  # fmt: skip
-    return p
 
 
 def check_arguments(args: argparse.Namespace) -> None:

@@ -9,17 +9,15 @@ from __future__ import annotations
 
 import argparse
 
-from northfinder.cli import spinfind
-from northfinder.cli.common import check_output_path, command_parser
-from northfinder.cli.measure import add_arguments, run_plan
+from northfinder.cli import measure, spinfind
+from northfinder.cli.common import check_output_path
+from northfinder.cli.measure import run_plan
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "record", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", help="output file, .csv or .npz")
-    add_arguments(p)
+    measure.add_arguments(p)
     spinfind.add_arguments(p)
-    return p
 
 
 def run(args: argparse.Namespace) -> int:

@@ -16,7 +16,6 @@ from northfinder.cli.common import (
     add_link_arguments,
     bounded_float,
     bus_given,
-    command_parser,
     open_can_bus,
 )
 from northfinder.driver.device import Device
@@ -25,8 +24,7 @@ from northfinder.driver.protocol.constants import DeviceState
 from northfinder.host.errors import HostConfigError
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "reset", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--timeout",
         type=bounded_float(0.1, 60.0, "s"),
@@ -35,7 +33,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="longest wait for the unit to leave BOOT (default 3; the protocol allows 1)",
     )
     add_link_arguments(p, "link")
-    return p
 
 
 def run(args: argparse.Namespace) -> int:

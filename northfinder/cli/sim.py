@@ -27,7 +27,6 @@ from northfinder.cli.common import (
     bus_given,
     can_log_path,
     check_log_rotation,
-    command_parser,
     load_sensor,
     open_can_bus,
     open_serial_port,
@@ -64,8 +63,7 @@ def control_address(text: str) -> str:
     return text
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "sim", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     link = add_link_arguments(p, "serial and pseudo-terminal links")
     link.add_argument("--pty", action="store_true", help="serial frames on a new pseudo-terminal")
     link.add_argument(
@@ -119,7 +117,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=f"log every frame to a CAN log, its format by the ending ({', '.join(LOG_SUFFIXES)})",
     )
     add_log_rotation(p, "--log")
-    return p
 
 
 def _socketcan_fd(bus: Any) -> int | None:

@@ -14,7 +14,7 @@ import argparse
 import json
 import textwrap
 
-from northfinder.cli.common import command_parser, dumps
+from northfinder.cli.common import dumps
 from northfinder.firmware_sim.control import OPS, ControlClient
 from northfinder.host.errors import HostConfigError
 
@@ -33,12 +33,11 @@ def operations_help(width: int = 100) -> str:
     return "\n".join(lines)
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "simctl", __doc__, epilog=operations_help())
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.epilog = operations_help()
     p.add_argument("address", help="control address printed by `northfinder sim --control`")
     p.add_argument("op", help="operation (listed below)")
     p.add_argument("args", nargs="*", metavar="KEY=VALUE")
-    return p
 
 
 def run(args: argparse.Namespace) -> int:

@@ -16,7 +16,6 @@ from northfinder.cli.common import (
     add_sensor_argument,
     add_truth_arguments,
     bounded_float,
-    command_parser,
     dumps,
     load_sensor,
     run_seed,
@@ -30,8 +29,7 @@ from northfinder.host.results import envelope
 from northfinder.simwindows import simulator_identity
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "simulate", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     add_sensor_argument(p)
     add_truth_arguments(p)
     add_positions_argument(p)
@@ -48,7 +46,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=f"sample rate, Hz, up to {MAX_RATE_HZ:g} (default: 200)",
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    return p
 
 
 #: Longest window, s, and highest sample rate, Hz: a window holds at most 3.6 million samples

@@ -20,7 +20,6 @@ from northfinder.cli.common import (
     add_solver_argument,
     bounded_float,
     check_plot_path,
-    command_parser,
     node_id,
     positive_float,
     result_status,
@@ -41,8 +40,7 @@ from northfinder.host.procedure import (
 from northfinder.host.recording import Recording
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(sub, "solve", __doc__)
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "file", nargs="+", metavar="FILE",
         help="recording (.csv, .npz) or CAN log (.log, .asc, .blf, ...); several files or a "
@@ -86,7 +84,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--plot", metavar="FILE", help="plot the windows, or the spin's fit (matplotlib)"
     )
-    return p
 
 
 def _window_list(text: str) -> list[int]:

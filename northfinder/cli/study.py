@@ -27,7 +27,6 @@ from northfinder.cli.common import (
     bounded_float,
     bounded_int,
     check_plot_path,
-    command_parser,
     dumps,
     finite_float,
     load_sensor,
@@ -81,12 +80,7 @@ MAX_BIAS_STEP_DPH = 1e6
 MAX_TOP = 1000
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(
-        sub,
-        "study",
-        __doc__,
-    )
+def add_arguments(p: argparse.ArgumentParser) -> None:
     add_sensor_argument(p)
     add_key_values(
         p,
@@ -213,7 +207,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         metavar="S,S,...",
         help="window lengths of the --plot sweep, s (default: window x 0.25..4)",
     )
-    return p
 
 
 # ----------------------------------------------------------------------------------------------

@@ -18,7 +18,6 @@ from northfinder.cli.common import (
     angle_list,
     bounded_float,
     bounded_int,
-    command_parser,
     dumps,
     finite_float,
     say,
@@ -72,12 +71,7 @@ def _windows(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"{exc} in {text!r}") from None
 
 
-def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = command_parser(
-        sub,
-        "sweep",
-        __doc__,
-    )
+def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("what to sweep (every combination is one study)")
     g.add_argument(
         "--sensors",
@@ -156,7 +150,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     g.add_argument("--seed", type=seed_value, default=0, help="seed of every study (default: 0)")
     add_execution_arguments(p)
     p.add_argument("--json", action="store_true", help="print JSON")
-    return p
 
 
 def _plans(args: argparse.Namespace) -> list[Plan]:

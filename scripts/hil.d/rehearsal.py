@@ -612,31 +612,42 @@ def main() -> int:
             hard.append("no heartbeat from the simulator on the bus within 120 s")
         result["sim_first_heartbeat_s"] = None if waited is None else round(waited, 2)
         progress(f"first heartbeat after {waited} s; running find")
-        t0 = time.monotonic()
-        c0 = cpu_seconds_children()
-        find = subprocess.run(
-            # the plan of the timings measured so far (find's default is now 0,180,180,0)
-            [nf, "find", "-i", "socketcan", "-c", ch, "--json", "--latitude", str(TRUTH["latitude"]),
-             "--positions", "0,180",
-             "--link-timeout", "3", "--reply-timeout", "2", "--timeout", "300", "--record", str(out / "windows.npz")],
-            capture_output=True, text=True, timeout=args.find_timeout,
-        )  # fmt: skip
-        find_end = time.time()
-        progress(f"find exited {find.returncode} after {time.monotonic() - t0:.1f} s")
-        cpu["find"] = cpu_seconds_children() - c0
-        result["find_wall_s"] = round(time.monotonic() - t0, 1)
-        (out / "find.json").write_text(find.stdout)
-        (out / "find.err").write_text(find.stderr)
-        if find.returncode != 0:
+
+        def run_find(label: str, stem: str, wall_key: str, options: list[str]) -> str | None:
+            """Run ``find`` on the bus with these options, its time and CPU in ``cpu[stem]`` and
+            ``result[wall_key]``, its output in <stem>.json and <stem>.err; its JSON when it
+            exited 0, else None with the failure counted."""
+            t0 = time.monotonic()
+            c0 = cpu_seconds_children()
+            run = subprocess.run(
+                [nf, "find", "-i", "socketcan", "-c", ch, "--json", "--latitude", str(TRUTH["latitude"]),
+                 "--link-timeout", "3", "--reply-timeout", "2", "--timeout", "300", *options],
+                capture_output=True, text=True, timeout=args.find_timeout,
+            )  # fmt: skip
+            progress(f"{label} exited {run.returncode} after {time.monotonic() - t0:.1f} s")
+            cpu[stem.replace("-", "_")] = cpu_seconds_children() - c0
+            result[wall_key] = round(time.monotonic() - t0, 1)
+            (out / f"{stem}.json").write_text(run.stdout)
+            (out / f"{stem}.err").write_text(run.stderr)
+            if run.returncode == 0:
+                return run.stdout
             # Exit 1 is a link or device error (a lost reply, a stalled stream), or an internal
             # error (a bug, said so on stderr); any other code is a bad argument: only a link or
             # device error is what a starved VM causes.
-            internal = "internal error" in find.stderr or "Traceback" in find.stderr
-            (failures if find.returncode == 1 and not internal else hard).append(
-                f"find exited {find.returncode}: {find.stderr.strip()[-300:]}"
+            internal = "internal error" in run.stderr or "Traceback" in run.stderr
+            (failures if run.returncode == 1 and not internal else hard).append(
+                f"{label} exited {run.returncode}: {run.stderr.strip()[-300:]}"
             )
-        else:
-            res = json.loads(find.stdout)
+            return None
+
+        # the plan of the timings measured so far (find's default is now 0,180,180,0)
+        found = run_find(
+            "find", "find", "find_wall_s",
+            ["--positions", "0,180", "--record", str(out / "windows.npz")],
+        )  # fmt: skip
+        find_end = time.time()
+        if found is not None:
+            res = json.loads(found)
             err = (res["azimuth_deg"] - TRUTH["azimuth"] + 180.0) % 360.0 - 180.0
             result.update(
                 azimuth_deg=res["azimuth_deg"], truth_deg=TRUTH["azimuth"], azimuth_error_deg=err,
@@ -649,26 +660,11 @@ def main() -> int:
         # The spin find (protocol 1.1): the table turns at a constant rate for one whole turn,
         # and the heading is the phase of the Earth rate on the horizontal gyros.
         progress(f"running find --spin {SPIN_RATE_DPS:g}")
-        t0 = time.monotonic()
-        c0 = cpu_seconds_children()
-        spin = subprocess.run(
-            [nf, "find", "-i", "socketcan", "-c", ch, "--json", "--latitude", str(TRUTH["latitude"]),
-             "--spin", f"{SPIN_RATE_DPS:g}",
-             "--link-timeout", "3", "--reply-timeout", "2", "--timeout", "300"],
-            capture_output=True, text=True, timeout=args.find_timeout,
-        )  # fmt: skip
-        progress(f"find --spin exited {spin.returncode} after {time.monotonic() - t0:.1f} s")
-        cpu["find_spin"] = cpu_seconds_children() - c0
-        result["spin_find_wall_s"] = round(time.monotonic() - t0, 1)
-        (out / "find-spin.json").write_text(spin.stdout)
-        (out / "find-spin.err").write_text(spin.stderr)
-        if spin.returncode != 0:
-            internal = "internal error" in spin.stderr or "Traceback" in spin.stderr
-            (failures if spin.returncode == 1 and not internal else hard).append(
-                f"find --spin exited {spin.returncode}: {spin.stderr.strip()[-300:]}"
-            )
-        else:
-            figures, problems = judge_spin(json.loads(spin.stdout))
+        spun = run_find(
+            "find --spin", "find-spin", "spin_find_wall_s", ["--spin", f"{SPIN_RATE_DPS:g}"]
+        )
+        if spun is not None:
+            figures, problems = judge_spin(json.loads(spun))
             result["spin"] = figures
             hard.extend(problems)
         conformance_start = time.time()
