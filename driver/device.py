@@ -21,7 +21,9 @@ after at most ``(1 + retries) * reply_timeout`` = 0.75 s. Moves, HOME, RESET and
 sent once: a lost reply leaves open whether they were carried out. The link counts as lost when
 no status arrived for three heartbeat periods (0.3 s by default; ``min_supervision_s`` raises it),
 counted once the reader has read everything that arrived (protocol.md 6), so a host that is busy
-or an adapter that reads slowly does not take a late status for a lost link.
+or an adapter that reads slowly does not take a late status for a lost link: past the deadline
+the link is lost only once a read that began after it found nothing (a host that stood still
+longer than the supervision time reads what waited in the link first).
 """
 
 from __future__ import annotations

@@ -92,6 +92,8 @@ STOP_WAIT_S = 2.0
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
+_HEARD = ("frames_received", "frames_rejected", "frames_foreign")
+"""The transport's counters of frames taken in (:meth:`DeviceLink._heard_more`)."""
 T = TypeVar("T")
 
 
@@ -306,6 +308,11 @@ class DeviceLink:
         # last status only once the host has read everything that arrived (a busy host or a slow
         # adapter delivers statuses late behind the stream, while the link is plainly up).
         self._link_idle = True
+        # When the reader's latest read that found nothing began: the link counts as lost only
+        # once such a read began after the supervision deadline (the unit's silence, not a host
+        # that did not run its reader while the unit's bytes waited in the link).
+        self._quiet_read_at = -math.inf
+        self._heard = 0  # the transport's count of frames and bytes, at the latest read
         self._seq = 0
         self._opened_at = self._clock.now()
         self._status: DeviceStatus | None = None
@@ -480,12 +487,18 @@ class DeviceLink:
     def _read_loop(self) -> None:
         try:
             while not self._stop.is_set():
+                began = self._clock.now()
                 items = self._transport.recv(READ_POLL_S)
+                heard = self._heard_more()
                 if items:
                     self._link_idle = False
                     self._dispatch(items, self._clock.now(), self._clock.wall())
-                elif not self._link_idle:
-                    self._went_idle()
+                elif heard:
+                    self._link_idle = False  # bytes or frames came that complete no message yet
+                else:
+                    self._quiet_read_at = began
+                    if not self._link_idle or began >= self._lost_at():
+                        self._went_idle()
         except DriverError as exc:
             if not self._stop.is_set():
                 self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
@@ -511,6 +524,17 @@ class DeviceLink:
             self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
             return True
         return got
+
+    def _heard_more(self) -> bool:
+        """Whether the transport took in frames, or bytes of a frame in progress, since the
+        previous call (a read may take part of a message and return nothing yet); bytes that
+        parse as nothing for :data:`GARBLED_BYTES` do not count (no unit is heard in them)."""
+        c = self._transport.counters()
+        heard = sum(c.get(k, 0) for k in _HEARD)
+        if c.get("bytes_unparsed", 0) < GARBLED_BYTES:
+            heard += c.get("bytes_received", 0)
+        more, self._heard = heard != self._heard, heard
+        return more
 
     def _went_idle(self) -> None:
         with self._lock:
@@ -683,8 +707,14 @@ class DeviceLink:
 
     def _link_alive(self) -> bool:
         """A status within the supervision time, or frames still being read (protocol.md 6: the
-        time without a status counts once the host has read all that arrived)."""
-        return self._clock.now() < self._lost_at() or not self._link_idle
+        time without a status counts once the host has read all that arrived). Past the
+        deadline the link is lost only once a read that began after it found nothing: a host
+        that stood still longer than the supervision time (a loaded machine) reads what waited in
+        the link first, and a status among it keeps the link up."""
+        lost_at = self._lost_at()
+        if self._clock.now() < lost_at or not self._link_idle:
+            return True
+        return self._reader is not None and self._quiet_read_at < lost_at
 
     def _wait_change(self, seen: int, until: float) -> None:
         """Wait until the reader delivered something after ``seen`` (:attr:`_events`) or the

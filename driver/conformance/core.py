@@ -78,6 +78,10 @@ class SuiteOptions:
         How long to wait for READY after boot or reset (warm-up), unit s.
     only : tuple of str
         Glob patterns of check names to run (empty: all).
+    unit_pid : int or None
+        A process on this host that is the unit (a simulator): the time its threads wait for a
+        CPU counts as the host's (``docs/conformance.md``). A unit on a pseudo-terminal is found
+        by itself (the process holding the other end).
     """
 
     node_id: int = 1
@@ -91,6 +95,7 @@ class SuiteOptions:
     settle_margin_s: float = 0.5
     ready_timeout_s: float = 180.0
     only: tuple[str, ...] = ()
+    unit_pid: int | None = None
 
     def __post_init__(self) -> None:
         positive = {
@@ -114,6 +119,8 @@ class SuiteOptions:
             raise SuiteConfigError(
                 f"node_id: must be {NODE_ID_MIN}..{NODE_ID_MAX}, got {self.node_id}"
             )
+        if self.unit_pid is not None and not (isinstance(self.unit_pid, int) and self.unit_pid > 0):
+            raise SuiteConfigError(f"unit_pid: must be a process id > 0, got {self.unit_pid!r}")
         if not self.angles_deg or not all(math.isfinite(a) for a in self.angles_deg):
             raise SuiteConfigError("angles: give at least one finite angle in degrees")
 

@@ -13,8 +13,8 @@ from northfinder.driver.clock import Clock
 from northfinder.driver.conformance.checks import select_checks
 from northfinder.driver.conformance.core import CheckResult, Ctx, Report, SuiteOptions
 from northfinder.driver.conformance.errors import LinkFault, NoReply, Skipped
-from northfinder.driver.conformance.pace import excused
-from northfinder.driver.conformance.session import Session
+from northfinder.driver.conformance.pace import excused, pty_peer_pids
+from northfinder.driver.conformance.session import LAG_LOOKBACK_S, Session
 from northfinder.driver.conformance.wire import RawLink
 from northfinder.driver.errors import DriverError
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState
@@ -68,6 +68,10 @@ def run_suite(
     checks = select_checks(options.only)
     reply_wait = max(1.0, 2 * options.reply_limit_ms / 1000.0)
     session = Session(link, options.time_scale, reply_wait, clock)
+    if options.unit_pid is not None:
+        session.pace.unit_pids = (options.unit_pid,)
+    elif (path := _link_path(link)) is not None:
+        session.pace.unit_pids = pty_peer_pids(path)
     try:
         with session.pace:
             return _run(session, checks, options, progress)
@@ -156,10 +160,21 @@ def judge(session: Session, ctx: Ctx) -> tuple[str, str]:
         max(p.t1 for p in ctx.timing_problems),
     )
     ctx.fig("host pace", pace.during(*span).text())
+    lags = {
+        p: session.lag(p.t0, p.t1)
+        for p in ctx.timing_problems
+        if p.excess_s is not None and p.behind_s is None
+    }
     unexcused = [
         p
         for p in ctx.timing_problems
-        if not excused(pace.during(p.t0, p.t1), p.excess_s, p.behind_s)
+        if not excused(
+            pace.during(p.t0, p.t1),
+            p.excess_s,
+            p.behind_s,
+            lags.get(p),
+            pace.during(p.t0 - LAG_LOOKBACK_S, p.t1),
+        )
     ]
     if ctx.problems or unexcused:
         if not ctx.problems:
@@ -170,12 +185,22 @@ def judge(session: Session, ctx: Ctx) -> tuple[str, str]:
             elif p.excess_s is None:
                 message += f" (the host kept pace: {figures})"
             else:
-                message += f" (more than the host explains: {p.excess_s:.2f} s beyond the limit, {figures})"
+                message += (
+                    f" (more than the host explains: {p.excess_s:.2f} s beyond the limit, the "
+                    f"unit's messages {lags.get(p, 0.0) * 1e3:.0f} ms late by its own clock, "
+                    f"{figures})"
+                )
         return "fail", message
     worst = max(
-        (pace.during(p.t0, p.t1) for p in ctx.timing_problems), key=lambda f: f.lost_fraction
+        (pace.during(p.t0, p.t1) for p in ctx.timing_problems),
+        key=lambda f: max(f.lost_fraction, f.wait_fraction),
     )
-    return "not judged", f"{message}; not judged: the host could not keep pace ({worst.text()})"
+    lag = max(lags.values(), default=0.0)
+    late = f", the unit's messages up to {lag * 1e3:.0f} ms late by its own clock" if lag else ""
+    return (
+        "not judged",
+        f"{message}; not judged: the host could not keep pace ({worst.text()}{late})",
+    )
 
 
 def silent_link(session: Session, seconds: float) -> str:
@@ -189,6 +214,15 @@ def silent_link(session: Session, seconds: float) -> str:
         "that the unit is powered"
     )
     return f"nothing heard from the unit in {seconds:.1f} s (no reply, no heartbeat){hint}"
+
+
+def _link_path(link: RawLink) -> str | None:
+    """The device path of a link on a serial port or an SLCAN adapter, else None."""
+    port = getattr(link, "port", None) or getattr(
+        getattr(link, "bus", None), "serialPortOrig", None
+    )
+    name = getattr(port, "port", None)
+    return name if isinstance(name, str) else None
 
 
 def _where(exc: BaseException) -> str:

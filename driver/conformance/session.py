@@ -16,6 +16,7 @@ time is the clock's (``time_scale`` 1).
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -24,8 +25,15 @@ from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.conformance.errors import LinkFault, NoReply
 from northfinder.driver.conformance.pace import HostPace
 from northfinder.driver.conformance.wire import Arrival, RawLink, TickParts
-from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Opcode, Result
+from northfinder.driver.protocol.constants import (
+    SAMPLE_RATE_DEFAULT_HZ,
+    ConfigKey,
+    DeviceState,
+    Opcode,
+    Result,
+)
 from northfinder.driver.protocol.counters import TickCounter, counter_diff
+from northfinder.driver.protocol.errors import ProtocolError
 from northfinder.driver.protocol.messages import (
     Command,
     GetConfig,
@@ -38,7 +46,11 @@ from northfinder.driver.protocol.messages import (
     StreamStop,
 )
 
-__all__ = ["Answer", "LinkFault", "SampleRecord", "Session"]
+__all__ = ["LAG_LOOKBACK_S", "Answer", "LinkFault", "SampleRecord", "Session"]
+
+LAG_LOOKBACK_S = 2.0
+"""How far before an interval :meth:`Session.lag` looks for the unit's messages on time, wall s:
+longer than any stall a loaded host showed (1.7 s at load 13 on two cores)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +88,8 @@ class Answer:
     received: float | None = None
     statuses_before: int | None = None
     """How many statuses had arrived before the reply (orders the reply among the statuses)."""
+    samples_before: int | None = None
+    """How many samples had arrived before the reply: the unit queued those before replying."""
 
     @property
     def seq(self) -> int:
@@ -141,6 +155,9 @@ class Session:
         self.unsolicited: list[tuple[float, Reply]] = []
         self.answers: list[Answer] = []
         self.transitions: list[tuple[float, DeviceState | None, DeviceState]] = []
+        self.changes: list[tuple[float, int, DeviceState]] = []
+        """Each state change as the unit stamped it: (arrival time, the sample counter its status
+        carries, the new state). The counter places the change among the unit's own ticks."""
         self.state: DeviceState | None = None
         self.streaming = False
         """Whether the suite believes the stream is on (it switched it on, or saw samples)."""
@@ -151,6 +168,15 @@ class Session:
         """Answers whose wait ended without a reply: a reply that comes later is theirs (late)."""
         self._last_counter: int | None = None
         self._ticks = TickCounter()  # CAN: the 8-bit tick extended to the full counter
+        self._rate_hz = float(SAMPLE_RATE_DEFAULT_HZ)  # the unit's tick rate, as last heard
+        self._rate_known = False
+        self._run = 0  # counts the runs of the unit's clock: a reset, a new rate, a counter back
+        self._mark_counter: int | None = None
+        self.marks: list[tuple[float, float, int]] = []
+        """The unit's clock against arrival, for every status and sample: (arrival time, arrival
+        time less the sample counter's time at the unit's rate, the run of the unit's clock).
+        The second grows when the unit's messages come later than its own clock would have them
+        (:meth:`lag`)."""
         self.status_offsets: list[tuple[float, int]] = []
         """(time, latest sample counter - status sample counter) while streaming."""
         self._last_seq: int | None = None
@@ -244,6 +270,8 @@ class Session:
             else:
                 answer.reply, answer.received = m, a.t
                 answer.statuses_before = len(self.statuses)
+                answer.samples_before = len(self.samples)
+                self._note_rate(m)
         elif isinstance(m, Status):
             self._on_status(a.t, m)
         elif isinstance(m, Identify):
@@ -269,10 +297,60 @@ class Session:
             self.seq_restart_pending = False
         self._last_seq = seq
 
+    def _note_rate(self, m: Reply) -> None:
+        """An OK reply to GET_CONFIG or SET_CONFIG of the sample rate: the unit's tick rate."""
+        if m.result != Result.OK or int(m.opcode) not in (Opcode.GET_CONFIG, Opcode.SET_CONFIG):
+            return
+        try:
+            key, value = m.config_value()
+        except ProtocolError:
+            return
+        if key == ConfigKey.SAMPLE_RATE_HZ and value > 0:
+            if value != self._rate_hz or not self._rate_known:
+                self._run += 1
+            self._rate_hz, self._rate_known = float(value), True
+
+    def _mark(self, t: float, counter: int) -> None:
+        """The unit's clock (its sample counter) against the arrival time ``t``; only once the
+        unit's rate is known (a reply that carries it, or the defaults after a reset): at a
+        wrong rate the counter drifts against time and would read as lag."""
+        if not self._rate_known:
+            return
+        last = self._mark_counter
+        if last is not None and counter_diff(counter, last) < 0:
+            self._run += 1  # the counter went back: a reset
+        self._mark_counter = counter
+        self.marks.append((t, t - self.wall(counter / self._rate_hz), self._run))
+
+    def lag(
+        self, t0: float, t1: float, lookback_s: float = LAG_LOOKBACK_S, after_s: float = 0.2
+    ) -> float:
+        """How late the unit's messages came in ``[t0, t1 + after_s]`` by the unit's own clock,
+        wall s: the latest arrival against the unit's sample counter, less the earliest of the
+        same run of its clock since ``t0 - lookback_s``. A reader that keeps up and a unit that
+        keeps time give a few ms; a reader behind the link, or a unit on this host that the host
+        starved (its clock slips), give how far behind they were. 0 without such arrivals."""
+        i = bisect.bisect_left(self.marks, (t0 - lookback_s,))
+        base: dict[int, float] = {}
+        worst: dict[int, float] = {}
+        for t, offset, run in self.marks[i:]:
+            if t > t1 + after_s:
+                break
+            base[run] = min(base.get(run, offset), offset)
+            if t >= t0:
+                worst[run] = max(worst.get(run, offset), offset)
+        return max((w - base[run] for run, w in worst.items()), default=0.0)
+
     def _on_status(self, t: float, s: Status) -> None:
         self.statuses.append((t, s))
+        if s.state == DeviceState.BOOT and self.state != DeviceState.BOOT:
+            self._rate_hz = float(SAMPLE_RATE_DEFAULT_HZ)  # a reset restores the defaults
+            self._rate_known = True
+            self._run += 1
+        self._mark(t, s.sample_counter)
         if s.state != self.state:
             self.transitions.append((t, self.state, s.state))
+            self.changes.append((t, s.sample_counter, s.state))
             if s.state == DeviceState.BOOT:
                 self.begin_segment()
                 self.streaming = False
@@ -299,11 +377,19 @@ class Session:
             int(aux.validity) if aux else 0,
             aux.angle if aux else None,
             p.complete,
+            self._ticks.anchored,
         )
 
     def _on_sample(
-        self, t: float, counter: int, validity: int, angle: int | None, ok: bool
+        self,
+        t: float,
+        counter: int,
+        validity: int,
+        angle: int | None,
+        ok: bool,
+        placed: bool = True,
     ) -> None:
+        """``placed``: the full counter is known (on CAN once a status anchored the tick)."""
         last = self._last_counter
         d = 1 if last is None else counter_diff(counter, last)
         if d == 0:
@@ -317,6 +403,8 @@ class Session:
         self._last_counter = counter
         self.streaming = True
         self.samples.append(SampleRecord(t, counter, validity, angle, ok))
+        if placed:
+            self._mark(t, counter)
 
     def begin_segment(self) -> None:
         """The stream (re)starts: counters need not continue from the previous sample."""
@@ -455,6 +543,31 @@ class Session:
             if tt > t:
                 break
             state = new
+        return state
+
+    def state_of(self, rec: SampleRecord, guard_ticks: int = 2) -> DeviceState | None:
+        """The state the unit was in when it took sample ``rec``, by its own counters: the state
+        of its latest change whose status carries a counter below the sample's (a status carries
+        the counter of the latest tick queued before it), among the changes since the unit last
+        booted before the sample arrived. None when unknown (no change seen before it) or when
+        the sample is within ``guard_ticks`` of a change (its validity may show either state).
+        Arrival times do not order them: a host that reads late reads a status and the samples
+        around it at once."""
+        epoch = 0
+        for i, (t, _, new) in enumerate(self.changes):
+            if t > rec.t:
+                break
+            if new == DeviceState.BOOT:
+                epoch = i
+        state: DeviceState | None = None
+        for _, counter, new in self.changes[epoch:]:
+            if new == DeviceState.BOOT and state is not None:
+                break  # the next boot: a later epoch
+            d = counter_diff(rec.counter, counter)
+            if abs(d) <= guard_ticks:
+                return None
+            if d > 0:
+                state = new
         return state
 
     def state_when_answered(self, answer: Answer) -> DeviceState | None:

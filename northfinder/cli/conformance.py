@@ -88,6 +88,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default = getattr(_DEFAULTS, field)
         g.add_argument(flag, dest=field, type=kind, default=default, metavar=metavar, help=text)
     g.add_argument(
+        "--unit-pid",
+        type=int,
+        default=None,
+        metavar="PID",
+        help="the unit is this process on this host (a simulator): its waits for a CPU count as "
+        "the host's (found by itself for a unit on a pseudo-terminal)",
+    )
+    g.add_argument(
         "--only",
         metavar="PATTERNS",
         default="",
@@ -143,7 +151,7 @@ def _options(args: argparse.Namespace) -> SuiteOptions:
     values = {field: getattr(args, field) for _, field, _, _, _ in _FLAGS}
     values["angles_deg"] = tuple(values["angles_deg"])
     only = tuple(p.strip() for p in args.only.split(",") if p.strip())
-    return SuiteOptions(node_id=args.node_id, only=only, **values)
+    return SuiteOptions(node_id=args.node_id, only=only, unit_pid=args.unit_pid, **values)
 
 
 def run(args: argparse.Namespace) -> int:

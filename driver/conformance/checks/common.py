@@ -3,6 +3,7 @@ and what bad input must not disturb."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from northfinder.driver.conformance.core import Ctx
@@ -25,6 +26,8 @@ SELF_TEST_MAX_S = 0.5
 """The unit answers SELF_TEST within this time (protocol.md 4.1)."""
 BOOT_MAX_S = 1.0
 """BOOT lasts at most this long (protocol.md 5)."""
+STATE_CHANGE_STATUS_S = 0.005
+"""A status follows a state change within this time (protocol.md 6)."""
 RESET_TO_BOOT_S = 0.1
 """The BOOT status follows the reply to RESET within this time (protocol.md 4.1)."""
 ONE_DEG_COUNTS = round(1.0 / ANGLE_DEG_PER_COUNT)
@@ -85,18 +88,22 @@ def validity_problem(v: int, state: DeviceState | None) -> str | None:
 
 
 def judge_validity(c: Ctx, samples: list[SampleRecord]) -> tuple[int, int, list[str]]:
-    """(judged, bad, first problems) for samples away from state changes."""
-    s = c.s
+    """(judged, bad, first problems) for samples away from state changes. Each sample is judged
+    in the state the unit was in when it took it, by the unit's own sample counters
+    (:meth:`~.session.Session.state_of`), not by when the host read it."""
     rate = c.config()[ConfigKey.SAMPLE_RATE_HZ]
-    guard = s.wall(2.0 / rate) + 0.02
-    changes = [t for t, _, _ in s.transitions]
+    # A status follows a change within 5 ms (protocol.md 6): the ticks of those 5 ms and two more
+    # either side may show either state.
+    guard = 2 + math.ceil(STATE_CHANGE_STATUS_S * rate)
     judged = bad = 0
     problems: list[str] = []
     for rec in samples:
-        if not rec.complete or any(abs(rec.t - t) < guard for t in changes):
+        if not rec.complete:
+            continue
+        state = c.s.state_of(rec, guard)
+        if state is None:
             continue
         judged += 1
-        state = s.state_at(rec.t)
         why = validity_problem(rec.validity, state)
         if why is not None:
             bad += 1

@@ -3,6 +3,8 @@ while the table turns, and the accuracy, settle time and validity bits of moves 
 
 from __future__ import annotations
 
+import itertools
+
 from northfinder.driver.conformance.checks.common import (
     allowed_move_s,
     angle_scale,
@@ -20,6 +22,7 @@ from northfinder.driver.conformance.checks.moves import (
     still_rotating,
 )
 from northfinder.driver.conformance.core import Ctx, check
+from northfinder.driver.conformance.session import Answer
 from northfinder.driver.protocol.constants import ConfigKey, Direction, Result, Validity
 from northfinder.driver.protocol.messages import (
     GetConfig,
@@ -144,8 +147,30 @@ def command_stop_while_rotating(c: Ctx) -> None:
             )
     if m.travel_deg is not None:
         c.fig("travel", f"{m.travel_deg:+.2f} of {m.turn_deg:+.1f} deg")
-        if abs(m.travel_deg) > d - 1.0:
+        # Judged by where the unit says the table was when it took STOP (its last sample before
+        # its reply), not by when the host sent it: a host that stood still sends STOP late.
+        at_stop = travel_before(c, m, a)
+        brake = v * v / (2 * acc) * 1.1
+        if at_stop is not None and abs(at_stop) + brake > d - 1.0:
+            c.note(f"the unit took STOP {abs(at_stop):.1f} deg into the {d:.1f} deg move: too "
+                   "late to stop short")  # fmt: skip
+        elif abs(m.travel_deg) > d - 1.0:
             c.fail(f"the table travelled {m.travel_deg:+.2f} deg of {d:.1f}: STOP did not stop it")
+
+
+def travel_before(c: Ctx, m: Move, a: Answer) -> float | None:
+    """How far the table had turned, deg, by the last sample the unit sent before its reply to
+    ``a`` (None without samples of the move before it)."""
+    if a.samples_before is None:
+        return None
+    angles = [
+        r.angle
+        for r in c.s.samples[: a.samples_before]
+        if r.t >= m.answer.sent and r.angle is not None
+    ]
+    if len(angles) < 2:
+        return None
+    return sum(shortest_delta_deg(0.0, deg(c, y - x)) for x, y in itertools.pairwise(angles))
 
 
 @check("command.while_rotating")

@@ -83,8 +83,11 @@ def spin_steady(c: Ctx) -> None:
         if j is None or s.statuses[j][1].state != DeviceState.READY:
             c.fail(f"{what}: not READY within {ramp * 2 + limits.settle_s + 2:.1f} s of STOP")
             continue
+        # The unit's own order: from its first status of the spin on (the statuses before it,
+        # READY, it sent before it took the SPIN, however late a loaded host read them).
+        first = next(k for k in range(n, i + 1) if s.statuses[k][1].state != DeviceState.READY)
         seq: list[DeviceState] = []
-        for _, st in s.statuses[n : j + 1]:
+        for _, st in s.statuses[first : j + 1]:
             if not seq or seq[-1] != st.state:
                 seq.append(st.state)
         want = [DeviceState.ROTATING, DeviceState.SPINNING, DeviceState.ROTATING]
