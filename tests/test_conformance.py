@@ -32,6 +32,7 @@ from typing import Any
 
 import can
 import pytest
+from sessions import idle_session
 from simprocess import sim_process
 
 from northfinder.cli import main
@@ -49,7 +50,7 @@ from northfinder.driver.conformance.checks.refusals import Case, Raw, send_cases
 from northfinder.driver.conformance.core import REGISTRY, Ctx
 from northfinder.driver.conformance.runner import judge
 from northfinder.driver.conformance.session import Answer, Session
-from northfinder.driver.conformance.wire import Arrival, SerialRawLink, TickParts
+from northfinder.driver.conformance.wire import Arrival, TickParts
 from northfinder.driver.protocol.constants import (
     CONFIG_LIMITS,
     ConfigKey,
@@ -669,21 +670,12 @@ def test_a_correct_unit_is_never_failed_under_load(paced_unit, capsys, tmp_path)
 # -- frames lost on the link: the host's doing only when its reader fell behind what the link holds
 
 
-class _NoLink:
-    kind = "serial"
-    tick_bytes = SerialRawLink.tick_bytes
-    after_send = None
-
-    def receive(self, timeout: float) -> list:
-        return []
-
-
 def _session_with(arrivals: list[float], lost_at: float, stalls: list[tuple[float, float]]):
     """A serial session on the wall clock fed by hand: samples 0.. at 200 Hz arriving at
     ``arrivals`` (host time of each counter), 20 serial frames lost found at ``lost_at``, and the
     host's timer loop waking every 5 ms from 0 to the last arrival except in ``stalls`` (start,
     seconds), as a starved host's would."""
-    s = Session(_NoLink(), clock=WallClock())  # type: ignore[arg-type]
+    s = idle_session()
     pace = s.pace
     pace._thread = threading.Thread()  # measuring, with the records below, not a loop
     seq, skipped = 0, False

@@ -11,8 +11,8 @@ import sys
 import threading
 
 import pytest
+from sessions import idle_session
 
-from northfinder.driver.clock import WallClock
 from northfinder.driver.conformance.core import Ctx, SuiteOptions
 from northfinder.driver.conformance.pace import (
     HostPace,
@@ -23,20 +23,11 @@ from northfinder.driver.conformance.pace import (
 )
 from northfinder.driver.conformance.runner import judge
 from northfinder.driver.conformance.session import Session
-from northfinder.driver.conformance.wire import Arrival, SerialRawLink
+from northfinder.driver.conformance.wire import Arrival
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Fault, Opcode, Result
 from northfinder.driver.protocol.messages import GetStatus, Reply, Status
 
 RATE = 200
-
-
-class _NoLink:
-    kind = "serial"
-    tick_bytes = SerialRawLink.tick_bytes
-    after_send = None
-
-    def receive(self, timeout: float) -> list:
-        return []
 
 
 def _config_reply(seq: int) -> Reply:
@@ -51,7 +42,7 @@ def _config_reply(seq: int) -> Reply:
 def _session(arrivals: list[tuple[float, float]]) -> Session:
     """A session that learnt the unit's rate (200 Hz) and then heard a heartbeat for each (unit
     time, arrival time) pair: the unit's sample counter at its unit time."""
-    s = Session(_NoLink(), clock=WallClock())  # type: ignore[arg-type]
+    s = idle_session()
     a = s.track(bytes([1, Opcode.GET_CONFIG, ConfigKey.SAMPLE_RATE_HZ]))
     s._record(Arrival(0.0, _config_reply(a.seq)))
     for unit_t, t in arrivals:
@@ -109,7 +100,7 @@ def test_lag_is_how_late_the_units_messages_came_by_its_own_clock():
 
 
 def test_lag_is_not_measured_until_the_units_rate_is_known_and_restarts_at_a_reset():
-    s = Session(_NoLink(), clock=WallClock())  # type: ignore[arg-type]
+    s = idle_session()
     for unit_t, t in _heartbeats(1.0, 2.0, lambda t: 0.5 if t > 1.5 else 0.0):
         s._record(
             Arrival(t, Status(DeviceState.READY, 0, 0, Fault(0), round(unit_t * 400), 0, 0, 0))

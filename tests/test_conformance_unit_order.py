@@ -4,11 +4,12 @@ fed by hand, nothing waits on time."""
 
 from __future__ import annotations
 
-from northfinder.driver.clock import WallClock
+from sessions import idle_session
+
 from northfinder.driver.conformance.checks.common import judge_validity
 from northfinder.driver.conformance.core import Ctx, SuiteOptions
 from northfinder.driver.conformance.session import Session
-from northfinder.driver.conformance.wire import Arrival, SerialRawLink
+from northfinder.driver.conformance.wire import Arrival
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState, Fault, Validity
 from northfinder.driver.protocol.messages import Sample, Status
 
@@ -17,17 +18,8 @@ MOVING = GOOD | Validity.TABLE_MOVING
 SETTLING = GOOD | Validity.TABLE_SETTLING
 
 
-class _NoLink:
-    kind = "serial"
-    tick_bytes = SerialRawLink.tick_bytes
-    after_send = None
-
-    def receive(self, timeout: float) -> list:
-        return []
-
-
 def _session() -> tuple[Session, Ctx]:
-    s = Session(_NoLink(), clock=WallClock())  # type: ignore[arg-type]
+    s = idle_session()
     ctx = Ctx(s, SuiteOptions(), {"config": {ConfigKey.SAMPLE_RATE_HZ: 200}})
     return s, ctx
 
