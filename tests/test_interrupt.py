@@ -176,7 +176,10 @@ SIGNAL_CASES = [
 ]
 
 
-@pytest.mark.realtime
+# Beside other tests (realtime(alone=False)): nothing here is about the CPU the processes get.
+# The signal goes once the control channel reads ROTATING (a move of seconds) or streaming, the
+# host has 30 s to exit, and the unit is read afterwards; all green beside two CPU-bound processes.
+@pytest.mark.realtime(alone=False)
 @pytest.mark.parametrize(("link", "signum"), SIGNAL_CASES)
 def test_a_signal_during_a_move_leaves_the_unit_at_rest(link, signum):
     run = interrupt_during_move(link, signum)
@@ -202,7 +205,7 @@ def _commands(log_path: str) -> list[Opcode]:
     return out
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(alone=False)
 def test_sigterm_during_a_window_stops_the_stream_and_flushes_the_can_log(tmp_path):
     log = tmp_path / "run.log"
     # Ten times real time: the first window begins after the move to 0 and its settle time

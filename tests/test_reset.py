@@ -39,7 +39,7 @@ def test_device_reset_clears_a_fault_in_virtual_time():
         dev.rotate_to(90.0)  # moves again
 
 
-@pytest.mark.realtime
+@pytest.mark.realtime(alone=False)  # commands and states, no timing: green beside CPU-bound work
 def test_northfinder_reset_brings_a_unit_out_of_fault():
     args = ["--pty", "--warmup", "0", "--control", "127.0.0.1:0"]
     with sim_process(*args, ready=True) as facts:

@@ -7,7 +7,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import can
@@ -42,9 +42,27 @@ def simulator(*link: str, seed: int = 1) -> Iterator[tuple[str, str]]:
         yield f["pty"], f["control"]
 
 
-def read_serial(port: serial.Serial, deframer: Deframer, seconds: float) -> list:
-    out, end = [], time.monotonic() + seconds
-    while time.monotonic() < end:
+def enough(replies: set[int], samples: int = 0) -> Callable[[list], bool]:
+    """Whether the messages read so far hold OK replies to ``replies`` and more than ``samples``
+    samples: what a read waits for (at most its seconds) before it returns."""
+
+    def seen(got: list) -> bool:
+        ok = {m.seq for m in got if isinstance(m, Reply) and m.ok}
+        return replies <= ok and sum(isinstance(m, Sample) for m in got) > samples
+
+    return seen
+
+
+def read_serial(
+    port: serial.Serial,
+    deframer: Deframer,
+    seconds: float,
+    until: Callable[[list], bool] | None = None,
+) -> list:
+    """Messages read for ``seconds``, or until ``until`` holds of them."""
+    out: list = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and not (until is not None and until(out)):
         out += deframer.feed_messages(port.read(4096))
     return out
 
@@ -56,9 +74,9 @@ def test_serial_pty_subprocess_identifies_streams_and_answers():
             enc, de = SerialEncoder(), Deframer()
             port.reset_input_buffer()
             port.write(enc.encode(RequestIdentify(1)) + enc.encode(StreamStart(2)))
-            got = read_serial(port, de, 2.0)
+            got = read_serial(port, de, 5.0, until=enough({1, 2}, 300))
             port.write(enc.encode(GetStatus(3)))
-            got += read_serial(port, de, 0.3)
+            got += read_serial(port, de, 2.0, until=enough({3}))
         replies = {m.seq: m for m in got if isinstance(m, Reply)}
         assert {1, 2, 3} <= set(replies) and all(replies[k].ok for k in (1, 2, 3))
         assert any(isinstance(m, Identify) and m.model == "NF-SIM" for m in got)
@@ -76,9 +94,13 @@ def can_send(bus: can.BusABC, message) -> None:
         )
 
 
-def read_can(bus: can.BusABC, rx: CanReceiver, seconds: float) -> list:
-    out, end = [], time.monotonic() + seconds
-    while time.monotonic() < end:
+def read_can(
+    bus: can.BusABC, rx: CanReceiver, seconds: float, until: Callable[[list], bool] | None = None
+) -> list:
+    """Messages read for ``seconds``, or until ``until`` holds of them."""
+    out: list = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and not (until is not None and until(out)):
         msg = bus.recv(0.05)
         if msg is not None:
             out += rx.feed(msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id)
@@ -92,7 +114,7 @@ def test_slcan_pty_subprocess_reached_with_python_can():
             rx = CanReceiver(node_id=1)
             can_send(bus, RequestIdentify(1))
             can_send(bus, StreamStart(2))
-            got = read_can(bus, rx, 2.0)
+            got = read_can(bus, rx, 5.0, until=enough({1, 2}, 300))
         assert any(isinstance(m, Identify) for m in got)
         assert {m.seq for m in got if isinstance(m, Reply) and m.ok} >= {1, 2}
         samples = [m for m in got if isinstance(m, Sample)]
@@ -119,7 +141,8 @@ def test_random_bytes_on_serial_do_not_disturb_the_stream():
                 port.write(junk)
                 got += read_serial(port, de, 0.05)
             port.write(enc.encode(GetStatus(99)))
-            got += read_serial(port, de, 0.5)
+            have = sum(isinstance(m, Sample) for m in got)
+            got += read_serial(port, de, 2.0, until=enough({99}, 400 - have))
         counters = np.array([m.counter for m in got if isinstance(m, Sample)])
         assert len(counters) > 400 and np.all(np.diff(counters) == 1), "the stream has a gap"
         refused = [m for m in got if isinstance(m, Reply) and m.result == Result.UNKNOWN_COMMAND]
@@ -158,7 +181,8 @@ def test_random_can_frames_do_not_disturb_the_stream():
                 sent_bad += 1
             got += read_can(bus, rx, 1.0)
             can_send(bus, GetStatus(77))
-            got += read_can(bus, rx, 0.5)
+            have = sum(isinstance(m, Sample) for m in got)
+            got += read_can(bus, rx, 2.0, until=enough({77}, 250 - have))
         samples = [m for m in got if isinstance(m, Sample)]
         assert len(samples) > 250
         assert not [m for m in got if isinstance(m, TickLoss)], "the stream has a gap"
