@@ -827,7 +827,10 @@ def simulate_spin(
     out += terms.turn_on(draws.z_bias)[:, None, :]
     sigma = terms.white_sigma(fs)
     if sigma.any():
-        out += white.standard_normal((n_runs, n, 6)) * sigma
+        noise = white.standard_normal((n_runs, n, 6))
+        noise *= sigma
+        out += noise
+        del noise
     # -- terms of time since power-on ---------------------------------------------------------
     t_on = start_s + t  # (n,)
     det = terms.drift(t_on, spec.thermal)
@@ -835,12 +838,17 @@ def simulate_spin(
         out += det[None]
     slow_chans = [ch for ch in range(6) if terms.flicker_b[ch] + terms.walk_k[ch]]
     if slow_chans:
-        grid = _grid_windows(((t_on - 0.5 / fs) / FLICKER_GRID_S)[None, :])
+        pos = ((t_on - 0.5 / fs) / FLICKER_GRID_S)[None, :]
+        grid = _grid_windows(pos)
         coarse = _slow_grid(
             slow, grid, n_runs, terms.flicker_b[slow_chans], terms.walk_k[slow_chans]
         )[0]  # (nc, R, m)
-        for s0, s1, j0, j1, w in grid[0].blocks:
-            out[:, s0:s1, slow_chans] += np.moveaxis(coarse[:, :, j0:j1] @ w, 0, -1)
+        # Linear between the grid points (as the windows' interpolation matrices).
+        x = pos[0] - grid[0].g0
+        j = np.minimum(np.floor(x).astype(np.int64), grid[0].g1 - grid[0].g0 - 1)
+        f = x - j
+        for i, ch in enumerate(slow_chans):
+            out[..., ch] += coarse[i][:, j] * (1.0 - f) + coarse[i][:, j + 1] * f
     if (dist.impulse_rate_hz > 0 and terms.impulse_amp.any()) or (
         dist.vibration_hz > 0 and terms.vibration_amp.any()
     ):
