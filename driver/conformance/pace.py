@@ -79,9 +79,10 @@ the buffer fill, and a full buffer drops what the unit sends next; a reader behi
 have lost a frame that way."""
 WAIT_FRACTION = 0.05
 """A thread that waited on a run queue this share of an interval (or more) was starved in it: the
-suite's reader, or a unit that is a process on this host. A quiet host runs a thread that wakes
-within microseconds (well under 1 %); with two CPU-bound processes beside the suite on two cores
-the reader of an SLCAN link waited 20 to 60 % and a simulator at twice real time as much."""
+suite's reader, or a unit that is a process on this host. A thread on a free core runs within
+microseconds of waking (well under 1 %); with two CPU-bound processes and a third at nice 19
+beside the suite on two cores (load 10 to 15) the SLCAN reader waited 71 to 77 % of a whole run
+and a simulator at twice real time 43 to 58 %."""
 SCHED_EVERY = 4
 """The timer loop reads the scheduler's figures every this many wakes (every 20 ms)."""
 GRACE_S = 0.005

@@ -53,14 +53,26 @@ def begin_move(c: Ctx, cmd: Command, what: str, target_deg: float | None = None)
         {DeviceState.ROTATING, DeviceState.SETTLING, DeviceState.FAULT}, s.unit(limit), start=n
     )
     if i is None:
-        c.fail(f"{what}: no status of the state change followed the OK reply")
+        # About time: a host that stood still reads the status late (the rule of pace.py).
+        now = s.now()
+        c.late(
+            f"{what}: no status of the state change followed the OK reply within {limit:.1f} s",
+            a.received,
+            now,
+            now - a.received - c.reply_limit_wall,
+        )
         return m
     m.first_index = i
     t = m.first_change = s.statuses[i][0]
     lat = c.ms(t - a.received)
     c.shared.setdefault("state_change_ms", []).append(lat)
     if lat > c.opt.reply_limit_ms:
-        c.fail(f"{what}: the state-change status came {lat:.0f} ms after the reply")
+        c.late(
+            f"{what}: the state-change status came {lat:.0f} ms after the reply",
+            a.received,
+            t,
+            t - a.received - c.reply_limit_wall,
+        )
     return m
 
 
@@ -91,7 +103,14 @@ def finish_move(c: Ctx, m: Move, distance_deg: float | None = None) -> Move:
     m.t_settling = settling[0] if settling else None
     t = None if end is None else s.statuses[end][0]
     if t is None:
-        c.fail(f"{m.what}: the unit did not report READY within {allowed * 2 + 2:.1f} s")
+        since = m.answer.received or m.answer.sent
+        now = s.now()
+        c.late(
+            f"{m.what}: the unit did not report READY within {allowed * 2 + 2:.1f} s",
+            since,
+            now,
+            now - since - s.wall(allowed),
+        )
         return m
     if s.statuses and s.state == DeviceState.FAULT:
         c.fail(f"{m.what}: the unit went to FAULT")

@@ -56,8 +56,14 @@ def spin_steady(c: Ctx) -> None:
         if not c.expect(a, Result.OK, what):
             continue
         i = s.wait_state({DeviceState.SPINNING, DeviceState.FAULT}, ramp * 1.5 + 1.0, start=n)
-        if i is None or s.statuses[i][1].state != DeviceState.SPINNING:
-            c.fail(f"{what}: no SPINNING status within {ramp * 1.5 + 1.0:.1f} s")
+        if i is None:  # about time: a host that stood still reads the status late
+            since, now = a.received or a.sent, s.now()
+            c.late(f"{what}: no SPINNING status within {ramp * 1.5 + 1.0:.1f} s", since, now,
+                   now - since - s.wall(ramp) - c.reply_limit_wall)  # fmt: skip
+            s.request(Stop(0))
+            continue
+        if s.statuses[i][1].state != DeviceState.SPINNING:
+            c.fail(f"{what}: {s.statuses[i][1].state.name} instead of SPINNING")
             s.request(Stop(0))
             continue
         t_steady = s.statuses[i][0]
@@ -80,8 +86,14 @@ def spin_steady(c: Ctx) -> None:
         c.expect(stop, Result.OK, f"STOP while spinning ({what})")
         _judge_steady(c, what, recs, sign * rate, fs)
         j = s.wait_state({DeviceState.READY, DeviceState.FAULT}, ramp * 2 + limits.settle_s + 2.0)
-        if j is None or s.statuses[j][1].state != DeviceState.READY:
-            c.fail(f"{what}: not READY within {ramp * 2 + limits.settle_s + 2:.1f} s of STOP")
+        if j is None:  # about time, as above
+            since, now = stop.received or stop.sent, s.now()
+            c.late(f"{what}: not READY within {ramp * 2 + limits.settle_s + 2:.1f} s of STOP",
+                   since, now,
+                   now - since - s.wall(ramp + limits.settle_s) - c.reply_limit_wall)  # fmt: skip
+            continue
+        if s.statuses[j][1].state != DeviceState.READY:
+            c.fail(f"{what}: {s.statuses[j][1].state.name} after STOP, not READY")
             continue
         # The unit's own order: from its first status of the spin on (the statuses before it,
         # READY, it sent before it took the SPIN, however late a loaded host read them).
