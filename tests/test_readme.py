@@ -52,30 +52,26 @@ def runnable(command: str) -> bool:
     return not NEEDS_ANOTHER_PROCESS.search(command)
 
 
-CASES = [
-    pytest.param(page, i, cmd, id=f"{page}:{i}:{cmd[:60]}")
+#: Each page's commands that run here, with their place among the page's commands.
+CASES = {
+    page: [(i, cmd) for i, cmd in enumerate(commands(page)) if runnable(cmd)]
     for page in PAGES
     if (ROOT / page).is_file()
-    for i, cmd in enumerate(commands(page))
-    if runnable(cmd)
-]
-
-
-@pytest.fixture(scope="module")
-def workdir(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """One folder per page, shared by its commands in order."""
-    return {page: tmp_path_factory.mktemp(page.replace("/", "-")) for page in PAGES}
+}
 
 
 def test_the_pages_have_commands_to_run():
     assert any(c.startswith("northfinder find --sim") for c in commands("README.md"))
-    assert len([c for c in CASES if c.values[0] == "docs/walkthrough.md"]) >= 5
+    assert len(CASES["docs/walkthrough.md"]) >= 5
 
 
-@pytest.mark.xdist_group("readme")  # one worker, the page's order (record before solve)
-@pytest.mark.parametrize(("page", "index", "command"), CASES)
-def test_a_documented_command_runs(page, index, command, workdir, monkeypatch):
-    monkeypatch.chdir(workdir[page])
-    argv = shlex.split(command.partition("  #")[0])[1:]
-    code, _, err = run_cli(*argv)
-    assert code == 0, f"{command}\n{err[-2000:]}"
+@pytest.mark.parametrize("page", sorted(CASES))
+def test_a_page_s_commands_run_in_order(page, tmp_path, monkeypatch):
+    """The page's commands one after the other, as a reader types them, in one folder: a later
+    command reads what an earlier one wrote (record before solve). One test a page, so that no
+    scheduler can run a page's commands apart; the first that fails is named with its place."""
+    monkeypatch.chdir(tmp_path)
+    for i, command in CASES[page]:
+        argv = shlex.split(command.partition("  #")[0])[1:]
+        code, _, err = run_cli(*argv)
+        assert code == 0, f"{page}, command {i}: {command}\n{err[-2000:]}"
