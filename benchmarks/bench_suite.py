@@ -15,7 +15,7 @@ What it does, in this order:
    exit code, pytest's last line (passed, failed, skipped: a realtime test the host starved is
    reported skipped with "NOT JUDGED" and the host's figures, counted here), the 1-minute load
    average before and after, and ``/proc/pressure/cpu`` ("some" avg60) after, where the kernel has
-   it.
+   it. A red run's whole output is kept in a file of the temporary folder (its path printed).
 
 It prints one row a run and the median wall time, and exits 1 if any run was red. "Idle" in a
 shared machine's figures means no burner of ours; the load column says what else ran.
@@ -85,6 +85,11 @@ def run_once(clone: Path, plain: int, niced: int) -> dict[str, object]:
     finally:
         wall = time.monotonic() - t0
         _stop(procs)
+    log = None
+    if proc.returncode != 0:  # the whole output of a red run, kept past the clone's removal
+        fd, log = tempfile.mkstemp(prefix="nf-suite-run-", suffix=".log")
+        with os.fdopen(fd, "w") as f:
+            f.write(proc.stdout + proc.stderr)
     lines = [line for line in proc.stdout.strip().splitlines() if line.strip()]
     last = lines[-1] if lines else proc.stderr.strip()[-200:]
     failed = [line for line in lines if line.startswith(("FAILED ", "ERROR "))]
@@ -96,6 +101,7 @@ def run_once(clone: Path, plain: int, niced: int) -> dict[str, object]:
         "counts": _counts(last),
         "not_judged": not_judged,
         "failed": failed,
+        "log": log,
         "load_before": round(load0, 1),
         "load_after": round(_load(), 1),
         "cpu_pressure_avg60": _pressure(),
@@ -131,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
             cwd=clone,
             check=True,
             stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         install_s = time.monotonic() - t0
         print(
@@ -150,6 +157,8 @@ def main(argv: list[str] | None = None) -> int:
             )
             for line in row["failed"]:  # type: ignore[attr-defined]
                 print(f"    {line}", flush=True)
+            if row["log"]:
+                print(f"    the run's whole output: {row['log']}", flush=True)
         walls = [float(r["wall_s"]) for r in rows]  # type: ignore[arg-type]
         green = sum(r["exit"] == 0 for r in rows)
         median = statistics.median(walls)

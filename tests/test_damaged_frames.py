@@ -93,9 +93,10 @@ CLI = [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit
 
 @pytest.mark.realtime
 def test_find_over_serial_survives_a_corrupted_sample():
-    # Ten times real time: the two windows and the half turn in seconds, not half a minute.
+    # Five times real time: the two windows and the half turn in seconds, not half a minute
+    # (at ten times a starved host made the simulator slip, which this run cannot excuse).
     args = ["--pty", "--warmup", "0", "--control", "127.0.0.1:0", "--sensor", "ideal"]
-    with sim_process(*args, "--speed", "10", ready=True) as facts:
+    with sim_process(*args, "--speed", "5", ready=True) as facts:
         from northfinder.firmware_sim.control import ControlClient
 
         argv = [*CLI, "find", "--serial", facts["pty"], "--latitude", "34", "--window", "2",

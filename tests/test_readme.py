@@ -17,6 +17,8 @@ from pathlib import Path
 import pytest
 from clirun import run_cli
 
+from northfinder.cli.common import EXIT_INCONSISTENT
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = ("README.md", "docs/walkthrough.md")
 
@@ -73,5 +75,10 @@ def test_a_page_s_commands_run_in_order(page, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     for i, command in CASES[page]:
         argv = shlex.split(command.partition("  #")[0])[1:]
-        code, _, err = run_cli(*argv)
+        code, out, err = run_cli(*argv)
+        if code == EXIT_INCONSISTENT and "--seed" not in argv:
+            # Unseeded, a correct instrument fails the consistency check at its stated
+            # false-alarm rate (1 %): the documented outcome, said so on the result.
+            assert "CONSISTENCY CHECK FAILED" in out, f"{page}, command {i}: {command}\n{out}"
+            continue
         assert code == 0, f"{page}, command {i}: {command}\n{err[-2000:]}"
