@@ -73,19 +73,8 @@ def angle_error(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
 
-#: The happy path's speed on the wall clock (at least): it streams only 0.5 s of the unit's time,
-#: at four times real time 410 SLCAN frames, which the pseudo-terminal holds (about 1 s of the
-#: real-time stream) whether or not python-can's reader keeps up (conftest.SPEEDS); the rest is
-#: commands and moves, a quarter of the wall time at speed 1.
-HAPPY_SPEED = 4.0
-
-
 def test_every_call_on_the_happy_path(link, sim):
-    dev, ctl = link
-    speed = sim.speed
-    if not sim.virtual and speed < HAPPY_SPEED:
-        speed = HAPPY_SPEED
-        ctl.call("speed", value=speed)  # the link fixture restores the module's speed
+    dev, _ = link
     ident = dev.identify()
     assert ident.model == "NF-SIM" and ident.protocol_version[0] == 1
     assert ident.gyro_scale.value == pytest.approx(1e-4)
@@ -106,7 +95,7 @@ def test_every_call_on_the_happy_path(link, sim):
     done = dev.rotate_to(300.0, direction="negative", timeout=10.0)
     assert angle_error(done.angle_deg, 300.0) < 0.1
     assert dev.rotate_by(90.0, wait=False) is None
-    sim.clock.sleep(0.05 * speed)
+    sim.clock.sleep(0.05 * sim.speed)
     assert dev.status().state == DeviceState.ROTATING
     stopped = dev.stop(wait=True)
     # STOP leaves the table short of the target of the move it interrupted (300 + 90 = 30 deg)
