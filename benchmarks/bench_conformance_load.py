@@ -30,28 +30,11 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from simprocess import sim_process  # noqa: E402
+from simprocess import fast_sensor_file, sim_process  # noqa: E402
 
 from northfinder.firmware_sim.control import ControlClient  # noqa: E402
 
 BURN = "while True: pass"
-FAST_TABLE = {
-    "max_rate_dps": 45.0,
-    "max_accel_dps2": 200.0,
-    "settle_s": 0.5,
-    "indexing_error_deg": 0.005,
-    "overshoot_deg": 0.0,
-}
-
-
-def sensor_file(folder: Path) -> Path:
-    """The nav-fog preset with the tests' fast table (tests/test_conformance.py)."""
-    text = (ROOT / "firmware_sim/presets/nav-fog.toml").read_text()
-    head, _, _ = text.partition("[table]")
-    table = "\n".join(f"{k} = {v}" for k, v in FAST_TABLE.items())
-    path = folder / "fast-table.toml"
-    path.write_text(f"{head}[table]\n{table}\n")
-    return path
 
 
 @contextmanager
@@ -123,7 +106,7 @@ def main() -> int:
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        sensor = sensor_file(Path(tmp))
+        sensor = fast_sensor_file(Path(tmp))
         for k in range(a.runs):
             for link in a.links.split(","):
                 row = one_run(link, sensor, a.speed, a.burners, a.nice_burners)

@@ -10,6 +10,7 @@ import threading
 import time
 from collections.abc import Collection, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import IO
 
 COMMAND = [
@@ -109,3 +110,24 @@ def sim_process(
         proc.stderr.close()
     if check_exit:
         assert proc.returncode == 0, "".join(errors)
+
+
+#: The tests' fast table: moves in well under a second, so a conformance run on a pseudo-terminal
+#: spends its wall time on what it checks.
+FAST_TABLE = {
+    "max_rate_dps": 45.0,
+    "max_accel_dps2": 200.0,
+    "settle_s": 0.5,
+    "indexing_error_deg": 0.005,
+    "overshoot_deg": 0.0,
+}
+
+
+def fast_sensor_file(folder: Path) -> Path:
+    """The nav-fog preset with :data:`FAST_TABLE`, as a TOML file for ``northfinder sim --sensor``."""
+    text = Path(__file__).parents[1].joinpath("firmware_sim/presets/nav-fog.toml").read_text()
+    head, _, _ = text.partition("[table]")
+    table = "\n".join(f"{k} = {v}" for k, v in FAST_TABLE.items())
+    path = folder / "fast-table.toml"
+    path.write_text(f"{head}[table]\n{table}\n")
+    return path

@@ -33,7 +33,7 @@ from typing import Any
 import can
 import pytest
 from sessions import idle_session
-from simprocess import sim_process
+from simprocess import FAST_TABLE, fast_sensor_file, sim_process
 
 from northfinder.cli import main
 from northfinder.cli.conformance import NOT_JUDGED
@@ -83,13 +83,6 @@ QUICK += ["--ready-timeout", "10"]
 #: less than the CLI's three around the circle). The moves there are about their times on the
 #: wall clock and the link; every target of the CLI's default runs in virtual time above.
 PTY_ANGLES = ["--angles", "37.5,51.25"]
-FAST_TABLE = {
-    "max_rate_dps": 45.0,
-    "max_accel_dps2": 200.0,
-    "settle_s": 0.5,
-    "indexing_error_deg": 0.005,
-    "overshoot_deg": 0.0,
-}
 #: Checks that cannot apply to the simulator on each link (see each check's skip message).
 SKIPS = {
     "can": {
@@ -111,12 +104,7 @@ def fast_spec() -> SensorSpec:
 @pytest.fixture(scope="module")
 def sensor_file(tmp_path_factory) -> Path:
     """The nav-fog preset with the fast table, as a TOML file for ``northfinder sim --sensor``."""
-    text = Path(__file__).parents[1].joinpath("firmware_sim/presets/nav-fog.toml").read_text()
-    head, _, _ = text.partition("[table]")
-    table = "\n".join(f"{k} = {v}" for k, v in FAST_TABLE.items())
-    path = tmp_path_factory.mktemp("sensor") / "fast-table.toml"
-    path.write_text(f"{head}[table]\n{table}\n")
-    return path
+    return fast_sensor_file(tmp_path_factory.mktemp("sensor"))
 
 
 @contextmanager

@@ -12,7 +12,7 @@ import subprocess
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -508,8 +508,9 @@ def cli_cases(
 
 
 @contextlib.contextmanager
-def silent_listener() -> Iterator[str]:
-    """A loopback TCP address that accepts connections and never answers (for simctl)."""
+def _listener(on_connect: Callable[[socket.socket, threading.Event], None]) -> Iterator[str]:
+    """A loopback TCP address; each connection is handed to ``on_connect`` (with the event set
+    when the listener closes) on a thread of its own."""
     server = socket.create_server(("127.0.0.1", 0))
     held: list[socket.socket] = []
     stop = threading.Event()
@@ -519,9 +520,10 @@ def silent_listener() -> Iterator[str]:
         while not stop.is_set():
             try:
                 conn, _ = server.accept()
-                held.append(conn)
             except OSError:
                 continue
+            held.append(conn)
+            threading.Thread(target=on_connect, args=(conn, stop), daemon=True).start()
 
     thread = threading.Thread(target=accept, daemon=True)
     thread.start()
@@ -535,42 +537,27 @@ def silent_listener() -> Iterator[str]:
         server.close()
 
 
-@contextlib.contextmanager
-def garbage_listener() -> Iterator[str]:
+def silent_listener() -> contextlib.AbstractContextManager[str]:
+    """A loopback TCP address that accepts connections and never answers (for simctl)."""
+    return _listener(lambda conn, stop: None)
+
+
+def garbage_listener() -> contextlib.AbstractContextManager[str]:
     """A loopback TCP address that sends random bytes to whoever connects: what a host reads
     from a serial unit at another baud rate."""
     import random
 
-    server = socket.create_server(("127.0.0.1", 0))
-    stop = threading.Event()
+    rng = random.Random(1)
 
-    def serve() -> None:
-        rng = random.Random(1)
-        server.settimeout(0.2)
+    def feed(conn: socket.socket, stop: threading.Event) -> None:
         while not stop.is_set():
             try:
-                conn, _ = server.accept()
+                conn.sendall(rng.randbytes(256))
             except OSError:
-                continue
-            threading.Thread(target=feed, args=(conn, rng), daemon=True).start()
+                return
+            stop.wait(0.005)
 
-    def feed(conn: socket.socket, rng: Any) -> None:
-        with conn:
-            while not stop.is_set():
-                try:
-                    conn.sendall(rng.randbytes(256))
-                except OSError:
-                    return
-                stop.wait(0.005)
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    try:
-        yield f"127.0.0.1:{server.getsockname()[1]}"
-    finally:
-        stop.set()
-        thread.join(2)
-        server.close()
+    return _listener(feed)
 
 
 def run_case(case: CliCase, timeout_s: float) -> dict[str, Any]:
