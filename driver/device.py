@@ -23,7 +23,9 @@ no status arrived for three heartbeat periods (0.3 s by default; ``min_supervisi
 counted once the reader has read everything that arrived (protocol.md 6), so a host that is busy
 or an adapter that reads slowly does not take a late status for a lost link: past the deadline
 the link is lost only once a read that began after it found nothing (a host that stood still
-longer than the supervision time reads what waited in the link first).
+longer than the supervision time reads what waited in the link first). The same holds for a
+reply's wait and a window's stall limit: each is judged once a read that began after its deadline
+is done.
 """
 
 from __future__ import annotations
@@ -89,6 +91,7 @@ from northfinder.driver.protocol.messages import (
 )
 from northfinder.driver.protocol.motion import TableLimits
 from northfinder.driver.transport import (
+    READ_POLL_S,
     CanTransport,
     SerialTransport,
     open_serial_port,
@@ -867,6 +870,15 @@ class Device(DeviceLink):
                 with self._lock:
                     self._inbox = None
 
+    def _stream_stalled(self, stall_at: float, inbox: deque[Any]) -> bool:
+        """Whether the stream counts as stopped at ``stall_at``: a read that began after it found
+        nothing and no sample waits to be collected. A host that did not run the reader for the
+        stall time (a loaded machine) reads the samples that waited in the link first."""
+        if not self._read_nothing_since(stall_at):
+            return False
+        with self._lock:
+            return not inbox
+
     def _collect(
         self,
         inbox: deque[tuple[str, Any, float, float]],
@@ -914,7 +926,8 @@ class Device(DeviceLink):
             self._check_open()
             if not self._link_alive():
                 raise self._link_lost_error() from None
-            if now >= last_sample_at + stall_limit:  # the sum the wait below uses
+            stall_at = last_sample_at + stall_limit  # the sum the wait below uses
+            if now >= stall_at and self._stream_stalled(stall_at, inbox):
                 raise StreamTimeout(
                     f"no sample for {now - last_sample_at:.2f} s while the device's status "
                     f"still arrives ({collector.received} of {n} received): the stream was "
@@ -935,7 +948,7 @@ class Device(DeviceLink):
             def window_ready(need: int = need, alerts: int = alerts) -> bool:
                 return len(inbox) >= need or self._inbox_alerts != alerts
 
-            self._clock.wait_until(
-                window_ready, min(deadline, last_sample_at + stall_limit, self._link_deadline())
-            )
+            # Past the stall deadline, the reader's next read is awaited (:meth:`_stream_stalled`).
+            stall_wait = stall_at if now < stall_at else now + READ_POLL_S
+            self._clock.wait_until(window_ready, min(deadline, stall_wait, self._link_deadline()))
         return collector.window(rate, self._scales)

@@ -92,6 +92,9 @@ STOP_WAIT_S = 2.0
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
+CATCH_UP_S = 1.0
+"""Longest extra wait, s, after a deadline for the reader to finish a read begun after it
+(:meth:`DeviceLink._caught_up`): a host that runs its reader takes one read (0.05 s) for it."""
 _HEARD = ("frames_received", "frames_rejected", "frames_foreign")
 """The transport's counters of frames taken in (:meth:`DeviceLink._heard_more`)."""
 T = TypeVar("T")
@@ -312,6 +315,11 @@ class DeviceLink:
         # once such a read began after the supervision deadline (the unit's silence, not a host
         # that did not run its reader while the unit's bytes waited in the link).
         self._quiet_read_at = -math.inf
+        # When the reader's latest completed read began, whatever it found: a wait that ran out
+        # is judged only once a read that began after its deadline is done (what waited in the
+        # link by then has been dispatched), see :meth:`_caught_up`.
+        self._read_began_at = -math.inf
+        self._catching_up = 0  # callers waiting in :meth:`_caught_up`
         self._heard = 0  # the transport's count of frames and bytes, at the latest read
         self._seq = 0
         self._opened_at = self._clock.now()
@@ -499,6 +507,9 @@ class DeviceLink:
                     self._quiet_read_at = began
                     if not self._link_idle or began >= self._lost_at():
                         self._went_idle()
+                self._read_began_at = began
+                if self._catching_up:
+                    self._clock.notify()
         except DriverError as exc:
             if not self._stop.is_set():
                 self._fail(exc if isinstance(exc, LinkError) else LinkLost(str(exc)), exc)
@@ -716,6 +727,33 @@ class DeviceLink:
             return True
         return self._reader is not None and self._quiet_read_at < lost_at
 
+    def _read_nothing_since(self, t: float) -> bool:
+        """Whether a read that began at or after ``t`` found nothing: nothing waited in the link
+        then (always True without a reader thread: a virtual clock reads everything at each
+        instant)."""
+        return self._reader is None or self._quiet_read_at >= t
+
+    def _caught_up(self, since: float, done: Callable[[], bool] = lambda: False) -> bool:
+        """After a wait that ran out at ``since``: wait until the reader has finished a read that
+        began at or after it (or ``done()`` holds) and say whether ``done()`` holds then. A host
+        that did not run the reader while the unit's messages waited in the link (a loaded
+        machine) reads them first; a deadline is judged on what had arrived by then, not on what
+        the host had got round to reading. At most :data:`CATCH_UP_S` more; no wait without a
+        reader thread (a virtual clock delivers everything at each instant)."""
+        if self._reader is None or self._read_began_at >= since:
+            return done()
+        with self._lock:
+            self._catching_up += 1
+        try:
+            self._clock.wait_until(
+                lambda: done() or self._read_began_at >= since or self._dead is not None,
+                self._clock.now() + CATCH_UP_S,
+            )
+        finally:
+            with self._lock:
+                self._catching_up -= 1
+        return done()
+
     def _wait_change(self, seen: int, until: float) -> None:
         """Wait until the reader delivered something after ``seen`` (:attr:`_events`) or the
         clock reaches ``until``."""
@@ -772,6 +810,8 @@ class DeviceLink:
                 if self._reader is None:
                     self._clock.notify()  # the virtual clock: the device takes it now
                 answered = self._clock.wait_until(waiter.is_done, sent_at + per)
+                if not answered:  # a reply that waited in the link while the host stood still
+                    answered = self._caught_up(sent_at + per, waiter.is_done)
             finally:
                 with self._lock:
                     self._waiters.pop(seq, None)

@@ -6,6 +6,7 @@ One test starts a process that holds a pseudo-terminal (no timing in it)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import threading
@@ -13,12 +14,14 @@ import threading
 import pytest
 from sessions import idle_session
 
+from northfinder.driver.clock import WallClock
 from northfinder.driver.conformance.core import Ctx, SuiteOptions
 from northfinder.driver.conformance.pace import (
     HostPace,
     PaceFigures,
     _Series,
     excused,
+    process_tree,
     pty_peer_pids,
 )
 from northfinder.driver.conformance.runner import judge
@@ -184,3 +187,44 @@ def test_the_process_holding_a_pseudo_terminal_is_found_as_the_unit():
     finally:
         child.stdin.close()  # type: ignore[union-attr]
         child.wait(10)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+def test_the_processes_a_test_started_and_their_waits_are_measured():
+    """A realtime test's pace counts its own threads and every process it started (a command that
+    started a simulator): the grandchild is found, and its threads' waits are read."""
+    child = subprocess.Popen(
+        [sys.executable, "-c", "import subprocess, sys\n"
+         "g = subprocess.Popen([sys.executable, '-c', 'import sys; sys.stdin.read()'], "
+         "stdin=subprocess.PIPE)\nprint(g.pid, flush=True)\nsys.stdin.read()"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert child.stdout is not None and child.stdin is not None
+        grandchild = int(child.stdout.readline())
+        me = os.getpid()
+        tree = process_tree(me)
+        assert tree[0] == me and child.pid in tree and grandchild in tree
+        pace = HostPace(WallClock(), unit_pids=lambda: process_tree(me))
+        pace._sample_waits(0.0)
+        pace._sample_waits(1.0)
+        assert grandchild in pace.unit_waits and child.pid in pace.unit_waits
+    finally:
+        child.stdin.close()  # type: ignore[union-attr]
+        child.wait(10)
+
+
+def test_a_realtime_test_that_failed_while_its_processes_waited_for_a_cpu_is_not_judged():
+    from conftest import STARVED_WAIT_FRACTION, host_starved
+
+    quiet = PaceFigures(10.0, 2000, 0.002, 0.0, 0.003, 0.0, 0.01, 0.02)
+    assert not host_starved(quiet)
+    assert host_starved(quiet, slipped=0.05)
+    starved_reader = PaceFigures(
+        10.0, 2000, 0.002, 0.0, 0.003, 0.0, 10 * STARVED_WAIT_FRACTION, 0.0
+    )
+    assert host_starved(starved_reader)
+    just_under = PaceFigures(10.0, 2000, 0.002, 0.0, 0.003, 0.0, 0.0, 9.9 * STARVED_WAIT_FRACTION)
+    assert not host_starved(just_under)
+    assert host_starved(PaceFigures(10.0, 1500, 0.05, 2.5, 0.0, 0.0))  # the timer lost 25 %
+    assert host_starved(PaceFigures(10.0, 2000, 0.15, 0.0, 0.0, 0.0))  # one stall of 150 ms

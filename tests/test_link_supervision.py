@@ -130,3 +130,106 @@ def test_bytes_that_complete_no_message_yet_keep_the_link_up(stalled):
     transport.items.put(None)  # then nothing at all, on a read begun after the deadline
     transport.next_read(6)
     assert not link._link_alive()
+
+
+class SteppedClock(HandClock):
+    """:class:`HandClock` whose waits end when the test moves its time past their deadline."""
+
+    def wait_until(self, predicate, deadline):  # type: ignore[override]
+        with self._lock:
+            while not predicate():
+                if deadline is not None and self.t >= deadline:
+                    return False
+                self._cv.wait(0.01)
+            return True
+
+    def set(self, t: float) -> None:
+        self.t = t
+        self.notify()
+
+
+@pytest.fixture
+def stepped() -> Iterator[tuple[DeviceLink, ScriptedTransport, SteppedClock]]:
+    """A link whose reader began a read at 0.0 that the host does not finish yet."""
+    clock = SteppedClock()
+    transport = ScriptedTransport()
+    transport.sent = []  # type: ignore[attr-defined]
+    transport.send = transport.sent.append  # type: ignore[attr-defined,method-assign]
+    link = DeviceLink(transport, clock=clock)
+    transport.next_read(1)
+    transport.items.put([STATUS])
+    transport.next_read(2)
+    yield link, transport, clock
+    link._stop.set()
+    transport.items.put(None)
+    link.close()
+
+
+def _asked(link: DeviceLink, transport: ScriptedTransport, clock: SteppedClock):
+    """GET_STATUS sent at 0.0 in a thread, the host then standing still until 0.8 (the reply
+    limit is 0.25 s): returns the thread's result holder once the request waits for the reader."""
+    from northfinder.driver.protocol.messages import GetStatus
+
+    out: dict[str, object] = {}
+
+    def ask() -> None:
+        try:
+            out["reply"] = link._request(GetStatus, attempts=1)
+        except Exception as exc:
+            out["error"] = exc
+
+    thread = threading.Thread(target=ask, daemon=True)
+    thread.start()
+    for _ in range(3000):
+        if transport.sent:  # type: ignore[attr-defined]
+            break
+        threading.Event().wait(0.01)
+    clock.set(0.8)
+    for _ in range(3000):
+        if link._catching_up:
+            break
+        threading.Event().wait(0.01)
+    assert link._catching_up == 1, "the request did not wait for the reader after its deadline"
+    out["thread"] = thread
+    return out
+
+
+def test_a_reply_that_waited_in_the_link_while_the_host_stood_still_is_taken(stepped):
+    from northfinder.driver.protocol.messages import Reply
+
+    link, transport, clock = stepped
+    out = _asked(link, transport, clock)
+    command = transport.sent[0]  # type: ignore[attr-defined]
+    transport.items.put([Reply.to(command)])  # the read begun at 0.0 finds the reply at last
+    out["thread"].join(30.0)  # type: ignore[attr-defined]
+    assert "error" not in out, out.get("error")
+    assert out["reply"].seq == command.seq  # type: ignore[attr-defined]
+
+
+def test_a_reply_that_never_came_times_out_once_a_later_read_finds_nothing(stepped):
+    from northfinder.driver.errors import ReplyTimeout
+
+    link, transport, clock = stepped
+    out = _asked(link, transport, clock)
+    transport.items.put(None)  # the read begun at 0.0, before the deadline, ends with nothing
+    transport.next_read(3)
+    assert out["thread"].is_alive()  # type: ignore[attr-defined]
+    transport.items.put(None)  # the read begun at 0.8 ends with nothing too
+    out["thread"].join(30.0)  # type: ignore[attr-defined]
+    assert isinstance(out.get("error"), ReplyTimeout), out
+    assert "no reply to GET_STATUS within 0.25 s" in str(out["error"])
+
+
+def test_a_stream_counts_as_stopped_only_once_a_later_read_finds_nothing(stalled):
+    link, transport, clock = stalled
+    clock.t = 0.8  # the stall deadline was 0.5; the host did not run the reader since 0.0
+    assert not link._read_nothing_since(0.5)
+    transport.items.put(None)  # the read begun at 0.0 ends with nothing
+    transport.next_read(4)
+    assert not link._read_nothing_since(0.5)
+    transport.items.put([STATUS])  # the read begun at 0.8 finds something
+    transport.next_read(5)
+    assert not link._read_nothing_since(0.5)
+    transport.items.put(None)  # and the next one nothing: the stream has stopped
+    transport.next_read(6)
+    assert link._read_nothing_since(0.5)

@@ -41,6 +41,7 @@ from __future__ import annotations
 import bisect
 import os
 import threading
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,6 +57,7 @@ __all__ = [
     "HostPace",
     "PaceFigures",
     "excused",
+    "process_tree",
     "pty_peer_pids",
 ]
 
@@ -234,6 +236,28 @@ def pty_peer_pids(path: str | os.PathLike[str]) -> tuple[int, ...]:
     return tuple(found)
 
 
+def process_tree(pid: int) -> tuple[int, ...]:
+    """``pid`` and every process it started, and they started, still running (Linux:
+    ``/proc/<pid>/task/<tid>/children``); ``(pid,)`` where they cannot be seen."""
+    found, todo = [pid], [pid]
+    while todo:
+        parent = todo.pop()
+        try:
+            tids = os.listdir(f"/proc/{parent}/task")
+        except OSError:
+            continue
+        for tid in tids:
+            try:
+                with open(f"/proc/{parent}/task/{tid}/children") as f:
+                    kids = [int(k) for k in f.read().split()]
+            except (OSError, ValueError):
+                continue
+            new = [k for k in kids if k not in found]
+            found += new
+            todo += new
+    return tuple(found)
+
+
 def _run_delay_s(path: str) -> float | None:
     """The run-queue wait of one thread so far, s (field 2 of its ``schedstat``), or None."""
     try:
@@ -284,19 +308,24 @@ class HostPace:
         The session's clock; on a virtual clock nothing runs and every interval kept pace.
     period_s : float
         Period of the timer loop, wall s.
-    unit_pids : tuple of int
+    unit_pids : tuple of int, or a callable returning them
         Processes on this host that are the unit (a simulator): their threads' waits for a CPU
-        are measured too.
+        are measured too. A callable is asked again at each reading of the scheduler's figures
+        (processes that come and go: :func:`process_tree`).
     """
 
     def __init__(
-        self, clock: Clock, period_s: float = PERIOD_S, unit_pids: tuple[int, ...] = ()
+        self,
+        clock: Clock,
+        period_s: float = PERIOD_S,
+        unit_pids: tuple[int, ...] | Callable[[], Iterable[int]] = (),
     ) -> None:
         self.clock = clock
         self.period_s = period_s
         self.timer = _Series()
         self.reader = _Series()
-        self.unit_pids = tuple(unit_pids)
+        self._pids = unit_pids if callable(unit_pids) else None
+        self.unit_pids: tuple[int, ...] = () if callable(unit_pids) else tuple(unit_pids)
         """Processes on this host that are the unit (a simulator), whose waits for a CPU count."""
         self.reader_waits = _Series()
         """(time, the reader thread's run-queue wait so far): the scheduler's figures."""
@@ -355,6 +384,8 @@ class HostPace:
             w = _run_delay_s(self._reader_stat)
             if w is not None:
                 self.reader_waits.add(now, w)
+        if self._pids is not None:
+            self.unit_pids = tuple(self._pids())
         for pid in self.unit_pids:
             try:
                 tids = os.listdir(f"/proc/{pid}/task")
@@ -385,7 +416,7 @@ class HostPace:
             max(reader, default=0.0),
             sum(late - GRACE_S for late in reader if late > GRACE_S),
             _at_most(self.reader_waits.growth(t0, t1), t1 - t0),
-            _at_most(max(unit, default=None), t1 - t0) if self.unit_pids else None,
+            _at_most(max(unit, default=None), t1 - t0) if self.unit_waits else None,
         )
 
 
