@@ -17,7 +17,9 @@ on which time jumps to the next event whenever every party waits). A command is 
 ``reply_timeout`` (default 0.25 s; protocol.md 6 asks for at least 0.1 s) for its reply. Commands
 that are safe to repeat (:data:`RETRYABLE`) are sent again with a new sequence number, up to
 ``retries`` more times (default 2), so a query fails with :class:`~northfinder.driver.errors.ReplyTimeout`
-after at most ``(1 + retries) * reply_timeout`` = 0.75 s. Moves, HOME, RESET and SELF_TEST are
+after ``(1 + retries) * reply_timeout`` = 0.75 s (each wait is judged once a read begun after it
+is done: a reply that waited in the link while the host stood still counts; one read, 0.05 s,
+more on an idle host, at most 1 s more on a starved one). Moves, HOME, RESET and SELF_TEST are
 sent once: a lost reply leaves open whether they were carried out. The link counts as lost when
 no status arrived for three heartbeat periods (0.3 s by default; ``min_supervision_s`` raises it),
 counted once the reader has read everything that arrived (protocol.md 6), so a host that is busy
@@ -871,10 +873,10 @@ class Device(DeviceLink):
                     self._inbox = None
 
     def _stream_stalled(self, stall_at: float, inbox: deque[Any]) -> bool:
-        """Whether the stream counts as stopped at ``stall_at``: a read that began after it found
-        nothing and no sample waits to be collected. A host that did not run the reader for the
+        """Whether the stream counts as stopped at ``stall_at``: a read that began after it
+        brought no sample and no sample waits to be collected. A host that did not run the reader for the
         stall time (a loaded machine) reads the samples that waited in the link first."""
-        if not self._read_nothing_since(stall_at):
+        if not self._no_sample_since(stall_at):
             return False
         with self._lock:
             return not inbox

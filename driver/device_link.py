@@ -95,6 +95,8 @@ HEARTBEATS_UNTIL_LOST = 3
 CATCH_UP_S = 1.0
 """Longest extra wait, s, after a deadline for the reader to finish a read begun after it
 (:meth:`DeviceLink._caught_up`): a host that runs its reader takes one read (0.05 s) for it."""
+_STREAM = (Sample, TickLoss)
+"""What a read brings of the stream: a sample, or a tick whose frames were lost."""
 _HEARD = ("frames_received", "frames_rejected", "frames_foreign")
 """The transport's counters of frames taken in (:meth:`DeviceLink._heard_more`)."""
 T = TypeVar("T")
@@ -320,6 +322,9 @@ class DeviceLink:
         # link by then has been dispatched), see :meth:`_caught_up`.
         self._read_began_at = -math.inf
         self._catching_up = 0  # callers waiting in :meth:`_caught_up`
+        # When the reader's latest read that brought no sample (and no part of one) began: the
+        # stream counts as stopped only once such a read began after the stall deadline.
+        self._sampleless_read_at = -math.inf
         self._heard = 0  # the transport's count of frames and bytes, at the latest read
         self._seq = 0
         self._opened_at = self._clock.now()
@@ -507,6 +512,8 @@ class DeviceLink:
                     self._quiet_read_at = began
                     if not self._link_idle or began >= self._lost_at():
                         self._went_idle()
+                if (items or not heard) and not any(isinstance(i, _STREAM) for i in items):
+                    self._sampleless_read_at = began
                 self._read_began_at = began
                 if self._catching_up:
                     self._clock.notify()
@@ -727,11 +734,17 @@ class DeviceLink:
             return True
         return self._reader is not None and self._quiet_read_at < lost_at
 
-    def _read_nothing_since(self, t: float) -> bool:
-        """Whether a read that began at or after ``t`` found nothing: nothing waited in the link
-        then (always True without a reader thread: a virtual clock reads everything at each
-        instant)."""
-        return self._reader is None or self._quiet_read_at >= t
+    def _no_sample_since(self, t: float) -> bool:
+        """Whether a read that began at or after ``t`` brought no sample: none waited in the link
+        then, whatever else came (statuses at a short heartbeat, other nodes on a shared bus).
+        Reads that each bring part of a frame only (a busy bus) decide nothing until one begins
+        :data:`CATCH_UP_S` after ``t``. Always True without a reader thread: a virtual clock reads
+        everything at each instant."""
+        return (
+            self._reader is None
+            or self._sampleless_read_at >= t
+            or self._read_began_at >= t + CATCH_UP_S
+        )
 
     def _caught_up(self, since: float, done: Callable[[], bool] = lambda: False) -> bool:
         """After a wait that ran out at ``since``: wait until the reader has finished a read that
@@ -740,14 +753,14 @@ class DeviceLink:
         machine) reads them first; a deadline is judged on what had arrived by then, not on what
         the host had got round to reading. At most :data:`CATCH_UP_S` more; no wait without a
         reader thread (a virtual clock delivers everything at each instant)."""
-        if self._reader is None or self._read_began_at >= since:
+        if self._reader is None or not self._reader.is_alive() or self._read_began_at >= since:
             return done()
         with self._lock:
             self._catching_up += 1
         try:
             self._clock.wait_until(
                 lambda: done() or self._read_began_at >= since or self._dead is not None,
-                self._clock.now() + CATCH_UP_S,
+                since + CATCH_UP_S,
             )
         finally:
             with self._lock:
@@ -801,7 +814,7 @@ class DeviceLink:
                 seq = self._next_seq()
                 self._waiters[seq] = waiter
                 if opcode == Opcode.IDENTIFY:
-                    self._identify_expected_until = self._clock.now() + per + 1.0
+                    self._identify_expected_until = self._clock.now() + per + CATCH_UP_S + 1.0
             try:
                 sent_at = self._clock.now()
                 message = command(seq, *args)

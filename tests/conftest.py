@@ -192,8 +192,8 @@ STARVED_STALL_S = 0.1
 STARVED_WAIT_FRACTION = 0.25
 """A ``realtime`` test that failed while the host lost this share of its run (the timer loop of
 :class:`northfinder.driver.conformance.pace.HostPace`), or stood still this long at once, or
-while one of its threads or of the processes it started (a driver's reader, a simulator, a
-command) waited this share of the run for a CPU (the scheduler's figures), or while the simulator
+while the test's thread, a driver's reader thread, or a thread of a process it started (a
+simulator, a command) waited this share of the run for a CPU (the scheduler's figures), or while the simulator
 of its ``sim`` fixture slipped its clock (the host starved the unit), is reported **not judged**
 (skipped, with the host's figures and the failure), not failed: five times the conformance
 suite's thresholds of keeping pace (docs/conformance.md), because these tests judge whole
@@ -368,11 +368,26 @@ def _measured(item: pytest.Item) -> Iterator[None]:
     slipped = _slipped(sim)
     clock = WallClock()
     me = os.getpid()
-    with HostPace(clock, unit_pids=lambda: process_tree(me)) as pace:
+    runner = threading.get_native_id()
+    with HostPace(
+        clock, unit_pids=lambda: process_tree(me)[1:], own_threads=lambda: _watched(runner)
+    ) as pace:
         t0 = clock.now()
         yield
         item.stash[_PACE] = pace.during(t0, clock.now())
     item.stash[_SLIPPED] = _slipped(sim) - slipped
+
+
+def _watched(runner: int) -> list[int]:
+    """This process's threads whose waits for a CPU count: the one running the test
+    (``runner``) and the driver's readers (not the pace's timer loop, nor numpy's or a pool's
+    workers)."""
+    readers = [
+        t.native_id
+        for t in threading.enumerate()
+        if t.native_id is not None and t.name.startswith("northfinder-")
+    ]
+    return [runner, *readers]
 
 
 def host_starved(pace: Any, slipped: float = 0.0) -> bool:

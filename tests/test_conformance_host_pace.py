@@ -189,7 +189,9 @@ def test_the_process_holding_a_pseudo_terminal_is_found_as_the_unit():
         child.wait(10)
 
 
-@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+@pytest.mark.skipif(
+    not os.path.exists(f"/proc/self/task/{os.getpid()}/children"), reason="reads /proc children"
+)
 def test_the_processes_a_test_started_and_their_waits_are_measured():
     """A realtime test's pace counts its own threads and every process it started (a command that
     started a simulator): the grandchild is found, and its threads' waits are read."""
@@ -205,10 +207,19 @@ def test_the_processes_a_test_started_and_their_waits_are_measured():
         me = os.getpid()
         tree = process_tree(me)
         assert tree[0] == me and child.pid in tree and grandchild in tree
-        pace = HostPace(WallClock(), unit_pids=lambda: process_tree(me))
+        mine = threading.get_native_id()
+        other_done = threading.Event()
+        other = threading.Thread(target=other_done.wait, daemon=True)  # not watched
+        other.start()
+        pace = HostPace(
+            WallClock(), unit_pids=lambda: process_tree(me)[1:], own_threads=lambda: [mine]
+        )
         pace._sample_waits(0.0)
         pace._sample_waits(1.0)
+        other_done.set()
         assert grandchild in pace.unit_waits and child.pid in pace.unit_waits
+        assert mine in pace.unit_waits and other.native_id not in pace.unit_waits
+        assert pace.unit_waits[mine].growth(0.0, 1.0) is not None
     finally:
         child.stdin.close()  # type: ignore[union-attr]
         child.wait(10)

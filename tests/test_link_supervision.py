@@ -135,12 +135,14 @@ def test_bytes_that_complete_no_message_yet_keep_the_link_up(stalled):
 class SteppedClock(HandClock):
     """:class:`HandClock` whose waits end when the test moves its time past their deadline."""
 
-    def wait_until(self, predicate, deadline):  # type: ignore[override]
+    def wait_until(self, predicate, deadline):
+        # No timed re-check: a waiter that is not notified of a change hangs (the test's own
+        # 30 s limits then fail it), so a lost wake-up cannot pass.
         with self._lock:
             while not predicate():
                 if deadline is not None and self.t >= deadline:
                     return False
-                self._cv.wait(0.01)
+                self._cv.wait()
             return True
 
     def set(self, t: float) -> None:
@@ -199,11 +201,11 @@ def test_a_reply_that_waited_in_the_link_while_the_host_stood_still_is_taken(ste
 
     link, transport, clock = stepped
     out = _asked(link, transport, clock)
-    command = transport.sent[0]  # type: ignore[attr-defined]
+    command = transport.sent[0]
     transport.items.put([Reply.to(command)])  # the read begun at 0.0 finds the reply at last
-    out["thread"].join(30.0)  # type: ignore[attr-defined]
+    out["thread"].join(30.0)
     assert "error" not in out, out.get("error")
-    assert out["reply"].seq == command.seq  # type: ignore[attr-defined]
+    assert out["reply"].seq == command.seq
 
 
 def test_a_reply_that_never_came_times_out_once_a_later_read_finds_nothing(stepped):
@@ -213,23 +215,49 @@ def test_a_reply_that_never_came_times_out_once_a_later_read_finds_nothing(stepp
     out = _asked(link, transport, clock)
     transport.items.put(None)  # the read begun at 0.0, before the deadline, ends with nothing
     transport.next_read(3)
-    assert out["thread"].is_alive()  # type: ignore[attr-defined]
+    assert out["thread"].is_alive()
     transport.items.put(None)  # the read begun at 0.8 ends with nothing too
-    out["thread"].join(30.0)  # type: ignore[attr-defined]
+    out["thread"].join(30.0)
     assert isinstance(out.get("error"), ReplyTimeout), out
     assert "no reply to GET_STATUS within 0.25 s" in str(out["error"])
 
 
-def test_a_stream_counts_as_stopped_only_once_a_later_read_finds_nothing(stalled):
+def _sample(counter: int):
+    from northfinder.driver.protocol.constants import Validity
+    from northfinder.driver.protocol.messages import Sample
+
+    return Sample(counter, (0, 0, 0), (0, 0, 0), 0, 2500, Validity(0))
+
+
+def test_a_stream_counts_as_stopped_only_once_a_later_read_brings_no_sample(stalled):
     link, transport, clock = stalled
     clock.t = 0.8  # the stall deadline was 0.5; the host did not run the reader since 0.0
-    assert not link._read_nothing_since(0.5)
+    assert not link._no_sample_since(0.5)
     transport.items.put(None)  # the read begun at 0.0 ends with nothing
     transport.next_read(4)
-    assert not link._read_nothing_since(0.5)
-    transport.items.put([STATUS])  # the read begun at 0.8 finds something
+    assert not link._no_sample_since(0.5)
+    transport.items.put([_sample(1), STATUS])  # the read begun at 0.8 finds samples waiting
     transport.next_read(5)
-    assert not link._read_nothing_since(0.5)
-    transport.items.put(None)  # and the next one nothing: the stream has stopped
+    assert not link._no_sample_since(0.5)
+    transport.items.put(5)  # part of a frame: perhaps a sample
     transport.next_read(6)
-    assert link._read_nothing_since(0.5)
+    assert not link._no_sample_since(0.5)
+    transport.items.put([STATUS])  # statuses only, as at a short heartbeat: the stream stopped
+    transport.next_read(7)
+    assert link._no_sample_since(0.5)
+
+
+def test_reads_that_each_bring_part_of_a_frame_decide_a_stall_a_second_later(stalled):
+    link, transport, clock = stalled
+    clock.t = 1.0
+    transport.items.put(None)
+    transport.next_read(4)  # begun at 1.0
+    transport.items.put(3)
+    transport.next_read(5)
+    assert not link._no_sample_since(0.5)
+    clock.t = 1.5  # a busy bus: every read hears frames of other nodes
+    transport.items.put(3)
+    transport.next_read(6)
+    transport.items.put(3)  # the read begun at 1.5 (CATCH_UP_S after the deadline) is done
+    transport.next_read(7)
+    assert link._no_sample_since(0.5)

@@ -87,6 +87,8 @@ beside the suite on two cores (load 10 to 15) the SLCAN reader waited 71 to 77 %
 and a simulator at twice real time 43 to 58 %."""
 SCHED_EVERY = 4
 """The timer loop reads the scheduler's figures every this many wakes (every 20 ms)."""
+REFRESH_EVERY = 25
+"""It asks again which processes and threads are the unit's every this many readings (0.5 s)."""
 GRACE_S = 0.005
 """A read later than asked by less than this is not counted as lost: Python hands its interpreter
 lock between threads every 5 ms (``sys.getswitchinterval``), so the suite's own threads delay each
@@ -310,8 +312,11 @@ class HostPace:
         Period of the timer loop, wall s.
     unit_pids : tuple of int, or a callable returning them
         Processes on this host that are the unit (a simulator): their threads' waits for a CPU
-        are measured too. A callable is asked again at each reading of the scheduler's figures
-        (processes that come and go: :func:`process_tree`).
+        are measured too. A callable is asked again every :data:`REFRESH_EVERY` readings of the
+        scheduler's figures (processes that come and go: :func:`process_tree`).
+    own_threads : callable, optional
+        Returns native ids of threads of this process whose waits count as the unit's (a
+        driver's reader thread), asked as ``unit_pids``.
     """
 
     def __init__(
@@ -319,12 +324,16 @@ class HostPace:
         clock: Clock,
         period_s: float = PERIOD_S,
         unit_pids: tuple[int, ...] | Callable[[], Iterable[int]] = (),
+        own_threads: Callable[[], Iterable[int]] | None = None,
     ) -> None:
         self.clock = clock
         self.period_s = period_s
         self.timer = _Series()
         self.reader = _Series()
         self._pids = unit_pids if callable(unit_pids) else None
+        self._own_threads = own_threads
+        self._tids: tuple[int, ...] = ()
+        self._readings = 0
         self.unit_pids: tuple[int, ...] = () if callable(unit_pids) else tuple(unit_pids)
         """Processes on this host that are the unit (a simulator), whose waits for a CPU count."""
         self.reader_waits = _Series()
@@ -384,8 +393,16 @@ class HostPace:
             w = _run_delay_s(self._reader_stat)
             if w is not None:
                 self.reader_waits.add(now, w)
-        if self._pids is not None:
-            self.unit_pids = tuple(self._pids())
+        if self._readings % REFRESH_EVERY == 0:
+            if self._pids is not None:
+                self.unit_pids = tuple(self._pids())
+            if self._own_threads is not None:
+                self._tids = tuple(self._own_threads())
+        self._readings += 1
+        for own in self._tids:
+            w = _run_delay_s(f"/proc/self/task/{own}/schedstat")
+            if w is not None:
+                self.unit_waits.setdefault(own, _Series()).add(now, w)
         for pid in self.unit_pids:
             try:
                 tids = os.listdir(f"/proc/{pid}/task")
@@ -407,7 +424,9 @@ class HostPace:
             return PaceFigures(max(0.0, t1 - t0))
         timer = self.timer.between(t0, t1)
         reader = self.reader.between(t0, t1)
-        unit = [w for w in (s.growth(t0, t1) for s in self.unit_waits.values()) if w is not None]
+        # A copy: the timer thread adds the threads it sees first while this runs.
+        waits = list(self.unit_waits.values())
+        unit = [w for w in (s.growth(t0, t1) for s in waits) if w is not None]
         return PaceFigures(
             t1 - t0,
             len(timer),
