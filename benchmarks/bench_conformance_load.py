@@ -11,7 +11,8 @@ with the tests' host-side margins (``--time-scale S --stream-seconds 3 --jitter-
 --reply-limit-ms 400 --settle-margin 1 --ready-timeout 10``), the burners and the simulator
 stopped by their process ids. A row a run: the counts, the checks that failed and those not
 judged, the 1-minute load average at the end, the simulator's slips (its control channel) and
-the host's pace over the run. Exits 1 if any run had a FAIL.
+the host's pace over the run (the timer loop's loss, and how long the suite's reader and the
+simulator waited for a CPU). Exits 1 if any run had a FAIL.
 """
 
 from __future__ import annotations
@@ -116,11 +117,16 @@ def main() -> int:
                 c = row["counts"]
                 pace = row["host_pace"] or {}
                 lost = pace.get("timer_lost_s", 0.0) / pace["seconds"] if pace else 0.0
+                waits = "".join(
+                    f", {who} waited {pace[key] / pace['seconds']:.0%} for a CPU"
+                    for who, key in (("reader", "reader_wait_s"), ("unit", "unit_wait_s"))
+                    if pace.get(key) is not None and pace.get("seconds")
+                )
                 print(
                     f"{k + 1} {link:6} exit {row['status']} load {row['load']:5.1f} "
                     f"{row['seconds']:6.1f} s: {c['pass']} passed, {c['fail']} failed, "
                     f"{c['not judged']} not judged, {c['skip']} skipped; sim slipped "
-                    f"{row['sim_slipped_s']} s; timer loop lost {lost:.0%}"
+                    f"{row['sim_slipped_s']} s; timer loop lost {lost:.0%}{waits}"
                     + (f"; FAILED {', '.join(row['failed'])}" if row["failed"] else ""),
                     flush=True,
                 )

@@ -874,8 +874,8 @@ class Device(DeviceLink):
 
     def _stream_stalled(self, stall_at: float, inbox: deque[Any]) -> bool:
         """Whether the stream counts as stopped at ``stall_at``: a read that began after it
-        brought no sample and no sample waits to be collected. A host that did not run the reader for the
-        stall time (a loaded machine) reads the samples that waited in the link first."""
+        brought no sample and no sample waits to be collected. A host that did not run the reader
+        for the stall time (a loaded machine) reads the samples that waited in the link first."""
         if not self._no_sample_since(stall_at):
             return False
         with self._lock:

@@ -95,8 +95,6 @@ HEARTBEATS_UNTIL_LOST = 3
 CATCH_UP_S = 1.0
 """Longest extra wait, s, after a deadline for the reader to finish a read begun after it
 (:meth:`DeviceLink._caught_up`): a host that runs its reader takes one read (0.05 s) for it."""
-_STREAM = (Sample, TickLoss)
-"""What a read brings of the stream: a sample, or a tick whose frames were lost."""
 _HEARD = ("frames_received", "frames_rejected", "frames_foreign")
 """The transport's counters of frames taken in (:meth:`DeviceLink._heard_more`)."""
 T = TypeVar("T")
@@ -505,15 +503,14 @@ class DeviceLink:
                 heard = self._heard_more()
                 if items:
                     self._link_idle = False
-                    self._dispatch(items, self._clock.now(), self._clock.wall())
+                    if not self._dispatch(items, self._clock.now(), self._clock.wall()):
+                        self._sampleless_read_at = began
                 elif heard:
                     self._link_idle = False  # bytes or frames came that complete no message yet
                 else:
-                    self._quiet_read_at = began
+                    self._quiet_read_at = self._sampleless_read_at = began
                     if not self._link_idle or began >= self._lost_at():
                         self._went_idle()
-                if (items or not heard) and not any(isinstance(i, _STREAM) for i in items):
-                    self._sampleless_read_at = began
                 self._read_began_at = began
                 if self._catching_up:
                     self._clock.notify()
@@ -575,10 +572,14 @@ class DeviceLink:
             self._events += 1
         self._clock.notify()
 
-    def _dispatch(self, items: list[Received], mono: float, wall: float) -> None:
+    def _dispatch(self, items: list[Received], mono: float, wall: float) -> bool:
+        """Hand each message to what waits for it; True if any was of the stream (a sample, or a
+        tick whose frames were lost)."""
+        stream = False
         with self._lock:
             for item in items:
                 if isinstance(item, Sample | TickLoss):
+                    stream = True
                     if isinstance(item, Sample):
                         self._counts["samples"] += 1
                     # Only what was received after acquire() was called belongs to its window.
@@ -599,6 +600,7 @@ class DeviceLink:
             self._events += 1
         if self._reader is not None:
             self._clock.notify()  # a virtual clock looks at its waiters after every poll anyway
+        return stream
 
     def _on_foreign_command(self, cmd: Command, mono: float) -> None:
         """Another host's command to this unit (seen on a shared CAN bus)."""
@@ -746,7 +748,7 @@ class DeviceLink:
             or self._read_began_at >= t + CATCH_UP_S
         )
 
-    def _caught_up(self, since: float, done: Callable[[], bool] = lambda: False) -> bool:
+    def _caught_up(self, since: float, done: Callable[[], bool]) -> bool:
         """After a wait that ran out at ``since``: wait until the reader has finished a read that
         began at or after it (or ``done()`` holds) and say whether ``done()`` holds then. A host
         that did not run the reader while the unit's messages waited in the link (a loaded

@@ -193,10 +193,10 @@ STARVED_WAIT_FRACTION = 0.25
 """A ``realtime`` test that failed while the host lost this share of its run (the timer loop of
 :class:`northfinder.driver.conformance.pace.HostPace`), or stood still this long at once, or
 while the test's thread, a driver's reader thread, or a thread of a process it started (a
-simulator, a command) waited this share of the run for a CPU (the scheduler's figures), or while the simulator
-of its ``sim`` fixture slipped its clock (the host starved the unit), is reported **not judged**
-(skipped, with the host's figures and the failure), not failed: five times the conformance
-suite's thresholds of keeping pace (docs/conformance.md), because these tests judge whole
+simulator, a command) waited this share of the run for a CPU (the scheduler's figures), or while
+the simulator of its ``sim`` fixture slipped its clock (the host starved the unit), is reported
+**not judged** (skipped, with the host's figures and the failure), not failed: five times the
+conformance suite's thresholds of keeping pace (docs/conformance.md), because these tests judge whole
 conversations, not one measurement. A thread on a free core waits well under 1 % of the time; a
 timer loop that sleeps between wakes is favoured by the scheduler and can keep pace while a busy
 reader or simulator beside it waits most of the time. ``realtime(judge_host=False)`` marks a test
