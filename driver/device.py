@@ -608,8 +608,15 @@ class Device(DeviceLink):
         ramp = abs(mdps) / 1000.0 / limits.max_accel_dps2
         with self._lock:
             n0, epoch = self._status_count, self._boot_epoch
+            # Open from before it is sent, as a move: an interrupt or a lost reply between the
+            # send and its answer must still leave the table stopped (:meth:`leave_at_rest`).
+            self._move_open, self._move_n0 = True, n0
         t0 = self._clock.now()
-        self._request(Spin, mdps)
+        try:
+            self._request(Spin, mdps)
+        except DeviceRefused:
+            self._move_open = False  # refused: nothing turns
+            raise
         if not wait:
             return None
         wait_s = ramp * 1.5 + 2.0 if timeout is None else timeout
@@ -649,14 +656,18 @@ class Device(DeviceLink):
             n0, epoch = self._status_count, self._boot_epoch
         t0 = self._clock.now()
         self._request(Stop)
-        self._move_open = False
         if not wait:
+            self._move_open = False
             return None
+        # Still open while braking: an error or an interrupt before the table settled leaves
+        # it to leave_at_rest, which sends STOP again and waits until the table is seen braked.
         self._refresh_config_if_stale()
         limits = TableLimits.from_config(self._config)
         braking = limits.max_rate_dps / limits.max_accel_dps2
         limit = (braking + limits.settle_s) * 1.5 + 5.0 if timeout is None else timeout
-        return self._wait_settled(n0, epoch, t0, 0.0, limit, "STOP")
+        st = self._wait_settled(n0, epoch, t0, 0.0, limit, "STOP")
+        self._move_open = False
+        return st
 
     @_on_clock
     def wait_ready(self, timeout: float = 5.0) -> DeviceStatus:

@@ -40,6 +40,7 @@ from northfinder.driver.protocol.constants import (
     Result,
     result_meaning,
 )
+from northfinder.driver.protocol.motion import DEFAULT_MAX_ACCEL_DPS2, DEFAULT_MAX_RATE_DPS
 from northfinder.driver.protocol.messages import (
     Command,
     GetStatus,
@@ -86,9 +87,13 @@ during the move is refused BUSY, and ROTATE_BY would add up), nor RESET and SELF
 """
 
 REPLY_TIMEOUT_S = 0.25
-#: Longest wait, s, after the STOP of :meth:`DeviceLink.leave_at_rest` for the table to be seen
-#: leaving ROTATING (a table at 6 deg/s and 10 deg/s^2 stops in 0.6 s).
+#: Longest wait, s, after the STOP of :meth:`DeviceLink.leave_at_rest` beyond the braking time
+#: from the table's rate limit for the table to be seen braked (SETTLING or READY).
 STOP_WAIT_S = 2.0
+#: How long, s beyond the supervision time, :meth:`DeviceLink.leave_at_rest` repeats STOP and
+#: STREAM_STOP while the unit does not answer them (a unit silent for a moment, statuses late on a
+#: busy host); a link proven gone ends the attempts at once.
+LEAVE_RETRY_S = 5.0
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
@@ -385,8 +390,15 @@ class DeviceLink:
         configuration); an error closes the link again."""
 
     def leave_at_rest(self) -> AtRest:
-        """Undo what this host started, nothing else: STOP a move it commanded that has not been
-        seen to settle, STREAM_STOP a stream it started; then read the state once.
+        """Undo what this host started, nothing else: STOP a move or spin it commanded that has
+        not been seen to settle, STREAM_STOP a stream it started; then read the state.
+
+        Each command is repeated until the unit answers it, for up to :data:`LEAVE_RETRY_S` plus
+        the supervision time: a unit silent for a moment, or statuses late on a busy host, do
+        not leave the table turning. Only a link proven gone (the port or bus failed under the
+        reader, the device closed) ends the attempts at once. After a STOP the host waits for
+        the table to be seen braked (SETTLING or READY, :meth:`_settled_after_stop`), sending
+        STOP again if the unit still reports SPINNING.
 
         Called by :meth:`close` (so a ``with`` block left by an exception or Ctrl-C leaves the
         unit at rest and quiet); callable before it to learn what was done. Never raises: what
@@ -398,53 +410,100 @@ class DeviceLink:
         sent: list[str] = []
         failed: list[str] = []
         state: str | None = None
-        reading = self._reader.is_alive() if self._reader is not None else True
-        usable = not self._closed and self._dead is None and reading
         todo: list[tuple[type[Command], str]] = [(Stop, "STOP")] if self._move_open else []
         if self._stream_owned:
             todo.append((StreamStop, "STREAM_STOP"))
-        for command, name in todo:
-            if not usable:
-                failed.append(name)
-                continue
-            try:
-                with self._clock.participant():
-                    self._request(command, attempts=1 + self.retries)
-                sent.append(name)
-            except DriverError as exc:
-                log.info("%s not sent on leaving: %s", name, exc)
-                failed.append(name)
-        with self._lock:
+        with self._clock.participant():
+            deadline = self._clock.now() + LEAVE_RETRY_S + self._supervision_s()
+            for command, name in todo:
+                (sent if self._insist(command, name, deadline) else failed).append(name)
+            with self._lock:
+                if "STOP" in sent:
+                    self._move_open = False
+                if "STREAM_STOP" in sent:
+                    self._stream_owned = self._streaming = False
             if "STOP" in sent:
-                self._move_open = False
-            if "STREAM_STOP" in sent:
-                self._stream_owned = self._streaming = False
-        if usable and todo:
-            state = self._read_state("STOP" in sent)
-        elif self._status is not None:
-            state = self._status.state.name
+                state = self._settled_after_stop(deadline)
+            elif todo and not self._gone():
+                state = self._read_state()
+            elif self._status is not None:
+                state = self._status.state.name
         self.at_rest = AtRest(tuple(sent), tuple(failed), state)
         return self.at_rest
 
-    def _read_state(self, stopping: bool) -> str | None:
-        """The state from one fresh status (GET_STATUS once), else the latest one received.
-        After a STOP (``stopping``), wait up to :data:`STOP_WAIT_S` for the table to leave
-        ROTATING (it decelerates at its acceleration limit) on the heartbeats."""
+    def _gone(self) -> bool:
+        """Whether the link is proven gone: closed, failed under the reader, or the reader
+        stopped. A silent unit is not proof: it may speak again."""
+        reading = self._reader.is_alive() if self._reader is not None else True
+        return self._closed or self._dead is not None or not reading
+
+    def _insist(self, command: type[Command], name: str, deadline: float) -> bool:
+        """Send ``command`` until the unit answers OK; False once ``deadline`` passed, the unit
+        refused it, or the link is proven gone (:meth:`_gone`)."""
+        while not self._gone():
+            try:
+                self._request(command, attempts=1)
+                return True
+            except ReplyTimeout as exc:
+                log.info("%s not answered on leaving: %s", name, exc)
+                if self._clock.now() >= deadline:
+                    return False
+                with self._lock:
+                    self._counts["retries"] += 1
+            except DriverError as exc:
+                log.info("%s not sent on leaving: %s", name, exc)
+                return False
+        return False
+
+    def _settled_after_stop(self, deadline: float) -> str | None:
+        """After an answered STOP: wait until a status reads neither ROTATING nor SPINNING (the
+        table braked: SETTLING, READY, or FAULT), for the braking time at the configured limits
+        plus :data:`STOP_WAIT_S`; send STOP again while a status that arrived after the answer
+        still reads SPINNING. Return the latest state (None if none is known)."""
+        limits = {
+            k: self._config.get(k, d)
+            for k, d in (
+                (ConfigKey.TABLE_MAX_RATE_MDPS, round(DEFAULT_MAX_RATE_DPS * 1000)),
+                (ConfigKey.TABLE_MAX_ACCEL_MDPS2, round(DEFAULT_MAX_ACCEL_DPS2 * 1000)),
+            )
+        }
+        braking = limits[ConfigKey.TABLE_MAX_RATE_MDPS] / max(
+            limits[ConfigKey.TABLE_MAX_ACCEL_MDPS2], 1
+        )
+        until = max(self._clock.now() + braking + STOP_WAIT_S, deadline)
+        moving = (DeviceState.ROTATING, DeviceState.SPINNING)
+        with self._lock:
+            seen = self._status_count
+        try:
+            self._request(GetStatus, attempts=1)  # a fresh status now, not at the next heartbeat
+        except DriverError:
+            pass
+        while not self._gone() and self._clock.now() < until:
+            self._clock.wait_until(
+                lambda: self._status_count > seen or self._gone(),
+                min(until, self._clock.now() + self._heartbeat_period_s() + self.reply_timeout),
+            )
+            with self._lock:
+                st, count = self._status, self._status_count
+            if count <= seen or st is None:
+                continue
+            seen = count
+            if st.state not in moving:
+                break
+            if st.state == DeviceState.SPINNING:
+                # The STOP was answered, yet a later status still reads SPINNING: say it again.
+                self._insist(Stop, "STOP", until)
+        return self._status.state.name if self._status is not None else None
+
+    def _read_state(self) -> str | None:
+        """The state from one fresh status (GET_STATUS once), else the latest one received."""
         with self._lock:
             n0 = self._status_count
         try:
-            with self._clock.participant():
-                self._request(GetStatus, attempts=1)
-                self._clock.wait_until(
-                    lambda: self._status_count > n0, self._clock.now() + self.reply_timeout
-                )
-                if stopping:
-                    self._clock.wait_until(
-                        lambda: (
-                            self._status is not None and self._status.state != DeviceState.ROTATING
-                        ),
-                        self._clock.now() + STOP_WAIT_S,
-                    )
+            self._request(GetStatus, attempts=1)
+            self._clock.wait_until(
+                lambda: self._status_count > n0, self._clock.now() + self.reply_timeout
+            )
         except DriverError:
             pass
         return self._status.state.name if self._status is not None else None

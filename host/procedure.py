@@ -760,12 +760,18 @@ def find_north_spin(
     """
     spin.latitude_rad(latitude_deg, "the spin solution")
     wait_until_ready(device, warmup_timeout_s)
-    device.spin(rate_dps, wait=True)
     try:
+        device.spin(rate_dps, wait=True)
         window = device.acquire(spin_s, on_gap="report")
-    finally:
         device.stop(wait=True)
         device.stop_streaming()
+    except BaseException:
+        # However the spin ends (an error, a lost link, Ctrl-C): STOP and STREAM_STOP, each
+        # repeated until answered, before the error goes on (the driver's leave_at_rest).
+        leave = getattr(device, "leave_at_rest", None)
+        if leave is not None:
+            leave()
+        raise
     data = spin.spin_samples(
         window.gyro_dph, window.accel_mps2, window.table_deg, window.counter,
         window.sample_rate_hz, window.validity,

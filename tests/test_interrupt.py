@@ -17,11 +17,12 @@ from typing import Any
 
 import can
 import pytest
+from conftest import later_on
 from interruption import FIND, PLAN, host_link_args, interrupt_during_move, sim_link_args
 from simprocess import sim_process
 
 from northfinder.driver.clock import VirtualClock, WallClock
-from northfinder.driver.errors import ReplyTimeout
+from northfinder.driver.errors import LinkLost, ReplyTimeout, StreamTimeout
 from northfinder.driver.protocol.can import decode_can
 from northfinder.driver.protocol.constants import DeviceState, Opcode
 from northfinder.driver.protocol.messages import Command
@@ -275,3 +276,95 @@ def test_a_stream_start_whose_reply_is_lost_is_still_stopped_on_leaving(monkeypa
         assert sim.firmware.streaming
         assert dev.leave_at_rest().sent == ("STREAM_STOP",)
         assert not sim.firmware.streaming
+
+
+# -- a spin: the table turns until told to stop ---------------------------------------------------
+
+MOVING = (DeviceState.ROTATING, DeviceState.SPINNING)
+
+
+def _silent(sim: SimulatedInstrument, on: bool) -> None:
+    sim.firmware.faults.silent = on
+
+
+def test_leaving_a_spin_sends_stop_and_waits_until_the_table_braked():
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        dev.start_streaming()
+        dev.spin(9.0)
+        assert sim.firmware.state == DeviceState.SPINNING
+        rest = dev.leave_at_rest()
+        assert rest.sent == ("STOP", "STREAM_STOP") and not rest.failed
+        assert rest.state in ("SETTLING", "READY"), rest
+        assert sim.firmware.state not in MOVING and not sim.firmware.streaming
+        assert dev.leave_at_rest() is rest
+
+
+def test_a_spin_whose_start_reply_is_lost_is_still_stopped_on_leaving():
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        sim.firmware.faults.drop_replies = 1  # SPIN carried out, its answer never comes
+        with pytest.raises(ReplyTimeout):
+            dev.spin(9.0, wait=False)
+        dev.clock.sleep(1.0)
+        assert sim.firmware.state in MOVING
+        assert dev.leave_at_rest().sent == ("STOP",)
+        assert sim.firmware.state not in MOVING
+
+
+@pytest.mark.parametrize("silence_s", [0.8, 3.0])
+@pytest.mark.parametrize("when_s", [0.2, 1.0, 4.0], ids=["mid-ramp", "spinning", "late"])
+def test_a_spin_ended_by_a_silent_unit_is_stopped_once_it_speaks_again(when_s, silence_s):
+    # The unit falls silent (mid-ramp, mid-spin): the link counts as lost after three heartbeat
+    # periods and the spin fails, but the unit has not gone: STOP and STREAM_STOP are repeated
+    # until it answers, and the table is seen braked.
+    from northfinder.host.procedure import find_north_spin
+
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        t0 = dev.clock.now()
+        with (
+            later_on(dev.clock, when_s, _silent, sim, True),
+            later_on(dev.clock, when_s + silence_s, _silent, sim, False),
+            pytest.raises((LinkLost, StreamTimeout, ReplyTimeout)),
+        ):
+            find_north_spin(dev, 9.0, 12.0, 34.0)
+        rest = dev.at_rest
+        assert rest is not None and rest.sent[:1] == ("STOP",) and not rest.failed, rest
+        assert rest.state in ("SETTLING", "READY"), rest
+        assert sim.firmware.state not in MOVING and not sim.firmware.streaming
+        assert dev.clock.now() - t0 < when_s + silence_s + 10.0
+
+
+def test_a_unit_silent_beyond_the_retries_is_reported_not_stopped():
+    # Silent for good: the host gives up after its retries and says what it could not send.
+    from northfinder.driver.device_link import LEAVE_RETRY_S
+
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        dev.spin(9.0)
+        sim.firmware.faults.silent = True
+        t0 = dev.clock.now()
+        rest = dev.leave_at_rest()
+        assert rest.failed == ("STOP",) and rest.sent == ()
+        assert "could not send STOP" in rest.summary()
+        assert LEAVE_RETRY_S <= dev.clock.now() - t0 < LEAVE_RETRY_S + 3.0
+        assert sim.firmware.state == DeviceState.SPINNING
+
+
+def test_an_error_in_a_spin_leaves_the_table_stopped_before_it_goes_on(monkeypatch):
+    # An exception in the middle of the spin (a user's callback, a bug): the procedure stops
+    # the table before the exception leaves it, whatever the caller does with the device next.
+    from northfinder.host.procedure import find_north_spin
+
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+
+        def boom(*args, **kwargs):
+            raise RuntimeError("the host's own failure")
+
+        monkeypatch.setattr(dev, "acquire", boom)
+        with pytest.raises(RuntimeError):
+            find_north_spin(dev, 9.0, 12.0, 34.0)
+        assert dev.at_rest is not None and dev.at_rest.sent[0] == "STOP"
+        assert sim.firmware.state not in MOVING
