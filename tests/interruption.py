@@ -57,7 +57,8 @@ class Interrupted:
         return self.state in ("READY", "SETTLING") and not self.streaming
 
     def to_dict(self) -> dict[str, Any]:
-        return {**self.__dict__, "signal": signal.Signals(self.signum).name}
+        name = signal.Signals(self.signum).name if self.signum else "silence"
+        return {**self.__dict__, "signal": name}
 
 
 def sim_link_args(link: str) -> list[str]:
@@ -83,32 +84,57 @@ def host_link_args(link: str, facts: dict[str, str]) -> list[str]:
     return ["-i", "socketcan", "-c", VCAN]
 
 
+#: The spin of an interrupted spin run: 5 deg/s for 20 s.
+SPIN = ["--spin", "5", "--spin-time", "20", "--latitude", "34"]
+#: A silence of the unit: this many seconds with nothing sent, ordered through the control channel
+#: (the link counts as lost after three heartbeat periods, 0.3 s).
+SILENCE_S = 0.8
+
+
 def interrupt_during_move(
-    link: str, signum: int, *, seed: int = 1, facts: dict[str, str] | None = None
+    link: str,
+    signum: int,
+    *,
+    seed: int = 1,
+    facts: dict[str, str] | None = None,
+    spin: bool = False,
 ) -> Interrupted:
     """Run ``find`` against a simulator on ``link`` (started here unless ``facts`` of a running
-    one are given), send ``signum`` once the control channel reads ROTATING, and read the unit's
-    state once the host has exited."""
+    one are given), send ``signum`` once the control channel reads ROTATING (with ``spin``:
+    ``find --spin`` and SPINNING), and read the unit's state once the host has exited.
+
+    ``signum`` 0 sends no signal: the unit falls silent for :data:`SILENCE_S` instead (the host's
+    link supervision ends the run), with the driver's default supervision time."""
     if facts is None:
         wanted = ("control",) if link == "socketcan" else ("pty", "control")
         args = [*sim_link_args(link), "--warmup", "0", "--seed", str(seed)]
         with sim_process(*args, "--control", "127.0.0.1:0", wanted=wanted, ready=True) as f:
-            return interrupt_during_move(link, signum, seed=seed, facts=f)
+            return interrupt_during_move(link, signum, seed=seed, facts=f, spin=spin)
     from northfinder.firmware_sim.control import ControlClient
 
-    argv = [*FIND, *host_link_args(link, facts), *PLAN, "--link-timeout", "1"]
+    argv = [*FIND, *host_link_args(link, facts), *(SPIN if spin else PLAN)]
+    if signum:
+        argv += ["--link-timeout", "1"]
+    moving = "SPINNING" if spin else "ROTATING"
     with ControlClient(facts["control"]) as ctl:
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             deadline = time.monotonic() + 60.0
             caught = False
             while proc.poll() is None and time.monotonic() < deadline:
-                if ctl.call("status")["state"] == "ROTATING":
+                if ctl.call("status")["state"] == moving:
                     caught = True
                     break
                 time.sleep(0.005)
+            if spin and caught:
+                time.sleep(0.5)  # into the spin's window: the stream runs
             sent_at = time.monotonic()
-            proc.send_signal(signum)
+            if signum:
+                proc.send_signal(signum)
+            else:
+                ctl.call("silent", on=True)
+                time.sleep(SILENCE_S)
+                ctl.call("silent", on=False)
             try:
                 _, err = proc.communicate(timeout=EXIT_TIMEOUT_S)
             except subprocess.TimeoutExpired:
@@ -119,7 +145,8 @@ def interrupt_during_move(
                     err = "(no stack: the host did not end on SIGABRT either)"
                 raise HostHung(
                     f"find did not exit within {EXIT_TIMEOUT_S:g} s of "
-                    f"{signal.Signals(signum).name} (caught moving: {caught}); its stderr:\n"
+                    f"{signal.Signals(signum).name if signum else 'a silence'} "
+                    f"(caught moving: {caught}); its stderr:\n"
                     + "\n".join(err.strip().splitlines()[-80:])
                 ) from None
             exit_s = time.monotonic() - sent_at

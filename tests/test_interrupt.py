@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -154,11 +155,12 @@ def test_a_host_that_only_looks_stops_nothing():
 # -- the command line, with real processes and real signals -----------------------------------
 
 
-def _case(link: str, signum: signal.Signals) -> Any:
+def _case(link: str, signum: signal.Signals | int) -> Any:
+    name = signal.Signals(signum).name if signum else "silence"
     return pytest.param(
         link,
         signum,
-        id=f"{signum.name}-{link}",
+        id=f"{name}-{link}",
         marks=pytest.mark.skipif(
             link == "socketcan" and not os.path.exists("/sys/class/net/vcan0"),
             reason="no vcan0 (scripts/hil runs benchmarks/bench_robustness.py there)",
@@ -191,6 +193,30 @@ def test_a_signal_during_a_move_leaves_the_unit_at_rest(link, signum):
     assert "sent STOP" in run.last_line and "the unit reads" in run.last_line, run.last_line
     if signum != signal.SIGINT:
         assert signal.Signals(signum).name in run.last_line
+
+
+# A spin, ended by each signal and by the unit's silence (0: no signal; the unit sends nothing
+# for 0.8 s, the host's link supervision ends the run after 0.3 s): the table braked, the stream
+# stopped, the last line saying so.
+SPIN_CASES = [
+    _case("serial-pty", signal.SIGINT),
+    _case("slcan-pty", signal.SIGTERM),
+    _case("serial-pty", 0),
+    _case("slcan-pty", 0),
+    *(_case("socketcan", s) for s in (signal.SIGINT, 0)),
+]
+
+
+@pytest.mark.realtime(alone=False)
+@pytest.mark.parametrize(("link", "signum"), SPIN_CASES)
+def test_a_signal_or_a_silence_during_a_spin_leaves_the_unit_at_rest(link, signum):
+    run = interrupt_during_move(link, signum, spin=True)
+    assert run.caught_moving
+    assert run.returncode == (128 + signum if signum else 1), run
+    assert run.state in ("READY", "SETTLING"), run
+    assert not run.streaming
+    assert "sent STOP and STREAM_STOP" in run.last_line, run.last_line
+    assert re.search(r"the unit reads (READY|SETTLING)\b", run.last_line), run.last_line
 
 
 def _commands(log_path: str) -> list[Opcode]:
