@@ -40,7 +40,6 @@ from northfinder.driver.protocol.constants import (
     Result,
     result_meaning,
 )
-from northfinder.driver.protocol.motion import DEFAULT_MAX_ACCEL_DPS2, DEFAULT_MAX_RATE_DPS
 from northfinder.driver.protocol.messages import (
     Command,
     GetStatus,
@@ -51,6 +50,7 @@ from northfinder.driver.protocol.messages import (
     Stop,
     StreamStop,
 )
+from northfinder.driver.protocol.motion import DEFAULT_MAX_ACCEL_DPS2, DEFAULT_MAX_RATE_DPS
 from northfinder.driver.transport import READ_POLL_S, Received, Transport
 from northfinder.driver.window import CountScales
 
@@ -480,7 +480,7 @@ class DeviceLink:
             pass
         while not self._gone() and self._clock.now() < until:
             self._clock.wait_until(
-                lambda: self._status_count > seen or self._gone(),
+                lambda seen=seen: self._status_count > seen or self._gone(),
                 min(until, self._clock.now() + self._heartbeat_period_s() + self.reply_timeout),
             )
             with self._lock:

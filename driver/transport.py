@@ -113,16 +113,24 @@ def frame_drain(bus: can.BusABC) -> Callable[[], can.Message | None]:
     return next_frame
 
 
+#: What python-can's ``slcan`` reader raises for a line it cannot parse. It indexes and converts
+#: the line's fields without checking its length first (4.6.1, ``slcanBus._recv_internal``):
+#: ``T1234\r``, a data frame shorter than its header, raises IndexError; a field that is not hex
+#: raises ValueError (hardbyte/python-can#1821). Either is one damaged line, never a dead link.
+SLCAN_PARSE_ERRORS: tuple[type[Exception], ...] = (ValueError, IndexError)
+
+
 def garbled_slcan_line(bus: can.BusABC, exc: BaseException) -> bool:
     """Whether ``exc``, raised by ``bus.recv``, is one SLCAN line that did not parse (a flipped
     bit, a dropped byte): a frame error, not a lost link. python-can's ``slcan`` reader raises
-    ValueError for a line it cannot parse and CanOperationError (from UnicodeDecodeError) for a
-    byte that is not ASCII; in the latter case the line stays in its buffer and would fail every
-    later read, so it is dropped here, up to its terminator."""
+    ValueError or IndexError for a line it cannot parse (:data:`SLCAN_PARSE_ERRORS`) and
+    CanOperationError (from UnicodeDecodeError) for a byte that is not ASCII; in the latter case
+    the line stays in its buffer and would fail every later read, so it is dropped here, up to
+    its terminator."""
     if not isinstance(bus, slcanBus):
         return False
     cause = getattr(exc, "__cause__", None) if isinstance(exc, can.CanOperationError) else exc
-    if not isinstance(cause, ValueError):  # UnicodeDecodeError is a ValueError
+    if not isinstance(cause, SLCAN_PARSE_ERRORS):  # UnicodeDecodeError is a ValueError
         return False
     held = getattr(bus, "_buffer", None)
     if isinstance(cause, UnicodeDecodeError) and isinstance(held, bytearray):
@@ -232,7 +240,7 @@ def _slcan_batch(
                         port.timeout = 0
                 try:
                     msg = bus.recv(0.0)
-                except (can.CanError, ValueError) as exc:
+                except (can.CanError, *SLCAN_PARSE_ERRORS) as exc:
                     if on_garbled is None or not garbled_slcan_line(bus, exc):
                         raise
                     on_garbled()
@@ -370,7 +378,7 @@ class CanTransport(_TransportBase):
                 # Block in the bus (one wake-up for the first frame), then take what came with it.
                 try:
                     msg = self.bus.recv(timeout)
-                except (can.CanError, ValueError) as exc:
+                except (can.CanError, *SLCAN_PARSE_ERRORS) as exc:
                     if not garbled_slcan_line(self.bus, exc):
                         raise
                     self._garbled()
@@ -378,7 +386,7 @@ class CanTransport(_TransportBase):
                 frames = [] if msg is None else [msg, *self._take(MAX_FRAMES_PER_RECV - 1)]
             else:  # a poll (a virtual clock's, at every instant): nothing but what is waiting
                 frames = self._take(MAX_FRAMES_PER_RECV)
-        except (can.CanError, OSError, ValueError, serial.SerialException) as exc:
+        except (can.CanError, OSError, *SLCAN_PARSE_ERRORS, serial.SerialException) as exc:
             raise LinkLost(f"cannot receive from the CAN bus {self._name()}: {exc}") from exc
         if not frames:
             return []
@@ -406,7 +414,7 @@ class CanTransport(_TransportBase):
 
     def _garbled(self) -> None:
         self.garbled += 1
-        log.info("an SLCAN line did not parse: counted as a rejected frame")
+        log.debug("an SLCAN line did not parse: counted as a rejected frame")
 
     def counters(self) -> dict[str, int]:
         """Frame statistics: received, rejected (could not be decoded, or an SLCAN line that did

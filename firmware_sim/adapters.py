@@ -14,6 +14,7 @@ frame and is not given), so a serial session logs like a CAN one. Frames are han
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import socket
@@ -123,11 +124,37 @@ class PseudoTerminal:
                 pass
 
 
+#: The lines an SLCAN adapter sends that do not parse, as the ``garble`` fault puts them on the
+#: wire in turn: a data frame shorter than its header (python-can 4.6.1 raises IndexError), a
+#: length or data that is not hex, bytes that are not ASCII, a bare command letter, an FD frame
+#: cut short, a line far too long.
+GARBLED_SLCAN_LINES: tuple[bytes, ...] = (
+    b"T1234\r",
+    b"t12\r",
+    b"t12Z8\r",
+    b"t1238ZZ\r",
+    b"t1\xff38\r",
+    b"T\r",
+    b"t\r",
+    b"r\r",
+    b"R12\r",
+    b"d1\r",
+    b"D123\r",
+    b"b\r",
+    b"B1234567\r",
+    b"x12\r",
+    b"t7FFA" + b"0" * 20 + b"\r",
+    b"\xfe\xff\x00\r",
+    b"t" + b"9" * 90 + b"\r",
+)
+
+
 class _FrameFaults:
     """Drop or corrupt outgoing frames as the firmware's fault injection says."""
 
     def __init__(self, firmware: Firmware) -> None:
         self.firmware = firmware
+        self.garbled = 0  # pieces of junk put on the wire (``garble``)
 
     def filter(self, data: bytes, corrupt: Callable[[bytes], bytes]) -> bytes | None:
         faults = self.firmware.faults
@@ -138,6 +165,14 @@ class _FrameFaults:
             faults.corrupt_frames -= 1
             return corrupt(data)
         return data
+
+    def junk(self) -> range:
+        """The indices of the pieces of junk to put before the next frame (``garble``)."""
+        faults = self.firmware.faults
+        n = min(max(faults.garble, 0), max(faults.garble_per_frame, 1))
+        faults.garble -= n
+        self.garbled += n
+        return range(self.garbled - n, self.garbled)
 
 
 class FrameBus(Protocol):
@@ -224,6 +259,15 @@ class CanLink:
                     if kept is None:
                         continue
                     data = kept
+                for k in self._faults.junk() if faults.garble else ():
+                    send_line = getattr(self.bus, "send_line", None)
+                    if send_line is not None:  # an SLCAN adapter: a line that does not parse
+                        send_line(GARBLED_SLCAN_LINES[k % len(GARBLED_SLCAN_LINES)])
+                    else:
+                        bad = data[:-1] if len(data) > 1 else data + b"\0"  # a wrong length
+                        msgs.append(
+                            Message(arbitration_id=arbitration_id, data=bad, is_extended_id=False)
+                        )
                 msgs.append(Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
         if not msgs:
             return
@@ -355,6 +399,8 @@ class SerialLink:
         for item in outgoing:
             encoded = self.encoder.encode(item.message)
             data = self._faults.filter(encoded, _flip_payload_bit)
+            for k in self._faults.junk() if self.firmware.faults.garble else ():
+                chunks.append(GARBLED_SLCAN_LINES[k % len(GARBLED_SLCAN_LINES)])  # no sync word
             if data is not None:
                 chunks.append(data)
                 if data == encoded:
@@ -406,6 +452,14 @@ class SlcanAdapter:
         except OSError as exc:  # BlockingIOError included: the host does not read
             # Like a real adapter's full transmit queue: the caller counts the frame as dropped.
             raise can.CanOperationError(f"SLCAN adapter: {exc}") from exc
+
+    def send_line(self, line: bytes) -> None:
+        """Put ``line`` on the wire as it is (the ``garble`` fault: a line that does not parse);
+        dropped, as a frame would be, when the host does not read."""
+        if not self.open:
+            return
+        with contextlib.suppress(OSError):
+            self.stream.write(line)
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         if self._frames:

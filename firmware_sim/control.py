@@ -167,6 +167,12 @@ OPS: dict[str, Op] = {
     "set_sensor": Op("change sensor fields while running", {"values": Key("fields")}),
     "drop": Op("drop the next COUNT outgoing frames", {"count": Key("int", 1, 0, 100_000)}),
     "corrupt": Op("corrupt the next COUNT outgoing frames", {"count": Key("int", 1, 0, 100_000)}),
+    "garble": Op(
+        "put COUNT pieces of junk on the wire, PER_FRAME before each outgoing frame, which still "
+        "goes out whole (SLCAN: a line that does not parse; serial: bytes of no frame; CAN: a "
+        "frame of a wrong length)",
+        {"count": Key("int", 1, 0, 1_000_000), "per_frame": Key("int", 1, 1, 16)},
+    ),
     "delay_replies": Op(
         "send every reply SECONDS late (0 ends it)",
         {"seconds": Key("number", lo=0, hi=3600, unit="s")},
@@ -313,6 +319,9 @@ class Controller:
             "set_sensor": self._set_sensor,
             "drop": lambda a: self._set_fault("drop_frames", a["count"]),
             "corrupt": lambda a: self._set_fault("corrupt_frames", a["count"]),
+            "garble": lambda a: self._set_faults(
+                garble=a["count"], garble_per_frame=a["per_frame"]
+            ),
             "delay_replies": lambda a: self._set_fault("reply_delay_s", a["seconds"]),
             "drop_replies": lambda a: self._set_fault("drop_replies", a["count"]),
             "slow_heartbeat": lambda a: self._set_fault("heartbeat_factor", a["factor"]),
@@ -389,6 +398,11 @@ class Controller:
     def _set_fault(self, name: str, value: Any) -> dict[str, Any]:
         faults = self.runner.firmware.faults
         self.runner.firmware.apply(lambda: setattr(faults, name, value))
+        return {"faults": dataclasses.asdict(self.runner.firmware.faults)}
+
+    def _set_faults(self, **values: Any) -> dict[str, Any]:
+        faults = self.runner.firmware.faults
+        self.runner.firmware.apply(lambda: [setattr(faults, k, v) for k, v in values.items()])
         return {"faults": dataclasses.asdict(self.runner.firmware.faults)}
 
     def _reset(self) -> None:

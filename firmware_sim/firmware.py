@@ -162,6 +162,12 @@ class FaultInjection:
 
     drop_frames: int = 0
     corrupt_frames: int = 0
+    garble: int = 0
+    """This many pieces of junk go out, ``garble_per_frame`` before each outgoing frame, which
+    still goes out whole: on SLCAN a line that does not parse
+    (:data:`~northfinder.firmware_sim.adapters.GARBLED_SLCAN_LINES`), on serial bytes of no frame,
+    on CAN a frame of a protocol id with a wrong length."""
+    garble_per_frame: int = 1
     reply_delay_s: float = 0.0
     silent: bool = False
     skip_counter: int = 0
