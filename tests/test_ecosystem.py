@@ -615,3 +615,11 @@ def test_the_c_host_example_reaches_the_simulator_on_a_pty(tmp_path):
     assert values == pytest.approx(
         [omega_dph * np.cos(lat), 0.0, omega_dph * np.sin(lat)], abs=2e-6
     )
+
+
+def test_the_instrument_page_names_every_control_operation():
+    from northfinder.firmware_sim.control import OPS
+
+    text = (ROOT / "docs" / "instrument.md").read_text()
+    missing = [name for name in OPS if f"`{name}`" not in text]
+    assert not missing, f"docs/instrument.md does not name {missing}"

@@ -17,7 +17,7 @@ import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-ROW_KEYS = ("link", "signal", "runs", "caught_moving", "status_ok", "at_rest", "rotating",
+ROW_KEYS = ("link", "mode", "signal", "runs", "caught_moving", "status_ok", "at_rest", "rotating",
             "streaming", "exit_s_median", "states")  # fmt: skip
 
 
@@ -42,9 +42,9 @@ def judge(junit: Path, bench: Path) -> tuple[dict, list[str]]:
         return res, failed
     res["runs"] = sum(r["runs"] for r in rows)
     res["at_rest"] = sum(r["at_rest"] for r in rows)
-    res["rows"] = [{k: r[k] for k in ROW_KEYS} | {"errors": len(r["errors"])} for r in rows]
+    res["rows"] = [{k: r.get(k) for k in ROW_KEYS} | {"errors": len(r["errors"])} for r in rows]
     for r in rows:
-        where = f"{r['link']} {r['signal']}"
+        where = f"{r['link']} {r.get('mode', 'move')} {r['signal']}"
         if r["at_rest"] < r["runs"]:
             failed.append(f"{where}: {r['runs'] - r['at_rest']} of {r['runs']} runs not at rest")
         if r["errors"]:
