@@ -472,8 +472,8 @@ JUNIT_OK = (
 )
 
 
-def bench_row(signal: str, runs=20, at_rest=20, rotating=0, errors=()) -> dict:
-    return {"link": "socketcan", "signal": signal, "runs": runs, "caught_moving": runs,
+def bench_row(signal: str, runs=20, at_rest=20, rotating=0, errors=(), mode="move") -> dict:
+    return {"link": "socketcan", "mode": mode, "signal": signal, "runs": runs, "caught_moving": runs,
             "status_ok": runs, "at_rest": at_rest, "rotating": rotating, "streaming": 0,
             "exit_s_median": 0.18, "states": ["SETTLING"], "errors": list(errors),
             "not_at_rest": []}  # fmt: skip
@@ -484,9 +484,11 @@ def bench_row(signal: str, runs=20, at_rest=20, rotating=0, errors=()) -> dict:
     [
         ([bench_row("SIGINT"), bench_row("SIGTERM")], JUNIT_OK, []),
         ([bench_row("SIGINT", at_rest=19, rotating=1), bench_row("SIGTERM")], JUNIT_OK,
-         ["socketcan SIGINT: 1 of 20 runs not at rest"]),
+         ["socketcan move SIGINT: 1 of 20 runs not at rest"]),
+        ([bench_row("SIGINT"), bench_row("silence", at_rest=19, rotating=1, mode="spin")],
+         JUNIT_OK, ["socketcan spin silence: 1 of 20 runs not at rest"]),
         ([bench_row("SIGINT", runs=19, at_rest=19, errors=["find did not exit within 30 s"]),
-          bench_row("SIGTERM")], JUNIT_OK, ["socketcan SIGINT: 1 runs in error: find did not"]),
+          bench_row("SIGTERM")], JUNIT_OK, ["socketcan move SIGINT: 1 runs in error: find did not"]),
         ([bench_row("SIGINT"), bench_row("SIGTERM")], JUNIT_OK.replace('failures="0"', 'failures="1"'),
          ["tests: 1 failed, 0 errors"]),
         ([], JUNIT_OK, ["the bench ran no link"]),
