@@ -507,5 +507,6 @@ def test_the_interrupt_step_fails_unless_every_run_left_the_unit_at_rest(
     for got, want in zip(res["failed"], failed, strict=True):
         assert got.startswith(want), got
     if rows:
-        assert [r["signal"] for r in res["rows"]] == ["SIGINT", "SIGTERM"]
+        assert [r["signal"] for r in res["rows"]] == [r["signal"] for r in rows]
+        assert [r["mode"] for r in res["rows"]] == [r["mode"] for r in rows]
         assert res["runs"] == sum(r["runs"] for r in rows)
