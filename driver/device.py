@@ -57,10 +57,12 @@ from northfinder.driver.errors import (
     DeviceFault,
     DeviceRefused,
     DeviceReset,
+    DriverError,
     DriverTimeout,
     LinkError,
     LinkLost,
     MoveTimeout,
+    NodeConflict,
     ProtocolError,
     ReplyTimeout,
     StreamTimeout,
@@ -127,7 +129,17 @@ def _on_clock(method: Callable[Concatenate[Device, P], T]) -> Callable[Concatena
     @functools.wraps(method)
     def call(self: Device, *args: P.args, **kwargs: P.kwargs) -> T:
         with self._clock.participant():
-            return method(self, *args, **kwargs)
+            try:
+                result = method(self, *args, **kwargs)
+            except (ArgumentError, NodeConflict):
+                raise
+            except DriverError as exc:
+                # A second unit on this node id makes every kind of error (gaps, restarts,
+                # counters going back): name the cause, not the symptom.
+                self._check_node_conflict(exc)
+                raise
+            self._check_node_conflict()
+            return result
 
     return call
 

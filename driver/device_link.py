@@ -28,6 +28,7 @@ from northfinder.driver.errors import (
     DriverError,
     LinkError,
     LinkLost,
+    NodeConflict,
     ReplyTimeout,
 )
 from northfinder.driver.protocol.can import TickLoss
@@ -97,6 +98,11 @@ LEAVE_RETRY_S = 5.0
 RETRIES = 2
 HEARTBEATS_UNTIL_LOST = 3
 """protocol.md 6: the device counts as lost after three heartbeat periods without a status."""
+TWIN_WINDOW_S = 2.0
+"""Seconds after a reply within which a second reply to the same command counts as a second
+unit answering as this node (:meth:`DeviceLink.node_conflict`)."""
+TWIN_REPLIES = 2
+"""Commands answered twice before the driver calls it a second unit on this node id."""
 CATCH_UP_S = 1.0
 """Longest extra wait, s, after a deadline for the reader to finish a read begun after it
 (:meth:`DeviceLink._caught_up`): a host that runs its reader takes one read (0.05 s) for it."""
@@ -370,6 +376,12 @@ class DeviceLink:
         self._foreign_disruptive: tuple[int, Opcode | None] = (0, None)
         self._foreign_identify_until = -math.inf
         self._foreign_reset_until = -math.inf
+        # Replies to this host's commands by (seq): opcode and when; the other hosts' commands
+        # likewise. A second reply to a command of this host's, within TWIN_WINDOW_S and to no
+        # other host's command of that seq, came from a second unit answering as this node.
+        self._answered: dict[int, tuple[Opcode, float]] = {}
+        self._foreign_seqs: dict[int, tuple[Opcode, float]] = {}
+        self._twin_replies = 0
         self._reader: threading.Thread | None = None
         if self._clock.virtual:
             self._clock.add_poller(self._pump)
@@ -665,6 +677,7 @@ class DeviceLink:
         """Another host's command to this unit (seen on a shared CAN bus)."""
         self._foreign_count += 1
         op = cmd.OPCODE
+        self._foreign_seqs[cmd.seq] = (op, mono)
         # Its answers may come up to its own retries later; a second host's IDENTIFY answered
         # is not a restart of the device.
         answered_by = mono + (1 + RETRIES) * REPLY_TIMEOUT_S + 1.0
@@ -690,11 +703,46 @@ class DeviceLink:
 
     def _on_reply(self, reply: Reply) -> None:
         waiter = self._waiters.get(reply.seq)
+        now = self._clock.now()
         if waiter is None or waiter.opcode != reply.opcode or waiter.done:
             self._counts["stray"] += 1
             log.debug("stray reply %s", reply)
+            first = self._answered.get(reply.seq)
+            theirs = self._foreign_seqs.get(reply.seq)
+            if (
+                first is not None
+                and first[0] == reply.opcode
+                and now - first[1] <= TWIN_WINDOW_S
+                and not (theirs is not None and theirs[0] == reply.opcode)
+            ):
+                self._twin_replies += 1
+                if self._twin_replies == TWIN_REPLIES:
+                    log.warning("%s", self.node_conflict())
             return
         waiter.reply = reply
+        self._answered[reply.seq] = (reply.opcode, now)
+
+    def node_conflict(self) -> str | None:
+        """What says that another unit answers as this node (two replies to commands of this
+        host's), or None. A :class:`~northfinder.driver.errors.NodeConflict` names it."""
+        if self._twin_replies < TWIN_REPLIES:
+            return None
+        node = getattr(self._transport, "node_id", None)
+        return (
+            f"another unit answers as node {node if node is not None else '?'} on this bus: "
+            f"{self._twin_replies} commands of this host got two replies each; give each unit "
+            "its own node id (set outside the protocol; protocol.md 13)"
+        )
+
+    def _check_node_conflict(self, cause: BaseException | None = None) -> None:
+        """Raise :class:`~northfinder.driver.errors.NodeConflict` once two units answer as
+        this node (from ``cause``, the error they led to, if any)."""
+        text = self.node_conflict()
+        if text is None:
+            return
+        if cause is not None:
+            text += f"; it explains: {cause}"
+        raise NodeConflict(text) from cause
 
     def _on_status(self, status: Status, mono: float) -> None:
         sc = self._scales

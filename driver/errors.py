@@ -45,6 +45,7 @@ __all__ = [
     "LinkError",
     "LinkLost",
     "MoveTimeout",
+    "NodeConflict",
     "PayloadError",
     "ProtocolError",
     "ReplyTimeout",
@@ -173,6 +174,12 @@ class AnotherHost(DriverError):
     """Another host on the bus commanded this unit (its COMMAND frames were seen) in a way that
     broke what this host was doing: STREAM_STOP during a window, STOP or a move during a move,
     a configuration change. protocol.md 13 says what the protocol can and cannot do about it."""
+
+
+class NodeConflict(DriverError):
+    """Another unit answers as this node on the bus: two replies came to one command of this
+    host (not another host's). Two units with one node id interleave their statuses, streams and
+    replies: nothing measured on the bus can be trusted until each has its own node id."""
 
 
 class DeviceFault(DriverError):
