@@ -771,7 +771,11 @@ def test_frames_lost_on_the_slcan_pty_while_the_reader_stood_still_are_not_judge
     for r in saw:
         if r.outcome == "not judged":
             assert "behind the unit's stream then; the link holds" in r.message, text
-            assert "not judged: the host could not keep pace" in r.message, text
+            assert (
+                "not judged: the host could not keep pace" in r.message
+                or "not judged: the suite's reader fell behind more than the link holds"
+                in r.message
+            ), text
 
 
 @pytest.mark.realtime

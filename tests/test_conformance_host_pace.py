@@ -90,6 +90,18 @@ def test_a_late_reply_is_excused_by_the_units_own_lag_only_on_a_host_that_did_no
     assert excused(kept, 0.7, lag_s=0.75, lag_pace=starved)
 
 
+def test_frames_lost_while_the_reader_was_behind_more_than_the_link_holds_are_never_the_units():
+    # The reader 2 s behind the unit's stream, the link holding 0.23 s: the link was full, so the
+    # loss is the reader's, even when the host's figures over the check's window look fine (they
+    # can miss a stall of the reader's own). A reader that kept up: the loss is the unit's.
+    kept = PaceFigures(2.0, 400, reader_wait_s=0.001, unit_wait_s=0.002)
+    starved = PaceFigures(2.0, 400, reader_wait_s=0.5, unit_wait_s=0.002)
+    assert excused(kept, 0.233, behind_s=1.996)
+    assert excused(starved, 0.233, behind_s=1.996)
+    assert not excused(kept, 0.233, behind_s=0.010)
+    assert not excused(starved, 0.233, behind_s=0.010)
+
+
 def test_lag_is_how_late_the_units_messages_came_by_its_own_clock():
     # Heartbeats read 2 ms after they were sent, then, from 3.0 s, 0.8 s late (the reader stood
     # still and read the backlog), then on time again.

@@ -192,8 +192,10 @@ def excused(
     pace in the window.
     ``behind_s``: for frames lost on the link, how far the reader was behind the unit's stream when
     they went missing (by the unit's own sample counters), wall s; ``excess_s`` is then the time
-    the link holds (:data:`TTY_BUFFER_BYTES` of the stream). The host excuses the loss when its
-    reader was at least that far behind and it did not keep pace over the interval.
+    the link holds (:data:`TTY_BUFFER_BYTES` of the stream). The loss is excused when the
+    reader was at least that far behind, whatever the host's figures over the interval: a reader
+    behind by more than the link holds lost the frames itself (the link was full), and the
+    scheduler's figures over a check's window can miss a stall of the reader's own.
     ``lag_s``: how late the unit's messages came in the interval by the unit's own clock (its
     sample counters against their arrival), wall s: a unit late by ``excess_s`` beyond its limit
     is excused when its messages all came that late while the host did not keep pace (the
@@ -203,7 +205,7 @@ def excused(
     still behind in it), by default ``p``.
     """
     if behind_s is not None:
-        return excess_s is not None and behind_s >= excess_s and not p.kept_pace
+        return excess_s is not None and behind_s >= excess_s
     if excess_s is None:
         return not p.kept_pace
     if p.stall_s >= excess_s or p.lost_s >= excess_s:

@@ -197,6 +197,14 @@ def judge(session: Session, ctx: Ctx) -> tuple[str, str]:
     )
     lag = max(lags.values(), default=0.0)
     late = f", the unit's messages up to {lag * 1e3:.0f} ms late by its own clock" if lag else ""
+    if all(p.behind_s is not None for p in ctx.timing_problems) and worst.kept_pace:
+        # The reader itself stood still longer than the link holds (the scheduler's figures over
+        # the window did not show it): the link was full, the loss is the suite's.
+        return (
+            "not judged",
+            f"{message}; not judged: the suite's reader fell behind more than the link holds "
+            f"({worst.text()})",
+        )
     return (
         "not judged",
         f"{message}; not judged: the host could not keep pace ({worst.text()}{late})",
