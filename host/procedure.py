@@ -14,11 +14,12 @@ injected: ``sleep`` and ``clock`` default to the wall clock.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, ParamSpec, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -70,6 +71,9 @@ __all__ = [
     "unfit_samples",
     "wait_until_ready",
 ]
+
+P = ParamSpec("P")
+T = TypeVar("T")
 
 #: Largest span of the encoder during a window before the window counts as moved, deg.
 MAX_ENCODER_SPAN_DEG = 0.01
@@ -572,6 +576,27 @@ def wait_until_ready(
             status = getattr(device, "last_status", None) or device.status()
 
 
+def _at_rest_on_error(procedure: Callable[P, T]) -> Callable[P, T]:
+    """However ``procedure`` ends early (an error, a lost link, Ctrl-C, an exception in a
+    callback of the caller's): leave the device at rest (its ``leave_at_rest``: STOP a move or
+    spin and STREAM_STOP a stream this host started, each repeated until answered) before the
+    exception goes on, whatever the caller then does with the device."""
+
+    @functools.wraps(procedure)
+    def run(*args: P.args, **kwargs: P.kwargs) -> T:
+        try:
+            return procedure(*args, **kwargs)
+        except BaseException:
+            device = args[0] if args else kwargs.get("device")
+            leave = getattr(device, "leave_at_rest", None)
+            if leave is not None:
+                leave()
+            raise
+
+    return run
+
+
+@_at_rest_on_error
 def find_north(
     device: DeviceLike,
     plan: Plan,
@@ -724,6 +749,7 @@ class SpinFind:
     latitude_source: str = ""
 
 
+@_at_rest_on_error
 def find_north_spin(
     device: Any,
     rate_dps: float,
@@ -760,18 +786,10 @@ def find_north_spin(
     """
     spin.latitude_rad(latitude_deg, "the spin solution")
     wait_until_ready(device, warmup_timeout_s)
-    try:
-        device.spin(rate_dps, wait=True)
-        window = device.acquire(spin_s, on_gap="report")
-        device.stop(wait=True)
-        device.stop_streaming()
-    except BaseException:
-        # However the spin ends (an error, a lost link, Ctrl-C): STOP and STREAM_STOP, each
-        # repeated until answered, before the error goes on (the driver's leave_at_rest).
-        leave = getattr(device, "leave_at_rest", None)
-        if leave is not None:
-            leave()
-        raise
+    device.spin(rate_dps, wait=True)
+    window = device.acquire(spin_s, on_gap="report")
+    device.stop(wait=True)
+    device.stop_streaming()
     data = spin.spin_samples(
         window.gyro_dph, window.accel_mps2, window.table_deg, window.counter,
         window.sample_rate_hz, window.validity,

@@ -394,3 +394,24 @@ def test_an_error_in_a_spin_leaves_the_table_stopped_before_it_goes_on(monkeypat
             find_north_spin(dev, 9.0, 12.0, 34.0)
         assert dev.at_rest is not None and dev.at_rest.sent[0] == "STOP"
         assert sim.firmware.state not in MOVING
+
+
+def test_an_exception_in_a_progress_callback_leaves_the_table_stopped():
+    # The caller's own callback fails mid-move: find_north stops the table and the stream it
+    # started before the exception goes on.
+    from northfinder.host.plan import Plan
+    from northfinder.host.procedure import find_north
+
+    with _instrument() as sim, sim.open_device() as dev:
+
+        def failing(progress):
+            if progress.phase == "acquire" and progress.position == 2:
+                dev.rotate_to(90.0, wait=False)  # the callback turns the table, then fails
+                dev.clock.sleep(0.2)
+                raise RuntimeError("the caller's callback failed")
+
+        dev.wait_ready(5.0)
+        with pytest.raises(RuntimeError):
+            find_north(dev, Plan((0.0, 180.0), 1.0), 34.0, progress=failing)
+        assert dev.at_rest is not None and dev.at_rest.sent == ("STOP",), dev.at_rest
+        assert sim.firmware.state not in MOVING and not sim.firmware.streaming
