@@ -23,7 +23,13 @@ from interruption import FIND, PLAN, host_link_args, interrupt_during_move, sim_
 from simprocess import sim_process
 
 from northfinder.driver.clock import VirtualClock, WallClock
-from northfinder.driver.errors import LinkLost, ReplyTimeout, StreamTimeout
+from northfinder.driver.errors import (
+    LinkLost,
+    MoveTimeout,
+    ReplyTimeout,
+    StreamGap,
+    StreamTimeout,
+)
 from northfinder.driver.protocol.can import decode_can
 from northfinder.driver.protocol.constants import DeviceState, Opcode
 from northfinder.driver.protocol.messages import Command
@@ -414,4 +420,39 @@ def test_an_exception_in_a_progress_callback_leaves_the_table_stopped():
         with pytest.raises(RuntimeError):
             find_north(dev, Plan((0.0, 180.0), 1.0), 34.0, progress=failing)
         assert dev.at_rest is not None and dev.at_rest.sent == ("STOP",), dev.at_rest
+        assert sim.firmware.state not in MOVING and not sim.firmware.streaming
+
+
+def _slow(sim: SimulatedInstrument, seconds: float) -> None:
+    sim.firmware.faults.reply_delay_s = seconds
+
+
+@pytest.mark.parametrize(
+    ("fault", "when_s", "lasting_s"),
+    [
+        ("silent", 0.3, 0.8),  # mid-move to the first position
+        ("silent", 1.6, 0.8),  # in the first window
+        ("silent", 2.05, 0.8),  # between the windows: the move to 180
+        ("slow", 0.0, 1.5),  # replies 0.6 s late (beyond 0.25 s): ROTATE_TO's reply too
+    ],
+    ids=["silent-mid-move", "silent-in-window", "silent-between-windows", "slow-replies"],
+)
+def test_a_find_ended_by_a_silent_or_slow_unit_leaves_it_at_rest(fault, when_s, lasting_s):
+    from northfinder.host.plan import Plan
+    from northfinder.host.procedure import find_north
+
+    on, off = (
+        ((_silent, True), (_silent, False)) if fault == "silent" else ((_slow, 0.6), (_slow, 0.0))
+    )
+    with _instrument() as sim, sim.open_device() as dev:
+        dev.wait_ready(5.0)
+        dev.rotate_to(90.0)  # the plan starts with a move
+        with (
+            later_on(dev.clock, when_s, on[0], sim, on[1]),
+            later_on(dev.clock, when_s + lasting_s, off[0], sim, off[1]),
+        ):
+            with pytest.raises((LinkLost, StreamTimeout, ReplyTimeout, MoveTimeout, StreamGap)):
+                find_north(dev, Plan((0.0, 180.0), 1.0), 34.0, on_gap="fail")
+        rest = dev.at_rest
+        assert rest is not None and not rest.failed, rest
         assert sim.firmware.state not in MOVING and not sim.firmware.streaming
