@@ -9,7 +9,8 @@ The sections live in ``benchmarks/robustness/``, one module each: ``control`` (c
 abuse of a simulator process on a pty, and the ``--control`` addresses it must refuse), ``codec``
 (random and mutated input into every decoder), ``find`` (faults injected during ``find``) and
 ``cli`` (bad input over every subcommand) and ``interrupt`` (``find`` in another process ended by
-SIGINT or SIGTERM during a move, on every link; the unit's state afterwards).
+SIGINT, SIGTERM or the unit's silence during a move or a spin, on every link; the unit's state
+afterwards) and ``slcan`` (``find`` on an SLCAN pty with malformed lines before the frames).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from robustness.codec import codec_fuzz
 from robustness.control import control_abuse
 from robustness.find import find_faults
 from robustness.interrupt import interrupt_runs
+from robustness.slcan import slcan_junk
 
 #: Section name -> function(args) that prints its table and returns a summary.
 SECTIONS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
@@ -33,6 +35,7 @@ SECTIONS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "cli": cli_sweep,
     "find": find_faults,
     "interrupt": interrupt_runs,
+    "slcan": slcan_junk,
 }
 
 
@@ -51,6 +54,10 @@ def main() -> int:
     )
     parser.add_argument(
         "--interrupt-links", default="", help="interrupt: comma-separated links (default: all here)"
+    )
+    parser.add_argument("--slcan-runs", type=int, default=5, help="slcan: runs of find")
+    parser.add_argument(
+        "--garble-lines", type=int, default=10_000, help="slcan: malformed lines a run"
     )
     parser.add_argument("--json", metavar="FILE", help="also write the summaries as JSON")
     args = parser.parse_args()

@@ -16,6 +16,7 @@ FIND_FAULTS: list[tuple[str, dict[str, Any], dict[str, Any] | None]] = [
     ("drop 200 frames", {"op": "drop", "count": 200}, None),
     ("corrupt 5 frames", {"op": "corrupt", "count": 5}, None),
     ("corrupt 200 frames", {"op": "corrupt", "count": 200}, None),
+    ("garble 10000 (4 a frame)", {"op": "garble", "count": 10_000, "per_frame": 4}, None),
     ("skip the counter by 3", {"op": "skip_counter", "count": 3}, None),
     (
         "delay replies 0.3 s",
