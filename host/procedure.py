@@ -733,6 +733,7 @@ def find_north_spin(
     drift: bool = False,
     warmup_timeout_s: float = 600.0,
     latitude_source: str = "",
+    progress: Callable[[Progress], None] | None = None,
 ) -> SpinFind:
     """Find north with ``device`` turning at a constant rate: wait for READY, SPIN, acquire
     ``spin_s`` seconds of steady-rate samples, STOP (and wait for READY), solve.
@@ -750,22 +751,31 @@ def find_north_spin(
         Also fit a linear gyro and accelerometer drift.
     warmup_timeout_s : float
         Longest wait for READY, device seconds.
+    progress : callable, optional
+        Called with a :class:`Progress` as each phase begins (``spin``: the table speeds up,
+        ``acquire``, ``solve``).
 
     Raises
     ------
     HostError
-        Warm-up did not end in time, FAULT, or the spin gave too few usable samples.
+        Warm-up did not end in time, FAULT, or the spin gave too few usable samples. An error
+        or interruption during the spin carries the samples received so far as
+        ``partial_window`` (:meth:`~northfinder.driver.device.Device.acquire`).
     DriverError
         From the driver: refusals (protocol 1.0 units have no SPIN), timeouts, lost link.
     """
     spin.latitude_rad(latitude_deg, "the spin solution")
     wait_until_ready(device, warmup_timeout_s)
+    report = progress or (lambda p: None)
+    report(Progress("spin", 0, 0, None, spin_s))
     device.spin(rate_dps, wait=True)
+    report(Progress("acquire", 0, 0, None, spin_s))
     try:
         window = device.acquire(spin_s, on_gap="report")
     finally:
         device.stop(wait=True)
         device.stop_streaming()
+    report(Progress("solve", 0, 0, None, 0.0))
     data = spin.spin_samples(
         window.gyro_dph, window.accel_mps2, window.table_deg, window.counter,
         window.sample_rate_hz, window.validity,

@@ -211,6 +211,11 @@ class Recording:
         if self.status == "complete":
             return None
         why = "interrupted" if self.status == "interrupted" else "cut off while recording"
+        spin = _spin_plan(self)
+        if spin is not None and self.windows:
+            n, rate_dps = spin
+            have = sum(len(w.counter) + w.missing for w in self.windows)
+            return f"{why}: {_ticks_and_turns(have, n, rate_dps, self.meta)}"
         planned = self.planned_windows
         of = f" of {planned}" if planned is not None else ""
         return f"{why}: {len(self.windows)}{of} windows"
@@ -265,6 +270,10 @@ def check_against_plan(rec: Recording, p: Path | str) -> None:
     RecordingError
         ``truncated: 3 of 4 windows, the last cut short``, ``padded: ...``.
     """
+    spin = _spin_plan(rec)
+    if spin is not None:
+        _check_spin(rec, spin, p)
+        return
     plan = rec.meta.get("plan")
     if not isinstance(plan, dict):
         return
@@ -296,6 +305,44 @@ def check_against_plan(rec: Recording, p: Path | str) -> None:
     if have < planned and rec.partial is None:
         raise RecordingError(
             f"{p}: truncated: {have} of {planned} windows, though it says it is complete"
+        )
+
+
+def _spin_plan(rec: Recording) -> tuple[int, float] | None:
+    """(sample ticks, rate deg/s) a spin recording's ``spin`` entry plans; None for another
+    recording or one whose entry does not say."""
+    spin = rec.meta.get("spin")
+    if not isinstance(spin, dict):
+        return None
+    rate_dps, spin_s = spin.get("rate_dps"), spin.get("spin_s")
+    if not (_number(rate_dps) and _number(spin_s) and spin_s > 0):
+        return None
+    return round(float(spin_s) * float(rec.meta["sample_rate_hz"])), float(rate_dps)
+
+
+def _ticks_and_turns(have: int, n: int, rate_dps: float, meta: dict[str, Any]) -> str:
+    """``6000 of 12000 samples (-0.50 of -1.00 turns)``."""
+    per_tick = rate_dps / float(meta["sample_rate_hz"]) / 360.0
+    return f"{have} of {n} samples ({have * per_tick:+.2f} of {n * per_tick:+.2f} turns)"
+
+
+def _check_spin(rec: Recording, spin: tuple[int, float], p: Path | str) -> None:
+    """A spin recording holds one window of its planned ticks; fewer only when it says it is
+    partial (interrupted or cut off while recording)."""
+    n, rate_dps = spin
+    if len(rec.windows) > 1:
+        raise RecordingError(f"{p}: padded: {len(rec.windows)} windows; a spin recording has one")
+    (w,) = rec.windows
+    have = len(w.counter) + w.missing  # ticks spanned, gaps included
+    if have > n:
+        raise RecordingError(
+            f"{p}: padded: the spin spans {have} sample ticks; its {n / float(rec.meta['sample_rate_hz']):g} s "
+            f"at {rec.meta['sample_rate_hz']:g} Hz make {n}"
+        )
+    if have < n and rec.partial is None:
+        raise RecordingError(
+            f"{p}: truncated: {_ticks_and_turns(have, n, rate_dps, rec.meta)}, though it says "
+            "it is complete"
         )
 
 

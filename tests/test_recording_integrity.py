@@ -323,7 +323,7 @@ def unmount():
     mounts: list[Path] = []
     yield mounts
     for m in mounts:
-        subprocess.run(["umount", str(m)], check=False)
+        subprocess.run(["umount", "--lazy", str(m)], check=False)
 
 
 @pytest.mark.parametrize("suffix", [".csv", ".npz"])

@@ -184,8 +184,9 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
         rec = Recording.load(path)  # the stop-and-go reader's own error: a heading needs two
     source = {"file": str(path), "format": f"recording{path.suffix}"}
     if rec.partial is not None:
+        held = "samples" if "spin" in rec.meta else "windows"
         source["partial"] = rec.partial
-        source["notes"] = [f"partial recording ({rec.partial}): solved from the windows it holds"]
+        source["notes"] = [f"partial recording ({rec.partial}): solved from the {held} it holds"]
     return rec, source
 
 
@@ -227,4 +228,6 @@ def _solve_spin(args: argparse.Namespace, rec: Recording, source: dict[str, Any]
         say(spinfind.as_json(found, truth, rec.meta.get("device"), "solve", source=source))
     else:
         say(spinfind.text(found, truth))
+        for note in source.get("notes", []):
+            say(f"note: {note}")
     return result_status(found.solution.consistent)
