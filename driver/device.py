@@ -831,10 +831,6 @@ class Device(DeviceLink):
         timeout : float or None
             Wall seconds allowed; default ``seconds + 2`` plus the stall limit.
 
-        An exception raised during the window (an interruption, a lost link, a gap) carries
-        the samples received so far as its ``partial_window`` attribute (a :class:`Window`;
-        absent when none arrived).
-
         Raises
         ------
         StreamGap
@@ -846,6 +842,12 @@ class Device(DeviceLink):
             No sample for max(0.5 s, 3 heartbeat periods) although statuses arrive.
         LinkLost
             No status either for 3 heartbeat periods, or the bus or port failed.
+
+        Notes
+        -----
+        An exception raised during the window (an interruption, a lost link, a gap) carries
+        the samples received so far as its ``partial_window`` attribute (a :class:`Window`;
+        absent when none arrived).
         """
         if on_gap not in ("raise", "report"):
             raise ArgumentError(f"on_gap={on_gap!r}: choose one of 'raise', 'report'")

@@ -261,6 +261,11 @@ def _triad(v: NDArray[np.float64]) -> tuple[float, float, float]:
     return x, y, z
 
 
+#: A gap that moves a window's mean time by this share of its length or more is named in the
+#: window's note.
+GAP_SHIFT_NOTED = 0.01
+
+
 def summarise_window(
     window: WindowLike,
     commanded_deg: float,
@@ -287,12 +292,21 @@ def summarise_window(
     if window.missing:
         if not allow_gaps:
             raise QualityError(
-                f"window at {commanded_deg:g} deg is missing {window.missing} samples"
+                f"window at {commanded_deg:g} deg is missing {window.missing} samples "
+                "(--on-gap report solves it from the samples received)"
             )
-        gap_note.append(
+        note = (
             f"{window.missing} of {n + window.missing} sample ticks missing (damaged or lost "
             "frames); the mean is of the samples received"
         )
+        t = np.asarray(window.time_s, dtype=float)
+        span = float(t[-1] - t[0])
+        shift = float(np.mean(t)) - float(t[0] + t[-1]) / 2.0
+        if span > 0 and abs(shift) >= GAP_SHIFT_NOTED * span:
+            # A long gap moves the time the mean stands for: a drifting bias then moves the
+            # mean by drift x shift, which the symmetric plan no longer cancels.
+            note += f", at {shift:+.3g} s from the window's middle"
+        gap_note.append(note)
     bad = unfit_samples(window.validity)
     if bad.any():
         v = np.asarray(window.validity).astype(np.int64)[bad]
@@ -353,9 +367,13 @@ def _output_step(x: NDArray[np.float64]) -> float:
 
 
 def _mid_time(window: Any) -> float | None:
+    """The time the window's mean stands for: its middle, or with ticks missing the mean time
+    of the samples received."""
     t = getattr(window, "time_s", None)
     if t is None or len(t) == 0:
         return None
+    if getattr(window, "missing", 0):
+        return float(np.mean(t))
     return float((t[0] + t[-1]) / 2.0)
 
 

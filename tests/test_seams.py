@@ -273,7 +273,20 @@ def test_solve_skips_a_damaged_line_with_a_warning_and_leaves_its_window_out(can
     assert len(doc["source"]["windows"]) == 3  # the window that lost a sample is left out
     assert abs(doc["azimuth_deg"] - found["azimuth_deg"]) < 4 * found["sigma_deg"]
     code, out, err = run_cli("solve", str(damaged), "--latitude", "34", "--strict")
-    assert code == 1 and out == "" and "cut short" in err
+    assert code == 1 and out == ""
+    assert err.strip() == (
+        f"northfinder solve: error: {damaged}:{bad + 1}: damaged line '(17963.0) can0 "
+        "1ZZ#GARBLED' (ValueError: invalid literal for int() with base 16: '1ZZ'); --strict "
+        "refuses a log with a damaged line (1 in all)"
+    )
+    # --on-gap report: the window that lost the sample is solved from the samples it holds
+    code, out, err = run_cli("solve", str(damaged), "--latitude", "34", "--json", "--on-gap",
+                             "report")  # fmt: skip
+    assert code == 0, err
+    doc = json.loads(out)
+    assert len(doc["source"]["windows"]) == 4 and "left out" not in err
+    assert [n for n in doc["notes"] if "1 of 400 sample ticks missing" in n]
+    assert abs(doc["azimuth_deg"] - found["azimuth_deg"]) < 4 * found["sigma_deg"]
 
 
 def test_solve_takes_the_complete_windows_of_a_cut_log(candump, tmp_path):
