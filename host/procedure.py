@@ -107,6 +107,8 @@ class WindowLike(Protocol):
     @property
     def counter(self) -> NDArray[np.int64]: ...
     @property
+    def time_s(self) -> NDArray[np.float64]: ...
+    @property
     def missing(self) -> int: ...
 
 
@@ -299,7 +301,7 @@ def summarise_window(
             f"{window.missing} of {n + window.missing} sample ticks missing (damaged or lost "
             "frames); the mean is of the samples received"
         )
-        t = np.asarray(window.time_s, dtype=float)
+        t = np.asarray(window.time_s, dtype=np.float64)
         span = float(t[-1] - t[0])
         shift = float(np.mean(t)) - float(t[0] + t[-1]) / 2.0
         if span > 0 and abs(shift) >= GAP_SHIFT_NOTED * span:

@@ -3,7 +3,9 @@
 FILE is a recording of ``northfinder record`` (.csv, .npz) or a CAN log in a format python-can
 reads; several files (or a quoted glob) are the parts of one rotated log, read in order. A log
 carries no latitude: give ``--latitude``. From a log, damaged lines are skipped and
-windows with samples missing left out, each with a warning (``--strict`` refuses such a log);
+windows with samples missing left out, each with a warning (``--strict`` refuses such a log,
+naming its first damaged line; ``--on-gap report`` solves a window with sample ticks missing
+from the samples it holds, each gap in the result's notes);
 ``--session N`` and ``--windows 1,2`` pick what to solve. Exit status 3: the windows failed their
 consistency check.
 """
