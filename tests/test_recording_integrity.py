@@ -161,10 +161,14 @@ def test_find_record_write_failure_never_hides_the_result(tmp_path, capsys, monk
 
 
 @pytest.mark.realtime(alone=False)
-def test_an_interrupted_record_keeps_its_complete_windows_and_solve_says_so(tmp_path):
-    path = tmp_path / "run.csv"
+@pytest.mark.parametrize("earlier", [False, True], ids=["new", "over-an-earlier-file"])
+def test_an_interrupted_record_keeps_its_complete_windows_and_solve_says_so(tmp_path, earlier):
+    target = tmp_path / "run.csv"
+    if earlier:
+        target.write_text("an earlier recording")
+    path = tmp_path / "run.partial.csv" if earlier else target  # where the windows go
     argv = [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit(main())",
-            "record", str(path), "--sim", "--speed", "20", "--warmup", "0", "--window", "2",
+            "record", str(target), "--sim", "--speed", "20", "--warmup", "0", "--window", "2",
             "--positions", "0,60,120,180,240,300"]  # fmt: skip
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
     try:
@@ -182,7 +186,10 @@ def test_an_interrupted_record_keeps_its_complete_windows_and_solve_says_so(tmp_
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 130, err
-    assert "marked interrupted" in err
+    assert "marked interrupted" in err and f"windows in {path}" in err
+    if earlier:
+        assert target.read_text() == "an earlier recording"
+        assert f"({target}, the earlier recording, left as it was)" in err
     rec = Recording.load(path)
     assert rec.partial is not None and rec.partial.startswith("interrupted: ")
     assert 2 <= len(rec.windows) < 6
