@@ -32,6 +32,7 @@ is done.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections import deque
 from collections.abc import Callable
@@ -864,6 +865,12 @@ class Device(DeviceLink):
             No sample for max(0.5 s, 3 heartbeat periods) although statuses arrive.
         LinkLost
             No status either for 3 heartbeat periods, or the bus or port failed.
+
+        Notes
+        -----
+        An exception raised during the window (an interruption, a lost link, a gap) carries
+        the samples received so far as its ``partial_window`` attribute (a :class:`Window`;
+        absent when none arrived).
         """
         if on_gap not in ("raise", "report"):
             raise ArgumentError(f"on_gap={on_gap!r}: choose one of 'raise', 'report'")
@@ -919,6 +926,28 @@ class Device(DeviceLink):
         limit = n / rate + 2.0 + stall_limit if timeout is None else timeout
         deadline = t_start + limit
         collector = WindowCollector(n, on_gap=on_gap)
+        try:
+            return self._collect_into(collector, inbox, n, rate, t_start, deadline, limit)
+        except BaseException as exc:
+            # What was received stays with the error (an interruption, a lost link): a caller
+            # that keeps a partial run (a spin recording) takes it from there.
+            if collector.received:
+                with contextlib.suppress(Exception):
+                    exc.partial_window = collector.window(rate, self._scales)  # type: ignore[attr-defined]
+            raise
+
+    def _collect_into(
+        self,
+        collector: WindowCollector,
+        inbox: deque[tuple[str, Any, float, float]],
+        n: int,
+        rate: float,
+        t_start: float,
+        deadline: float,
+        limit: float,
+    ) -> Window:
+        clock = self._clock
+        stall_limit = max(0.5, self._supervision_s(), 5.0 / rate)
         last_sample_at = t_start
         while not collector.done:
             with self._lock:

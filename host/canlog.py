@@ -177,10 +177,20 @@ class CanLogSession:
     parts: tuple[str, ...] = ()
     #: Frames missing between two parts (a part left out, a jump of the device's counter).
     part_gaps: tuple[str, ...] = ()
+    #: Indices into :attr:`windows` of the windows whose only flaw is ticks missing inside them
+    #: (bounded by their STREAM_START and STREAM_STOP, no cut, no part gap): the mean of the
+    #: samples received stands for them (``solve --on-gap report``).
+    gap_windows: tuple[int, ...] = ()
+    #: The first damaged line skipped, ``run.log:801: garbage here (ValueError: ...)``.
+    first_damaged: str | None = None
 
-    def complete(self) -> CanLogSession:
-        """The session without its windows that have samples missing (a gap, a cut)."""
-        keep = [i for i in range(len(self.windows)) if i not in self.incomplete_windows]
+    def complete(self, *, keep_gaps: bool = False) -> CanLogSession:
+        """The session without its windows that have samples missing (a gap, a cut);
+        ``keep_gaps`` keeps those whose only flaw is ticks missing (:attr:`gap_windows`)."""
+        keep = [
+            i for i in range(len(self.windows))
+            if i not in self.incomplete_windows or (keep_gaps and i in self.gap_windows)
+        ]  # fmt: skip
         return dataclasses.replace(
             self,
             windows=tuple(self.windows[i] for i in keep),
@@ -188,6 +198,7 @@ class CanLogSession:
             if self.window_numbers
             else (),
             incomplete_windows=(),
+            gap_windows=(),
         )
 
     def recording(self, **meta: Any) -> Recording:
@@ -318,7 +329,9 @@ def _tolerant_messages(
             return
         except _READ_ERRORS as exc:
             bad = start + feed.pos - 1 - len(prefix)
-            skipped.append((bad + 1, f"{type(exc).__name__}: {exc}"))
+            text = lines[bad].rstrip("\r\n") if bad < len(lines) else ""
+            shown = repr(text[:60]) + ("..." if len(text) > 60 else "")
+            skipped.append((bad + 1, f"{shown} ({type(exc).__name__}: {exc})"))
             if header is None:
                 header = lines[:bad]  # no frame yet: what came before the damaged line
             if len(skipped) > MAX_SKIPPED_LINES:
@@ -387,6 +400,8 @@ class LogSet:
             raise RecordingError("no CAN log given")
         self.files, self.gaps = order_log_parts(given)
         self._gaps_named = len(self.gaps)
+        #: (file, line, what) of every damaged line skipped in the last reading.
+        self.damaged: list[tuple[str, int, str]] = []
         #: ASC stores times from each file's start: parts are read by their absolute times.
         self._reader_options = {"relative_timestamp": False} if len(self.files) > 1 else {}
 
@@ -404,6 +419,7 @@ class LogSet:
         a part that breaks off is noted and the next part read). Frames missing at a boundary
         between parts are added to :attr:`gaps` when the first status after it shows them."""
         del self.gaps[self._gaps_named :]  # a second reading finds them again
+        self.damaged = []
         return self._messages(cut, skipped)
 
     def _messages(
@@ -429,6 +445,7 @@ class LogSet:
             if skipped is not None and part_skipped:
                 prefix = f"{path} " if len(self.files) > 1 else ""
                 skipped += [(n, f"{prefix}{e}") for n, e in part_skipped]
+                self.damaged += [(str(path), n, e) for n, e in part_skipped]
             previous = path
 
     def _watch(
@@ -687,6 +704,7 @@ def read_can_log(
         )
     out: list[RecordedWindow] = []
     short: list[int] = []
+    gap_only: list[int] = []
     for i, seg in numbered:
         w = seg.collector.window(rate, scales)
         rec = RecordedWindow.from_window(w, seg.commanded_deg)
@@ -695,6 +713,7 @@ def read_can_log(
             incomplete.append(
                 f"window {i} ({seg.commanded_deg:g} deg): {count} tick(s) missing from counter {first}"
             )
+        gap_notes = len(incomplete) - before
         if window_s is not None and not seg.collector.done:
             incomplete.append(
                 f"window {i} ({seg.commanded_deg:g} deg): the log ends the window after "
@@ -712,11 +731,18 @@ def read_can_log(
             incomplete.append(f"window {i} ({seg.commanded_deg:g} deg): {seg.suspect}")
         if len(incomplete) > before:
             short.append(len(out))
+            if len(incomplete) - before == gap_notes:
+                gap_only.append(len(out))
         out.append(rec)
+    damaged = None
+    if logs.damaged:
+        file, line, error = logs.damaged[0]
+        damaged = f"{file}:{line}: damaged line {error}"
     if len(out) < min_windows:
         raise RecordingError(
             f"{p}: {len(out)} window(s) of node {node} in the log; need at least {min_windows} "
             "(a window is the samples streamed at one position)"
+            + (f"; the first damaged line: {damaged}" if damaged else "")
         )
     return CanLogSession(
         str(p), node, rate, tuple(out), identity, tuple(commands),
@@ -725,4 +751,5 @@ def read_can_log(
         sessions=tuple(sorted(counts.items())), session=session,
         window_numbers=tuple(i for i, _ in numbered),
         parts=tuple(str(f) for f in logs.files), part_gaps=tuple(logs.gaps),
+        gap_windows=tuple(gap_only), first_damaged=damaged,
     )  # fmt: skip

@@ -23,8 +23,9 @@ pynmea2 parses both (``pynmea2.parse(line, check=True)``); importing this module
 :class:`NmeaOutput` writes them to a target: ``-`` (standard output), a serial port or
 pseudo-terminal (a character device, opened with pyserial at ``baudrate``, 4800 by default as
 NMEA 0183 says), ``udp://HOST:PORT`` (one datagram per sentence, as chart plotters and OpenCPN
-listen for it; 10110 is the usual port), ``tcp://HOST:PORT`` (a TCP client, pyserial's
-``socket://``), another pyserial URL (``socket://``, ``rfc2217://``, ...), or a file. A path
+listen for it; 10110 is the usual port), ``tcp://HOST:PORT`` (a TCP client; a server that
+closed the connection is found before each write, not after the sentence was lost), another
+pyserial URL (``socket://``, ``rfc2217://``, ...), or a file. A path
 under ``/dev`` that does not exist is refused, never created as a regular file.
 """
 
@@ -33,6 +34,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import select
 import socket
 import stat
 import sys
@@ -44,7 +46,7 @@ from typing import IO, Any, ClassVar
 import pynmea2
 import serial
 
-from northfinder.host.errors import HostConfigError
+from northfinder.host.errors import HostConfigError, OutputError
 
 __all__ = [
     "NFDH",
@@ -197,6 +199,10 @@ def _under_dev(path: str) -> bool:
     return os.path.abspath(path).startswith("/dev/")
 
 
+#: Seconds to connect to a TCP server, and to write a sentence to it.
+NMEA_TIMEOUT_S = 2.0
+
+
 class NmeaOutput:
     """Where the sentences go: ``-``, ``udp://HOST:PORT``, ``tcp://HOST:PORT``, a pyserial URL,
     a serial port or pty (a character device), or a file (see the module docstring). The target
@@ -213,6 +219,7 @@ class NmeaOutput:
         self._port: serial.SerialBase | None = None
         self._file: IO[str] | None = None
         self._socket: socket.socket | None = None
+        self._stream: socket.socket | None = None
         self.sent = 0
         self._own = True
         network = parse_network_target(target)
@@ -229,10 +236,7 @@ class NmeaOutput:
                 self._socket.connect(address)  # no packet: fixes the peer of every send
             elif network is not None:
                 _, host, port = network
-                bracketed = f"[{host}]" if ":" in host else host
-                self._port = serial.serial_for_url(
-                    f"socket://{bracketed}:{port}", write_timeout=2.0
-                )
+                self._stream = socket.create_connection((host, port), timeout=NMEA_TIMEOUT_S)
             elif target.split("://", 1)[0].lower() in _PYSERIAL_SCHEMES:
                 self._port = serial.serial_for_url(target, baudrate=baudrate, write_timeout=2.0)
             elif _is_character_device(target):
@@ -254,12 +258,15 @@ class NmeaOutput:
 
         Raises
         ------
-        HostConfigError
-            The write failed (port gone, disk full).
+        OutputError
+            The write failed (port gone, disk full, the TCP server closed the connection).
         """
         data = "".join(f"{line}\r\n" for line in lines)
         try:
-            if self._socket is not None:
+            if self._stream is not None:
+                self._check_peer(self._stream)
+                self._stream.sendall(data.encode("ascii"))
+            elif self._socket is not None:
                 for line in lines:  # one sentence a datagram
                     with contextlib.suppress(ConnectionRefusedError):
                         # Nobody listening (yet): a datagram is sent to whoever listens, as a
@@ -273,11 +280,22 @@ class NmeaOutput:
                 self._file.write(data)
                 self._file.flush()
         except (OSError, serial.SerialException) as exc:
-            raise HostConfigError(f"--nmea {self.target}: cannot write ({exc})") from exc
+            raise OutputError(f"--nmea {self.target}: cannot write ({exc})") from exc
         self.sent += len(lines)
 
+    @staticmethod
+    def _check_peer(stream: socket.socket) -> None:
+        """Read what the server sent (a listener need not send anything; it is dropped) up to
+        its end: a server that closed the connection would lose the next sentence without an
+        error (the first write after the close succeeds)."""
+        while select.select([stream], [], [], 0.0)[0]:
+            if not stream.recv(4096):
+                raise ConnectionResetError("the server closed the connection")
+
     def close(self) -> None:
-        if self._socket is not None:
+        if self._stream is not None:
+            self._stream.close()
+        elif self._socket is not None:
             self._socket.close()
         elif self._port is not None:
             self._port.close()

@@ -111,6 +111,8 @@ class WindowLike(Protocol):
     @property
     def counter(self) -> NDArray[np.int64]: ...
     @property
+    def time_s(self) -> NDArray[np.float64]: ...
+    @property
     def missing(self) -> int: ...
 
 
@@ -265,6 +267,11 @@ def _triad(v: NDArray[np.float64]) -> tuple[float, float, float]:
     return x, y, z
 
 
+#: A gap that moves a window's mean time by this share of its length or more is named in the
+#: window's note.
+GAP_SHIFT_NOTED = 0.01
+
+
 def summarise_window(
     window: WindowLike,
     commanded_deg: float,
@@ -291,12 +298,21 @@ def summarise_window(
     if window.missing:
         if not allow_gaps:
             raise QualityError(
-                f"window at {commanded_deg:g} deg is missing {window.missing} samples"
+                f"window at {commanded_deg:g} deg is missing {window.missing} samples "
+                "(--on-gap report solves it from the samples received)"
             )
-        gap_note.append(
+        note = (
             f"{window.missing} of {n + window.missing} sample ticks missing (damaged or lost "
             "frames); the mean is of the samples received"
         )
+        t = np.asarray(window.time_s, dtype=np.float64)
+        span = float(t[-1] - t[0])
+        shift = float(np.mean(t)) - float(t[0] + t[-1]) / 2.0
+        if span > 0 and abs(shift) >= GAP_SHIFT_NOTED * span:
+            # A long gap moves the time the mean stands for: a drifting bias then moves the
+            # mean by drift x shift, which the symmetric plan no longer cancels.
+            note += f", at {shift:+.3g} s from the window's middle"
+        gap_note.append(note)
     bad = unfit_samples(window.validity)
     if bad.any():
         v = np.asarray(window.validity).astype(np.int64)[bad]
@@ -357,9 +373,13 @@ def _output_step(x: NDArray[np.float64]) -> float:
 
 
 def _mid_time(window: Any) -> float | None:
+    """The time the window's mean stands for: its middle, or with ticks missing the mean time
+    of the samples received."""
     t = getattr(window, "time_s", None)
     if t is None or len(t) == 0:
         return None
+    if getattr(window, "missing", 0):
+        return float(np.mean(t))
     return float((t[0] + t[-1]) / 2.0)
 
 
@@ -759,6 +779,7 @@ def find_north_spin(
     drift: bool = False,
     warmup_timeout_s: float = 600.0,
     latitude_source: str = "",
+    progress: Callable[[Progress], None] | None = None,
 ) -> SpinFind:
     """Find north with ``device`` turning at a constant rate: wait for READY, SPIN, acquire
     ``spin_s`` seconds of steady-rate samples, STOP (and wait for READY), solve.
@@ -776,20 +797,29 @@ def find_north_spin(
         Also fit a linear gyro and accelerometer drift.
     warmup_timeout_s : float
         Longest wait for READY, device seconds.
+    progress : callable, optional
+        Called with a :class:`Progress` as each phase begins (``spin``: the table speeds up,
+        ``acquire``, ``solve``).
 
     Raises
     ------
     HostError
-        Warm-up did not end in time, FAULT, or the spin gave too few usable samples.
+        Warm-up did not end in time, FAULT, or the spin gave too few usable samples. An error
+        or interruption during the spin carries the samples received so far as
+        ``partial_window`` (:meth:`~northfinder.driver.device.Device.acquire`).
     DriverError
         From the driver: refusals (protocol 1.0 units have no SPIN), timeouts, lost link.
     """
     spin.latitude_rad(latitude_deg, "the spin solution")
     wait_until_ready(device, warmup_timeout_s)
+    report = progress or (lambda p: None)
+    report(Progress("spin", 0, 0, None, spin_s))
     device.spin(rate_dps, wait=True)
+    report(Progress("acquire", 0, 0, None, spin_s))
     window = device.acquire(spin_s, on_gap="report")
     device.stop(wait=True)
     device.stop_streaming()
+    report(Progress("solve", 0, 0, None, 0.0))
     data = spin.spin_samples(
         window.gyro_dph, window.accel_mps2, window.table_deg, window.counter,
         window.sample_rate_hz, window.validity,

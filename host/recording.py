@@ -24,15 +24,18 @@ NPZ (``.npz``)
     windows, and ``meta_json``: the same metadata as a JSON string.
 
 Written as they arrive
-    :class:`RecordingWriter` writes each window as soon as it is measured. A CSV is first written
-    to a temporary file beside the target, which replaces the target (``os.replace``) once the
-    first window is on disk; later windows are appended and flushed to disk one by one. An NPZ is
-    rewritten to a temporary file after each window and atomically replaces the target. So a
-    failed write never destroys an existing file, and an interrupted run keeps every complete
-    window. The metadata key ``status`` says how the recording ended: ``"recording"`` (written
-    while the windows arrive; a recording that still reads so was cut off: power, SIGKILL, a
-    full disk), ``"interrupted"`` or ``"complete"``; a CSV states the final ``status`` and the
-    number of ``windows`` in comment lines after the samples. A recording without ``status``
+    :class:`RecordingWriter` writes each window as soon as it is measured: a CSV's rows are
+    appended and flushed to disk window by window; an NPZ is rewritten to a temporary file after
+    each window, which then replaces the file being written. An existing file of the name (an
+    earlier recording) is never touched until the new recording is complete: the windows go to
+    ``run.partial.csv`` beside ``run.csv``, which replaces it at the end; a run that ends early
+    (an interruption, an error, a full disk) leaves the earlier file as it was and its windows in
+    the partial file. Without an earlier file the windows go to the name given. So a failed write
+    never destroys a file, and an interrupted run keeps every complete window. The metadata key
+    ``status`` says how the recording ended: ``"recording"`` (written while the windows arrive; a
+    recording that still reads so was cut off: power, SIGKILL, a full disk), ``"interrupted"`` or
+    ``"complete"``; a CSV's head holds it once, written over in place as the run ends, and a
+    comment line after the samples the number of ``windows``. A recording without ``status``
     (written before this key) counts as complete. :attr:`Recording.partial` names what is missing.
 """
 
@@ -184,7 +187,7 @@ class Recording:
                     _write_csv_head(fh, meta)
                     for i, w in enumerate(self.windows):
                         _write_csv_rows(fh, i, w)
-                    _write_csv_tail(fh, meta["status"], len(self.windows))
+                    _write_csv_tail(fh, len(self.windows))
         except OSError as exc:
             raise OutputError(f"{p}: cannot write ({exc.strerror or exc})") from exc
 
@@ -208,6 +211,11 @@ class Recording:
         if self.status == "complete":
             return None
         why = "interrupted" if self.status == "interrupted" else "cut off while recording"
+        spin = _spin_plan(self)
+        if spin is not None and self.windows:
+            n, rate_dps = spin
+            have = sum(len(w.counter) + w.missing for w in self.windows)
+            return f"{why}: {_ticks_and_turns(have, n, rate_dps, self.meta)}"
         planned = self.planned_windows
         of = f" of {planned}" if planned is not None else ""
         return f"{why}: {len(self.windows)}{of} windows"
@@ -262,6 +270,10 @@ def check_against_plan(rec: Recording, p: Path | str) -> None:
     RecordingError
         ``truncated: 3 of 4 windows, the last cut short``, ``padded: ...``.
     """
+    spin = _spin_plan(rec)
+    if spin is not None:
+        _check_spin(rec, spin, p)
+        return
     plan = rec.meta.get("plan")
     if not isinstance(plan, dict):
         return
@@ -293,6 +305,44 @@ def check_against_plan(rec: Recording, p: Path | str) -> None:
     if have < planned and rec.partial is None:
         raise RecordingError(
             f"{p}: truncated: {have} of {planned} windows, though it says it is complete"
+        )
+
+
+def _spin_plan(rec: Recording) -> tuple[int, float] | None:
+    """(sample ticks, rate deg/s) a spin recording's ``spin`` entry plans; None for another
+    recording or one whose entry does not say."""
+    spin = rec.meta.get("spin")
+    if not isinstance(spin, dict):
+        return None
+    rate_dps, spin_s = spin.get("rate_dps"), spin.get("spin_s")
+    if not (_number(rate_dps) and _number(spin_s) and spin_s > 0):
+        return None
+    return round(float(spin_s) * float(rec.meta["sample_rate_hz"])), float(rate_dps)
+
+
+def _ticks_and_turns(have: int, n: int, rate_dps: float, meta: dict[str, Any]) -> str:
+    """``6000 of 12000 samples (-0.50 of -1.00 turns)``."""
+    per_tick = rate_dps / float(meta["sample_rate_hz"]) / 360.0
+    return f"{have} of {n} samples ({have * per_tick:+.2f} of {n * per_tick:+.2f} turns)"
+
+
+def _check_spin(rec: Recording, spin: tuple[int, float], p: Path | str) -> None:
+    """A spin recording holds one window of its planned ticks; fewer only when it says it is
+    partial (interrupted or cut off while recording)."""
+    n, rate_dps = spin
+    if len(rec.windows) > 1:
+        raise RecordingError(f"{p}: padded: {len(rec.windows)} windows; a spin recording has one")
+    (w,) = rec.windows
+    have = len(w.counter) + w.missing  # ticks spanned, gaps included
+    if have > n:
+        raise RecordingError(
+            f"{p}: padded: the spin spans {have} sample ticks; its {n / float(rec.meta['sample_rate_hz']):g} s "
+            f"at {rec.meta['sample_rate_hz']:g} Hz make {n}"
+        )
+    if have < n and rec.partial is None:
+        raise RecordingError(
+            f"{p}: truncated: {_ticks_and_turns(have, n, rate_dps, rec.meta)}, though it says "
+            "it is complete"
         )
 
 
@@ -520,10 +570,25 @@ def _replace_npz(p: Path, meta: dict[str, Any], windows: tuple[RecordedWindow, .
         np.savez_compressed(fh, **payload)
 
 
-def _write_csv_head(fh: Any, meta: dict[str, Any]) -> None:
+def _write_csv_head(fh: Any, meta: dict[str, Any]) -> int:
+    """Write the comment lines and the column header; return the byte offset of the ``status``
+    value, which is padded so that any final status can be written over it in place."""
+    at = -1
+    written = 0
     for k, v in meta.items():
-        fh.write(f"# {k} = {json.dumps(v)}\n")
+        value = json.dumps(v)
+        if k == "status":
+            at = written + len(f"# {k} = ".encode())
+            value = value.ljust(_STATUS_WIDTH)
+        line = f"# {k} = {value}\n"
+        fh.write(line)
+        written += len(line.encode())
     csv.writer(fh).writerow(COLUMNS)
+    return at
+
+
+#: Characters of the ``status`` value in a CSV's head: the longest status, quoted.
+_STATUS_WIDTH = max(len(json.dumps(s)) for s in ("recording", "interrupted", "complete"))
 
 
 def _write_csv_rows(fh: Any, i: int, w: RecordedWindow) -> None:
@@ -541,12 +606,37 @@ def _write_csv_rows(fh: Any, i: int, w: RecordedWindow) -> None:
     fh.write(text.getvalue())
 
 
-def _write_csv_tail(fh: Any, status: str, windows: int) -> None:
-    fh.write(f"# status = {json.dumps(status)}\n# windows = {windows}\n")
+def _write_csv_tail(fh: Any, windows: int) -> None:
+    fh.write(f"# windows = {windows}\n")
+
+
+def partial_name(p: Path) -> Path:
+    """Where the windows of a new recording go while an earlier file of the same name is kept:
+    ``run.partial.csv`` beside ``run.csv`` (``run.partial-2.csv``, ... if that is taken)."""
+    for k in range(1, 1000):
+        tag = ".partial" if k == 1 else f".partial-{k}"
+        candidate = p.with_name(f"{p.stem}{tag}{p.suffix}")
+        if not os.path.lexists(candidate):
+            return candidate
+    raise RecordingError(f"{p}: 999 partial recordings beside it; move them away")
+
+
+def _create(p: Path, mode: int | None) -> int:
+    """A new file (never one that exists), with ``mode`` if given."""
+    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    if mode is not None:
+        with contextlib.suppress(OSError):
+            os.fchmod(fd, mode)
+    return fd
 
 
 class RecordingWriter:
     """Writes a recording window by window, as the windows are measured (module docstring).
+
+    Where there is no file of that name, the windows go to it at once. An existing file (an
+    earlier recording) is never touched until the new one is complete: the windows go to
+    :attr:`work`, ``run.partial.csv`` beside ``run.csv``, which replaces the earlier file when
+    the run closes ``"complete"``; a run that ends early leaves both.
 
     ``add`` never raises for a failed write: the first error is kept (:attr:`error`), later
     windows are counted but not written, and :meth:`close` raises it, so that a run goes on to
@@ -555,7 +645,7 @@ class RecordingWriter:
     Parameters
     ----------
     path : str or Path
-        The recording, .csv or .npz (replaced once the first window is on disk).
+        The recording, .csv or .npz.
     meta : dict
         Its metadata (``latitude_deg``, ``sample_rate_hz``, ``plan``, ...).
 
@@ -571,8 +661,18 @@ class RecordingWriter:
         self.windows: list[RecordedWindow] = []
         self.written = 0
         self.error: OutputError | None = None
+        #: An earlier file of the name, kept until the new recording is complete.
+        self.replaces = os.path.lexists(self.path)
+        self._mode: int | None = None
+        if self.replaces:
+            with contextlib.suppress(OSError):
+                self._mode = os.stat(self.path).st_mode & 0o777
+        #: The file the windows are written to (:attr:`path` itself when nothing is replaced).
+        self.work = partial_name(self.path) if self.replaces else self.path
         self._fh: Any = None
+        self._created = False
         self._good = 0  # bytes of the CSV up to the end of its last complete window
+        self._status_at = -1  # byte offset of the CSV's status value
         self._closed = False
 
     def add(self, window: RecordedWindow) -> None:
@@ -582,37 +682,42 @@ class RecordingWriter:
             return
         try:
             if self.path.suffix == ".npz":
-                _replace_npz(self.path, self.meta, tuple(self.windows))
+                self._write_npz(tuple(self.windows))
             else:
                 self._append_csv(len(self.windows) - 1, window)
             self.written = len(self.windows)
         except OSError as exc:
             self._failed(exc)
 
+    def _write_npz(self, windows: tuple[RecordedWindow, ...]) -> None:
+        if not self._created:
+            os.close(_create(self.work, self._mode))  # the name is this run's from now on
+            self._created = True
+        _replace_npz(self.work, self.meta, windows)
+
     def _append_csv(self, i: int, window: RecordedWindow) -> None:
         if self._fh is None:
-            fd, tmp = _temporary_beside(self.path)
-            fh = os.fdopen(fd, "w", newline="")
-            try:
-                _write_csv_head(fh, self.meta)
-                _write_csv_rows(fh, i, window)
-                fh.flush()
-                os.fsync(fh.fileno())
-                os.replace(tmp, self.path)  # the open file now is the recording
-            except BaseException:
-                fh.close()
-                with contextlib.suppress(OSError):
-                    os.unlink(tmp)
-                raise
-            self._fh = fh
-        else:
-            _write_csv_rows(self._fh, i, window)
-            self._fh.flush()
-            os.fsync(self._fh.fileno())
+            fd = _create(self.work, self._mode)
+            self._created = True
+            self._fh = os.fdopen(fd, "w", newline="")
+            self._status_at = _write_csv_head(self._fh, self.meta)
+        _write_csv_rows(self._fh, i, window)
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
         self._good = self._fh.tell()
 
+    @property
+    def where(self) -> str:
+        """Where the windows written are, for the line that ends a run early."""
+        if not self.replaces:
+            return str(self.work)
+        return f"{self.work} ({self.path}, the earlier recording, left as it was)"
+
     def _failed(self, exc: OSError) -> None:
-        kept = f"; {self.written} complete window(s) kept" if self.written else ""
+        if self.written:
+            kept = f"; {self.written} complete window(s) kept in {self.where}"
+        else:
+            kept = f"; {self.path} left as it was" if self.replaces else ""
         self.error = OutputError(f"{self.path}: cannot write ({exc.strerror or exc}){kept}")
         self.error.__cause__ = exc
         if self._fh is not None:
@@ -621,15 +726,24 @@ class RecordingWriter:
                 self._fh.flush()
             with contextlib.suppress(OSError, ValueError):
                 self._fh.truncate(self._good)
+        if not self.written and self._created:
+            if self._fh is not None:
+                with contextlib.suppress(OSError, ValueError):
+                    self._fh.close()
+                self._fh = None
+            with contextlib.suppress(OSError):
+                os.unlink(self.work)
+            self._created = False
 
     def close(self, status: str = "complete") -> None:
         """State how the recording ended (``"complete"`` or ``"interrupted"``) and close it.
-        Without a window written, an existing file is left untouched.
+        Complete, it replaces an earlier file of its name; ended early, it stays at
+        :attr:`work` beside the earlier file. Without a window written, nothing is written.
 
         Raises
         ------
         OutputError
-            A write failed (the message says how many complete windows the file keeps).
+            A write failed (the message says how many complete windows are kept, and where).
         """
         if self._closed:
             if self.error is not None:
@@ -640,15 +754,20 @@ class RecordingWriter:
         try:
             if self.error is None and self.written:
                 if self.path.suffix == ".npz":
-                    _replace_npz(self.path, self.meta, tuple(self.windows[: self.written]))
+                    self._write_npz(tuple(self.windows[: self.written]))
                 else:
                     # A window cut off by an interruption (an exception raised while it was
                     # being written) is cut off the file: it ends with complete windows.
                     self._fh.seek(self._good)
                     self._fh.truncate()
-                    _write_csv_tail(self._fh, status, self.written)
+                    _write_csv_tail(self._fh, self.written)
                     self._fh.flush()
+                    value = json.dumps(status).ljust(_STATUS_WIDTH).encode()
+                    os.pwrite(self._fh.fileno(), value, self._status_at)
                     os.fsync(self._fh.fileno())
+                if status == "complete" and self.work != self.path:
+                    os.replace(self.work, self.path)
+                    self.work = self.path
         except OSError as exc:
             self._failed(exc)
         finally:

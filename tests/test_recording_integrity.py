@@ -161,10 +161,14 @@ def test_find_record_write_failure_never_hides_the_result(tmp_path, capsys, monk
 
 
 @pytest.mark.realtime(alone=False)
-def test_an_interrupted_record_keeps_its_complete_windows_and_solve_says_so(tmp_path):
-    path = tmp_path / "run.csv"
+@pytest.mark.parametrize("earlier", [False, True], ids=["new", "over-an-earlier-file"])
+def test_an_interrupted_record_keeps_its_complete_windows_and_solve_says_so(tmp_path, earlier):
+    target = tmp_path / "run.csv"
+    if earlier:
+        target.write_text("an earlier recording")
+    path = tmp_path / "run.partial.csv" if earlier else target  # where the windows go
     argv = [sys.executable, "-c", "from northfinder.cli import main; raise SystemExit(main())",
-            "record", str(path), "--sim", "--speed", "20", "--warmup", "0", "--window", "2",
+            "record", str(target), "--sim", "--speed", "20", "--warmup", "0", "--window", "2",
             "--positions", "0,60,120,180,240,300"]  # fmt: skip
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
     try:
@@ -182,7 +186,10 @@ def test_an_interrupted_record_keeps_its_complete_windows_and_solve_says_so(tmp_
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 130, err
-    assert "marked interrupted" in err
+    assert "marked interrupted" in err and f"windows in {path}" in err
+    if earlier:
+        assert target.read_text() == "an earlier recording"
+        assert f"({target}, the earlier recording, left as it was)" in err
     rec = Recording.load(path)
     assert rec.partial is not None and rec.partial.startswith("interrupted: ")
     assert 2 <= len(rec.windows) < 6
@@ -247,3 +254,131 @@ def test_calibrates_duplicate_guard_sees_one_session_in_two_formats(tmp_path):
     other = tmp_path / "other.csv"  # another power-on
     Recording(tuple(window(k + 10, a) for k, a in enumerate(ANGLES)), dict(META)).save(other)
     assert len(read_runs([npz, other])) == 2
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_new_recording_replaces_an_earlier_one_only_when_complete(tmp_path, suffix):
+    path = tmp_path / f"run{suffix}"
+    old = Recording(tuple(window(k + 7, a) for k, a in enumerate(ANGLES)), dict(META))
+    old.save(path)
+    before = path.read_bytes()
+    writer = RecordingWriter(path, META)
+    assert writer.work == tmp_path / f"run.partial{suffix}"
+    for k in range(3):
+        writer.add(window(k, ANGLES[k]))
+        assert path.read_bytes() == before  # never touched while the run lasts
+        assert len(Recording.load(writer.work, min_windows=1).windows) == k + 1
+    writer.add(window(3, ANGLES[3]))
+    writer.close("complete")
+    rec = Recording.load(path)
+    assert rec.partial is None and len(rec.windows) == 4
+    np.testing.assert_array_equal(rec.windows[3].counter, window(3, 0).counter)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"run{suffix}"]
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_an_interrupted_recording_leaves_an_earlier_one_and_stays_beside_it(tmp_path, suffix):
+    path = tmp_path / f"run{suffix}"
+    Recording(tuple(window(k + 7, a) for k, a in enumerate(ANGLES)), dict(META)).save(path)
+    before = path.read_bytes()
+    (tmp_path / f"run.partial{suffix}").write_text("an earlier partial run")  # kept too
+    writer = RecordingWriter(path, META)
+    assert writer.work == tmp_path / f"run.partial-2{suffix}"
+    for k in range(2):
+        writer.add(window(k, ANGLES[k]))
+    writer.close("interrupted")
+    assert path.read_bytes() == before
+    assert (tmp_path / f"run.partial{suffix}").read_text() == "an earlier partial run"
+    assert Recording.load(writer.work).partial == "interrupted: 2 of 4 windows"
+    assert str(writer.work) in writer.where and "left as it was" in writer.where
+
+
+def test_a_csv_recording_states_its_status_once(tmp_path):
+    path = tmp_path / "run.csv"
+    for status in ("complete", "interrupted"):
+        writer = RecordingWriter(path, META)
+        for k in range(4 if status == "complete" else 2):
+            writer.add(window(k, ANGLES[k]))
+        writer.close(status)
+        lines = [x for x in writer.work.read_text().splitlines() if x.startswith("# status")]
+        assert len(lines) == 1 and json.loads(lines[0].split("=", 1)[1]) == status
+        assert Recording.load(writer.work).status == status
+    Recording(tuple(window(k, a) for k, a in enumerate(ANGLES)), dict(META)).save(path)
+    assert path.read_text().count("# status") == 1
+    writer = RecordingWriter(tmp_path / "cut.csv", META)
+    writer.add(window(0, 0.0))  # never closed: cut off (power, SIGKILL)
+    assert (tmp_path / "cut.csv").read_text().count("# status") == 1
+    assert Recording.load(tmp_path / "cut.csv", min_windows=1).status == "recording"
+
+
+def _sized_disk(tmp_path: Path, free: int) -> Path:
+    """A tmpfs (as root, else skipped) with ``free`` bytes beyond what tmp_path/old.* take."""
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    used = sum(-(-p.stat().st_size // 4096) * 4096 for p in tmp_path.glob("old.*"))
+    mount = tmp_path / "tiny"
+    mount.mkdir()
+    size = used + free
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mount)])
+    if done.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here")
+    return mount
+
+
+@pytest.fixture
+def unmount():
+    mounts: list[Path] = []
+    yield mounts
+    for m in mounts:
+        subprocess.run(["umount", "--lazy", str(m)], check=False)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_full_disk_leaves_an_earlier_recording_whole(tmp_path, suffix, unmount):
+    """A real full disk (a tmpfs with room for the earlier file and about one new window)."""
+    old = Recording(tuple(window(k + 7, a) for k, a in enumerate(ANGLES)), dict(META))
+    old.save(tmp_path / f"old{suffix}")
+    one = (tmp_path / f"old{suffix}").stat().st_size // 4
+    disk = _sized_disk(tmp_path, free=one * 3 // 2 + 8192 if suffix == ".csv" else one * 2 + 4096)
+    unmount.append(disk)
+    path = disk / f"run{suffix}"
+    path.write_bytes((tmp_path / f"old{suffix}").read_bytes())
+    writer = RecordingWriter(path, META)
+    for k, a in enumerate(ANGLES):
+        writer.add(window(k, a))
+    assert writer.error is not None and 1 <= writer.written < 4
+    with pytest.raises(OutputError, match="No space left on device") as caught:
+        writer.close()
+    assert f"{writer.written} complete window(s) kept in {disk / f'run.partial{suffix}'}" in str(
+        caught.value
+    )
+    assert "left as it was" in str(caught.value)
+    assert path.read_bytes() == (tmp_path / f"old{suffix}").read_bytes()
+    kept = Recording.load(disk / f"run.partial{suffix}", min_windows=1)
+    assert len(kept.windows) == writer.written and kept.status == "recording"
+
+
+def test_record_over_a_recording_on_a_full_disk_keeps_it_and_names_the_new_windows(
+    tmp_path, capsys, unmount
+):
+    args = [*FIND[:-1], "1"]  # 1 s windows: about 18 KB of CSV each
+    assert main(["record", str(tmp_path / "old.csv"), *args]) == 0
+    capsys.readouterr()
+    assert main(["solve", str(tmp_path / "old.csv")]) == 0
+    solved = capsys.readouterr().out
+    disk = _sized_disk(tmp_path, free=28 * 1024)  # the head and one window, not two
+    unmount.append(disk)
+    path = disk / "run.csv"
+    path.write_bytes((tmp_path / "old.csv").read_bytes())
+    for command in (["record", str(path)], ["find", "--record", str(path)]):
+        status = main([*command, *args, "--seed", "4"])
+        out, err = capsys.readouterr()
+        assert status == 1, err
+        assert ("azimuth" in out) == (command[0] == "find")  # find's heading first
+        last = err.strip().splitlines()[-1]
+        assert last.startswith(f"northfinder {command[0]}: error: {path}: cannot write (No space")
+        assert f"kept in {disk / 'run.partial.csv'} ({path}, the earlier recording, left" in last
+        assert main(["solve", str(path)]) == 0
+        assert capsys.readouterr().out == solved  # the earlier recording solves as before
+        assert Recording.load(disk / "run.partial.csv", min_windows=1).status == "recording"
+        (disk / "run.partial.csv").unlink()

@@ -481,6 +481,7 @@ def _close_interrupted(writer: RecordingWriter) -> str:
     except HostError as exc:
         return f"the recording is incomplete: {exc}"
     if not writer.written:
-        return f"no complete window: {writer.path} not written"
+        left = f" ({writer.path} left as it was)" if writer.replaces else ""
+        return f"no complete window: nothing written{left}"
     planned = len(writer.meta["plan"]["positions_deg"])
-    return f"kept {writer.written} of {planned} windows in {writer.path}, marked interrupted"
+    return f"kept {writer.written} of {planned} windows in {writer.where}, marked interrupted"

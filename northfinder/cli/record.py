@@ -26,8 +26,11 @@ def run(args: argparse.Namespace) -> int:
         from northfinder.cli.find import PLAN_DEFAULTS
 
         spinfind.check(args, PLAN_DEFAULTS)
-        found, truth, identity = spinfind.run(args)
-        rec = spinfind.save(args.file, args, found, truth, identity)
+        found, truth, identity = spinfind.run(args, record_to=args.file)
+        rec, _ = spinfind.save(
+            args.file, args, found.window, found.latitude_deg, found.latitude_source, truth,
+            identity,
+        )  # fmt: skip
         seed = f" (simulated, seed {truth['seed']})" if truth and "seed" in truth else ""
         n = len(rec.windows[0].counter)
         print(f"wrote a spin of {n} samples at {args.spin:+g} deg/s to {args.file}{seed}")

@@ -3,7 +3,9 @@
 FILE is a recording of ``northfinder record`` (.csv, .npz) or a CAN log in a format python-can
 reads; several files (or a quoted glob) are the parts of one rotated log, read in order. A log
 carries no latitude: give ``--latitude``. From a log, damaged lines are skipped and
-windows with samples missing left out, each with a warning (``--strict`` refuses such a log);
+windows with samples missing left out, each with a warning (``--strict`` refuses such a log,
+naming its first damaged line; ``--on-gap report`` solves a window with sample ticks missing
+from the samples it holds, each gap in the result's notes);
 ``--session N`` and ``--windows 1,2`` pick what to solve. Exit status 3: the windows failed their
 consistency check.
 """
@@ -77,6 +79,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="refuse a log with a damaged line, a gap or a cut (default: skip and warn)",
     )  # fmt: skip
     p.add_argument(
+        "--on-gap", choices=ON_GAP_CHOICES, default="leave-out",
+        help="a window with sample ticks missing: leave-out (default: solve the complete "
+        "windows) or report (solve it from the samples it holds, each gap in the notes)",
+    )  # fmt: skip
+    p.add_argument(
         "--spin-drift", action="store_true",
         help="spin recordings: also fit a linear drift of each gyro (default: as recorded)",
     )  # fmt: skip
@@ -84,6 +91,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--plot", metavar="FILE", help="plot the windows, or the spin's fit (matplotlib)"
     )
+
+
+#: ``--on-gap``: what a window with sample ticks missing does (``leave-out``: the default).
+ON_GAP_CHOICES = ("leave-out", "report")
 
 
 def _window_list(text: str) -> list[int]:
@@ -103,8 +114,15 @@ def _window_list(text: str) -> list[int]:
 
 
 def solve_recording(
-    rec: Recording, latitude: float | None, denoise: str, method: str
+    rec: Recording,
+    latitude: float | None,
+    denoise: str,
+    method: str,
+    *,
+    allow_gaps: bool = False,
 ) -> FindResult:
+    """Solve a recording's windows (``allow_gaps``: a window with ticks missing is solved from
+    the samples it holds, the gap in its notes; else it is an error)."""
     if latitude is None and "latitude_deg" not in rec.meta:
         raise HostConfigError("--latitude: the recording has no latitude_deg; give --latitude")
     lat = float(rec.meta["latitude_deg"] if latitude is None else latitude)
@@ -119,7 +137,9 @@ def solve_recording(
         denoise=denoise,
         method=method,
     )
-    windows = [summarise_window(w, w.commanded_deg, denoise) for w in rec.windows]
+    windows = [
+        summarise_window(w, w.commanded_deg, denoise, allow_gaps=allow_gaps) for w in rec.windows
+    ]
     return result_from_windows(windows, lat, plan, latitude_source=source)
 
 
@@ -134,33 +154,61 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
         raise HostConfigError(
             f"{other}: several files are the parts of one CAN log; a recording is solved alone"
         )
+    report_gaps = args.on_gap == "report"
+    if args.strict and report_gaps:
+        raise HostConfigError("--on-gap report: --strict refuses a log with a gap; choose one")
     if is_can_log(path):
         logs = LogSet(names)
         path = Path(logs.name)
+        # Damaged lines are read past even with --strict, so that it names the first one.
         session = read_can_log(
-            logs.files, node_id=args.node_id, window_s=args.window, skip_damaged=not args.strict,
+            logs.files, node_id=args.node_id, window_s=args.window, skip_damaged=True,
             session=args.session, windows=args.windows, min_windows=1,
         )  # fmt: skip
+        if args.strict and session.first_damaged:
+            raise QualityError(
+                f"{session.first_damaged}; --strict refuses a log with a damaged line "
+                f"({session.skipped_lines} in all)"
+            )
         if args.strict and (session.incomplete or session.part_gaps):
             raise QualityError(f"{path}: " + "; ".join(session.incomplete or session.part_gaps))
-        complete = session.complete()
+        complete = session.complete(keep_gaps=report_gaps)
+        kept = {session.window_numbers[i] for i in session.gap_windows} if report_gaps else set()
+        reported = [
+            n for n in session.incomplete if any(n.startswith(f"window {k} (") for k in kept)
+        ]  # in the result's notes instead: solved from the samples the window holds
         warned = [
             n for n in session.notes
-            if n in session.incomplete or n in session.part_gaps or n.startswith("skipped ")
+            if (n in session.incomplete and n not in reported) or n in session.part_gaps
+            or n.startswith("skipped ")
         ]  # fmt: skip
         for note in warned:
             warn("solve", f"{path}: {note}")
         if len(complete.windows) < len(session.windows):
             left = ", ".join(str(n) for n in complete.window_numbers)
+            gaps_only = len(session.gap_windows) and not report_gaps
             warn(
                 "solve",
                 f"{path}: {len(session.windows) - len(complete.windows)} window(s) with samples "
-                f"missing left out; solving the complete windows {left or '(none)'}",
+                f"missing left out; solving the complete windows {left or '(none)'}"
+                + (
+                    f" (--on-gap report solves the {len(session.gap_windows)} with sample "
+                    "ticks missing from the samples they hold)"
+                    if gaps_only
+                    else ""
+                ),
             )
         if len(complete.windows) < 2:
             raise QualityError(
                 f"{path}: {len(complete.windows)} complete window(s); a heading needs two"
-                + ("" if args.strict else " (windows with samples missing are left out)")
+                + ("" if args.strict else " (windows with samples missing are left out")
+                + (
+                    "; --on-gap report solves those with sample ticks missing)"
+                    if session.gap_windows and not (args.strict or report_gaps)
+                    else ")"
+                    if not args.strict
+                    else ""
+                )
             )
         source = {
             "file": str(path), "format": "can-log", "node_id": session.node_id,
@@ -169,7 +217,7 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
             "window_s": args.window, "notes": list(session.notes),
             "session": session.session, "sessions": [list(s) for s in session.sessions],
             "windows": list(complete.window_numbers), "skipped_lines": session.skipped_lines,
-            "warnings": warned,
+            "warnings": warned, "reported": reported,
         }  # fmt: skip
         return complete.recording(), source
     given = [
@@ -184,8 +232,9 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
         rec = Recording.load(path)  # the stop-and-go reader's own error: a heading needs two
     source = {"file": str(path), "format": f"recording{path.suffix}"}
     if rec.partial is not None:
+        held = "samples" if "spin" in rec.meta else "windows"
         source["partial"] = rec.partial
-        source["notes"] = [f"partial recording ({rec.partial}): solved from the windows it holds"]
+        source["notes"] = [f"partial recording ({rec.partial}): solved from the {held} it holds"]
     return rec, source
 
 
@@ -197,7 +246,9 @@ def run(args: argparse.Namespace) -> int:
         return _solve_spin(args, rec, source)
     if args.spin_drift:
         raise HostConfigError("--spin-drift: applies to spin recordings only")
-    result = solve_recording(rec, args.latitude, args.denoise, args.solver)
+    result = solve_recording(
+        rec, args.latitude, args.denoise, args.solver, allow_gaps=args.on_gap == "report"
+    )
     truth = rec.meta.get("truth")
     if args.plot:
         report.plot(args.plot, result, list(rec.windows), args.denoise, truth)
@@ -206,8 +257,9 @@ def run(args: argparse.Namespace) -> int:
         say(report.as_json("solve", result, truth, device, source=source))
     else:
         say(report.text(result, truth))
+        shown = [*source.get("warnings", []), *source.get("reported", [])]
         for note in source.get("notes", []):
-            if note not in source.get("warnings", []):
+            if note not in shown:
                 say(f"note: {note}")
     return result_status(result.consistent)
 
@@ -227,4 +279,6 @@ def _solve_spin(args: argparse.Namespace, rec: Recording, source: dict[str, Any]
         say(spinfind.as_json(found, truth, rec.meta.get("device"), "solve", source=source))
     else:
         say(spinfind.text(found, truth))
+        for note in source.get("notes", []):
+            say(f"note: {note}")
     return result_status(found.solution.consistent)

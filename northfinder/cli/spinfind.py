@@ -77,30 +77,92 @@ def check(args: argparse.Namespace, plan_defaults: dict[str, Any]) -> None:
         )
 
 
-def run(args: argparse.Namespace) -> tuple[Any, dict[str, Any] | None, dict[str, Any]]:
-    """Open the device, spin, solve; return (SpinFind, truth, device identity)."""
-    from northfinder.cli.measure import check_arguments, open_device
+def run(
+    args: argparse.Namespace, record_to: str | None = None
+) -> tuple[Any, dict[str, Any] | None, dict[str, Any]]:
+    """Open the device, spin, solve; return (SpinFind, truth, device identity).
+
+    With ``record_to``, a run that ends early (an interruption, an error) writes the samples
+    received to that recording, marked ``interrupted`` (:func:`save`), and the line that
+    reports the ending says where."""
+    from northfinder.cli.common import note_ending
+    from northfinder.cli.measure import ProgressBar, check_arguments, open_device
     from northfinder.host.procedure import find_north_spin
     from northfinder.host.results import device_identity
 
     check_arguments(args)
     latitude = sim_latitude(args) if args.sim else float(args.latitude)
+    source = latitude_source(args, args.sim)
     with open_device(args) as (device, truth):
         identity = device_identity(
             device.identity,
             simulated=bool(args.sim),
             sensor=None if truth is None else truth.get("sensor"),
         )
-        found = find_north_spin(
-            device,
-            args.spin,
-            spin_seconds(args),
-            latitude,
-            drift=args.spin_drift,
-            warmup_timeout_s=args.timeout,
-            latitude_source=latitude_source(args, args.sim),
-        )
+        bar = ProgressBar(enabled=record_to is not None, label=args.command or "record")
+        try:
+            found = find_north_spin(
+                device,
+                args.spin,
+                spin_seconds(args),
+                latitude,
+                drift=args.spin_drift,
+                warmup_timeout_s=args.timeout,
+                latitude_source=source,
+                progress=_spin_progress(bar),
+            )
+        except BaseException as exc:
+            if record_to is not None:
+                note_ending(exc, _save_partial(record_to, args, exc, latitude, source, truth,
+                                               identity))  # fmt: skip
+            raise
+        finally:
+            bar.close()
     return found, truth, identity
+
+
+def _spin_progress(bar: Any) -> Any:
+    def report(p: Any) -> None:
+        if bar.mode == "lines":
+            print(f"{bar.label}: {p.phase}", file=bar.stream, flush=True)
+
+    return report
+
+
+def _partial_window(exc: BaseException) -> Any:
+    """The samples an error or interruption during the spin carried (``partial_window``)."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        window = getattr(current, "partial_window", None)
+        if window is not None:
+            return window
+        seen.add(id(current))
+        current = current.__context__ or current.__cause__
+    return None
+
+
+def _save_partial(
+    path: str,
+    args: argparse.Namespace,
+    exc: BaseException,
+    latitude: float,
+    source: str,
+    truth: dict[str, Any] | None,
+    identity: dict[str, Any],
+) -> str:
+    """Write the samples of a spin that ended early; the clause that says what was kept."""
+    from northfinder.host.errors import HostError
+
+    window = _partial_window(exc)
+    if window is None or len(window.counter) == 0:
+        return "no sample received: nothing written"
+    try:
+        rec, where = save(path, args, window, latitude, source, truth, identity, "interrupted")
+    except HostError as error:
+        return f"the spin's samples were not kept: {error}"
+    held = str(rec.partial).split(": ", 1)[-1]  # "6000 of 12000 samples (...)"
+    return f"kept {held} in {where}, marked interrupted"
 
 
 def _error(sol: Any, truth: dict[str, Any] | None) -> float | None:
@@ -163,17 +225,30 @@ def as_json(
     return dumps(envelope(command, device, body))
 
 
-def save(path: str, args: argparse.Namespace, found: Any, truth: Any, identity: Any) -> Any:
+def save(
+    path: str,
+    args: argparse.Namespace,
+    window: Any,
+    latitude_deg: float,
+    latitude_source: str,
+    truth: Any,
+    identity: Any,
+    status: str = "complete",
+) -> tuple[Any, str]:
     """Write a spin recording: its one window of samples, and in the metadata what solves it
-    again (latitude, sample rate, ``spin``: rate, time, drift)."""
-    from northfinder.host.recording import RecordedWindow, Recording
+    again (latitude, sample rate, ``spin``: rate, time, drift) and ``status``. A spin that
+    ended early never replaces an existing file: it goes beside it (``run.partial.csv``).
+    Returns the recording and where it went (with a note of the file left as it was)."""
+    import os
+    from pathlib import Path
+
+    from northfinder.host.recording import RecordedWindow, Recording, partial_name
     from northfinder.host.results import utc_now
 
-    w = found.window
     meta: dict[str, Any] = {
-        "latitude_deg": found.latitude_deg,
-        "latitude_source": found.latitude_source,
-        "sample_rate_hz": float(w.sample_rate_hz),
+        "latitude_deg": latitude_deg,
+        "latitude_source": latitude_source,
+        "sample_rate_hz": float(window.sample_rate_hz),
         "spin": {
             "rate_dps": float(args.spin),
             "spin_s": spin_seconds(args),
@@ -181,12 +256,18 @@ def save(path: str, args: argparse.Namespace, found: Any, truth: Any, identity: 
         },
         "created_utc": utc_now(),
         "device": identity,
+        "status": status,
     }
     if truth is not None:
         meta["truth"] = truth
-    recording = Recording((RecordedWindow.from_window(w, 0.0),), meta)
-    recording.save(path)
-    return recording
+    recording = Recording((RecordedWindow.from_window(window, 0.0),), meta)
+    target = Path(path)
+    where = str(target)
+    if status != "complete" and os.path.lexists(target):
+        target = partial_name(target)
+        where = f"{target} ({path}, the earlier recording, left as it was)"
+    recording.save(target)
+    return recording, where
 
 
 def solve_recording(rec: Any, latitude: float | None, drift: bool | None) -> Any:
