@@ -514,7 +514,7 @@ def test_latitude_is_among_the_options_a_device_needs():
 
 # -- 9. dump: a CAN log or a live bus decoded with the DBC ----------------------------------------
 DUMP_LINE = re.compile(
-    r"^\((\d+\.\d{6})\) (\S+) ([0-9A-F]{3})#([0-9A-F]*) :: (\w+)(?: node \d+)?\((.*)\)$"
+    r"^\((\d+\.\d{6})\) (\S+) ([0-9A-F]{3})#([0-9A-F]*) ([RT]) :: (\w+)(?: node \d+)?\((.*)\)$"
 )
 
 
@@ -536,8 +536,9 @@ def test_dump_decodes_every_frame_of_a_log_with_the_dbc(candump):
         m = DUMP_LINE.match(line)
         assert m is not None, line
         assert int(m.group(3), 16) == msg.arbitration_id and bytes.fromhex(m.group(4)) == msg.data
-        names.add(m.group(5))
-        if m.group(5) == "SAMPLE_X":
+        assert m.group(5) == ("R" if msg.is_rx else "T")  # the direction the log holds
+        names.add(m.group(6))
+        if m.group(6) == "SAMPLE_X":
             ours = decode_can(msg.arbitration_id, bytes(msg.data)).message
             assert isinstance(ours, SampleX)
             gyro = float(re.search(r"GyroX: (\S+) deg/h", line).group(1))  # type: ignore[union-attr]
