@@ -363,13 +363,13 @@ def test_vv_logs_every_command_and_reply_with_its_delay(caplog):
 
 
 # -- 6. progress on every long command, plain where a bar cannot work -----------------------------
-def _pty_with_width(columns: int) -> tuple[Any, int]:
+def _pty_with_width(columns: int, rows: int = 24) -> tuple[Any, int]:
     import fcntl
     import struct
     import termios
 
     master, slave = os.openpty()
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, columns, 0, 0))
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", rows, columns, 0, 0))
     return os.fdopen(slave, "w"), master
 
 
@@ -378,8 +378,15 @@ def test_a_bar_needs_a_terminal_that_reports_its_width():
 
     assert progress_mode(io.StringIO()) == "lines"
     assert progress_mode(io.StringIO(), enabled=False) == "off"
-    for columns, mode in ((0, "lines"), (80, "bar")):
-        stream, master = _pty_with_width(columns)
+    # tqdm draws nothing on a terminal of no height (a pty whose size was never set: 0 x 0, or
+    # 80 x 0 where only the width was): plain lines there.
+    for columns, rows, mode in (
+        (0, 24, "lines"),
+        (80, 0, "lines"),
+        (0, 0, "lines"),
+        (80, 24, "bar"),
+    ):
+        stream, master = _pty_with_width(columns, rows)
         try:
             assert progress_mode(stream) == mode
         finally:
@@ -387,10 +394,11 @@ def test_a_bar_needs_a_terminal_that_reports_its_width():
             os.close(master)
 
 
-def test_progress_on_a_terminal_of_no_width_is_plain_lines():
+@pytest.mark.parametrize(("columns", "rows"), [(0, 24), (80, 0)])
+def test_progress_on_a_terminal_of_no_width_is_plain_lines(columns, rows):
     from northfinder.cli.progress import Progress
 
-    stream, master = _pty_with_width(0)
+    stream, master = _pty_with_width(columns, rows)
     try:
         with Progress("study", unit="chunks", stream=stream) as bar:
             for done in range(1, 21):
