@@ -208,3 +208,29 @@ def test_a_live_slcan_bus_is_printed_with_its_channel(monkeypatch):
                              "--duration", "30")  # fmt: skip
     assert code == 0, err
     assert " loop:// 041#0902 R :: COMMAND(Seq: 9, Opcode: GET_STATUS)" in out
+
+
+# -- a kernel without SocketCAN -------------------------------------------------------------------
+def test_a_kernel_without_socketcan_gets_a_hint(monkeypatch):
+    """``[Errno 97] Address family not supported by protocol`` alone does not say what to do."""
+    import argparse
+    import errno
+
+    import can.cli
+
+    from northfinder.driver.transport import bus_open_hint
+
+    no_family = OSError(errno.EAFNOSUPPORT, os.strerror(errno.EAFNOSUPPORT))
+    wrapped = argparse.ArgumentError(None, "cannot create bus")
+    wrapped.__cause__ = no_family
+    assert "this kernel has no SocketCAN" in bus_open_hint(no_family)
+    assert "scripts/hil" in bus_open_hint(wrapped) and "--slcan-pty" in bus_open_hint(wrapped)
+    assert bus_open_hint(OSError(errno.ENODEV, "No such device")) == ""  # vcan0 not set up
+
+    def refuse(*_a, **_k):
+        raise no_family
+
+    monkeypatch.setattr(can.cli, "create_bus_from_namespace", refuse)
+    code, _, err = run_cli("dump", "-i", "socketcan", "-c", "vcan0")
+    assert code == 1 and len(err.splitlines()) == 1
+    assert "Address family not supported" in err and "this kernel has no SocketCAN" in err
