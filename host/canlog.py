@@ -38,6 +38,7 @@ import logging
 import math
 import re
 import sqlite3
+import stat
 import struct
 import zlib
 from collections.abc import Iterator, Sequence
@@ -80,6 +81,7 @@ __all__ = [
     "CanLogSession",
     "LogSet",
     "SessionCounter",
+    "check_log_file",
     "is_can_log",
     "read_can_log",
     "read_frames",
@@ -123,6 +125,8 @@ def is_can_log(path: str | Path) -> bool:
         return False
     if suffix != ".csv" or p.name.lower().endswith(".gz"):
         return True
+    if not p.is_file():  # a FIFO would block the read of its header line
+        return False
     try:
         with p.open(errors="replace") as fh:
             first = fh.readline().strip()
@@ -466,6 +470,34 @@ def _text_messages(
         fh.close()
 
 
+def check_log_file(path: str | Path) -> None:
+    """A CAN log is a regular file: anything else is named for what it is (reading a FIFO would
+    wait for a writer that may never come).
+
+    Raises
+    ------
+    RecordingError
+        No such file, a folder, a FIFO, a device or a socket.
+    """
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        raise RecordingError(f"{p}: no such file") from None
+    except OSError as exc:
+        raise RecordingError(f"{p}: cannot read ({exc.strerror or exc})") from exc
+    if stat.S_ISDIR(mode):
+        raise RecordingError(f"{p}: a folder, not a CAN log (give the log files in it)")
+    if not stat.S_ISREG(mode):
+        kind = (
+            "a FIFO" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode)
+            else "not a file"
+        )  # fmt: skip
+        raise RecordingError(f"{p}: {kind}, not a regular file: a CAN log is read from a file")
+
+
 def _messages(
     path: Path,
     cut: list[str] | None = None,
@@ -477,6 +509,7 @@ def _messages(
     when it is given; without ``cut``, or before any frame, it is an error. With ``skipped`` a
     damaged line of a text log is skipped and noted there (line number, error), and the lines
     after it are read."""
+    check_log_file(path)
     text = _text_suffix(path)
     if text is not None:
         yield from _text_messages(path, *text, skipped, cut, **options)

@@ -160,6 +160,15 @@ def test_a_folder_or_fifo_given_as_the_log_is_named(tmp_path):
     assert code == 2 and f"{fifo}: a FIFO, not a regular file" in err
     code, _, err = run_cli("dump", str(tmp_path / "missing.log"))
     assert code == 2 and "no such file" in err
+    # solve reads the same logs: a FIFO is refused, not opened (that would wait for a writer).
+    code, _, err = run_cli("solve", str(fifo), "--latitude", "34")
+    assert code == 2 and f"{fifo}: a FIFO, not a regular file" in err
+    code, _, err = run_cli("solve", str(folder), "--latitude", "34")
+    assert code == 2 and f"{folder}: a folder, not a CAN log" in err
+    csv_fifo = tmp_path / "pipe.csv"  # a recording or a python-can CSV: its header is not read
+    os.mkfifo(csv_fifo)
+    code, _, err = run_cli("solve", str(csv_fifo), "--latitude", "34")
+    assert code == 2 and "not a regular file" in err
 
 
 # -- candump lines: direction, channel, pipeable -------------------------------------------------

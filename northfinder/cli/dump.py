@@ -121,33 +121,6 @@ def _wanted_ids(db: Any, names: list[str] | None) -> set[int] | None:
     return out
 
 
-def _check_log_file(path: Path) -> None:
-    """A log is a regular file: anything else is named for what it is."""
-    import stat
-
-    try:
-        mode = path.stat().st_mode
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: no such file") from None
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    if stat.S_ISDIR(mode):
-        raise RecordingError(f"{path}: a folder, not a CAN log (give the log files in it)")
-    if not stat.S_ISREG(mode):
-        kind = (
-            "a FIFO"
-            if stat.S_ISFIFO(mode)
-            else "a device"
-            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
-            else "a socket"
-            if stat.S_ISSOCK(mode)
-            else "not a file"
-        )
-        raise RecordingError(
-            f"{path}: {kind}, not a regular file: dump reads a CAN log file (a live bus: -i/-c)"
-        )
-
-
 def _load_dbc(path: Path) -> Any:
     """The DBC as cantools loads it; a file it cannot load is a usage error naming the file."""
     import cantools
@@ -289,11 +262,11 @@ def run(args: argparse.Namespace) -> int:
         frames: Iterable[Any] = _frames_of_bus(args)
     else:
         from northfinder.driver.framelog import expand_log_names
-        from northfinder.host.canlog import LogSet, read_frames
+        from northfinder.host.canlog import LogSet, check_log_file, read_frames
 
         logs = LogSet(expand_log_names(args.log))
         for path in logs.files:
-            _check_log_file(path)
+            check_log_file(path)
         name = logs.name
         frames = read_frames(
             logs.files, skip_damaged=not args.strict, skipped=skipped, cut=cut, gaps=gaps
