@@ -1,10 +1,13 @@
 """``northfinder dump LOG [LOG ...] | -i INTERFACE -c CHANNEL``: decode CAN frames with protocol.dbc.
 
 Reads a CAN log in any format python-can reads (candump .log, .asc, .blf, .csv, .db, .trc), the
-parts of a rotated log in order (several files or a quoted glob), or a live python-can bus, and prints one line per frame decoded by cantools with the protocol's DBC,
-as ``candump -L | cantools decode --single-line protocol.dbc`` would. Filters: ``--id``,
-``--time-from``/``--time-to`` (seconds from the first frame), ``--session N`` (a host session of
-a ``sim --log``).
+parts of a rotated log in order (several files or a quoted glob), or a live python-can bus, one
+frame at a time (a log of any size in constant memory; ``--count`` reads no further than it
+needs), and prints one line per frame decoded by cantools with the protocol's DBC, as
+``candump -L | cantools decode --single-line protocol.dbc`` would: the candump line with its
+direction (``T`` sent, ``R`` received), then the decoded message (``--raw``: the candump line
+alone). Filters: ``--id``, ``--time-from``/``--time-to`` (seconds from the first frame),
+``--session N`` (a host session of a ``sim --log``).
 """
 
 from __future__ import annotations
