@@ -196,31 +196,60 @@ def candump_line(msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
     return f"{head}{body} {'R' if msg.is_rx else 'T'}"
 
 
-def decode_line(db: Any, msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
-    """One frame as ``(t) CHANNEL ID#DATA DIR :: NAME(Signal: value unit, ...)``: the
-    :func:`candump_line` and what the DBC decodes of it, as ``cantools decode --single-line``
-    prints a ``candump -L`` line."""
-    from northfinder.driver.protocol import DBC_NODE
-    from northfinder.driver.protocol.can import split_can_id
+class FrameDecoder:
+    """Frames decoded with a DBC into dump's lines, the DBC's message and signal units looked up
+    once per CAN id (not once a frame)."""
 
-    head = candump_line(msg, channel)
-    if msg.is_error_frame:
-        return f"{head} :: error frame"
-    if msg.is_extended_id or msg.is_remote_frame:
-        return f"{head} :: not a protocol frame"
-    try:
-        _, node = split_can_id(msg.arbitration_id)
-        message = db.get_message_by_frame_id((msg.arbitration_id & ~0x0F) | DBC_NODE)
-        signals = message.decode(bytes(msg.data), decode_choices=True, allow_truncated=True)
-    except Exception as exc:  # cantools raises its own and KeyError, ValueError
-        return f"{head} :: undecodable ({type(exc).__name__}: {exc})"
-    fields = []
-    for name, value in signals.items():
-        unit = message.get_signal_by_name(name).unit
-        shown = f"{value:g}" if isinstance(value, float) else str(value)
-        fields.append(f"{name}: {shown}{' ' + unit if unit else ''}")
-    node_text = f" node {node}" if node != DBC_NODE else ""
-    return f"{head} :: {message.name}{node_text}({', '.join(fields)})"
+    def __init__(self, db: Any) -> None:
+        from northfinder.driver.protocol import DBC_NODE
+        from northfinder.driver.protocol.can import split_can_id
+
+        self.db = db
+        self._dbc_node = DBC_NODE
+        self._split = split_can_id
+        self._by_id: dict[int, tuple[Any, dict[str, str], str] | Exception] = {}
+
+    def _lookup(self, arbitration_id: int) -> tuple[Any, dict[str, str], str] | Exception:
+        try:
+            _, node = self._split(arbitration_id)
+            message = self.db.get_message_by_frame_id((arbitration_id & ~0x0F) | self._dbc_node)
+        except Exception as exc:  # cantools raises KeyError, ours ProtocolError
+            return exc
+        units = {s.name: f" {s.unit}" if s.unit else "" for s in message.signals}
+        node_text = f" node {node}" if node != self._dbc_node else ""
+        return message, units, f"{message.name}{node_text}"
+
+    def __call__(self, msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
+        """One frame as ``(t) CHANNEL ID#DATA DIR :: NAME(Signal: value unit, ...)``: the
+        :func:`candump_line` and what the DBC decodes of it, as ``cantools decode
+        --single-line`` prints a ``candump -L`` line."""
+        head = candump_line(msg, channel)
+        if msg.is_error_frame:
+            return f"{head} :: error frame"
+        if msg.is_extended_id or msg.is_remote_frame:
+            return f"{head} :: not a protocol frame"
+        found = self._by_id.get(msg.arbitration_id)
+        if found is None:
+            found = self._by_id[msg.arbitration_id] = self._lookup(msg.arbitration_id)
+        if isinstance(found, Exception):
+            return f"{head} :: undecodable ({type(found).__name__}: {found})"
+        message, units, title = found
+        try:
+            signals = message.decode(bytes(msg.data), decode_choices=True, allow_truncated=True)
+        except Exception as exc:  # cantools raises its own and ValueError
+            return f"{head} :: undecodable ({type(exc).__name__}: {exc})"
+        fields = ", ".join(
+            f"{name}: {value:g}{units[name]}"
+            if isinstance(value, float)
+            else f"{name}: {value}{units[name]}"
+            for name, value in signals.items()
+        )
+        return f"{head} :: {title}({fields})"
+
+
+def decode_line(db: Any, msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
+    """One frame as :class:`FrameDecoder` prints it (a decoder made for this frame alone)."""
+    return FrameDecoder(db)(msg, channel)
 
 
 def _session_filter(frames: Iterable[Any], session: int | None) -> Iterator[Any]:
@@ -275,6 +304,7 @@ def run(args: argparse.Namespace) -> int:
             logs.files, skip_damaged=not args.strict, skipped=skipped, cut=cut, gaps=gaps
         )
     channel = str(args.channel) if live and args.channel is not None else UNNAMED_CHANNEL
+    decode = FrameDecoder(db)
     read = _Count(frames)
     t0: float | None = None
     printed = 0
@@ -292,9 +322,7 @@ def run(args: argparse.Namespace) -> int:
                 break
             if wanted is not None and (msg.arbitration_id & ~0x0F) not in wanted:
                 continue
-            out.write(
-                (candump_line(msg, channel) if args.raw else decode_line(db, msg, channel)) + "\n"
-            )
+            out.write((candump_line(msg, channel) if args.raw else decode(msg, channel)) + "\n")
             printed += 1
             if args.count is not None and printed >= args.count:
                 break
