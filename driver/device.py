@@ -99,6 +99,7 @@ from northfinder.driver.transport import (
     READ_POLL_S,
     CanTransport,
     SerialTransport,
+    bus_open_hint,
     open_serial_port,
 )
 from northfinder.driver.window import OnGap, Window, WindowCollector
@@ -239,6 +240,7 @@ class Device(DeviceLink):
         except (can.CanError, OSError, ValueError, ImportError, serial.SerialException) as exc:
             raise LinkError(
                 f"cannot open the CAN bus interface={interface!r} channel={channel!r}: {exc}"
+                f"{bus_open_hint(exc)}"
             ) from exc
         return cls.from_bus(
             bus,

@@ -48,6 +48,7 @@ __all__ = [
     "Received",
     "SerialTransport",
     "Transport",
+    "bus_open_hint",
     "frame_batch",
     "frame_drain",
     "open_serial_port",
@@ -78,6 +79,24 @@ class Transport(Protocol):
 #: Receive buffer asked for on kernel CAN sockets: about 5 s of a saturated 1 Mbit/s bus, so a
 #: host that is briefly busy (a loaded machine, a virtual machine) loses no frame.
 SOCKET_RCVBUF = 8 * 1024 * 1024
+
+
+def bus_open_hint(exc: BaseException) -> str:
+    """A hint for a python-can bus that would not open, by its cause ("" when there is none):
+    ``EAFNOSUPPORT`` (errno 97: "Address family not supported by protocol") is a kernel without
+    SocketCAN (a container, WSL, a kernel built without the can modules)."""
+    seen: BaseException | None = exc
+    for _ in range(8):  # the cause chain: python-can wraps its errors
+        if seen is None:
+            break
+        if isinstance(seen, OSError) and seen.errno == errno.EAFNOSUPPORT:
+            return (
+                "; this kernel has no SocketCAN: use vcan in a VM (scripts/hil), or the "
+                "simulator's SLCAN or serial pseudo-terminal (sim --slcan-pty, sim --pty), or "
+                "-i virtual"
+            )
+        seen = seen.__cause__ or seen.__context__
+    return ""
 
 
 def enlarge_receive_buffer(bus: can.BusABC, size: int = SOCKET_RCVBUF) -> int | None:

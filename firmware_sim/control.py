@@ -277,7 +277,8 @@ def check_request(request: Any) -> tuple[str, dict[str, Any]]:
 def parse_address(text: str) -> tuple[str, Any]:
     """``("tcp", (host, port))`` for ``HOST:PORT`` on loopback, ``("unix", path)`` otherwise.
 
-    IPv6 hosts are written in brackets, ``[::1]:7700``.
+    IPv6 hosts are written in brackets, ``[::1]:7700``. A port alone is on ``127.0.0.1``; port 0
+    (``0``, ``HOST:0``) is any free port, chosen when the channel opens.
 
     Raises
     ------
@@ -289,6 +290,8 @@ def parse_address(text: str) -> tuple[str, Any]:
         if not path:
             raise SimConfigError(f"control address {text!r}: expected unix:PATH")
         return "unix", path
+    if text.strip().isdigit():
+        text = f"127.0.0.1:{text.strip()}"
     host, sep, port = text.rpartition(":")
     if not sep:
         raise SimConfigError(f"control address {text!r}: expected HOST:PORT or unix:PATH")

@@ -33,8 +33,12 @@ sent and received. :func:`read_can_log` decodes it with the protocol's own recei
 from __future__ import annotations
 
 import dataclasses
+import io
+import logging
 import math
+import re
 import sqlite3
+import stat
 import struct
 import zlib
 from collections.abc import Iterator, Sequence
@@ -77,6 +81,7 @@ __all__ = [
     "CanLogSession",
     "LogSet",
     "SessionCounter",
+    "check_log_file",
     "is_can_log",
     "read_can_log",
     "read_frames",
@@ -120,6 +125,8 @@ def is_can_log(path: str | Path) -> bool:
         return False
     if suffix != ".csv" or p.name.lower().endswith(".gz"):
         return True
+    if not p.is_file():  # a FIFO would block the read of its header line
+        return False
     try:
         with p.open(errors="replace") as fh:
             first = fh.readline().strip()
@@ -258,16 +265,62 @@ _TEXT_READERS: dict[str, type[Any]] = {
 MAX_SKIPPED_LINES = 10_000
 
 
-class _Feed:
-    """The lines of a text log handed to a python-can reader one at a time, so that the line a
-    reader fails on is known (the readers take a line and parse it before the next)."""
+#: Longest line of a text log taken at once: a longer one (a binary file has few line ends) is
+#: read in pieces of this many characters, each a damaged line, so memory stays bounded.
+MAX_LINE_CHARS = 1 << 16
+#: Lines before a log's first frame kept to hand again to the reader that goes on after a
+#: damaged line (python-can's text readers learn the format from them: ASC's base and times,
+#: TRC's version and columns). Beyond this many it is no header.
+MAX_HEADER_LINES = 200
+#: ASC lines that hold no frame and are not junk: the header, the trigger blocks, comments and
+#: events (every event line begins with its time).
+_ASC_OTHER = re.compile(
+    r"\s*($|//|date\s|base\s|(no\s+)?internal\s+events\s+logged|begin\s+triggerblock"
+    r"|end\s+triggerblock|[-+]?\d+(\.\d*)?(\s|$))",
+    re.IGNORECASE,
+)
 
-    def __init__(self, lines: list[str]) -> None:
-        self.lines = lines
-        self.pos = 0
+
+class _FileBroken(Exception):
+    """The file itself could not be read on (a truncated ``.gz``, an I/O error)."""
+
+
+def _printable(text: str, limit: int = 60) -> str:
+    """Text of a damaged line fit for one line of a terminal: other than printable ASCII
+    escaped, cut at ``limit`` characters."""
+    shown = text.encode("ascii", "backslashreplace").decode("ascii")
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in shown)
+    return shown[:limit] + ("..." if len(shown) > limit else "")
+
+
+def _excerpt(line: str) -> str:
+    return f"'{_printable(line.rstrip(chr(13) + chr(10)), 40)}'"
+
+
+class _Feed:
+    """The lines of a text log handed to a python-can reader one at a time, streamed from the
+    file (the readers take a line and parse it before the next), so that the line a reader fails
+    on and the lines it passes over without a frame are known. After a damaged line a new reader
+    goes on from the next, given the header lines again.
+
+    A line the reader passes over that its format cannot hold (``junk``: a line of a binary
+    file, say) is a damaged line too: python-can's ASC reader passes such lines over in silence
+    and its TRC reader logs a warning for each; here they are counted."""
+
+    def __init__(self, fh: Any, suffix: str) -> None:
+        self.fh = fh
+        self.suffix = suffix
+        self.number = 0  # lines of the file taken so far
+        self._line_open = False  # the last piece read ended inside a line
+        self.header: list[str] | None = []  # lines taken while no frame came yet
+        self._first_lines: list[str] = []  # the header: lines before the first frame or damage
+        self.replay: list[str] = []  # header lines to hand to the next reader
+        self.pending: str | None = None  # the last line of the file handed out, no frame yet
+        self.junk: tuple[int, str] | None = None  # a line passed over that holds no frame
+        self.eof = False
 
     def read(self, *_: Any) -> str:  # pragma: no cover - the readers iterate
-        return "".join(self.lines[self.pos :])
+        raise io.UnsupportedOperation("a CAN log is read line by line")
 
     def readline(self) -> str:
         return next(self, "")
@@ -275,71 +328,190 @@ class _Feed:
     def __iter__(self) -> _Feed:
         return self
 
+    def _passed_over(self, line: str) -> None:
+        if self.suffix == ".asc" and not _ASC_OTHER.match(line):
+            self.junk = (self.number, f"not a frame of an ASC log: {_excerpt(line)}")
+
     def __next__(self) -> str:
-        if self.pos >= len(self.lines):
+        if self.pending is not None:
+            self._passed_over(self.pending)
+            self.pending = None
+        if self.junk is not None:
+            raise ValueError(self.junk[1])
+        if self.replay:
+            return self.replay.pop(0)
+        try:
+            line = self.fh.readline(MAX_LINE_CHARS)
+        except (OSError, EOFError, zlib.error, UnicodeError) as exc:
+            raise _FileBroken(f"{type(exc).__name__}: {exc}") from exc
+        if not line:
+            self.eof = True
             raise StopIteration
-        self.pos += 1
-        return self.lines[self.pos - 1]
+        if not self._line_open:
+            self.number += 1
+        self._line_open = not line.endswith("\n")
+        if self.header is not None and len(self.header) < MAX_HEADER_LINES:
+            self.header.append(line)
+        self.pending = line
+        return line
+
+    def frame(self) -> None:
+        """The reader made a frame of the last line."""
+        self.pending = None
+        if self.header is not None:
+            self._first_lines = self.header[: max(0, self.number - 1)]
+            self.header = None
+
+    def end(self) -> None:
+        """The reader is through the file: the last line, if it gave no frame, was passed over."""
+        if self.pending is not None:
+            self._passed_over(self.pending)
+            self.pending = None
+        if self.junk is not None:
+            raise ValueError(self.junk[1])
+
+    def damaged(self) -> tuple[int, str | None, str | None]:
+        """A reader failed on the last line taken: its number, the message of junk found (None:
+        the reader's own error) and the line (None if unknown). The next reader is handed the
+        header again."""
+        line = self.pending
+        number, text = self.junk if self.junk is not None else (self.number, None)
+        self.junk = None
+        self.pending = None
+        if self.header is not None:  # no frame yet: the header is what came before this line
+            self._first_lines = self.header[: max(0, self.number - 1)]
+            self.header = None
+        self.replay = list(self._first_lines)
+        return number, text, line
 
     def close(self) -> None:
         pass
 
 
-def _text_lines(path: Path) -> list[str] | None:
-    """The lines of a text log whose reader can skip a damaged line (None for other formats)."""
+class _TrcWarnings(logging.Filter):
+    """python-can's TRC reader logs a warning for every line it cannot parse: each becomes a
+    damaged line of the feed instead of a line on stderr."""
+
+    def __init__(self, feed: _Feed) -> None:
+        super().__init__()
+        self.feed = feed
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        if self.feed.pending is not None and self.feed.junk is None:
+            self.feed.junk = (
+                self.feed.number,
+                f"not a frame of a TRC log: {_excerpt(self.feed.pending)}",
+            )
+        return False
+
+
+def _text_suffix(path: Path) -> tuple[str, bool] | None:
+    """The ending of a text log whose reader can skip a damaged line, and whether it is
+    gzipped (None for other formats)."""
     suffixes = [s.lower() for s in path.suffixes]
     gz = bool(suffixes) and suffixes[-1] == ".gz"
     if gz:
         suffixes = suffixes[:-1]
     if not suffixes or suffixes[-1] not in _TEXT_READERS:
         return None
+    return suffixes[-1], gz
+
+
+def _text_messages(
+    path: Path,
+    suffix: str,
+    gz: bool,
+    skipped: list[tuple[int, str]] | None,
+    cut: list[str] | None,
+    **options: Any,
+) -> Iterator[can.Message]:
+    """The frames of a text log, streamed line by line. With ``skipped`` each damaged line is
+    skipped and noted there as (line number, error), and a new reader goes on after it, given
+    the header again; without, the log ends at the first (noted in ``cut``; before any frame an
+    error)."""
+    reader_class = _TEXT_READERS[suffix]
     try:
         if gz:
             import gzip
 
-            with gzip.open(path, "rt", errors="replace", newline="") as fh:
-                return fh.read().splitlines(keepends=True)
-        with path.open(errors="replace", newline="") as fh:
-            return fh.read().splitlines(keepends=True)
-    except (OSError, EOFError, zlib.error) as exc:
+            fh: Any = gzip.open(path, "rt", errors="replace", newline="")
+        else:
+            fh = path.open(errors="replace", newline="")
+    except OSError as exc:
         raise RecordingError(f"{path}: cannot read as a CAN log ({exc})") from exc
+    feed = _Feed(fh, suffix)
+    trc_log = logging.getLogger("can.io.trc")
+    quiet = _TrcWarnings(feed)
+    trc_log.addFilter(quiet)
+    n = 0
+    try:
+        while True:
+            try:
+                for msg in reader_class(feed, **options):
+                    feed.frame()
+                    n += 1
+                    yield msg
+                feed.end()
+                return
+            except _FileBroken as exc:
+                if cut is None or n == 0:
+                    raise RecordingError(f"{path}: cannot read as a CAN log ({exc})") from exc
+                cut.append(f"the log breaks off after frame {n} ({exc}): it is cut short")
+                return
+            except _READ_ERRORS as exc:
+                number, junk, line = feed.damaged()
+                what = junk or (
+                    (f"{_excerpt(line)} " if line else "")
+                    + f"({type(exc).__name__}: {_printable(str(exc))})"
+                )
+                if skipped is None:
+                    if cut is None or n == 0:
+                        raise RecordingError(
+                            f"{path}: unreadable CAN log (line {number}: {what})"
+                        ) from exc
+                    cut.append(f"the log breaks off after frame {n} ({what}): it is cut short")
+                    return
+                skipped.append((number, what))
+                if len(skipped) > MAX_SKIPPED_LINES:
+                    raise RecordingError(
+                        f"{path}: more than {MAX_SKIPPED_LINES} damaged lines (line "
+                        f"{skipped[0][0]}: {skipped[0][1]}): not a CAN log python-can reads"
+                    ) from exc
+                if feed.eof:
+                    return
+    finally:
+        trc_log.removeFilter(quiet)
+        fh.close()
 
 
-def _tolerant_messages(
-    path: Path,
-    lines: list[str],
-    skipped: list[tuple[int, str]],
-    cut: list[str] | None,
-    **options: Any,
-) -> Iterator[can.Message]:
-    """The frames of a text log, each damaged line skipped and noted in ``skipped`` as (line
-    number, error): a new reader goes on after it, given the header again. A damaged last line
-    without its line end is a log cut short (noted in ``cut``), not a damaged line."""
-    reader_class = _TEXT_READERS[[s.lower() for s in path.suffixes if s.lower() != ".gz"][-1]]
-    header: list[str] | None = None
-    start = 0
-    while True:
-        prefix = header or []
-        feed = _Feed(prefix + lines[start:])
-        try:
-            for msg in reader_class(feed, **options):
-                if header is None:
-                    header = lines[: start + feed.pos - 1]  # before the line of the first frame
-                yield msg
-            return
-        except _READ_ERRORS as exc:
-            bad = start + feed.pos - 1 - len(prefix)
-            text = lines[bad].rstrip("\r\n") if bad < len(lines) else ""
-            shown = repr(text[:60]) + ("..." if len(text) > 60 else "")
-            skipped.append((bad + 1, f"{shown} ({type(exc).__name__}: {exc})"))
-            if header is None:
-                header = lines[:bad]  # no frame yet: what came before the damaged line
-            if len(skipped) > MAX_SKIPPED_LINES:
-                raise RecordingError(
-                    f"{path}: more than {MAX_SKIPPED_LINES} damaged lines (line {skipped[0][0]}: "
-                    f"{skipped[0][1]}): not a CAN log python-can reads"
-                ) from exc
-            start = bad + 1
+def check_log_file(path: str | Path) -> None:
+    """A CAN log is a regular file: anything else is named for what it is (reading a FIFO would
+    wait for a writer that may never come).
+
+    Raises
+    ------
+    RecordingError
+        No such file, a folder, a FIFO, a device or a socket.
+    """
+    p = Path(path)
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        raise RecordingError(f"{p}: no such file") from None
+    except OSError as exc:
+        raise RecordingError(f"{p}: cannot read ({exc.strerror or exc})") from exc
+    if stat.S_ISDIR(mode):
+        raise RecordingError(f"{p}: a folder, not a CAN log (give the log files in it)")
+    if not stat.S_ISREG(mode):
+        kind = (
+            "a FIFO" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode)
+            else "not a file"
+        )  # fmt: skip
+        raise RecordingError(f"{p}: {kind}, not a regular file: a CAN log is read from a file")
 
 
 def _messages(
@@ -348,14 +520,15 @@ def _messages(
     skipped: list[tuple[int, str]] | None = None,
     **options: Any,
 ) -> Iterator[can.Message]:
-    """The log's frames. A file that breaks off after some frames (a copy cut short: a partial
-    last line, a truncated BLF container) ends the frames there and says so in ``cut`` when it
-    is given; without ``cut``, or before any frame, it is an error. With ``skipped`` a damaged
-    line of a text log is skipped and noted there (line number, error), and the lines after it
-    are read."""
-    lines = _text_lines(path) if skipped is not None else None
-    if lines is not None and skipped is not None:
-        yield from _tolerant_messages(path, lines, skipped, cut, **options)
+    """The log's frames, streamed. A file that breaks off after some frames (a copy cut short: a
+    partial last line, a truncated BLF container) ends the frames there and says so in ``cut``
+    when it is given; without ``cut``, or before any frame, it is an error. With ``skipped`` a
+    damaged line of a text log is skipped and noted there (line number, error), and the lines
+    after it are read."""
+    check_log_file(path)
+    text = _text_suffix(path)
+    if text is not None:
+        yield from _text_messages(path, *text, skipped, cut, **options)
         return
     try:
         reader = can.LogReader(str(path), **options)

@@ -65,7 +65,7 @@ def test_the_docs_extra_and_the_ci_build_use_warnings_as_errors():
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     docs_extra = re.search(r"^docs = \[(.*?)\]", pyproject, flags=re.M | re.S)
     assert docs_extra is not None
-    for package in ("sphinx", "myst-parser", "furo"):
+    for package in ("sphinx", "myst-parser", "furo", "sphinx-copybutton"):
         assert f'"{package}' in docs_extra.group(1)
     assert "sphinx-build -W --keep-going -b html docs build/docs" in ci
 
@@ -77,6 +77,7 @@ def test_the_site_builds_without_warnings(tmp_path):
     fails here before CI."""
     pytest.importorskip("sphinx")
     pytest.importorskip("myst_parser")
+    pytest.importorskip("sphinx_copybutton")
     build = subprocess.run(
         [
             sys.executable,

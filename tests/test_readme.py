@@ -50,6 +50,26 @@ def commands(page: str) -> list[str]:
     return out
 
 
+#: Lines a console block shows that the command must print as shown: a suite's closing count.
+CHECKED_OUTPUT = re.compile(r"^\d+ passed, \d+ failed(, \d+ skipped)? in [\d.]+ s$")
+
+
+def shown_output(page: str) -> dict[str, list[str]]:
+    """The lines a page's console blocks show after each ``$ northfinder`` command that match
+    :data:`CHECKED_OUTPUT` (deterministic: seeded, in virtual time)."""
+    out: dict[str, list[str]] = {}
+    for kind, body in _BLOCK.findall((ROOT / page).read_text()):
+        if kind != "console":
+            continue
+        current: str | None = None
+        for line in body.splitlines():
+            if line.startswith("$ "):
+                current = line[2:].partition(" #")[0].strip()
+            elif current is not None and CHECKED_OUTPUT.match(line.strip()):
+                out.setdefault(current, []).append(line.strip())
+    return out
+
+
 def runnable(command: str) -> bool:
     return not NEEDS_ANOTHER_PROCESS.search(command)
 
@@ -82,3 +102,5 @@ def test_a_page_s_commands_run_in_order(page, tmp_path, monkeypatch):
             assert "CONSISTENCY CHECK FAILED" in out, f"{page}, command {i}: {command}\n{out}"
             continue
         assert code == 0, f"{page}, command {i}: {command}\n{err[-2000:]}"
+        for line in shown_output(page).get(command.partition("  #")[0].strip(), []):
+            assert line in out.splitlines(), f"{page}, command {i}: {command}: not {line!r}"

@@ -421,13 +421,13 @@ def test_vv_logs_every_command_and_reply_with_its_delay(caplog):
 
 
 # -- 6. progress on every long command, plain where a bar cannot work -----------------------------
-def _pty_with_width(columns: int) -> tuple[Any, int]:
+def _pty_with_width(columns: int, rows: int = 24) -> tuple[Any, int]:
     import fcntl
     import struct
     import termios
 
     master, slave = os.openpty()
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, columns, 0, 0))
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", rows, columns, 0, 0))
     return os.fdopen(slave, "w"), master
 
 
@@ -436,8 +436,15 @@ def test_a_bar_needs_a_terminal_that_reports_its_width():
 
     assert progress_mode(io.StringIO()) == "lines"
     assert progress_mode(io.StringIO(), enabled=False) == "off"
-    for columns, mode in ((0, "lines"), (80, "bar")):
-        stream, master = _pty_with_width(columns)
+    # tqdm draws nothing on a terminal of no height (a pty whose size was never set: 0 x 0, or
+    # 80 x 0 where only the width was): plain lines there.
+    for columns, rows, mode in (
+        (0, 24, "lines"),
+        (80, 0, "lines"),
+        (0, 0, "lines"),
+        (80, 24, "bar"),
+    ):
+        stream, master = _pty_with_width(columns, rows)
         try:
             assert progress_mode(stream) == mode
         finally:
@@ -445,10 +452,11 @@ def test_a_bar_needs_a_terminal_that_reports_its_width():
             os.close(master)
 
 
-def test_progress_on_a_terminal_of_no_width_is_plain_lines():
+@pytest.mark.parametrize(("columns", "rows"), [(0, 24), (80, 0)])
+def test_progress_on_a_terminal_of_no_width_is_plain_lines(columns, rows):
     from northfinder.cli.progress import Progress
 
-    stream, master = _pty_with_width(0)
+    stream, master = _pty_with_width(columns, rows)
     try:
         with Progress("study", unit="chunks", stream=stream) as bar:
             for done in range(1, 21):
@@ -572,7 +580,7 @@ def test_latitude_is_among_the_options_a_device_needs():
 
 # -- 9. dump: a CAN log or a live bus decoded with the DBC ----------------------------------------
 DUMP_LINE = re.compile(
-    r"^\((\d+\.\d{6})\) (\S+) ([0-9A-F]{3})#([0-9A-F]*) :: (\w+)(?: node \d+)?\((.*)\)$"
+    r"^\((\d+\.\d{6})\) (\S+) ([0-9A-F]{3})#([0-9A-F]*) ([RT]) :: (\w+)(?: node \d+)?\((.*)\)$"
 )
 
 
@@ -594,8 +602,9 @@ def test_dump_decodes_every_frame_of_a_log_with_the_dbc(candump):
         m = DUMP_LINE.match(line)
         assert m is not None, line
         assert int(m.group(3), 16) == msg.arbitration_id and bytes.fromhex(m.group(4)) == msg.data
-        names.add(m.group(5))
-        if m.group(5) == "SAMPLE_X":
+        assert m.group(5) == ("R" if msg.is_rx else "T")  # the direction the log holds
+        names.add(m.group(6))
+        if m.group(6) == "SAMPLE_X":
             ours = decode_can(msg.arbitration_id, bytes(msg.data)).message
             assert isinstance(ours, SampleX)
             gyro = float(re.search(r"GyroX: (\S+) deg/h", line).group(1))  # type: ignore[union-attr]

@@ -218,3 +218,16 @@ def test_sim_refuses_bad_arguments_with_one_clear_line():
         )
         assert res.returncode != 0
         assert text in res.stderr and "Traceback" not in res.stderr, res.stderr
+
+
+@pytest.mark.parametrize("control", ["0", "127.0.0.1:0"])
+def test_sim_control_port_0_picks_a_free_port_and_prints_it(control):
+    """``--control 0`` (docs/cli.md): any free port on loopback, printed as ``control ADDRESS``."""
+    import re
+
+    with sim_process("--pty", "--warmup", "0", "--control", control) as facts:
+        m = re.fullmatch(r"(127\.0\.0\.1|\[::1\]):(\d+)", facts["control"])
+        assert m is not None, facts["control"]
+        assert int(m.group(2)) > 0
+        with ControlClient(facts["control"]) as ctl:
+            assert "state" in ctl.call("status")

@@ -158,6 +158,16 @@ def _files(tmp: str) -> dict[str, str]:
     }.items():
         write(name, body)
     write("short.blf", "LOGG")  # a BLF too short for its header
+    # CAN logs of binary junk, a FIFO and a folder named as logs, a DBC that is none.
+    junk = bytes((i * 7919 + 13) % 256 for i in range(100_000))
+    for name in ("junk.trc", "junk.asc", "junk.log", "junk.dbc"):
+        with open(os.path.join(tmp, name), "wb") as fh:
+            fh.write(junk)
+        out[name] = os.path.join(tmp, name)
+    out["fifo.log"] = os.path.join(tmp, "fifo.log")
+    os.mkfifo(out["fifo.log"])
+    out["folder.log"] = os.path.join(tmp, "folder.log")
+    os.mkdir(out["folder.log"])
     # A CSV of more windows than a recording holds (two samples each, under a megabyte).
     many = [rows[0]] + [
         f"{w},0.000000,{2 * w + i},{(2 * w + i) / 200:.6f},1,1,1,0,0,9.8,0,20,3"
@@ -322,6 +332,11 @@ def cli_cases(
     add("dump", [f["short.blf"]], 2, "short.blf")
     add("dump", [*f["rotated-gap"].split(), "--strict"], 2, "missing")
     add("dump", [os.path.join(tmp, "no-such-*.log")], 2, "no file matches")
+    for name in ("junk.trc", "junk.asc", "junk.log"):
+        add("dump", [f[name]], 2, name)
+    add("dump", [f["fifo.log"]], 2, "FIFO")
+    add("dump", [f["folder.log"]], 2, "folder")
+    add("dump", [f["rotated"].split()[0], "--dbc", f["junk.dbc"]], 2, "junk.dbc")
     for name, field in (("ambient-1e9.toml", "ambient_c"), ("misalignment-1e9.toml",
                         "misalignment_urad"), ("indexing-45.toml", "indexing_error_deg")):  # fmt: skip
         add("simulate", ["--sensor", f[name]], 2, field)

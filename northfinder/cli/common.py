@@ -490,7 +490,11 @@ def open_can_bus(args: argparse.Namespace) -> Any:
         now = isinstance(cause, can.CanError | OSError) and not isinstance(
             cause, can.CanInterfaceNotImplementedError
         )
-        raise (LinkError if now else HostConfigError)(f"cannot open the CAN bus: {cause}") from exc
+        from northfinder.driver.transport import bus_open_hint
+
+        raise (LinkError if now else HostConfigError)(
+            f"cannot open the CAN bus: {cause}{bus_open_hint(cause)}"
+        ) from exc
 
 
 def open_serial_port(path: str, baud: int) -> Any:

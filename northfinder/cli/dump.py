@@ -1,10 +1,13 @@
 """``northfinder dump LOG [LOG ...] | -i INTERFACE -c CHANNEL``: decode CAN frames with protocol.dbc.
 
 Reads a CAN log in any format python-can reads (candump .log, .asc, .blf, .csv, .db, .trc), the
-parts of a rotated log in order (several files or a quoted glob), or a live python-can bus, and prints one line per frame decoded by cantools with the protocol's DBC,
-as ``candump -L | cantools decode --single-line protocol.dbc`` would. Filters: ``--id``,
-``--time-from``/``--time-to`` (seconds from the first frame), ``--session N`` (a host session of
-a ``sim --log``).
+parts of a rotated log in order (several files or a quoted glob), or a live python-can bus, one
+frame at a time (a log of any size in constant memory; ``--count`` reads no further than it
+needs), and prints one line per frame decoded by cantools with the protocol's DBC, as
+``candump -L | cantools decode --single-line protocol.dbc`` would: the candump line with its
+direction (``T`` sent, ``R`` received), then the decoded message (``--raw``: the candump line
+alone). Filters: ``--id``, ``--time-from``/``--time-to`` (seconds from the first frame),
+``--session N`` (a host session of a ``sim --log``).
 """
 
 from __future__ import annotations
@@ -92,6 +95,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     add_duration_argument(g, "a live bus: stop after this many wall seconds")
     g.add_argument(
+        "--raw", action="store_true",
+        help="print the frames as candump -L lines, not decoded (for canplayer, cantools decode)",
+    )  # fmt: skip
+    g.add_argument(
         "--strict", action="store_true",
         help="a damaged line of a log is an error (default: skipped with a warning)",
     )  # fmt: skip
@@ -117,6 +124,36 @@ def _wanted_ids(db: Any, names: list[str] | None) -> set[int] | None:
     return out
 
 
+def _load_dbc(path: Path) -> Any:
+    """The DBC as cantools loads it; a file it cannot load is a usage error naming the file."""
+    import cantools
+
+    if path.is_dir():
+        raise HostConfigError(f"--dbc {path}: a folder, not a DBC file")
+    try:
+        return cantools.database.load_file(str(path))
+    except FileNotFoundError:
+        raise HostConfigError(f"--dbc {path}: no such file") from None
+    except Exception as exc:  # cantools' parsers raise their own, ValueError, UnicodeError...
+        text = " ".join(str(exc).split())
+        raise HostConfigError(
+            f"--dbc {path}: not a DBC cantools reads ({type(exc).__name__}: {text[:200]})"
+        ) from exc
+
+
+class _Count:
+    """The frames of a stream, counted as they pass."""
+
+    def __init__(self, frames: Iterable[Any]) -> None:
+        self.frames = frames
+        self.n = 0
+
+    def __iter__(self) -> Iterator[Any]:
+        for msg in self.frames:
+            self.n += 1
+            yield msg
+
+
 def _frames_of_bus(args: argparse.Namespace) -> Iterator[Any]:
     bus = open_can_bus(args)
     end = None if args.duration is None else time.monotonic() + args.duration
@@ -130,32 +167,89 @@ def _frames_of_bus(args: argparse.Namespace) -> Iterator[Any]:
         bus.shutdown()
 
 
-def decode_line(db: Any, msg: Any) -> str:
-    """One frame as ``(t) CHANNEL ID#DATA :: NAME(Signal: value unit, ...)``."""
-    from northfinder.driver.protocol import DBC_NODE
-    from northfinder.driver.protocol.can import split_can_id
+#: The channel of a frame from a log that names none (python-can's candump writer's default).
+UNNAMED_CHANNEL = "vcan0"
+_CAN_ERR_FLAG = 0x20000000
+_CAN_ERR_BUSERROR = 0x00000080
 
-    channel = msg.channel if msg.channel is not None else "can"
-    head = (
-        f"({msg.timestamp:.6f}) {channel} {msg.arbitration_id:03X}#{bytes(msg.data).hex().upper()}"
-    )
+
+def candump_line(msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
+    """One frame as ``candump -L`` logs it with its direction, as python-can's candump writer
+    does: ``(t) CHANNEL ID#DATA R`` (received) or ``T`` (sent); an error frame without one.
+    ``channel`` names a frame whose own channel is None; a number ``n`` is ``can<n>``."""
+    name = msg.channel if msg.channel is not None else channel
+    if isinstance(name, int) or (isinstance(name, str) and name.isdigit()):
+        name = f"can{name}"
+    head = f"({msg.timestamp:.6f}) {name} "
     if msg.is_error_frame:
-        return f"{head} :: error frame"
-    if msg.is_extended_id or msg.is_remote_frame:
-        return f"{head} :: not a protocol frame"
-    try:
-        _, node = split_can_id(msg.arbitration_id)
-        message = db.get_message_by_frame_id((msg.arbitration_id & ~0x0F) | DBC_NODE)
-        signals = message.decode(bytes(msg.data), decode_choices=True, allow_truncated=True)
-    except Exception as exc:  # cantools raises its own and KeyError, ValueError
-        return f"{head} :: undecodable ({type(exc).__name__}: {exc})"
-    fields = []
-    for name, value in signals.items():
-        unit = message.get_signal_by_name(name).unit
-        shown = f"{value:g}" if isinstance(value, float) else str(value)
-        fields.append(f"{name}: {shown}{' ' + unit if unit else ''}")
-    node_text = f" node {node}" if node != DBC_NODE else ""
-    return f"{head} :: {message.name}{node_text}({', '.join(fields)})"
+        return f"{head}{_CAN_ERR_FLAG | _CAN_ERR_BUSERROR:08X}#"
+    head += f"{msg.arbitration_id:08X}#" if msg.is_extended_id else f"{msg.arbitration_id:03X}#"
+    if msg.is_remote_frame:
+        body = "R"
+    else:
+        flags = ""
+        if msg.is_fd:
+            flags = (
+                f"#{(1 if msg.bitrate_switch else 0) | (2 if msg.error_state_indicator else 0):X}"
+            )
+        body = flags + bytes(msg.data).hex().upper()
+    return f"{head}{body} {'R' if msg.is_rx else 'T'}"
+
+
+class FrameDecoder:
+    """Frames decoded with a DBC into dump's lines, the DBC's message and signal units looked up
+    once per CAN id (not once a frame)."""
+
+    def __init__(self, db: Any) -> None:
+        from northfinder.driver.protocol import DBC_NODE
+        from northfinder.driver.protocol.can import split_can_id
+
+        self.db = db
+        self._dbc_node = DBC_NODE
+        self._split = split_can_id
+        self._by_id: dict[int, tuple[Any, dict[str, str], str] | Exception] = {}
+
+    def _lookup(self, arbitration_id: int) -> tuple[Any, dict[str, str], str] | Exception:
+        try:
+            _, node = self._split(arbitration_id)
+            message = self.db.get_message_by_frame_id((arbitration_id & ~0x0F) | self._dbc_node)
+        except Exception as exc:  # cantools raises KeyError, ours ProtocolError
+            return exc
+        units = {s.name: f" {s.unit}" if s.unit else "" for s in message.signals}
+        node_text = f" node {node}" if node != self._dbc_node else ""
+        return message, units, f"{message.name}{node_text}"
+
+    def __call__(self, msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
+        """One frame as ``(t) CHANNEL ID#DATA DIR :: NAME(Signal: value unit, ...)``: the
+        :func:`candump_line` and what the DBC decodes of it, as ``cantools decode
+        --single-line`` prints a ``candump -L`` line."""
+        head = candump_line(msg, channel)
+        if msg.is_error_frame:
+            return f"{head} :: error frame"
+        if msg.is_extended_id or msg.is_remote_frame:
+            return f"{head} :: not a protocol frame"
+        found = self._by_id.get(msg.arbitration_id)
+        if found is None:
+            found = self._by_id[msg.arbitration_id] = self._lookup(msg.arbitration_id)
+        if isinstance(found, Exception):
+            return f"{head} :: undecodable ({type(found).__name__}: {found})"
+        message, units, title = found
+        try:
+            signals = message.decode(bytes(msg.data), decode_choices=True, allow_truncated=True)
+        except Exception as exc:  # cantools raises its own and ValueError
+            return f"{head} :: undecodable ({type(exc).__name__}: {exc})"
+        fields = ", ".join(
+            f"{name}: {value:g}{units[name]}"
+            if isinstance(value, float)
+            else f"{name}: {value}{units[name]}"
+            for name, value in signals.items()
+        )
+        return f"{head} :: {title}({fields})"
+
+
+def decode_line(db: Any, msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
+    """One frame as :class:`FrameDecoder` prints it (a decoder made for this frame alone)."""
+    return FrameDecoder(db)(msg, channel)
 
 
 def _session_filter(frames: Iterable[Any], session: int | None) -> Iterator[Any]:
@@ -184,18 +278,13 @@ def _session_filter(frames: Iterable[Any], session: int | None) -> Iterator[Any]
 
 
 def run(args: argparse.Namespace) -> int:
-    import cantools
-
     live = bus_given(args)
     if live == bool(args.log):
         raise HostConfigError("give a CAN log, or a bus with -i/-c (not both)")
     if live and args.session is not None:
         raise HostConfigError("--session applies to a CAN log")
     dbc = _dbc_path(args.dbc)
-    try:
-        db = cantools.database.load_file(str(dbc))
-    except (OSError, cantools.database.UnsupportedDatabaseFormatError) as exc:
-        raise HostConfigError(f"--dbc {dbc}: cannot load ({exc})") from exc
+    db = _load_dbc(dbc)
     wanted = _wanted_ids(db, args.ids)
     skipped: list[tuple[int, str]] = []
     cut: list[str] = []
@@ -205,21 +294,23 @@ def run(args: argparse.Namespace) -> int:
         frames: Iterable[Any] = _frames_of_bus(args)
     else:
         from northfinder.driver.framelog import expand_log_names
-        from northfinder.host.canlog import LogSet, read_frames
+        from northfinder.host.canlog import LogSet, check_log_file, read_frames
 
         logs = LogSet(expand_log_names(args.log))
         for path in logs.files:
-            if not path.is_file():
-                raise RecordingError(f"{path}: no such file")
+            check_log_file(path)
         name = logs.name
         frames = read_frames(
             logs.files, skip_damaged=not args.strict, skipped=skipped, cut=cut, gaps=gaps
         )
+    channel = str(args.channel) if live and args.channel is not None else UNNAMED_CHANNEL
+    decode = FrameDecoder(db)
+    read = _Count(frames)
     t0: float | None = None
     printed = 0
     out = sys.stdout
     try:
-        for msg in _session_filter(frames, args.session):
+        for msg in _session_filter(read, args.session):
             if t0 is None:
                 t0 = msg.timestamp
             t = msg.timestamp - t0
@@ -231,7 +322,7 @@ def run(args: argparse.Namespace) -> int:
                 break
             if wanted is not None and (msg.arbitration_id & ~0x0F) not in wanted:
                 continue
-            out.write(decode_line(db, msg) + "\n")
+            out.write((candump_line(msg, channel) if args.raw else decode(msg, channel)) + "\n")
             printed += 1
             if args.count is not None and printed >= args.count:
                 break
@@ -239,7 +330,7 @@ def run(args: argparse.Namespace) -> int:
         out.flush()
         for gap in gaps:
             warn("dump", f"{name}: {gap}")
-        if skipped:
+        if skipped and read.n > 0:
             warn(
                 "dump",
                 f"{name}: skipped {len(skipped)} damaged line(s) (first: line "
@@ -250,4 +341,9 @@ def run(args: argparse.Namespace) -> int:
                 warn("dump", f"{name}: {note}")
     if args.strict and (cut or gaps):
         raise RecordingError(f"{name}: {(cut or gaps)[0]}")
+    if skipped and read.n == 0:
+        raise RecordingError(
+            f"{name}: not a CAN log python-can reads: no frame, {len(skipped)} damaged line(s) "
+            f"skipped (first: line {skipped[0][0]}, {skipped[0][1]})"
+        )
     return 0

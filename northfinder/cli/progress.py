@@ -17,7 +17,8 @@ Mode = Literal["bar", "lines", "off"]
 
 
 def progress_mode(stream: Any, enabled: bool = True) -> Mode:
-    """``bar`` on a terminal that reports a width, ``lines`` on anything else, ``off`` when not
+    """``bar`` on a terminal that reports its size, ``lines`` on anything else (a terminal of no
+    width or no height too: tqdm draws nothing on one of no height), ``off`` when not
     ``enabled``."""
     if not enabled:
         return "off"
@@ -25,10 +26,10 @@ def progress_mode(stream: Any, enabled: bool = True) -> Mode:
     if isatty is None or not isatty():
         return "lines"
     try:
-        columns = os.get_terminal_size(stream.fileno()).columns
+        size = os.get_terminal_size(stream.fileno())
     except (OSError, ValueError, AttributeError):
         return "lines"
-    return "bar" if columns > 0 else "lines"
+    return "bar" if size.columns > 0 and size.lines > 0 else "lines"
 
 
 class Progress:

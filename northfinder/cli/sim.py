@@ -102,7 +102,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--control",
         type=control_address,
         metavar="ADDRESS",
-        help="control channel: 127.0.0.1:PORT or [::1]:PORT (0 = any free port) or unix:PATH",
+        help="control channel: 127.0.0.1:PORT, [::1]:PORT or unix:PATH; 0 or HOST:0: any free port "
+        "(printed as control ADDRESS)",
     )
     p.add_argument(
         "--duration",
