@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import threading
 import time
 from typing import Any
 
@@ -554,3 +555,64 @@ async def test_the_screen_on_a_pty_to_a_simulator_process():
                 assert "READY" in text(app, "banner")
         finally:
             session.close()
+
+
+# -- recording ---------------------------------------------------------------------------------
+def in_thread(fn, *args, limit_s=5.0):
+    """Run the session's method ``fn`` in a thread and fail (instead of hanging) when it does not
+    end in time: a lock taken twice by one thread never returns. The session then gets a new
+    recording lock, so that closing it does not hang the test too."""
+    out: list[Any] = []
+    worker = threading.Thread(target=lambda: out.append(fn(*args)), daemon=True)
+    worker.start()
+    worker.join(limit_s)
+    if worker.is_alive():
+        fn.__self__._record_lock = threading.Lock()
+        pytest.fail(f"{fn.__name__} did not return within {limit_s} s")
+    return out[0] if out else None
+
+
+def test_recording_starts_switches_and_stops_without_waiting_on_itself(tmp_path):
+    first, second = tmp_path / "a.asc", tmp_path / "b.log"
+    with simulated() as (sim, session):
+        in_thread(session.start_recording, str(first))
+        assert session.record_path == str(first)
+        vclock(sim).sleep(1.0)
+        in_thread(session.start_recording, str(second))  # closes the first log
+        vclock(sim).sleep(1.0)
+        assert in_thread(session.stop_recording) == str(second)
+        assert session.record_path is None and in_thread(session.stop_recording) is None
+    for log in (first, second):
+        frames = list(can.LogReader(str(log)))
+        # one second of a 200 Hz stream (two frames a sample) and the statuses, in virtual time
+        assert len(frames) > 400
+        assert frames[-1].timestamp - frames[0].timestamp == pytest.approx(1.0, abs=0.02)
+
+
+@pytest.mark.realtime
+def test_the_command_records_from_the_start_with_can_log(tmp_path, monkeypatch, capsys):
+    """``monitor --sim --can-log FILE`` opens its screen, quits at ``--duration`` and leaves a
+    complete log (headless: the command's own run, without a terminal)."""
+    import functools
+
+    monkeypatch.setattr(MonitorApp, "run", functools.partialmethod(MonitorApp.run, headless=True))
+    log = tmp_path / "run.asc"
+    summary = tmp_path / "summary.json"
+    argv = ["monitor", "--sim", "--warmup", "0", "--speed", "4", "--can-log", str(log)]
+    t0 = time.monotonic()
+    status = in_thread_status(main, [*argv, "--duration", "1.5", "--summary", str(summary)])
+    assert status == 0 and time.monotonic() - t0 < 20.0
+    frames = list(can.LogReader(str(log)))
+    assert len(frames) > 100  # statuses and samples of the stream the monitor started
+    assert "monitor:" in capsys.readouterr().err
+
+
+def in_thread_status(fn, argv, limit_s=30.0):
+    """``fn(argv)`` in a thread: a command that hangs fails the test instead of hanging it."""
+    out: list[Any] = []
+    worker = threading.Thread(target=lambda: out.append(fn(argv)), daemon=True)
+    worker.start()
+    worker.join(limit_s)
+    if worker.is_alive():
+        pytest.fail(f"northfinder {' '.join(argv)} did not end within {limit_s} s")
+    return out[0] if out else None

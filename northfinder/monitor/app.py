@@ -510,8 +510,12 @@ class MonitorApp(App[int]):
     def action_record(self) -> None:
         s = self.session
         if s.record_path:
-            path = s.stop_recording()
-            s.observer.note(f"recording stopped: {path}", "ok")
+            try:
+                path = s.stop_recording()
+            except (DriverError, HostError, OSError) as exc:
+                s.observer.note(f"record: {exc}", "error")
+            else:
+                s.observer.note(f"recording stopped: {path}", "ok")
         else:
             path = self.record_path
             try:

@@ -84,13 +84,24 @@ class Session:
             The file cannot be written, or its ending names no log format.
         """
         log = FrameLog(path)
+        if self.clock.virtual:
+            log.use_clock(self.clock)  # the log's times are the instrument's, not the CPU's
+        # The lock only swaps the writer (the link's reader takes it for every frame): the
+        # file is opened before and the previous log closed after, never while it is held.
         with self._record_lock:
-            self.stop_recording()
-            self._recorder = log
+            old, self._recorder = self._recorder, log
             self.record_path = path
+        if old is not None:
+            old.close()
 
     def stop_recording(self) -> str | None:
-        """Close the CAN log; return its path (None if none was open)."""
+        """Close the CAN log; return its path (None if none was open).
+
+        Raises
+        ------
+        LinkError
+            A write failed: the log is incomplete (it is closed all the same).
+        """
         with self._record_lock:
             log, self._recorder = self._recorder, None
             path, self.record_path = self.record_path, None
