@@ -193,8 +193,9 @@ def vclock(sim: SimulatedInstrument) -> VirtualClock:
 
 
 @contextlib.contextmanager
-def simulated(*, warmup_s=0.0, seed=7, stream=True, sensor="paper-rlg"):
-    """A simulated unit in virtual time and an active session on it (the stream started)."""
+def simulated(*, warmup_s=0.0, seed=7, stream=True, sensor="paper-rlg", ready=True):
+    """A simulated unit in virtual time and an active session on it (the stream started; with
+    ``ready=False`` the unit is left in its warm-up, nothing started)."""
     with SimulatedInstrument(
         sensor, Truth(azimuth_deg=TRUTH_DEG), seed=seed, clock="virtual", warmup_s=warmup_s
     ) as sim:
@@ -202,12 +203,15 @@ def simulated(*, warmup_s=0.0, seed=7, stream=True, sensor="paper-rlg"):
         @contextlib.contextmanager
         def opener(tap):
             with sim.open_device(tap=tap) as dev:
-                yield dev, sim.describe()
+                yield dev, {**sim.describe(), "warmup_s": warmup_s}
 
         session = ActiveSession(
             opener, description="embedded simulator", clock=vclock(sim), stream=False
         )
         try:
+            if not ready:
+                yield sim, session
+                return
             session.require().wait_ready(5.0)
             if stream:
                 session.require().start_streaming()
@@ -217,11 +221,17 @@ def simulated(*, warmup_s=0.0, seed=7, stream=True, sensor="paper-rlg"):
 
 
 @contextlib.asynccontextmanager
-async def on_screen(*, plan: Plan | None = None, size: tuple[int, int] = SIZE, **unit: Any):
+async def on_screen(
+    *,
+    plan: Plan | None = None,
+    size: tuple[int, int] = SIZE,
+    record_path: str = "monitor.asc",
+    **unit: Any,
+):
     """The monitor on a simulated unit (:func:`simulated`, given ``unit``), run headless:
     ``(sim, session, app, pilot)``."""
     with simulated(**unit) as (sim, session):
-        app = MonitorApp(session, refresh_hz=0, plan=plan)
+        app = MonitorApp(session, refresh_hz=0, plan=plan, record_path=record_path)
         async with app.run_test(size=size) as pilot:
             yield sim, session, app, pilot
 
@@ -616,3 +626,262 @@ def in_thread_status(fn, argv, limit_s=30.0):
     if worker.is_alive():
         pytest.fail(f"northfinder {' '.join(argv)} did not end within {limit_s} s")
     return out[0] if out else None
+
+
+# -- every key of the screen, enumerated from its bindings ---------------------------------------
+# Each key is pressed where it acts and, where it can be refused, where it is refused (the unit
+# refuses, the monitor is passive, the request is incomplete); every case then quits with q and
+# the screen must end within QUIT_WITHIN_S of wall time. A key bound without a case here fails.
+QUIT_WITHIN_S = 2.0
+
+
+async def quit_in_time(app, pilot):
+    t0 = time.monotonic()
+    await pilot.press("q")
+    while app.is_running and time.monotonic() - t0 < QUIT_WITHIN_S:
+        await asyncio.sleep(0.01)
+    waited = time.monotonic() - t0
+    assert app.return_code == 0 and not app.is_running, f"q not answered in {waited:.2f} s"
+
+
+@contextlib.asynccontextmanager
+async def watching():
+    """A passive monitor on a virtual bus beside another host driving the unit:
+    ``(sim, other, app, pilot)``."""
+    with SimulatedInstrument(
+        "paper-rlg", Truth(azimuth_deg=TRUTH_DEG), seed=3, clock="virtual", warmup_s=0
+    ) as sim:
+        watch = PassiveSession(sim.open_bus, description="virtual bus", clock=vclock(sim))
+        app = MonitorApp(watch, refresh_hz=0)
+        try:
+            async with app.run_test(size=SIZE) as pilot:
+                with sim.open_device() as other:
+                    other.wait_ready(5.0)
+                    yield sim, other, app, pilot
+        finally:
+            watch.close()
+
+
+async def refused_passively(key, *typed):
+    async with watching() as (sim, _other, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        sent = app.session.observer.commands
+        await pilot.press(key, *typed)
+        await advance(app, pilot, sim, 0.5)
+        assert "passive mode: the monitor sends nothing" in log_text(app)
+        assert app.session.observer.commands == sent  # nothing went on the bus
+        await quit_in_time(app, pilot)
+
+
+async def refused_in_warmup(key, *typed, opcode):
+    """The unit warms up: a move is refused by the unit (NOT_READY), said in one log line."""
+    async with on_screen(warmup_s=600.0, ready=False) as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 2.0)
+        assert "WARMUP" in text(app, "unit")
+        await pilot.press(key, *typed)
+        await settle(app, pilot, sim, 0.5)
+        assert f"the device refused {opcode}: NOT_READY" in log_text(app)
+        assert "-> NOT_READY in" in log_text(app)
+        await quit_in_time(app, pilot)
+
+
+async def key_t():
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("t", "9", "0", "enter")
+        await settle(app, pilot, sim, 40.0)
+        assert "ROTATE_TO 90.000 deg -> OK in" in log_text(app)
+        assert table_deg(app) == pytest.approx(90.0, abs=0.02)
+        await quit_in_time(app, pilot)
+
+
+async def key_b():
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("b", "4", "5", "enter")
+        await settle(app, pilot, sim, 30.0)
+        assert "ROTATE_BY +45.000 deg -> OK in" in log_text(app)
+        assert table_deg(app) == pytest.approx(45.0, abs=0.02)
+        await quit_in_time(app, pilot)
+
+
+async def key_s():
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("t", "1", "8", "0", "enter")
+        await settle(app, pilot, sim, 3.0)
+        assert "ROTATING" in text(app, "unit")
+        await pilot.press("s")
+        await settle(app, pilot, sim, 10.0)
+        assert "STOP -> OK in" in log_text(app)
+        stopped = table_deg(app)
+        assert 1.0 < stopped < 170.0  # it stopped on the way
+        await advance(app, pilot, sim, 10.0)
+        assert table_deg(app) == pytest.approx(stopped, abs=0.02)
+        await quit_in_time(app, pilot)
+
+
+async def key_h():
+    async with on_screen() as (sim, session, app, pilot):
+        session.require().rotate_to(30.0, wait=True)
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("h")
+        await settle(app, pilot, sim, 30.0)
+        assert "HOME -> OK in" in log_text(app)
+        assert (table_deg(app) + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=0.02)
+        await quit_in_time(app, pilot)
+
+
+async def key_o():
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 1.0)
+        await pilot.press("o")
+        await settle(app, pilot, sim, 1.0)
+        assert "stream    off" in text(app, "stream")
+        await pilot.press("o")
+        await settle(app, pilot, sim, 1.0)
+        assert "stream    on" in text(app, "stream")
+        await quit_in_time(app, pilot)
+
+
+async def key_f():
+    async with on_screen(plan=Plan((0.0, 180.0), 2.0)) as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("f")
+        await settle(app, pilot, sim, 0.5)
+        run = app.find_run
+        assert run is not None and run.finished and run.result is not None
+        assert "find: azimuth" in log_text(app)
+        await quit_in_time(app, pilot)
+
+
+async def key_f_without_latitude():
+    async with on_screen() as (sim, session, app, pilot):
+        session.latitude_deg = None  # a real unit without --latitude
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("f")
+        await advance(app, pilot, sim, 0.5)
+        assert "find: give the site's latitude (--latitude)" in log_text(app)
+        assert app.find_run is None
+        await quit_in_time(app, pilot)
+
+
+async def key_w(tmp_path):
+    log = tmp_path / "bench.asc"
+    async with on_screen(record_path=str(log)) as (sim, session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("w")
+        await advance(app, pilot, sim, 2.0)
+        assert "recording" in text(app, "banner") and session.record_path == str(log)
+        await pilot.press("w")
+        await advance(app, pilot, sim, 0.5)
+        assert session.record_path is None and "recording stopped" in log_text(app)
+        assert len(list(can.LogReader(str(log)))) > 800  # 2 s of the 200 Hz stream
+        await quit_in_time(app, pilot)
+
+
+async def key_w_unwritable(tmp_path):
+    log = tmp_path / "missing" / "bench.asc"
+    async with on_screen(record_path=str(log)) as (sim, session, app, pilot):
+        await pilot.press("w")
+        await advance(app, pilot, sim, 0.5)
+        assert "record: cannot write the CAN log" in log_text(app)
+        assert session.record_path is None and "recording" not in text(app, "banner")
+        await quit_in_time(app, pilot)
+
+
+async def key_r():
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await pilot.press("r")
+        await settle(app, pilot, sim, 3.0)
+        assert "RESET -> OK in" in log_text(app)
+        assert "state READY -> BOOT" in log_text(app)
+        await quit_in_time(app, pilot)
+
+
+async def key_q():
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        await quit_in_time(app, pilot)
+
+
+KEY_CASES: dict[str, dict[str, Any]] = {
+    "t": {
+        "acts": key_t,
+        "passive": lambda: refused_passively("t"),
+        "warm-up": lambda: refused_in_warmup("t", "9", "0", "enter", opcode="ROTATE_TO"),
+    },
+    "b": {
+        "acts": key_b,
+        "passive": lambda: refused_passively("b"),
+        "warm-up": lambda: refused_in_warmup("b", "9", "0", "enter", opcode="ROTATE_BY"),
+    },
+    "s": {"acts": key_s, "passive": lambda: refused_passively("s")},
+    "h": {
+        "acts": key_h,
+        "passive": lambda: refused_passively("h"),
+        "warm-up": lambda: refused_in_warmup("h", opcode="HOME"),
+    },
+    "o": {"acts": key_o, "passive": lambda: refused_passively("o")},
+    "f": {
+        "acts": key_f,
+        "passive": lambda: refused_passively("f"),
+        "no latitude": key_f_without_latitude,
+    },
+    "w": {"acts": key_w, "unwritable": key_w_unwritable},
+    "r": {"acts": key_r, "passive": lambda: refused_passively("r")},
+    "q": {"acts": key_q},
+}
+
+
+def _bound_keys() -> list[str]:
+    return [b.key if hasattr(b, "key") else b[0] for b in MonitorApp.BINDINGS]
+
+
+@pytest.mark.parametrize("key", _bound_keys())
+def test_every_bound_key_has_its_cases(key):
+    cases = KEY_CASES.get(key)
+    assert cases, f"key {key!r} is bound but has no test: add its cases to KEY_CASES"
+    assert "acts" in cases
+
+
+@pytest.mark.parametrize(
+    ("key", "case"),
+    [(k, c) for k in _bound_keys() for c in KEY_CASES.get(k, {"acts": None})],
+)
+def test_key(key, case, tmp_path):
+    fn = KEY_CASES[key][case]
+    needs_path = "tmp_path" in getattr(fn, "__code__", fn).co_varnames[:1]
+    asyncio.run(fn(tmp_path) if needs_path else fn())
+
+
+def test_a_find_recorded_from_the_monitor_solves_offline_to_the_same_heading(tmp_path, capsys):
+    """w, f, the windows pass, w again: ``northfinder solve`` reads the log back to the heading
+    the monitor showed."""
+    import json
+
+    log = tmp_path / "find.asc"
+    plan = Plan((0.0, 180.0, 180.0, 0.0), 5.0)
+
+    async def on_the_screen():
+        async with on_screen(plan=plan, record_path=str(log)) as (sim, session, app, pilot):
+            await advance(app, pilot, sim, 0.5)
+            await pilot.press("w", "f")
+            await settle(app, pilot, sim, 0.5)
+            await pilot.press("w")
+            await advance(app, pilot, sim, 0.1)
+            run = app.find_run
+            assert run is not None and run.result is not None and session.record_path is None
+            latitude = session.latitude_deg
+            await quit_in_time(app, pilot)
+        return run, latitude
+
+    run, latitude = asyncio.run(on_the_screen())
+    capsys.readouterr()
+    status = main(["solve", str(log), "--latitude", str(latitude), "--window", "5", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert status == 0
+    assert out["azimuth_deg"] == pytest.approx(run.result.azimuth_deg, abs=1e-9)
+    assert out["sigma_deg"] == pytest.approx(run.result.sigma_deg, rel=1e-9)
+    assert [w["samples"] for w in out["windows"]] == [1000] * 4

@@ -408,6 +408,10 @@ class FindRun:
             f"{self.plan.window_s:g} s windows"
         )
         try:
+            if device.streaming:
+                # Each window then starts its own stream: a log of the run (w, --can-log)
+                # holds every window from its STREAM_START, as northfinder solve reads it.
+                device.release_stream()
             result, _ = find_north(
                 _Watched(device, self),
                 self.plan,
