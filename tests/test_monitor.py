@@ -885,3 +885,161 @@ def test_a_find_recorded_from_the_monitor_solves_offline_to_the_same_heading(tmp
     assert out["azimuth_deg"] == pytest.approx(run.result.azimuth_deg, abs=1e-9)
     assert out["sigma_deg"] == pytest.approx(run.result.sigma_deg, rel=1e-9)
     assert [w["samples"] for w in out["windows"]] == [1000] * 4
+
+
+# -- reply waits, time left, gaps ----------------------------------------------------------------
+@sync
+async def test_a_reply_later_than_the_drivers_wait_is_the_drivers_verdict_and_then_its_reply():
+    """The driver decides that a reply did not come (its deadline); the monitor keeps that
+    verdict, sets no deadline of its own, and shows the reply that came later as that command's
+    late reply (the table turned), not as a reply without a command."""
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 0.5)
+        with sim.runner.lock:
+            sim.firmware.apply(lambda: setattr(sim.firmware.faults, "reply_delay_s", 1.0))
+        await pilot.press("t", "9", "0", "enter")
+        await settle(app, pilot, sim, 0.2)
+        log = log_text(app)
+        assert "rotate to: no reply to ROTATE_TO within 0.25 s" in log
+        assert "may have been carried out" in log
+        await advance(app, pilot, sim, 1.0)
+        log = log_text(app)
+        assert (
+            "ROTATE_TO 90.000 deg -> OK in 1001.0 ms, after the driver had stopped waiting "
+            "(it was carried out)" in log
+        )
+        assert "no command seen" not in log and "-> no reply" not in log
+        assert "unanswered 1" in text(app, "stream")
+        await advance(app, pilot, sim, 40.0)
+        assert table_deg(app) == pytest.approx(90.0, abs=0.02)
+        await quit_in_time(app, pilot)
+
+
+def test_the_observer_measures_the_units_pace_from_its_statuses():
+    clock = StepClock()
+    obs = LinkObserver(clock)
+    obs.configured_rate_hz = 200
+    # A unit paced at 2.5 units seconds per second: its counter runs 500 ticks per second.
+    for k in range(41):
+        feed(obs, clock, status(1000 + 50 * k), 0.1 * k + (0.03 if k % 3 else 0.0))
+    obs.drain()
+    assert obs.pace() == pytest.approx(2.5, rel=0.02)
+    assert obs.unit_seconds() == pytest.approx((1000 + 50 * 40) / 200)
+    # Too short a span says nothing.
+    obs = LinkObserver(clock)
+    obs.configured_rate_hz = 200
+    for k in range(5):
+        feed(obs, clock, status(20 * k), 10.0 + 0.1 * k)
+    obs.drain()
+    assert obs.pace() is None
+
+
+async def until_phase(app, pilot, sim, phase, position, limit_s=120.0):
+    """Move the clock in steps of 0.5 s until the find reports ``phase`` at ``position``."""
+    for _ in range(int(limit_s / 0.5)):
+        p = app.find_run.progress if app.find_run is not None else None
+        if p is not None and (p.phase, p.position) == (phase, position):
+            return
+        await advance(app, pilot, sim, 0.5)
+    pytest.fail(f"the find did not reach {phase} at position {position}")
+
+
+def left_s(app):
+    line = text(app, "find").splitlines()[0]
+    return int(line.split("~")[1].split()[0])
+
+
+@sync
+async def test_the_find_panel_counts_the_time_left_down():
+    """The time left is the procedure's remaining device time at its last step, less the time
+    since then at the measured pace: it counts down between the steps."""
+    plan = Plan((0.0, 180.0), 30.0)
+    async with on_screen(plan=plan) as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 4.0)  # the pace measured: 1 in virtual time
+        with vclock(sim).participant():  # the find's worker moves the clock no further than this
+            await pilot.press("f")
+            await until_phase(app, pilot, sim, "acquire", 1)
+            first = left_s(app)
+            assert text(app, "find").startswith("acquire position 1/2")
+            await advance(app, pilot, sim, 10.0)
+            assert left_s(app) == pytest.approx(first - 10, abs=1)
+            await advance(app, pilot, sim, 10.0)
+            assert left_s(app) == pytest.approx(first - 20, abs=1)
+            await quit_in_time(app, pilot)
+
+
+def test_the_time_left_of_a_paced_unit_is_its_device_time_over_its_pace():
+    from northfinder.host.procedure import Progress
+    from northfinder.monitor.session import FindRun
+
+    class Clock:
+        t = 100.0
+
+        def now(self):
+            return self.t
+
+    class Session:
+        clock = Clock()
+
+    run = FindRun(Plan((0.0, 180.0), 30.0), 34.0, _session=Session())
+    run._progress(Progress("acquire", 1, 2, 0.0, 99.0))
+    assert run.seconds_left(100.0, 3.0) == pytest.approx(33.0)  # a simulator at 3x
+    assert run.seconds_left(111.0, 3.0) == pytest.approx(22.0)
+    assert run.seconds_left(140.0, 3.0) == 0.0
+    assert run.seconds_left(111.0, None) == pytest.approx(88.0)  # pace not measured: 1
+
+
+@sync
+async def test_the_warm_up_counts_down_on_the_unit_and_in_a_find():
+    async with on_screen(warmup_s=300.0, ready=False) as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 10.0)
+        unit = text(app, "unit")
+        assert "WARMUP" in unit
+        line = next(x for x in unit.splitlines() if x.startswith("warm-up"))
+        left = int(line.split("~")[1].split()[0])
+        assert 288 <= left <= 291
+        with vclock(sim).participant():
+            await pilot.press("f")
+            await until_phase(app, pilot, sim, "warm-up", 0)
+            first = left_s(app)
+            assert left - 2 <= first <= left
+            assert text(app, "find").startswith(f"warm-up: ~{first} s left (warm-up 300 s")
+            await advance(app, pilot, sim, 30.0)
+            assert left_s(app) == pytest.approx(first - 30, abs=1)
+            await advance(app, pilot, sim, 30.0)
+            assert left_s(app) == pytest.approx(first - 60, abs=1)
+            await quit_in_time(app, pilot)
+
+
+@pytest.mark.parametrize("on_gap", ["remeasure", "report"])
+def test_a_gap_in_a_find_is_named_with_what_it_cost(on_gap):
+    plan = Plan((0.0, 180.0), 2.0)
+
+    async def run():
+        async with on_screen(plan=plan) as (sim, _session, app, pilot):
+            app.on_gap = on_gap
+            await advance(app, pilot, sim, 0.5)
+            with vclock(sim).participant():
+                await pilot.press("f")
+                await until_phase(app, pilot, sim, "acquire", 1)
+                await advance(app, pilot, sim, 1.0)  # within the first window
+                with sim.runner.lock:
+                    sim.firmware.apply(lambda: setattr(sim.firmware.faults, "skip_counter", 5))
+            await settle(app, pilot, sim, 0.5)  # the worker runs the rest of the find
+            find_run = app.find_run
+            assert find_run is not None and find_run.result is not None, find_run.error
+            find, log = text(app, "find"), log_text(app)
+            await quit_in_time(app, pilot)
+        return find_run, find, log
+
+    find_run, find, log = asyncio.run(run())
+    assert len(find_run.gaps) == 1, find_run.gaps
+    gap = find_run.gaps[0]
+    assert gap.startswith("window 1: 5 tick(s) lost from counter")
+    if on_gap == "remeasure":
+        assert "measured again (attempt 2), " in gap
+        assert [w.samples for w in find_run.windows] == [400, 400]
+    else:
+        assert "kept and reported in the result" in gap
+        assert [w.samples for w in find_run.windows] == [395, 400]
+    assert gap in find and f"find: {gap}" in log

@@ -32,6 +32,7 @@ from northfinder.cli.common import (
     open_can_bus,
 )
 from northfinder.cli.measure import (
+    SIM_WARMUP_S,
     _open_unit,
     add_device_arguments,
     add_plan_arguments,
@@ -134,7 +135,9 @@ def open_session(args: argparse.Namespace) -> Any:
     def opener(tap: Any) -> Iterator[tuple[Any, dict[str, Any] | None]]:
         if args.sim:
             with embedded_simulator(args, tap) as (device, truth):
-                yield device, truth
+                # how long it warms up: the screen counts the warm-up down
+                warmup = SIM_WARMUP_S if args.warmup is None else args.warmup
+                yield device, {**truth, "warmup_s": warmup}
         else:
             with _open_unit(args, tap) as device:
                 yield device, None
@@ -166,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
             plot_hz=args.plot_rate,
             record_path=args.record,
             duration_s=args.duration,
+            on_gap=args.on_gap,
         )
         status = app.run()
         session.poll()

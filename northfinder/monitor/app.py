@@ -103,6 +103,8 @@ class MonitorApp(App[int]):
         The CAN log ``w`` writes (its ending picks the format).
     duration_s : float, optional
         Quit after this many wall seconds (a measurement run).
+    on_gap : {"remeasure", "report", "fail"}
+        What a find does with a window that lost ticks (as ``find --on-gap``).
     """
 
     TITLE = "northfinder monitor"
@@ -148,9 +150,11 @@ class MonitorApp(App[int]):
         plot_hz: float = 2.0,
         record_path: str = "monitor.asc",
         duration_s: float | None = None,
+        on_gap: str = "remeasure",
     ) -> None:
         super().__init__()
         self.session = session
+        self.on_gap = on_gap
         self.plan = plan or Plan((0.0, 180.0, 180.0, 0.0), 10.0)
         self.refresh_hz = float(refresh_hz)
         self.plot_hz = min(float(plot_hz), self.refresh_hz) if self.refresh_hz else 0.0
@@ -288,6 +292,9 @@ class MonitorApp(App[int]):
         style = "bold red" if v.state == "FAULT" else "bold"
         t.append("state    ")
         t.append(f"{v.state}\n", style=style)
+        if v.state == "WARMUP":
+            t.append(f"warm-up  {self._warmup_left(self.session.observer, short=True)}\n",
+                     style="yellow")  # fmt: skip
         t.append(
             f"faults   {v.faults or '---'}\n", style="red" if v.faults not in ("", "none") else ""
         )
@@ -372,8 +379,15 @@ class MonitorApp(App[int]):
             return t
         p = run.progress
         if p is not None and not run.finished:
-            left = "" if p.seconds_left is None else f", ~{p.seconds_left:.0f} s left"
-            t.append(f"{p.phase} position {p.position}/{p.positions}{left}\n", style="bold")
+            obs = s.observer
+            if p.phase == "warm-up":
+                t.append(f"warm-up: {self._warmup_left(obs)}\n", style="bold")
+            else:
+                left = run.seconds_left(s.clock.now(), obs.pace())
+                more = "" if left is None else f", ~{left:.0f} s left"
+                t.append(f"{p.phase} position {p.position}/{p.positions}{more}\n", style="bold")
+        for line in run.gaps:
+            t.append(f"{line}\n", style="yellow")
         for i, w in enumerate(run.windows):
             t.append(f"w{i + 1} {w.encoder_deg:8.3f} deg  gx {w.gyro_dph[0]:+9.4f}  "
                      f"gy {w.gyro_dph[1]:+9.4f} deg/h\n")  # fmt: skip
@@ -396,6 +410,27 @@ class MonitorApp(App[int]):
         if run.error:
             t.append(f"failed: {run.error}\n", style="bold red")
         return t
+
+    def _warmup_left(self, obs: Any, *, short: bool = False) -> str:
+        """The warm-up's time left where it is known (a simulated unit says how long it warms
+        up), else how long the unit has been warming up."""
+        since = obs.unit_seconds()
+        truth = self.session.truth or {}
+        total = truth.get("warmup_s")
+        if since is None:
+            return "time left not known yet" if short else "the unit's time is not known yet"
+        if total is None:
+            if short:
+                return f"{since:.0f} s so far"
+            return (
+                f"the unit has run {since:.0f} s; it does not say how long its warm-up lasts "
+                "(a few minutes)"
+            )
+        pace = obs.pace() or 1.0
+        left = max(0.0, float(total) - since) / max(pace, 1e-9)
+        if short:
+            return f"~{left:.0f} s left"
+        return f"~{left:.0f} s left (warm-up {float(total):g} s, the unit has run {since:.0f} s)"
 
     def _draw_log(self, v: View) -> None:
         log = self.query_one("#log", RichLog)
@@ -454,10 +489,8 @@ class MonitorApp(App[int]):
         def work() -> None:
             try:
                 call(s.require())
-            except (DriverError, HostError) as exc:
-                s.observer.note(f"{label}: {exc}", "error")
-            except Exception as exc:  # never a traceback on the screen
-                s.observer.note(f"{label}: internal error {exc!r}", "error")
+            except Exception as exc:  # a line in the log, never a traceback on the screen
+                s.report(label, exc)
 
         self.run_worker(work, thread=True, group="commands", name=label)
 
@@ -537,7 +570,7 @@ class MonitorApp(App[int]):
             s.observer.note("find: give the site's latitude (--latitude)", "error")
             return
         truth = None if s.truth is None else s.truth.get("azimuth_deg")
-        run = FindRun(self.plan, float(s.latitude_deg), truth_deg=truth)
+        run = FindRun(self.plan, float(s.latitude_deg), truth_deg=truth, on_gap=self.on_gap)
         self.find_run = run
 
         def work() -> None:
