@@ -12,8 +12,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import re
+import shlex
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import can
@@ -1043,3 +1046,61 @@ def test_a_gap_in_a_find_is_named_with_what_it_cost(on_gap):
         assert "kept and reported in the result" in gap
         assert [w.samples for w in find_run.windows] == [395, 400]
     assert gap in find and f"find: {gap}" in log
+
+
+# -- the help and the page say what the command does --------------------------------------------
+DOCS_PAGE = Path(__file__).resolve().parents[1] / "docs" / "monitor.md"
+
+
+def page_commands() -> list[list[str]]:
+    """Every ``$ northfinder monitor ...`` line of docs/monitor.md, as argv."""
+    lines = re.findall(r"^\$ northfinder (monitor .*)$", DOCS_PAGE.read_text(), re.M)
+    return [shlex.split(line.partition("  #")[0]) for line in lines]
+
+
+def test_the_help_and_the_page_say_the_simulator_runs_paced():
+    from test_cli_help import help_text
+
+    text = " ".join(help_text("monitor").split())
+    sim = text[text.index("--sim use") :][:200]
+    assert "paced" in sim and "virtual time" not in sim, sim
+    page = " ".join(DOCS_PAGE.read_text().split())
+    assert "which the monitor runs paced, not in virtual time" in page
+    # and the code does so: a paced simulator by default
+    from northfinder.cli import build_parser
+    from northfinder.cli.monitor import open_session
+
+    args = build_parser("monitor").parse_args(["monitor", "--sim", "--warmup", "0"])
+    session = open_session(args)
+    try:
+        assert args.speed == 1.0 and not session.clock.virtual
+    finally:
+        session.close()
+
+
+def test_the_pages_commands_parse_and_need_no_wait():
+    from northfinder.cli import build_parser
+
+    argvs = page_commands()
+    assert len(argvs) >= 4
+    parser = build_parser("monitor")
+    for argv in argvs:
+        args = parser.parse_args(argv)
+        channel = getattr(args, "channel", None) or ""
+        if getattr(args, "interface", None) == "slcan" and "/dev/pts/" in channel:
+            # a pseudo-terminal: no 2 s wait for an adapter to boot
+            assert (getattr(args, "bus_kwargs", None) or {}).get("sleep_after_open") == 0, argv
+    first = parser.parse_args(argvs[0])
+    assert first.sim and first.warmup == 0.0  # f runs at once, no 2 min of warm-up
+
+
+@pytest.mark.realtime
+@pytest.mark.parametrize(
+    "argv", [a for a in page_commands() if "--sim" in a], ids=lambda a: " ".join(a)
+)
+def test_the_pages_simulator_commands_run(argv, monkeypatch, tmp_path):
+    import functools
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(MonitorApp, "run", functools.partialmethod(MonitorApp.run, headless=True))
+    assert in_thread_status(main, [*argv, "--duration", "1"]) == 0

@@ -5,8 +5,9 @@ Panels: the unit (identity, state, faults, table angle and target, temperature),
 counters, traces of the gyro and accelerometer channels over the last seconds with their means,
 a find run's windows and its solution as it forms, and every command with its reply and delay.
 
-Keys: t rotate to, b rotate by, s stop, h home, o stream on/off, f find (the plan options),
-w record every frame to ``--record FILE``, r reset, q quit.
+Keys: t rotate to, b rotate by, s stop, h home, o stream on/off, f find (the plan options and
+``--on-gap``), w record every frame to ``--record FILE`` (w again stops; ``--can-log FILE``
+records from the start), r reset, q quit.
 
 Links: python-can bus options (``-i socketcan -c vcan0``, ``-i slcan -c /dev/pts/3``),
 ``--serial PORT``, or ``--sim`` (the embedded simulated instrument, paced at ``--speed``,
@@ -44,9 +45,22 @@ from northfinder.host.errors import HostConfigError
 SIM_ONLY = ("warmup", "sensor", "azimuth", "pitch", "roll", "seed")
 
 
+#: The monitor runs the embedded simulator paced, not in virtual time as find and record do:
+#: a live view needs its time to pass by itself.
+PACED_HELP = {
+    "--sim": "use the simulated instrument in this process, paced (--speed S simulated seconds "
+    "per wall second, default 1: real time)",
+    "--speed": "pace --sim at S simulated seconds per wall second (default 1, up to 10000)",
+}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_device_arguments(p)
     add_plan_arguments(p)
+    for action in p._actions:  # the shared options, as the monitor runs them
+        for option in action.option_strings:
+            if option in PACED_HELP:
+                action.help = PACED_HELP[option]
     g = p.add_argument_group("monitor")
     g.add_argument(
         "--passive", action="store_true",
