@@ -42,7 +42,7 @@ from northfinder.driver.protocol.messages import (
 )
 from northfinder.embed import SimulatedInstrument, Truth
 from northfinder.host.plan import Plan
-from northfinder.monitor.app import MonitorApp
+from northfinder.monitor.app import FramesScreen, MonitorApp
 from northfinder.monitor.observer import LinkObserver
 from northfinder.monitor.session import ActiveSession, PassiveSession
 
@@ -809,6 +809,67 @@ async def key_q():
         await quit_in_time(app, pilot)
 
 
+def frame_lines(app):
+    return str(app.screen.query_one("#frames", Static).content).splitlines()
+
+
+def frame_row(app, name):
+    return next((x for x in frame_lines(app) if f" {name} " in x), None)
+
+
+async def key_m():
+    """m: the frame view, one row per CAN id with its decoded signals, count, rate, last seen."""
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 2.0)
+        await pilot.press("m")
+        await advance(app, pilot, sim, 2.0)
+        assert isinstance(app.screen, FramesScreen)
+        status = frame_row(app, "STATUS")
+        assert status is not None and status.startswith("201      rx ")
+        assert "State READY" in status or "READY" in status
+        sample = frame_row(app, "SAMPLE_X").split()
+        assert sample[:3] == ["101", "rx", "SAMPLE_X"]
+        assert float(sample[4]) == pytest.approx(200.0, abs=1.0)  # Hz over the last 2 s
+        assert float(sample[5]) < 0.01  # seen just now
+        command = frame_row(app, "COMMAND")
+        assert command is not None and command.split()[1] == "tx"
+        await pilot.press("escape")
+        await advance(app, pilot, sim, 0.5)
+        assert not isinstance(app.screen, FramesScreen) and "READY" in text(app, "banner")
+        await quit_in_time(app, pilot)
+
+
+async def key_p():
+    """p: the traces freeze while the link is read on; p again resumes them."""
+    async with on_screen() as (sim, session, app, pilot):
+        await advance(app, pilot, sim, 2.0)
+        plot = app.query_one("#gyro")
+        await pilot.press("p")
+        assert "PAUSED" in plot.border_title
+        n = session.observer.samples
+        await advance(app, pilot, sim, 2.0)
+        assert session.observer.samples >= n + 390  # read on
+        assert app._last_plot <= vclock(sim).now() - 2.0  # not redrawn
+        await pilot.press("p")
+        assert "PAUSED" not in plot.border_title
+        assert app._last_plot == pytest.approx(vclock(sim).now())
+        await quit_in_time(app, pilot)
+
+
+async def key_a():
+    """a: the traces' y scale fixed at the range shown, then automatic again."""
+    async with on_screen() as (sim, _session, app, pilot):
+        await advance(app, pilot, sim, 2.0)
+        shown = dict(app._trace_ranges)
+        await pilot.press("a")
+        assert app.trace_limits == shown and "y fixed" in app.query_one("#gyro").border_title
+        await advance(app, pilot, sim, 2.0)
+        assert app.trace_limits == shown  # kept while the data move
+        await pilot.press("a")
+        assert app.trace_limits is None and "y auto" in app.query_one("#gyro").border_title
+        await quit_in_time(app, pilot)
+
+
 KEY_CASES: dict[str, dict[str, Any]] = {
     "t": {
         "acts": key_t,
@@ -834,6 +895,9 @@ KEY_CASES: dict[str, dict[str, Any]] = {
     },
     "w": {"acts": key_w, "unwritable": key_w_unwritable},
     "r": {"acts": key_r, "passive": lambda: refused_passively("r")},
+    "m": {"acts": key_m},
+    "p": {"acts": key_p},
+    "a": {"acts": key_a},
     "q": {"acts": key_q},
 }
 
@@ -1110,3 +1174,101 @@ def test_the_pages_simulator_commands_run(argv, monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(MonitorApp, "run", functools.partialmethod(MonitorApp.run, headless=True))
     assert in_thread_status(main, [*argv, "--duration", "1"]) == 0
+
+
+# -- the frame view's keys, enumerated from its bindings -----------------------------------------
+@contextlib.asynccontextmanager
+async def frame_view():
+    async with on_screen() as (sim, session, app, pilot):
+        await advance(app, pilot, sim, 2.0)
+        await pilot.press("m")
+        await advance(app, pilot, sim, 1.0)
+        yield sim, session, app, pilot
+
+
+async def frames_filter():
+    async with frame_view() as (sim, _session, app, pilot):
+        await pilot.press("slash", *"sample", "enter")
+        await advance(app, pilot, sim, 0.5)
+        names = [x.split()[2] for x in frame_lines(app)[1:]]
+        assert names == ["SAMPLE_X", "SAMPLE_Y", "SAMPLE_Z", "SAMPLE_AUX"]
+        head = str(app.screen.query_one("#frames_head", Static).content)
+        assert "filter 'sample', 4 ids" in head
+        await pilot.press("slash", *"201", "enter")  # by id
+        await advance(app, pilot, sim, 0.5)
+        assert [x.split()[2] for x in frame_lines(app)[1:]] == ["STATUS"]
+        await pilot.press("slash", *["backspace"] * 3, "enter")  # empty: every frame
+        await advance(app, pilot, sim, 0.5)
+        assert len(frame_lines(app)) > 6
+        await quit_in_time(app, pilot)
+
+
+async def frames_filter_cancelled():
+    async with frame_view() as (sim, _session, app, pilot):
+        await pilot.press("slash", *"zzz", "escape")
+        await advance(app, pilot, sim, 0.5)
+        assert isinstance(app.screen, FramesScreen) and app.screen.filter == ""
+        assert len(frame_lines(app)) > 6
+        await quit_in_time(app, pilot)
+
+
+async def frames_pause():
+    async with frame_view() as (sim, _session, app, pilot):
+        await pilot.press("p")
+        before = frame_lines(app)
+        await advance(app, pilot, sim, 1.0)
+        assert frame_lines(app) == before  # frozen while the link is read on
+        assert "PAUSED" in str(app.screen.query_one("#frames_head", Static).content)
+        await pilot.press("p")
+        await advance(app, pilot, sim, 0.5)
+        assert frame_lines(app) != before
+        await quit_in_time(app, pilot)
+
+
+async def frames_back():
+    async with frame_view() as (sim, _session, app, pilot):
+        await pilot.press("escape")
+        await advance(app, pilot, sim, 0.5)
+        assert not isinstance(app.screen, FramesScreen)
+        assert text(app, "banner").startswith("READY")
+        assert "display error" not in log_text(app)
+        await quit_in_time(app, pilot)
+
+
+FRAME_KEY_CASES: dict[str, dict[str, Any]] = {
+    "slash": {"acts": frames_filter, "cancelled": frames_filter_cancelled},
+    "p": {"acts": frames_pause},
+    "escape": {"acts": frames_back},
+}
+
+
+def _frame_keys() -> list[str]:
+    return [b.key for b in FramesScreen.BINDINGS]
+
+
+@pytest.mark.parametrize("key", _frame_keys())
+def test_every_key_of_the_frame_view_has_its_cases(key):
+    assert FRAME_KEY_CASES.get(key), f"key {key!r} of the frame view has no test"
+
+
+@pytest.mark.parametrize(
+    ("key", "case"), [(k, c) for k in _frame_keys() for c in FRAME_KEY_CASES.get(k, {"acts": 0})]
+)
+def test_frame_view_key(key, case):
+    asyncio.run(FRAME_KEY_CASES[key][case]())
+
+
+def test_the_frame_view_decodes_with_the_protocols_dbc():
+    from northfinder.monitor.app import decoded
+    from northfinder.monitor.observer import FrameRow
+
+    def row(frame):
+        return FrameRow(frame.arbitration_id, False, 1, None, 0.0, bytes(frame.data), True)
+
+    name, signals = decoded(row(frames(status(1234, DeviceState.READY, angle=90_000_000))[0]))
+    assert name == "STATUS" and "READY" in signals and "90" in signals
+    assert decoded(row(frames(status(1), node_id=2)[0]))[0] == "STATUS node 2"
+    assert decoded(FrameRow(0x7FF, False, 1, None, 0.0, b"\x01\x02", True)) == (
+        "not protocol",
+        "01 02",
+    )

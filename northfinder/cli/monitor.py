@@ -7,7 +7,8 @@ a find run's windows and its solution as it forms, and every command with its re
 
 Keys: t rotate to, b rotate by, s stop, h home, o stream on/off, f find (the plan options and
 ``--on-gap``), w record every frame to ``--record FILE`` (w again stops; ``--can-log FILE``
-records from the start), r reset, q quit.
+records from the start), r reset, m the frame view (one row per CAN id, decoded; / filters,
+p pauses), p pause the traces, a their y scale fixed or automatic, q quit.
 
 Links: python-can bus options (``-i socketcan -c vcan0``, ``-i slcan -c /dev/pts/3``),
 ``--serial PORT``, or ``--sim`` (the embedded simulated instrument, paced at ``--speed``,

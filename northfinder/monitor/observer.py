@@ -48,7 +48,15 @@ from northfinder.driver.protocol.messages import (
 )
 from northfinder.driver.window import CountScales
 
-__all__ = ["LATE_AFTER_S", "TRACE_SECONDS", "LinkObserver", "LogEntry", "Traces", "View"]
+__all__ = [
+    "LATE_AFTER_S",
+    "TRACE_SECONDS",
+    "FrameRow",
+    "LinkObserver",
+    "LogEntry",
+    "Traces",
+    "View",
+]
 
 #: Seconds of samples the traces hold.
 TRACE_SECONDS = 10.0
@@ -72,6 +80,35 @@ TABLE_RATE_SPAN_S = 1.0
 #: second then moves it by a few percent at most).
 PACE_SPAN_S = 20.0
 PACE_MIN_SPAN_S = 3.0
+
+
+#: A frame's rate in the frame view is counted over the last this many seconds of arrivals.
+FRAME_RATE_SPAN_S = 2.0
+
+
+@dataclass(frozen=True)
+class FrameRow:
+    """One CAN id of the link as the frame view shows it (as ``cantools monitor`` does)."""
+
+    arbitration_id: int
+    is_extended_id: bool
+    count: int
+    rate_hz: float | None
+    last_s: float
+    data: bytes
+    is_rx: bool
+
+
+class _FrameStats:
+    __slots__ = ("arrivals", "count", "data", "is_rx", "last_s")
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.last_s = 0.0
+        self.data = b""
+        self.is_rx = True
+        # arrival times of the last frames: the rate over FRAME_RATE_SPAN_S (sized for 1 kHz)
+        self.arrivals: deque[float] = deque(maxlen=4096)
 
 
 @dataclass(frozen=True)
@@ -224,6 +261,7 @@ class LinkObserver:
         self._unit_times: deque[tuple[float, float]] = deque(maxlen=256)
         self.log: deque[LogEntry] = deque(maxlen=LOG_LINES)
         self.last_frame_at: float | None = None
+        self._frames: dict[tuple[int, bool], _FrameStats] = {}
 
     # -- taking frames (any thread) -----------------------------------------------------------
     def tap(self, msg: can.Message) -> None:
@@ -256,6 +294,15 @@ class LinkObserver:
             if msg.is_error_frame or msg.is_remote_frame:
                 continue
             self.last_frame_at = t
+            key = (msg.arbitration_id, msg.is_extended_id)
+            row = self._frames.get(key)
+            if row is None:
+                row = self._frames[key] = _FrameStats()
+            row.count += 1
+            row.last_s = t
+            row.data = bytes(msg.data)
+            row.is_rx = msg.is_rx
+            row.arrivals.append(t)
             for item in feed(msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id):
                 self._take(item, t)
         return n
@@ -452,6 +499,22 @@ class LinkObserver:
             for a, b in zip(pts[first:-1], pts[first + 1 :], strict=True)
         )
         return turned / (t_end - pts[first][0])
+
+    def frame_rows(self) -> list[FrameRow]:
+        """One row per CAN id seen on the link (both ways), by id: its frame count, its rate
+        over the last :data:`FRAME_RATE_SPAN_S` of arrivals, when it was last seen and its last
+        data (call :meth:`drain` first)."""
+        now = self.clock()
+        rows = []
+        for (cid, ext), st in sorted(self._frames.items()):
+            recent = 0
+            for a in reversed(st.arrivals):  # newest first: only the recent ones are read
+                if a < now - FRAME_RATE_SPAN_S:
+                    break
+                recent += 1
+            rate = recent / FRAME_RATE_SPAN_S if recent else None
+            rows.append(FrameRow(cid, ext, st.count, rate, st.last_s, st.data, st.is_rx))
+        return rows
 
     def unit_seconds(self) -> float | None:
         """The unit's time at its latest status, s since it started (its sample counter over
