@@ -77,6 +77,7 @@ __all__ = [
     "CanLogSession",
     "LogSet",
     "SessionCounter",
+    "decode_signals",
     "is_can_log",
     "read_can_log",
     "read_frames",
@@ -84,6 +85,32 @@ __all__ = [
 
 LogPaths = str | Path | Sequence[str | Path]
 """One log file, or the parts of a log in order (a rotated log)."""
+
+
+def decode_signals(db: Any, arbitration_id: int, data: bytes) -> tuple[str, int, list[str]]:
+    """A protocol frame decoded by cantools with the protocol's DBC ``db`` (as
+    ``cantools decode`` would): the message's name, the frame's node id and each signal as
+    ``"Name: value unit"``. The DBC describes node 1 (``DBC_NODE``); a frame of another node is
+    decoded by the same message.
+
+    Raises
+    ------
+    Exception
+        What cantools raises for a frame it does not know or cannot decode (its own errors,
+        KeyError, ValueError).
+    """
+    from northfinder.driver.protocol import DBC_NODE
+
+    _, node = split_can_id(arbitration_id)
+    message = db.get_message_by_frame_id((arbitration_id & ~0x0F) | DBC_NODE)
+    signals = message.decode(bytes(data), decode_choices=True, allow_truncated=True)
+    fields = []
+    for name, value in signals.items():
+        unit = message.get_signal_by_name(name).unit
+        shown = f"{value:g}" if isinstance(value, float) else str(value)
+        fields.append(f"{name}: {shown}{' ' + unit if unit else ''}")
+    return message.name, node, fields
+
 
 #: A jump of the device's sample counter between two parts of a log of more than this many
 #: heartbeats (the typical step between two STATUS_COUNTERS) means frames are missing.

@@ -133,7 +133,7 @@ def _frames_of_bus(args: argparse.Namespace) -> Iterator[Any]:
 def decode_line(db: Any, msg: Any) -> str:
     """One frame as ``(t) CHANNEL ID#DATA :: NAME(Signal: value unit, ...)``."""
     from northfinder.driver.protocol import DBC_NODE
-    from northfinder.driver.protocol.can import split_can_id
+    from northfinder.host.canlog import decode_signals
 
     channel = msg.channel if msg.channel is not None else "can"
     head = (
@@ -144,18 +144,11 @@ def decode_line(db: Any, msg: Any) -> str:
     if msg.is_extended_id or msg.is_remote_frame:
         return f"{head} :: not a protocol frame"
     try:
-        _, node = split_can_id(msg.arbitration_id)
-        message = db.get_message_by_frame_id((msg.arbitration_id & ~0x0F) | DBC_NODE)
-        signals = message.decode(bytes(msg.data), decode_choices=True, allow_truncated=True)
+        name, node, fields = decode_signals(db, msg.arbitration_id, bytes(msg.data))
     except Exception as exc:  # cantools raises its own and KeyError, ValueError
         return f"{head} :: undecodable ({type(exc).__name__}: {exc})"
-    fields = []
-    for name, value in signals.items():
-        unit = message.get_signal_by_name(name).unit
-        shown = f"{value:g}" if isinstance(value, float) else str(value)
-        fields.append(f"{name}: {shown}{' ' + unit if unit else ''}")
     node_text = f" node {node}" if node != DBC_NODE else ""
-    return f"{head} :: {message.name}{node_text}({', '.join(fields)})"
+    return f"{head} :: {name}{node_text}({', '.join(fields)})"
 
 
 def _session_filter(frames: Iterable[Any], session: int | None) -> Iterator[Any]:

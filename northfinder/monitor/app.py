@@ -26,8 +26,8 @@ from textual_plotext import PlotextPlot
 
 from northfinder.driver.errors import DriverError
 from northfinder.driver.protocol import DBC_NODE, dbc_path
-from northfinder.driver.protocol.can import split_can_id
 from northfinder.driver.protocol.constants import DeviceState
+from northfinder.host.canlog import decode_signals
 from northfinder.host.errors import HostError
 from northfinder.host.plan import Plan
 from northfinder.monitor.observer import FrameRow, LogEntry, Traces, View
@@ -659,19 +659,13 @@ def decoded(row: FrameRow) -> tuple[str, str]:
     """A frame's message name and its signals, decoded by cantools with the protocol's DBC
     (``cantools monitor`` style); the name says what is not the protocol's."""
     if row.is_extended_id:
-        return "not protocol", ""
+        return "not protocol", row.data.hex(" ").upper()
     try:
-        _, node = split_can_id(row.arbitration_id)
-        message = _protocol_dbc().get_message_by_frame_id((row.arbitration_id & ~0x0F) | DBC_NODE)
-        signals = message.decode(row.data, decode_choices=True, allow_truncated=True)
+        name, node, fields = decode_signals(_protocol_dbc(), row.arbitration_id, row.data)
     except Exception:  # cantools raises its own, KeyError and ValueError
         return "not protocol", row.data.hex(" ").upper()
-    fields = []
-    for sig, value in signals.items():
-        unit = message.get_signal_by_name(sig).unit
-        shown = f"{value:g}" if isinstance(value, float) else str(value)
-        fields.append(f"{sig} {shown}{' ' + unit if unit else ''}")
-    name = message.name if node == DBC_NODE else f"{message.name} node {node}"
+    if node != DBC_NODE:
+        name = f"{name} node {node}"
     return name, ", ".join(fields)
 
 
