@@ -1084,7 +1084,7 @@ async def test_the_warm_up_counts_down_on_the_unit_and_in_a_find():
             await quit_in_time(app, pilot)
 
 
-@pytest.mark.parametrize("on_gap", ["remeasure", "report"])
+@pytest.mark.parametrize("on_gap", ["remeasure", "report", "fail"])
 def test_a_gap_in_a_find_is_named_with_what_it_cost(on_gap):
     plan = Plan((0.0, 180.0), 2.0)
 
@@ -1100,7 +1100,8 @@ def test_a_gap_in_a_find_is_named_with_what_it_cost(on_gap):
                     sim.firmware.apply(lambda: setattr(sim.firmware.faults, "skip_counter", 5))
             await settle(app, pilot, sim, 0.5)  # the worker runs the rest of the find
             find_run = app.find_run
-            assert find_run is not None and find_run.result is not None, find_run.error
+            assert find_run is not None and find_run.finished
+            assert (find_run.result is None) == (on_gap == "fail"), find_run.error
             find, log = text(app, "find"), log_text(app)
             await quit_in_time(app, pilot)
         return find_run, find, log
@@ -1112,6 +1113,9 @@ def test_a_gap_in_a_find_is_named_with_what_it_cost(on_gap):
     if on_gap == "remeasure":
         assert "measured again (attempt 2), " in gap
         assert [w.samples for w in find_run.windows] == [400, 400]
+    elif on_gap == "fail":
+        assert gap.endswith("the run stops (on-gap fail)") and not find_run.windows
+        assert "find failed:" in log and "failed:" in find
     else:
         assert "kept and reported in the result" in gap
         assert [w.samples for w in find_run.windows] == [395, 400]
