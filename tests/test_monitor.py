@@ -1095,9 +1095,14 @@ def test_a_gap_in_a_find_is_named_with_what_it_cost(on_gap):
             with vclock(sim).participant():
                 await pilot.press("f")
                 await until_phase(app, pilot, sim, "acquire", 1)
+                planned = app.find_run.progress.seconds_left
                 await advance(app, pilot, sim, 1.0)  # within the first window
                 with sim.runner.lock:
                     sim.firmware.apply(lambda: setattr(sim.firmware.faults, "skip_counter", 5))
+                await advance(app, pilot, sim, 0.5)
+                if on_gap == "remeasure":  # the time left counts the window measured again
+                    assert app.find_run.progress.seconds_left == planned + plan.window_s
+                    assert "window 1: 5 tick(s) lost" in text(app, "find")
             await settle(app, pilot, sim, 0.5)  # the worker runs the rest of the find
             find_run = app.find_run
             assert find_run is not None and find_run.finished

@@ -482,6 +482,12 @@ class FindRun:
         what = f"window {window}: {exc.missing} tick(s) lost{where}"
         if self.on_gap == "remeasure" and attempt < MAX_REMEASURE:
             cost = f"measured again (attempt {attempt + 2}), {seconds:.1f} s lost"
+            p = self.progress
+            if p is not None and p.seconds_left is not None:
+                # the time left counts the window measured again
+                self.progress = dataclasses.replace(
+                    p, seconds_left=p.seconds_left + self.plan.window_s
+                )
         elif self.on_gap == "remeasure":
             cost = f"lost again after {MAX_REMEASURE} remeasures: the run stops"
         else:
