@@ -777,7 +777,7 @@ async def key_w(tmp_path):
         await advance(app, pilot, sim, 2.0)
         assert "recording" in text(app, "banner") and session.record_path == str(log)
         await pilot.press("w")
-        await advance(app, pilot, sim, 0.5)
+        await settle(app, pilot, sim, 0.5)
         assert session.record_path is None and "recording stopped" in log_text(app)
         assert len(list(can.LogReader(str(log)))) > 800  # 2 s of the 200 Hz stream
         await quit_in_time(app, pilot)
@@ -940,7 +940,7 @@ def test_a_find_recorded_from_the_monitor_solves_offline_to_the_same_heading(tmp
             await advance(app, pilot, sim, 0.5)  # the monitor starts its own stream again...
             await advance(app, pilot, sim, 6.0)  # ...a 5th window
             await pilot.press("w")
-            await advance(app, pilot, sim, 0.1)
+            await settle(app, pilot, sim, 0.1)
             run = app.find_run
             assert run is not None and run.result is not None and session.record_path is None
             latitude = session.latitude_deg

@@ -569,12 +569,17 @@ class MonitorApp(App[int]):
     def action_record(self) -> None:
         s = self.session
         if s.record_path:
-            try:
-                path = s.stop_recording()
-            except (DriverError, HostError, OSError) as exc:
-                s.observer.note(f"record: {exc}", "error")
-            else:
-                s.observer.note(f"recording stopped: {path}", "ok")
+
+            def stop() -> None:  # closing a log flushes it (an SQLite log drains its queue)
+                try:
+                    path = s.stop_recording()
+                except (DriverError, HostError, OSError) as exc:
+                    s.observer.note(f"record: {exc}", "error")
+                else:
+                    if path is not None:
+                        s.observer.note(f"recording stopped: {path}", "ok")
+
+            self.run_worker(stop, thread=True, group="record", name="record")
         else:
             path = self.record_path
             try:
