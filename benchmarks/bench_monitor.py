@@ -12,7 +12,11 @@ seconds and read the host's process CPU time (user + system, all its threads) ov
 - ``monitor``: ``northfinder monitor`` as a person runs it, drawing to a pseudo-terminal of
   120 x 40 (the screen's bytes are read and thrown away, as a terminal would), at its defaults
   (panels 10 Hz, traces 2 Hz);
-- ``monitor-fast``: the same at ``--refresh 30 --plot-rate 10`` (the most it offers).
+- ``monitor-fast``: the same at ``--refresh 30 --plot-rate 10`` (the most it offers);
+- ``monitor-record``: ``monitor`` recording every frame (``w`` pressed once it runs, ``w`` again
+  before it quits): the CAN log's frames are counted (``log frames``; a 200 Hz stream is 820
+  frames a second with its statuses: four a sample, two a status);
+- ``monitor-frames``: ``monitor`` showing its frame view (``m``) instead of the panels.
 
 The stream's health is read from both ends: the monitor's own counters (``--summary``: samples,
 gaps, ticks lost, partial ticks, late samples) and the simulator's status (``tx_dropped``: frames
@@ -74,18 +78,27 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_monitor(kind: str, path: str, seconds: float, extra: list[str]) -> dict[str, Any]:
-    """``northfinder monitor`` on a pty of 120 x 40 for ``seconds``; its summary and CPU."""
-    link = ["-i", "slcan", "-c", path] if kind == "slcan" else ["--serial", path]
+def run_monitor(
+    kind: str, path: str, seconds: float, extra: list[str], keys: bytes = b"", end_keys: bytes = b""
+) -> dict[str, Any]:
+    """``northfinder monitor`` on a pty of 120 x 40 for ``seconds``, ``keys`` typed once it runs
+    and ``end_keys`` before it quits; its summary, CPU and the frames of its CAN log."""
+    link = (
+        ["-i", "slcan", "-c", path, "--bus-kwargs", "sleep_after_open=0"]
+        if kind == "slcan"
+        else ["--serial", path]
+    )
     master, slave = os.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
     with tempfile.TemporaryDirectory() as tmp:
         summary = Path(tmp) / "summary.json"
+        record = Path(tmp) / "monitor.log"
         env = {**os.environ, "TERM": "xterm-256color", "COLUMNS": "120", "LINES": "40"}
         proc = subprocess.Popen(
             [PYTHON, "-c", "from northfinder.cli import main; raise SystemExit(main())",
              "monitor", *link, "--latitude", "34",
-             "--link-timeout", "1", "--summary", str(summary), *extra],
+             "--link-timeout", "1", "--summary", str(summary), "--record", str(record),
+             *extra],
             stdin=slave, stdout=slave, stderr=slave, env=env, start_new_session=True,
         )  # fmt: skip
         os.close(slave)
@@ -105,19 +118,29 @@ def run_monitor(kind: str, path: str, seconds: float, extra: list[str]) -> dict[
         reader.start()
         t0 = time.monotonic()
         time.sleep(3.0)  # its start: imports, the first screen, the stream started
+        if keys:
+            os.write(master, keys)
         c_start, t_start = _cpu_s(proc.pid), time.monotonic()
         time.sleep(seconds)
         cpu = _cpu_s(proc.pid) - c_start
         wall = time.monotonic() - t_start
+        if end_keys:
+            os.write(master, end_keys)
+            time.sleep(1.0)
+        t_quit = time.monotonic()
         os.write(master, b"q")
         try:
             proc.wait(20)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(5)
+        quit_s = time.monotonic() - t_quit
         os.close(master)
         reader.join(2)
         data = json.loads(summary.read_text()) if summary.exists() else {}
+        data["quit_s"] = quit_s
+        if record.exists():
+            data["log_frames"] = sum(1 for line in record.open() if line.strip())
     data["steady_cpu_percent"] = 100.0 * cpu / wall
     data["screen_kib_per_s"] = drawn[0] / 1024.0 / (time.monotonic() - t0)
     data["exit"] = proc.returncode
@@ -142,7 +165,10 @@ def one(kind: str, host: str, seconds: float) -> dict[str, Any]:
             r = run_bare(kind, facts["pty"], seconds)
         else:
             extra = ["--refresh", "30", "--plot-rate", "10"] if host == "monitor-fast" else []
-            r = run_monitor(kind, facts["pty"], seconds, extra)
+            keys, end_keys = {"monitor-record": (b"w", b"w"), "monitor-frames": (b"m", b"")}.get(
+                host, (b"", b"")
+            )
+            r = run_monitor(kind, facts["pty"], seconds, extra, keys, end_keys)
         with ControlClient(facts["control"]) as ctl:
             st = ctl.call("status")
         r["sim_tx_dropped"] = st.get("tx_dropped", st.get("counters", {}).get("tx_dropped"))
@@ -156,11 +182,12 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0, help="wall seconds per run")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--links", default="slcan,serial")
-    ap.add_argument("--hosts", default="bare,monitor,monitor-fast")
+    ap.add_argument("--hosts", default="bare,monitor,monitor-fast,monitor-record,monitor-frames")
     args = ap.parse_args()
     print(f"{os.cpu_count()} cores; {args.duration:g} s per run, medians of {args.repeats}")
-    print(f"{'link':<7} {'host':<13} {'CPU %':>6} {'samples':>8} {'lost':>5} {'gaps':>5} "
-          f"{'partial':>7} {'late':>5} {'dropped':>7} {'load':>5}")  # fmt: skip
+    print(f"{'link':<7} {'host':<14} {'CPU %':>6} {'samples':>8} {'lost':>5} {'gaps':>5} "
+          f"{'partial':>7} {'late':>5} {'dropped':>7} {'log frames':>10} {'quit s':>6} "
+          f"{'load':>5}")  # fmt: skip
     for kind in args.links.split(","):
         for host in args.hosts.split(","):
             runs = [one(kind, host, args.duration) for _ in range(args.repeats)]
@@ -170,10 +197,12 @@ def main() -> None:
                 values = [r[key] for r in runs if r.get(key) is not None]
                 return statistics.median(values) if values else "-"
 
+            quit_s = med("quit_s")
             print(
-                f"{kind:<7} {host:<13} {med('steady_cpu_percent'):>6.1f} {med('samples'):>8} "
+                f"{kind:<7} {host:<14} {med('steady_cpu_percent'):>6.1f} {med('samples'):>8} "
                 f"{med('ticks_lost'):>5} {med('gaps'):>5} {med('ticks_incomplete'):>7} "
-                f"{med('late'):>5} {med('sim_tx_dropped'):>7} {load:>5.2f}",
+                f"{med('late'):>5} {med('sim_tx_dropped'):>7} {med('log_frames'):>10} "
+                f"{quit_s if quit_s == '-' else f'{quit_s:.2f}':>6} {load:>5.2f}",
                 flush=True,
             )
             for r in runs:

@@ -33,6 +33,7 @@ sent and received. :func:`read_can_log` decodes it with the protocol's own recei
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import logging
 import math
@@ -82,6 +83,7 @@ __all__ = [
     "LogSet",
     "SessionCounter",
     "check_log_file",
+    "decode_signals",
     "is_can_log",
     "read_can_log",
     "read_frames",
@@ -89,6 +91,40 @@ __all__ = [
 
 LogPaths = str | Path | Sequence[str | Path]
 """One log file, or the parts of a log in order (a rotated log)."""
+
+
+def decode_signals(db: Any, arbitration_id: int, data: bytes) -> tuple[str, int, list[str]]:
+    """A protocol frame decoded by cantools with the protocol's DBC ``db`` (as
+    ``cantools decode`` would): the message's name, the frame's node id and each signal as
+    ``"Name: value unit"``. The DBC describes node 1 (``DBC_NODE``); a frame of another node is
+    decoded by the same message. The message and its units are looked up once per DBC and id.
+
+    Raises
+    ------
+    Exception
+        What cantools raises for a frame it does not know or cannot decode (its own errors,
+        KeyError, ValueError).
+    """
+    _, node = split_can_id(arbitration_id)
+    message, units = _dbc_message(db, arbitration_id & ~0x0F)
+    signals = message.decode(bytes(data), decode_choices=True, allow_truncated=True)
+    fields = [
+        f"{name}: {value:g}{units[name]}"
+        if isinstance(value, float)
+        else f"{name}: {value}{units[name]}"
+        for name, value in signals.items()
+    ]
+    return message.name, node, fields
+
+
+@functools.lru_cache(maxsize=256)
+def _dbc_message(db: Any, base_id: int) -> tuple[Any, dict[str, str]]:
+    """The DBC's message of a function's base id and its signals' units (``" deg"`` or ``""``)."""
+    from northfinder.driver.protocol import DBC_NODE
+
+    message = db.get_message_by_frame_id(base_id | DBC_NODE)
+    return message, {sig.name: f" {sig.unit}" if sig.unit else "" for sig in message.signals}
+
 
 #: A jump of the device's sample counter between two parts of a log of more than this many
 #: heartbeats (the typical step between two STATUS_COUNTERS) means frames are missing.

@@ -197,54 +197,34 @@ def candump_line(msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
 
 
 class FrameDecoder:
-    """Frames decoded with a DBC into dump's lines, the DBC's message and signal units looked up
-    once per CAN id (not once a frame)."""
+    """Frames decoded with a DBC into dump's lines (:func:`~northfinder.host.canlog.decode_signals`,
+    the decoder the monitor's frame view uses too)."""
 
     def __init__(self, db: Any) -> None:
         from northfinder.driver.protocol import DBC_NODE
-        from northfinder.driver.protocol.can import split_can_id
 
         self.db = db
         self._dbc_node = DBC_NODE
-        self._split = split_can_id
-        self._by_id: dict[int, tuple[Any, dict[str, str], str] | Exception] = {}
-
-    def _lookup(self, arbitration_id: int) -> tuple[Any, dict[str, str], str] | Exception:
-        try:
-            _, node = self._split(arbitration_id)
-            message = self.db.get_message_by_frame_id((arbitration_id & ~0x0F) | self._dbc_node)
-        except Exception as exc:  # cantools raises KeyError, ours ProtocolError
-            return exc
-        units = {s.name: f" {s.unit}" if s.unit else "" for s in message.signals}
-        node_text = f" node {node}" if node != self._dbc_node else ""
-        return message, units, f"{message.name}{node_text}"
 
     def __call__(self, msg: Any, channel: str = UNNAMED_CHANNEL) -> str:
         """One frame as ``(t) CHANNEL ID#DATA DIR :: NAME(Signal: value unit, ...)``: the
         :func:`candump_line` and what the DBC decodes of it, as ``cantools decode
         --single-line`` prints a ``candump -L`` line."""
+        from northfinder.host.canlog import decode_signals
+
         head = candump_line(msg, channel)
         if msg.is_error_frame:
             return f"{head} :: error frame"
         if msg.is_extended_id or msg.is_remote_frame:
             return f"{head} :: not a protocol frame"
-        found = self._by_id.get(msg.arbitration_id)
-        if found is None:
-            found = self._by_id[msg.arbitration_id] = self._lookup(msg.arbitration_id)
-        if isinstance(found, Exception):
-            return f"{head} :: undecodable ({type(found).__name__}: {found})"
-        message, units, title = found
         try:
-            signals = message.decode(bytes(msg.data), decode_choices=True, allow_truncated=True)
-        except Exception as exc:  # cantools raises its own and ValueError
+            name, node, fields = decode_signals(self.db, msg.arbitration_id, bytes(msg.data))
+        except (
+            Exception
+        ) as exc:  # cantools raises its own and KeyError, ValueError, ours ProtocolError
             return f"{head} :: undecodable ({type(exc).__name__}: {exc})"
-        fields = ", ".join(
-            f"{name}: {value:g}{units[name]}"
-            if isinstance(value, float)
-            else f"{name}: {value}{units[name]}"
-            for name, value in signals.items()
-        )
-        return f"{head} :: {title}({fields})"
+        node_text = f" node {node}" if node != self._dbc_node else ""
+        return f"{head} :: {name}{node_text}({', '.join(fields)})"
 
 
 def decode_line(db: Any, msg: Any, channel: str = UNNAMED_CHANNEL) -> str:

@@ -5,8 +5,10 @@ Panels: the unit (identity, state, faults, table angle and target, temperature),
 counters, traces of the gyro and accelerometer channels over the last seconds with their means,
 a find run's windows and its solution as it forms, and every command with its reply and delay.
 
-Keys: t rotate to, b rotate by, s stop, h home, o stream on/off, f find (the plan options),
-w record every frame to ``--record FILE``, r reset, q quit.
+Keys: t rotate to, b rotate by, s stop, h home, o stream on/off, f find (the plan options and
+``--on-gap``), w record every frame to ``--record FILE`` (w again stops; ``--can-log FILE``
+records from the start), r reset, m the frame view (one row per CAN id, decoded; / filters,
+p pauses), p pause the traces, a their y scale fixed or automatic, q quit.
 
 Links: python-can bus options (``-i socketcan -c vcan0``, ``-i slcan -c /dev/pts/3``),
 ``--serial PORT``, or ``--sim`` (the embedded simulated instrument, paced at ``--speed``,
@@ -32,6 +34,7 @@ from northfinder.cli.common import (
     open_can_bus,
 )
 from northfinder.cli.measure import (
+    SIM_WARMUP_S,
     _open_unit,
     add_device_arguments,
     add_plan_arguments,
@@ -43,9 +46,22 @@ from northfinder.host.errors import HostConfigError
 SIM_ONLY = ("warmup", "sensor", "azimuth", "pitch", "roll", "seed")
 
 
+#: The monitor runs the embedded simulator paced, not in virtual time as find and record do:
+#: a live view needs its time to pass by itself.
+PACED_HELP = {
+    "--sim": "use the simulated instrument in this process, paced (--speed S simulated seconds "
+    "per wall second, default 1: real time)",
+    "--speed": "pace --sim at S simulated seconds per wall second (default 1, up to 10000)",
+}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_device_arguments(p)
     add_plan_arguments(p)
+    for action in p._actions:  # the shared options, as the monitor runs them
+        for option in action.option_strings:
+            if option in PACED_HELP:
+                action.help = PACED_HELP[option]
     g = p.add_argument_group("monitor")
     g.add_argument(
         "--passive", action="store_true",
@@ -134,7 +150,9 @@ def open_session(args: argparse.Namespace) -> Any:
     def opener(tap: Any) -> Iterator[tuple[Any, dict[str, Any] | None]]:
         if args.sim:
             with embedded_simulator(args, tap) as (device, truth):
-                yield device, truth
+                # how long it warms up: the screen counts the warm-up down
+                warmup = SIM_WARMUP_S if args.warmup is None else args.warmup
+                yield device, {**truth, "warmup_s": warmup}
         else:
             with _open_unit(args, tap) as device:
                 yield device, None
@@ -166,6 +184,7 @@ def run(args: argparse.Namespace) -> int:
             plot_hz=args.plot_rate,
             record_path=args.record,
             duration_s=args.duration,
+            on_gap=args.on_gap,
         )
         status = app.run()
         session.poll()

@@ -8,6 +8,8 @@ slow or dead unit never freezes the screen; every error is a line in the log, ne
 
 from __future__ import annotations
 
+import functools
+import importlib.resources
 import math
 import time
 from pathlib import Path
@@ -18,18 +20,20 @@ from textual import on
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
-from textual.screen import ModalScreen
+from textual.screen import ModalScreen, Screen
 from textual.widgets import Footer, Input, Label, RichLog, Static
 from textual_plotext import PlotextPlot
 
 from northfinder.driver.errors import DriverError
+from northfinder.driver.protocol import DBC_NODE, dbc_path
 from northfinder.driver.protocol.constants import DeviceState
+from northfinder.host.canlog import decode_signals
 from northfinder.host.errors import HostError
 from northfinder.host.plan import Plan
-from northfinder.monitor.observer import LogEntry, Traces, View
+from northfinder.monitor.observer import FrameRow, LogEntry, Traces, View
 from northfinder.monitor.session import ActiveSession, FindRun, Session
 
-__all__ = ["MIN_SIZE", "MonitorApp"]
+__all__ = ["MIN_SIZE", "FramesScreen", "MonitorApp"]
 
 #: The smallest terminal the monitor draws in, columns x rows.
 MIN_SIZE = (100, 30)
@@ -41,6 +45,7 @@ _LEVEL_STYLE = {
     "error": "bold red",
 }
 _AXES = ("x", "y", "z")
+_TRACE_TITLES = {"gyro": "gyro, deg/h", "accel": "accelerometer about its means, m/s^2"}
 
 
 def _num(value: float | None, fmt: str = ".3f", unit: str = "") -> str:
@@ -103,9 +108,13 @@ class MonitorApp(App[int]):
         The CAN log ``w`` writes (its ending picks the format).
     duration_s : float, optional
         Quit after this many wall seconds (a measurement run).
+    on_gap : {"remeasure", "report", "fail"}
+        What a find does with a window that lost ticks (as ``find --on-gap``).
     """
 
     TITLE = "northfinder monitor"
+    # The footer lists every key at 120 columns; the command palette would take their room.
+    ENABLE_COMMAND_PALETTE = False
     CSS = """
     Screen { layout: vertical; }
     #banner { height: 1; padding: 0 1; background: $primary-background; }
@@ -132,10 +141,13 @@ class MonitorApp(App[int]):
         Binding("b", "rotate_by", "rotate by"),
         Binding("s", "stop", "stop"),
         Binding("h", "home", "home"),
-        Binding("o", "stream", "stream on/off"),
+        Binding("o", "stream", "stream"),
         Binding("f", "find", "find"),
         Binding("w", "record", "record"),
         Binding("r", "reset", "reset"),
+        Binding("m", "frames", "frames"),
+        Binding("p", "pause_traces", "pause"),
+        Binding("a", "trace_scale", "scale"),
         Binding("q", "quit", "quit"),
     ]
 
@@ -148,9 +160,11 @@ class MonitorApp(App[int]):
         plot_hz: float = 2.0,
         record_path: str = "monitor.asc",
         duration_s: float | None = None,
+        on_gap: str = "remeasure",
     ) -> None:
         super().__init__()
         self.session = session
+        self.on_gap = on_gap
         self.plan = plan or Plan((0.0, 180.0, 180.0, 0.0), 10.0)
         self.refresh_hz = float(refresh_hz)
         self.plot_hz = min(float(plot_hz), self.refresh_hz) if self.refresh_hz else 0.0
@@ -164,6 +178,16 @@ class MonitorApp(App[int]):
         self._log_shown = 0
         self._log_last: LogEntry | None = None
         self._started = time.monotonic()
+        self.traces_paused = False
+        # y limits of each trace while the scale is fixed (None: each redraw scales to its data)
+        self.trace_limits: dict[str, tuple[float, float]] | None = None
+        self._trace_ranges: dict[str, tuple[float, float]] = {}
+
+    @property
+    def _main(self) -> Any:
+        """The screen of the panels (the first): a question or the frame view on top of it
+        does not hide them from the redraw."""
+        return self.screen_stack[0]
 
     # -- layout -------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -182,17 +206,12 @@ class MonitorApp(App[int]):
         yield Footer()
 
     def on_mount(self) -> None:
-        self.query_one("#unit").border_title = "unit"
-        self.query_one("#stream").border_title = "stream"
-        self.query_one("#link").border_title = "link"
-        self.query_one("#find").border_title = "find"
-        self.query_one("#log").border_title = "commands and events"
-        for name, title in (
-            ("gyro", "gyro, deg/h"),
-            ("accel", "accelerometer about its means, m/s^2"),
-        ):
-            plot = self.query_one(f"#{name}", PlotextPlot)
-            plot.border_title = title
+        self._main.query_one("#unit").border_title = "unit"
+        self._main.query_one("#stream").border_title = "stream"
+        self._main.query_one("#link").border_title = "link"
+        self._main.query_one("#find").border_title = "find"
+        self._main.query_one("#log").border_title = "commands and events"
+        self._trace_titles()
         self._check_size()
         self.refresh_view()
         if self.refresh_hz > 0:
@@ -206,9 +225,9 @@ class MonitorApp(App[int]):
     def _check_size(self) -> None:
         w, h = self.size
         small = w < MIN_SIZE[0] or h < MIN_SIZE[1]
-        self.screen.set_class(small, "toosmall")
+        self._main.set_class(small, "toosmall")
         if small:
-            self.query_one("#toosmall", Static).update(
+            self._main.query_one("#toosmall", Static).update(
                 f"The terminal is {w} x {h}: the monitor needs at least "
                 f"{MIN_SIZE[0]} x {MIN_SIZE[1]}.\nEnlarge the window (q quits)."
             )
@@ -220,8 +239,11 @@ class MonitorApp(App[int]):
         t0 = time.thread_time()
         try:
             self.session.poll()
-            view = self.session.observer.view()
-            self._draw(view)
+            frames = self.screen if isinstance(self.screen, FramesScreen) else None
+            if frames is not None:
+                frames.show(self.session.observer)
+            else:
+                self._draw(self.session.observer.view())
         except Exception as exc:  # the screen must stay up whatever a panel trips on
             self.session.observer.note(f"display error: {exc!r}", "error")
         self.ticks += 1
@@ -232,7 +254,7 @@ class MonitorApp(App[int]):
         if self._shown.get(wid) == key + str(getattr(content, "spans", "")):
             return
         self._shown[wid] = key + str(getattr(content, "spans", ""))
-        self.query_one(f"#{wid}", Static).update(content)
+        self._main.query_one(f"#{wid}", Static).update(content)
 
     def _draw(self, v: View) -> None:
         self._set("banner", self._banner(v))
@@ -242,6 +264,8 @@ class MonitorApp(App[int]):
         self._set("find", self._find())
         self._draw_log(v)
         now = time.monotonic() if self.refresh_hz else v.now_s
+        if self.traces_paused:
+            return
         if self.plot_hz == 0 or now - self._last_plot >= 1.0 / self.plot_hz:
             self._last_plot = now
             self._draw_traces(self.session.observer.traces())
@@ -250,7 +274,7 @@ class MonitorApp(App[int]):
         s = self.session
         mode = "PASSIVE (listening only)" if s.passive else "active"
         where = f"{s.description}  {mode}"
-        banner = self.query_one("#banner")
+        banner = self._main.query_one("#banner")
         if not s.connected:
             banner.set_classes("alarm")
             return Text(f"LINK LOST: {s.lost_reason or 'no link'}; reopening every 2 s ({where})")
@@ -288,6 +312,9 @@ class MonitorApp(App[int]):
         style = "bold red" if v.state == "FAULT" else "bold"
         t.append("state    ")
         t.append(f"{v.state}\n", style=style)
+        if v.state == "WARMUP":
+            t.append(f"warm-up  {self._warmup_left(self.session.observer, short=True)}\n",
+                     style="yellow")  # fmt: skip
         t.append(
             f"faults   {v.faults or '---'}\n", style="red" if v.faults not in ("", "none") else ""
         )
@@ -372,8 +399,15 @@ class MonitorApp(App[int]):
             return t
         p = run.progress
         if p is not None and not run.finished:
-            left = "" if p.seconds_left is None else f", ~{p.seconds_left:.0f} s left"
-            t.append(f"{p.phase} position {p.position}/{p.positions}{left}\n", style="bold")
+            obs = s.observer
+            if p.phase == "warm-up":
+                t.append(f"warm-up: {self._warmup_left(obs)}\n", style="bold")
+            else:
+                left = run.seconds_left(s.clock.now(), obs.pace())
+                more = "" if left is None else f", ~{left:.0f} s left"
+                t.append(f"{p.phase} position {p.position}/{p.positions}{more}\n", style="bold")
+        for line in run.gaps:
+            t.append(f"{line}\n", style="yellow")
         for i, w in enumerate(run.windows):
             t.append(f"w{i + 1} {w.encoder_deg:8.3f} deg  gx {w.gyro_dph[0]:+9.4f}  "
                      f"gy {w.gyro_dph[1]:+9.4f} deg/h\n")  # fmt: skip
@@ -397,8 +431,29 @@ class MonitorApp(App[int]):
             t.append(f"failed: {run.error}\n", style="bold red")
         return t
 
+    def _warmup_left(self, obs: Any, *, short: bool = False) -> str:
+        """The warm-up's time left where it is known (a simulated unit says how long it warms
+        up), else how long the unit has been warming up."""
+        since = obs.unit_seconds()
+        truth = self.session.truth or {}
+        total = truth.get("warmup_s")
+        if since is None:
+            return "time left not known yet" if short else "the unit's time is not known yet"
+        if total is None:
+            if short:
+                return f"{since:.0f} s so far"
+            return (
+                f"the unit has run {since:.0f} s; it does not say how long its warm-up lasts "
+                "(a few minutes)"
+            )
+        pace = obs.pace() or 1.0
+        left = max(0.0, float(total) - since) / max(pace, 1e-9)
+        if short:
+            return f"~{left:.0f} s left"
+        return f"~{left:.0f} s left (warm-up {float(total):g} s, the unit has run {since:.0f} s)"
+
     def _draw_log(self, v: View) -> None:
-        log = self.query_one("#log", RichLog)
+        log = self._main.query_one("#log", RichLog)
         entries = v.log
         if not entries:
             return
@@ -417,7 +472,7 @@ class MonitorApp(App[int]):
 
     def _draw_traces(self, tr: Traces | None) -> None:
         for name, attr in (("gyro", "gyro_dph"), ("accel", "accel_mps2")):
-            plot = self.query_one(f"#{name}", PlotextPlot)
+            plot = self._main.query_one(f"#{name}", PlotextPlot)
             plt = plot.plt
             plt.clear_data()
             if tr is None or tr.samples < 2:
@@ -427,11 +482,17 @@ class MonitorApp(App[int]):
             data = getattr(tr, attr)
             means = tr.mean_gyro_dph if name == "gyro" else tr.mean_accel_mps2
             x = tr.time_s.tolist()
+            lo, hi = math.inf, -math.inf
             for k, axis in enumerate(_AXES):
                 # The accelerometers read about 0, 0 and g: on one scale x and y would be flat
                 # lines, so each is drawn about its mean (which the label gives).
                 y = data[:, k] - (means[k] if name == "accel" else 0.0)
+                lo, hi = min(lo, float(y.min())), max(hi, float(y.max()))
                 plt.plot(x, y.tolist(), label=f"{axis} mean {means[k]:+.4g}", marker="braille")
+            self._trace_ranges[name] = (lo, hi)
+            limits = None if self.trace_limits is None else self.trace_limits.get(name)
+            if limits is not None:
+                plt.ylim(*limits)
             plt.title(f"last {tr.seconds:.1f} s, {tr.samples} samples")
             plt.xlabel("s")
             plot.refresh()
@@ -454,10 +515,8 @@ class MonitorApp(App[int]):
         def work() -> None:
             try:
                 call(s.require())
-            except (DriverError, HostError) as exc:
-                s.observer.note(f"{label}: {exc}", "error")
-            except Exception as exc:  # never a traceback on the screen
-                s.observer.note(f"{label}: internal error {exc!r}", "error")
+            except Exception as exc:  # a line in the log, never a traceback on the screen
+                s.report(label, exc)
 
         self.run_worker(work, thread=True, group="commands", name=label)
 
@@ -510,8 +569,17 @@ class MonitorApp(App[int]):
     def action_record(self) -> None:
         s = self.session
         if s.record_path:
-            path = s.stop_recording()
-            s.observer.note(f"recording stopped: {path}", "ok")
+
+            def stop() -> None:  # closing a log flushes it (an SQLite log drains its queue)
+                try:
+                    path = s.stop_recording()
+                except (DriverError, HostError, OSError) as exc:
+                    s.observer.note(f"record: {exc}", "error")
+                else:
+                    if path is not None:
+                        s.observer.note(f"recording stopped: {path}", "ok")
+
+            self.run_worker(stop, thread=True, group="record", name="record")
         else:
             path = self.record_path
             try:
@@ -533,7 +601,7 @@ class MonitorApp(App[int]):
             s.observer.note("find: give the site's latitude (--latitude)", "error")
             return
         truth = None if s.truth is None else s.truth.get("azimuth_deg")
-        run = FindRun(self.plan, float(s.latitude_deg), truth_deg=truth)
+        run = FindRun(self.plan, float(s.latitude_deg), truth_deg=truth, on_gap=self.on_gap)
         self.find_run = run
 
         def work() -> None:
@@ -547,5 +615,161 @@ class MonitorApp(App[int]):
 
         self.run_worker(work, thread=True, group="find", name="find")
 
+    def action_frames(self) -> None:
+        """The frame view: one row per CAN id of the link."""
+        self.push_screen(FramesScreen())
+        self.refresh_view()
+
+    def action_pause_traces(self) -> None:
+        """Freeze the traces (the link is read on; p again resumes them)."""
+        self.traces_paused = not self.traces_paused
+        self._trace_titles()
+        if not self.traces_paused:
+            self._last_plot = -math.inf
+            self.refresh_view()
+
+    def action_trace_scale(self) -> None:
+        """The traces' y scale: fixed at the range they show now, or each redraw's own."""
+        if self.trace_limits is None:
+            self.trace_limits = {
+                name: (lo, hi) if hi > lo else (lo - 1.0, hi + 1.0)
+                for name, (lo, hi) in self._trace_ranges.items()
+            }
+        else:
+            self.trace_limits = None
+        self._trace_titles()
+        self._last_plot = -math.inf
+        self.refresh_view()
+
+    def _trace_titles(self) -> None:
+        for name, title in _TRACE_TITLES.items():
+            scale = "auto" if self.trace_limits is None else "fixed"
+            paused = "  PAUSED (p resumes)" if self.traces_paused else ""
+            plot = self._main.query_one(f"#{name}", PlotextPlot)
+            plot.border_title = f"{title}, y {scale} (a){paused}"
+
     async def action_quit(self) -> None:
         self.exit(0)
+
+
+@functools.cache
+def _protocol_dbc() -> Any:
+    import cantools
+
+    with importlib.resources.as_file(dbc_path()) as path:
+        return cantools.database.load_file(str(path))
+
+
+def decoded(row: FrameRow) -> tuple[str, str]:
+    """A frame's message name and its signals, decoded by cantools with the protocol's DBC
+    (``cantools monitor`` style); the name says what is not the protocol's."""
+    if row.is_extended_id:
+        return "not protocol", row.data.hex(" ").upper()
+    try:
+        name, node, fields = decode_signals(_protocol_dbc(), row.arbitration_id, row.data)
+    except Exception:  # cantools raises its own, KeyError and ValueError
+        return "not protocol", row.data.hex(" ").upper()
+    if node != DBC_NODE:
+        name = f"{name} node {node}"
+    return name, ", ".join(fields)
+
+
+class AskText(ModalScreen[str | None]):
+    """A one-line question for text (Enter: take it, an empty line clears; Escape: cancel)."""
+
+    DEFAULT_CSS = AskAngle.DEFAULT_CSS.replace("AskAngle", "AskText")
+    BINDINGS: ClassVar[list[BindingType]] = [Binding("escape", "cancel", "cancel")]
+
+    def __init__(self, question: str, value: str = "") -> None:
+        super().__init__()
+        self.question = question
+        self.value = value
+
+    def compose(self) -> ComposeResult:
+        with Vertical():
+            yield Label(self.question)
+            yield Input(value=self.value, placeholder="e.g. SAMPLE, STATUS, 201", id="text")
+
+    @on(Input.Submitted)
+    def submitted(self, event: Input.Submitted) -> None:
+        self.dismiss(event.value.strip())
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+
+
+class FramesScreen(Screen[None]):
+    """The frames of the link, one row per CAN id as ``cantools monitor`` shows them: id,
+    direction, message name, count, rate, time since last seen and the last frame's signals.
+    ``/`` filters the rows (by name or hexadecimal id), ``p`` pauses the view, Escape returns."""
+
+    DEFAULT_CSS = """
+    FramesScreen { layout: vertical; }
+    #frames_head { height: 1; padding: 0 1; background: $primary-background; }
+    #frames { height: 1fr; padding: 0 1; }
+    """
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("slash", "filter", "filter"),
+        Binding("p", "pause", "pause"),
+        Binding("escape", "back", "back"),
+    ]
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.paused = False
+        self.filter = ""
+        self.shown: list[FrameRow] = []
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="frames_head")
+        yield Static("", id="frames")
+        yield Footer()
+
+    def show(self, observer: Any) -> None:
+        """Redraw from the observer (called by the app's redraw; nothing while paused)."""
+        if self.paused or not self.query("#frames"):
+            return  # paused, or not composed yet
+        now = observer.clock()
+        rows = []
+        for row in observer.frame_rows():
+            name, signals = decoded(row)
+            ident = (
+                f"{row.arbitration_id:08X}" if row.is_extended_id else f"{row.arbitration_id:03X}"
+            )
+            f = self.filter.lower()
+            if f and f not in name.lower() and f not in ident.lower():
+                continue
+            rows.append((row, name, signals, ident))
+        self.shown = [r[0] for r in rows]
+        t = Text(no_wrap=True, overflow="ellipsis")  # one line an id, as cantools monitor
+        t.append(f"{'id':<8} {'dir':<3} {'message':<18} {'count':>9} {'rate Hz':>8} "
+                 f"{'ago s':>7}  signals\n", style="bold")  # fmt: skip
+        for row, name, signals, ident in rows:
+            rate = "---" if row.rate_hz is None else f"{row.rate_hz:.1f}"
+            t.append(f"{ident:<8} {'rx' if row.is_rx else 'tx':<3} {name:<18} {row.count:>9} "
+                     f"{rate:>8} {now - row.last_s:>7.2f}  {signals}\n")  # fmt: skip
+        self.query_one("#frames", Static).update(t)
+        self._head()
+
+    def _head(self) -> None:
+        what = f"filter {self.filter!r}" if self.filter else "all frames"
+        paused = "  PAUSED (p resumes)" if self.paused else ""
+        self.query_one("#frames_head", Static).update(
+            Text(f"frames of the link: {what}, {len(self.shown)} ids{paused}  (Escape: back)")
+        )
+
+    def action_pause(self) -> None:
+        self.paused = not self.paused
+        self._head()
+
+    def action_filter(self) -> None:
+        def take(text: str | None) -> None:
+            if text is not None:
+                self.filter = text
+                self.paused = False
+                self.app.refresh_view()  # type: ignore[attr-defined]
+
+        self.app.push_screen(AskText("Show the frames whose name or id has:", self.filter), take)
+
+    def action_back(self) -> None:
+        self.app.pop_screen()

@@ -48,7 +48,15 @@ from northfinder.driver.protocol.messages import (
 )
 from northfinder.driver.window import CountScales
 
-__all__ = ["LATE_AFTER_S", "TRACE_SECONDS", "LinkObserver", "LogEntry", "Traces", "View"]
+__all__ = [
+    "LATE_AFTER_S",
+    "TRACE_SECONDS",
+    "FrameRow",
+    "LinkObserver",
+    "LogEntry",
+    "Traces",
+    "View",
+]
 
 #: Seconds of samples the traces hold.
 TRACE_SECONDS = 10.0
@@ -67,6 +75,47 @@ SILENT_AFTER_PERIODS = 3
 SILENT_AFTER_S = 1.0
 #: The table's rate is measured over the statuses of about this span, s (ten heartbeats).
 TABLE_RATE_SPAN_S = 1.0
+#: The unit's pace (its seconds per second of the session's clock) is measured over the statuses
+#: of about this span, s, once they span at least PACE_MIN_SPAN_S (a read late by a tenth of a
+#: second then moves it by a few percent at most).
+PACE_SPAN_S = 20.0
+PACE_MIN_SPAN_S = 3.0
+
+
+#: A frame's rate in the frame view is counted over the last this many seconds of arrivals.
+FRAME_RATE_SPAN_S = 2.0
+
+
+@dataclass(frozen=True)
+class FrameRow:
+    """One CAN id of the link as the frame view shows it (as ``cantools monitor`` does)."""
+
+    arbitration_id: int
+    is_extended_id: bool
+    count: int
+    rate_hz: float | None
+    last_s: float
+    data: bytes
+    is_rx: bool
+
+
+class _FrameStats:
+    __slots__ = ("arrivals", "count", "data", "is_rx", "last_s")
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.last_s = 0.0
+        self.data = b""
+        self.is_rx = True
+        # arrival times of the last frames: the rate over FRAME_RATE_SPAN_S (sized for 1 kHz)
+        self.arrivals: deque[float] = deque(maxlen=4096)
+
+
+@dataclass(frozen=True)
+class _GaveUp:
+    """The driver's verdict on a command, queued in order with the frames."""
+
+    opcode: int
 
 
 @dataclass(frozen=True)
@@ -175,7 +224,7 @@ class LinkObserver:
         self.node_id = node_id
         self.trace_seconds = float(trace_seconds)
         self.silent_after_s = float(silent_after_s)
-        self._queue: deque[tuple[float, can.Message]] = deque()
+        self._queue: deque[tuple[float, can.Message | _GaveUp]] = deque()
         self.receiver = CanReceiver(node_id=node_id)
         self.scales = CountScales()
         self.identity: Identify | None = None
@@ -204,8 +253,15 @@ class LinkObserver:
         self.refused = 0
         self.unanswered = 0
         self._pending: dict[int, tuple[float, Command]] = {}
+        # Commands the driver stopped waiting for (their sequence numbers): a reply that comes
+        # later is still theirs, said so, not a reply without a command.
+        self._abandoned: set[int] = set()
+        # (session clock, unit seconds from the status's sample counter) of the latest statuses:
+        # the pace of the unit's time against the session's clock.
+        self._unit_times: deque[tuple[float, float]] = deque(maxlen=256)
         self.log: deque[LogEntry] = deque(maxlen=LOG_LINES)
         self.last_frame_at: float | None = None
+        self._frames: dict[tuple[int, bool], _FrameStats] = {}
 
     # -- taking frames (any thread) -----------------------------------------------------------
     def tap(self, msg: can.Message) -> None:
@@ -216,6 +272,13 @@ class LinkObserver:
         """Put an event of the session in the log (any thread)."""
         self.log.append(LogEntry(self.clock(), text, level))
 
+    def driver_gave_up(self, opcode: int) -> None:
+        """The driver raised :class:`~northfinder.driver.errors.ReplyTimeout` for a command of
+        ``opcode`` (any thread): the latest such command seen waits no more. The driver's
+        judgement (its deadline, after a read that began once the deadline had passed) is the
+        one the monitor keeps; a reply that comes later is shown as the late reply it is."""
+        self._queue.append((self.clock(), _GaveUp(int(opcode))))
+
     # -- decoding (the screen's thread) -------------------------------------------------------
     def drain(self) -> int:
         """Decode every frame taken so far; return how many."""
@@ -225,9 +288,21 @@ class LinkObserver:
         while queue:
             t, msg = queue.popleft()
             n += 1
+            if isinstance(msg, _GaveUp):
+                self._gave_up(msg.opcode)
+                continue
             if msg.is_error_frame or msg.is_remote_frame:
                 continue
             self.last_frame_at = t
+            key = (msg.arbitration_id, msg.is_extended_id)
+            row = self._frames.get(key)
+            if row is None:
+                row = self._frames[key] = _FrameStats()
+            row.count += 1
+            row.last_s = t
+            row.data = bytes(msg.data)
+            row.is_rx = msg.is_rx
+            row.arrivals.append(t)
             for item in feed(msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id):
                 self._take(item, t)
         return n
@@ -283,6 +358,10 @@ class LinkObserver:
         when = st.sample_counter / rate if rate else t
         if self._angles and not when > self._angles[-1][0]:
             self._angles.clear()  # a restart, or the time base changed
+        if rate:
+            if self._unit_times and not when > self._unit_times[-1][1]:
+                self._unit_times.clear()
+            self._unit_times.append((t, when))
         self._angles.append((when, st.angle * self.scales.angle_deg))
         if st.state not in (DeviceState.ROTATING, DeviceState.SPINNING):
             self.spin_rate_dps = None
@@ -300,6 +379,16 @@ class LinkObserver:
             ):  # fmt: skip
                 self.target_deg = None
 
+    def _gave_up(self, opcode: int) -> None:
+        waiting = [
+            (t0, seq)
+            for seq, (t0, c) in self._pending.items()
+            if c.opcode == opcode and seq not in self._abandoned
+        ]
+        if waiting:
+            self._abandoned.add(max(waiting)[1])
+        self.unanswered += 1
+
     def _restart_stream(self) -> None:
         self.streaming = False
         self._late_base = None
@@ -308,6 +397,7 @@ class LinkObserver:
     def _command(self, c: Command, t: float) -> None:
         self.commands += 1
         self._pending[c.seq] = (t, c)
+        self._abandoned.discard(c.seq)
         # Commands the host sends while streaming (status polls) would flood the log: shown are
         # those that change something.
         sc = self.scales.angle_deg
@@ -327,7 +417,10 @@ class LinkObserver:
         if len(self._pending) > 64:  # replies never seen: keep the table small
             oldest = min(self._pending, key=lambda k: self._pending[k][0])
             self._pending.pop(oldest)
-            self.unanswered += 1
+            if oldest in self._abandoned:
+                self._abandoned.discard(oldest)  # counted when the driver gave up
+            else:
+                self.unanswered += 1
 
     def _reply(self, r: Reply, t: float) -> None:
         self.replies += 1
@@ -343,6 +436,15 @@ class LinkObserver:
         t0, c = sent
         if ok:
             self._config_reply(c, r)
+        if r.seq in self._abandoned:
+            self._abandoned.discard(r.seq)
+            done = "carried out" if ok else "refused"
+            self.log.append(
+                LogEntry(t, f"{_command_text(c, self.scales)} -> {result} in "
+                         f"{1000.0 * (t - t0):.1f} ms, after the driver had stopped waiting "
+                         f"(it was {done})", "warn")
+            )  # fmt: skip
+            return
         if not ok or c.opcode not in (Opcode.GET_STATUS, Opcode.GET_CONFIG):
             self.log.append(
                 LogEntry(t, f"{_command_text(c, self.scales)} -> {result} "
@@ -364,6 +466,7 @@ class LinkObserver:
             self.configured_rate_hz = int(value)
             self._late_base = None
             self._angles.clear()
+            self._unit_times.clear()
         elif key == ConfigKey.HEARTBEAT_PERIOD_MS and value > 0:
             self.heartbeat_s = value / 1000.0
         elif key == ConfigKey.STREAMING:
@@ -396,6 +499,42 @@ class LinkObserver:
             for a, b in zip(pts[first:-1], pts[first + 1 :], strict=True)
         )
         return turned / (t_end - pts[first][0])
+
+    def frame_rows(self) -> list[FrameRow]:
+        """One row per CAN id seen on the link (both ways), by id: its frame count, its rate
+        over the last :data:`FRAME_RATE_SPAN_S` of arrivals, when it was last seen and its last
+        data (call :meth:`drain` first)."""
+        now = self.clock()
+        rows = []
+        for (cid, ext), st in sorted(self._frames.items()):
+            recent = 0
+            for a in reversed(st.arrivals):  # newest first: only the recent ones are read
+                if a < now - FRAME_RATE_SPAN_S:
+                    break
+                recent += 1
+            rate = recent / FRAME_RATE_SPAN_S if recent else None
+            rows.append(FrameRow(cid, ext, st.count, rate, st.last_s, st.data, st.is_rx))
+        return rows
+
+    def unit_seconds(self) -> float | None:
+        """The unit's time at its latest status, s since it started (its sample counter over
+        the configured rate); None before both are known."""
+        st, rate = self.status, self.configured_rate_hz
+        return None if st is None or not rate else st.sample_counter / rate
+
+    def pace(self) -> float | None:
+        """The unit's seconds per second of the session's clock, measured over the statuses of
+        the last :data:`PACE_SPAN_S` (1 for a unit; the speed of a paced simulator); None until
+        they span :data:`PACE_MIN_SPAN_S`."""
+        pts = self._unit_times
+        if len(pts) < 2:
+            return None
+        t_end, u_end = pts[-1]
+        first = next((p for p in pts if t_end - p[0] <= PACE_SPAN_S), pts[0])
+        dt = t_end - first[0]
+        if dt < PACE_MIN_SPAN_S:
+            return None
+        return (u_end - first[1]) / dt
 
     def rate_hz(self) -> float | None:
         """Samples per second of the stream over the last two seconds of arrivals (None: fewer

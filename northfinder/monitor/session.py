@@ -21,13 +21,19 @@ import can
 
 from northfinder.driver.clock import Clock, WallClock
 from northfinder.driver.device import Device
-from northfinder.driver.errors import DriverError, LinkError, LinkLost
+from northfinder.driver.errors import DriverError, LinkError, LinkLost, ReplyTimeout, StreamGap
 from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.constants import DeviceState
 from northfinder.driver.transport import enlarge_receive_buffer
 from northfinder.host.errors import HostError
 from northfinder.host.plan import Plan
-from northfinder.host.procedure import FindResult, PositionWindow, Progress, find_north
+from northfinder.host.procedure import (
+    MAX_REMEASURE,
+    FindResult,
+    PositionWindow,
+    Progress,
+    find_north,
+)
 from northfinder.monitor.observer import LinkObserver
 
 __all__ = ["ActiveSession", "FindRun", "PassiveSession", "Session"]
@@ -84,13 +90,24 @@ class Session:
             The file cannot be written, or its ending names no log format.
         """
         log = FrameLog(path)
+        if self.clock.virtual:
+            log.use_clock(self.clock)  # the log's times are the instrument's, not the CPU's
+        # The lock only swaps the writer (the link's reader takes it for every frame): the
+        # file is opened before and the previous log closed after, never while it is held.
         with self._record_lock:
-            self.stop_recording()
-            self._recorder = log
+            old, self._recorder = self._recorder, log
             self.record_path = path
+        if old is not None:
+            old.close()
 
     def stop_recording(self) -> str | None:
-        """Close the CAN log; return its path (None if none was open)."""
+        """Close the CAN log; return its path (None if none was open).
+
+        Raises
+        ------
+        LinkError
+            A write failed: the log is incomplete (it is closed all the same).
+        """
         with self._record_lock:
             log, self._recorder = self._recorder, None
             path, self.record_path = self.record_path, None
@@ -192,9 +209,22 @@ class ActiveSession(Session):
                 self._reopening.start()
         elif self._reopening is not None and not self._reopening.is_alive():
             self._reopening = None
+        # A command's reply is waited for as the driver waits for it (its deadline judged after
+        # a read that began once it had passed): no second deadline on this thread's clock,
+        # which a busy host reads late. The driver's verdict comes with its ReplyTimeout
+        # (:meth:`report`).
         if self.device is not None and self.connected:
-            self.observer.expire(3.0 * max(self.device.reply_timeout, 0.25))
             self._start_stream(self.device)
+
+    def report(self, label: str, exc: Exception) -> None:
+        """Put a failed device call in the log (one line), with the driver's verdict on a reply
+        it stopped waiting for."""
+        if isinstance(exc, ReplyTimeout):
+            self.observer.driver_gave_up(exc.opcode)
+        if isinstance(exc, (DriverError, HostError)):
+            self.observer.note(f"{label}: {exc}", "error")
+        else:  # never a traceback on the screen
+            self.observer.note(f"{label}: internal error {exc!r}", "error")
 
     def _start_stream(self, device: Device) -> None:
         """Start the stream once the unit is READY, if asked (a unit refuses it while it
@@ -214,6 +244,8 @@ class ActiveSession(Session):
             try:
                 device.start_streaming()
             except DriverError as exc:
+                if isinstance(exc, ReplyTimeout):
+                    self.observer.driver_gave_up(exc.opcode)
                 self.observer.note(f"stream not started: {exc}", "warn")
 
         self._starter = threading.Thread(target=start, name="northfinder-monitor-stream")
@@ -377,7 +409,12 @@ class FindRun:
     plan: Plan
     latitude_deg: float
     truth_deg: float | None = None
+    on_gap: str = "remeasure"
     progress: Progress | None = None
+    progress_at: float = 0.0
+    """The session clock's time of :attr:`progress`."""
+    gaps: tuple[str, ...] = ()
+    """Each gap of a window (ticks lost) and what it cost, one line each."""
     windows: tuple[PositionWindow, ...] = ()
     solutions: tuple[Solution, ...] = ()
     result: FindResult | None = None
@@ -385,11 +422,13 @@ class FindRun:
     started_at: float = 0.0
     finished: bool = False
     notes: tuple[str, ...] = field(default=())
+    _session: Any = field(default=None, repr=False)
 
     def run(self, session: ActiveSession) -> None:
         """Run the plan on the session's device (in a worker thread)."""
         device = session.require()
         clock = device.clock
+        self._session = session
         self.started_at = clock.now()
         session.find = self
         session.observer.note(
@@ -397,6 +436,10 @@ class FindRun:
             f"{self.plan.window_s:g} s windows"
         )
         try:
+            if device.streaming:
+                # Each window then starts its own stream: a log of the run (w, --can-log)
+                # holds every window from its STREAM_START, as northfinder solve reads it.
+                device.release_stream()
             result, _ = find_north(
                 _Watched(device, self),
                 self.plan,
@@ -405,10 +448,11 @@ class FindRun:
                 sleep=clock.sleep,
                 clock=clock.now,
                 latitude_source="monitor",
+                on_gap=self.on_gap,
             )
         except (DriverError, HostError) as exc:
             self.error = str(exc)
-            session.observer.note(f"find failed: {exc}", "error")
+            session.report("find failed", exc)
             raise
         finally:
             self.finished = True
@@ -417,7 +461,50 @@ class FindRun:
         session.observer.note(f"find: azimuth {result.azimuth_deg:.3f}{sigma} deg", "ok")
 
     def _progress(self, p: Progress) -> None:
+        self.progress_at = self._session.clock.now()
         self.progress = p
+
+    def seconds_left(self, now: float, pace: float | None) -> float | None:
+        """Seconds of the session's clock until the plan is done: what the procedure said was
+        left of the plan's device time at its last step, less the unit's time since then (the
+        session clock's time times ``pace``, the unit's seconds per second; 1 when not
+        measured), over the pace. None while the procedure has not said (the warm-up)."""
+        p = self.progress
+        if p is None or p.seconds_left is None:
+            return None
+        pace = pace if pace and pace > 0 else 1.0
+        return max(0.0, p.seconds_left / pace - (now - self.progress_at))
+
+    def gap(self, window: int, attempt: int, exc: StreamGap, seconds: float) -> None:
+        """A window lost ticks (``on_gap`` remeasure or fail): say which and what it cost."""
+        first = exc.gaps[0][0] if exc.gaps else None
+        where = "" if first is None else f" from counter {first}"
+        what = f"window {window}: {exc.missing} tick(s) lost{where}"
+        if self.on_gap == "remeasure" and attempt < MAX_REMEASURE:
+            cost = f"measured again (attempt {attempt + 2}), {seconds:.1f} s lost"
+            p = self.progress
+            if p is not None and p.seconds_left is not None:
+                # the time left counts the window measured again
+                self.progress = dataclasses.replace(
+                    p, seconds_left=p.seconds_left + self.plan.window_s
+                )
+        elif self.on_gap == "remeasure":
+            cost = f"lost again after {MAX_REMEASURE} remeasures: the run stops"
+        else:
+            cost = "the run stops (on-gap fail)"
+        self._gap_line(f"{what}; {cost}")
+
+    def kept_gap(self, window: int, missing: int, gaps: tuple[tuple[int, int], ...]) -> None:
+        """A window kept with ticks missing (``on_gap`` report)."""
+        first = f" from counter {gaps[0][0]}" if gaps else ""
+        self._gap_line(
+            f"window {window}: {missing} tick(s) lost{first} in {len(gaps)} gap(s); kept "
+            "and reported in the result (on-gap report)"
+        )
+
+    def _gap_line(self, text: str) -> None:
+        self.gaps = (*self.gaps, text)
+        self._session.observer.note(f"find: {text}", "warn")
 
     def window_done(self, summary: PositionWindow) -> None:
         """A window was measured: keep it and solve with the windows so far."""
@@ -445,6 +532,8 @@ class _Watched:
         self._run = run
         self.clock = device.clock
         self._positions = iter(run.plan.positions_deg)
+        self._window = 1
+        self._attempt = 0
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._device, name)
@@ -452,12 +541,28 @@ class _Watched:
     def acquire(self, seconds: float, **options: Any) -> Any:
         from northfinder.host.procedure import summarise_window
 
-        window = self._device.acquire(seconds, **options)
+        began = self.clock.now()
+        try:
+            window = self._device.acquire(seconds, **options)
+        except StreamGap as exc:
+            self._run.gap(self._window, self._attempt, exc, self.clock.now() - began)
+            self._attempt += 1
+            raise
+        if getattr(window, "missing", 0):
+            self._run.kept_gap(self._window, window.missing, tuple(window.gaps))
+        self._window += 1
+        self._attempt = 0
         target = next(self._positions, 0.0)
         plan = self._run.plan
         try:
             self._run.window_done(
-                summarise_window(window, target, plan.denoise, dict(plan.denoise_options))
+                summarise_window(
+                    window,
+                    target,
+                    plan.denoise,
+                    dict(plan.denoise_options),
+                    allow_gaps=self._run.on_gap == "report",
+                )
             )
         except HostError:
             pass  # the procedure summarises it again and raises what is wrong
