@@ -617,7 +617,10 @@ def test_the_command_records_from_the_start_with_can_log(tmp_path, monkeypatch, 
     assert status == 0 and time.monotonic() - t0 < 20.0
     frames = list(can.LogReader(str(log)))
     assert len(frames) > 100  # statuses and samples of the stream the monitor started
-    assert "monitor:" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "monitor:" in err
+    # The stream the monitor started is stopped on leaving, and the line says so.
+    assert re.search(r"on leaving, sent STREAM_STOP; the unit reads (READY|SETTLING)", err), err
 
 
 def in_thread_status(fn, argv, limit_s=30.0):

@@ -190,7 +190,11 @@ def run(args: argparse.Namespace) -> int:
         session.poll()
         link = session.link_stats()
     finally:
-        session.close()
+        device = getattr(session, "device", None)
+        session.close()  # the device left at rest: STOP, STREAM_STOP for what the monitor started
+    rest = getattr(device, "at_rest", None)
+    if rest is not None and rest.needed:
+        print(f"monitor: on leaving, {rest.summary()}", file=sys.stderr)
     wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
     counters = session.observer.counters()
     summary = {
