@@ -367,7 +367,7 @@ def allan_lines(ds: Datasheet, cal: Any, record_s: float) -> list[Line]:
         if limit is None:
             continue
         fit = cal.triad_fits[triad]
-        lo_b, hi_b, unit, what = LIMITS[tuple(key.split("."))]  # type: ignore[index]
+        _, _, unit, what = LIMITS[tuple(key.split("."))]  # type: ignore[index]
         c = fit.coefficients[term] * factor
         if fit.resolved[term]:
             sd = fit.sigma[term] * factor
@@ -433,7 +433,7 @@ def repeatability_line(
 
     limit = ds.limits["north_finding.sigma_deg"]
     n = len(azimuths_deg)
-    lo_b, hi_b, unit, what = LIMITS[("north_finding", "sigma_deg")]
+    _, _, unit, what = LIMITS[("north_finding", "sigma_deg")]
     if n < 2:
         return Line("north_finding.sigma_deg", what, unit, limit, None, math.nan, math.nan,
                     NOT_RESOLVED, f"{n} run(s): a spread needs two or more")  # fmt: skip

@@ -53,35 +53,51 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     x = g.add_mutually_exclusive_group()
     x.add_argument("--datasheet", metavar="FILE", help="the datasheet TOML (docs/accept.md)")
     x.add_argument(
-        "--datasheet-from", metavar="PRESET|FILE",
+        "--datasheet-from",
+        metavar="PRESET|FILE",
         help="make the datasheet of a sensor preset or file: its figures times --margin",
-    )  # fmt: skip
+    )
     g.add_argument(
-        "--margin", type=bounded_float(1.0, 1000.0), default=MARGIN, metavar="X",
+        "--margin",
+        type=bounded_float(1.0, 1000.0),
+        default=MARGIN,
+        metavar="X",
         help=f"--datasheet-from: limits are the sensor's figures times X (default {MARGIN:g})",
-    )  # fmt: skip
+    )
     g.add_argument(
-        "--write-datasheet", metavar="FILE",
+        "--write-datasheet",
+        metavar="FILE",
         help="write the datasheet made by --datasheet-from to FILE (without a link: only that)",
-    )  # fmt: skip
+    )
     g = p.add_argument_group("stages")
     g.add_argument(
-        "-o", "--output", metavar="DIR", default="acceptance",
+        "-o",
+        "--output",
+        metavar="DIR",
+        default="acceptance",
         help="folder of the recordings and the report (default ./acceptance)",
-    )  # fmt: skip
+    )
     g.add_argument(
-        "--static-s", type=bounded_float(10.0, MAX_STATIC_S, "s"), default=STATIC_S,
+        "--static-s",
+        type=bounded_float(10.0, MAX_STATIC_S, "s"),
+        default=STATIC_S,
         metavar="SECONDS",
         help=f"length of the static recording, device seconds (default {STATIC_S:g})",
-    )  # fmt: skip
+    )
     g.add_argument(
-        "--runs", type=bounded_int(2, 1000), default=RUNS, metavar="N",
+        "--runs",
+        type=bounded_int(2, 1000),
+        default=RUNS,
+        metavar="N",
         help=f"north-finding runs (default {RUNS})",
-    )  # fmt: skip
+    )
     g.add_argument(
-        "--orientations", type=bounded_int(1, 36), default=ORIENTATIONS, metavar="K",
+        "--orientations",
+        type=bounded_int(1, 36),
+        default=ORIENTATIONS,
+        metavar="K",
         help=f"table orientations the runs take in turn, 360/K apart (default {ORIENTATIONS})",
-    )  # fmt: skip
+    )
     g.add_argument("--resume", action="store_true", help="keep the stages already in DIR")
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML, a case per line")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -135,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
                 ds,
                 f"made by northfinder accept --datasheet-from "
                 f"{args.datasheet_from} --margin {args.margin:g}",
-            )  # fmt: skip
+            )
         )
         if not _link_given(args):
             say(f"wrote {args.write_datasheet}")
@@ -275,9 +291,10 @@ class Stages:
         args = self.args
         with measure.open_device(args) as (device, truth):
             identity = device_identity(
-                device.identity, simulated=bool(args.sim),
+                device.identity,
+                simulated=bool(args.sim),
                 sensor=None if truth is None else truth.get("sensor"),
-            )  # fmt: skip
+            )
             clock = device.clock
             if need_ready:
                 ready = {"device": identity, **_time_to_ready(device, bool(args.sim))}
@@ -361,9 +378,11 @@ class Stages:
             lines.append(acc.conformance_line(ds.conformance, conf["checks"]))
             identity = conf.get("device")
             body["stages"]["conformance"] = {
-                "file": "conformance.json", "junit": "conformance.xml",
-                "counts": conf["counts"], "duration_s": conf["duration_s"],
-            }  # fmt: skip
+                "file": "conformance.json",
+                "junit": "conformance.xml",
+                "counts": conf["counts"],
+                "duration_s": conf["duration_s"],
+            }
         ready = _read_json(out / "ready.json")
         identity = ready["device"] or identity
         body["stages"]["ready"] = {
@@ -373,17 +392,21 @@ class Stages:
         if ds.protocol_version:
             lines.append(
                 acc.equal_line(
-                    "unit.protocol_version", "protocol version", ds.protocol_version,
+                    "unit.protocol_version",
+                    "protocol version",
+                    ds.protocol_version,
                     identity.get("protocol_version") if identity else None,
                 )
-            )  # fmt: skip
+            )
         if "unit.time_to_ready_s" in ds.limits:
             lines.append(
                 acc.value_line(
-                    "unit.time_to_ready_s", ds.limits["unit.time_to_ready_s"],
-                    float(ready["time_to_ready_s"]), f"from {ready['from']}, on the device's clock",
+                    "unit.time_to_ready_s",
+                    ds.limits["unit.time_to_ready_s"],
+                    float(ready["time_to_ready_s"]),
+                    f"from {ready['from']}, on the device's clock",
                 )
-            )  # fmt: skip
+            )
         if (out / "static.npz").exists() and any(
             k.startswith(("gyro.", "accel.")) for k in ds.limits
         ):
@@ -425,7 +448,7 @@ class Stages:
                 "latitude_deg": ds.latitude_deg,
                 "positions_deg": list(ds.positions_deg),
                 "window_s": ds.window_s,
-            },  # fmt: skip
+            },
             "device": identity,
             "seed": getattr(args, "seed", None) if args.sim else None,
             "wall_s": wall_s,
