@@ -217,8 +217,8 @@ def _text(result: dict[str, Any], out: Path) -> str:
 
 
 def _progress(args: argparse.Namespace, text: str) -> None:
-    if not args.json:
-        print(f"accept: {text}", file=sys.stderr, flush=True)
+    """One line per stage on stderr (stdout holds the result alone)."""
+    print(f"accept: {text}", file=sys.stderr, flush=True)
 
 
 def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:
