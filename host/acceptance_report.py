@@ -253,6 +253,13 @@ def _headings(result: dict[str, Any]) -> str:
         f"mean heading {mean:.4f} deg. Blue band: ±1σ of the runs at that orientation; green "
         "dashed: the datasheet's ±1σ limit.</p>",
     ]
+    pred = result.get("prediction")
+    if pred:
+        parts.append(
+            f"<p>The planner predicts σ {pred['sigma_deg']:.4g} deg for this plan from "
+            f"{escape(pred['from'])} (measured: {_num(line['measured'] if line else None)} "
+            "deg).</p>"
+        )
     by: dict[float, list[dict[str, Any]]] = {}
     for r in runs:
         by.setdefault(r["orientation_deg"], []).append(r)

@@ -16,6 +16,7 @@ import subprocess
 import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 from clirun import run_cli
@@ -129,6 +130,9 @@ def test_a_good_unit_passes_every_line(good):
     arw = lines["gyro.arw_dpsh"]
     assert arw["low"] <= 0.01 <= arw["high"] * 1.02
     assert lines["north_finding.sigma_deg"]["high"] <= 2.1
+    # The planner, given the fitted terms, predicts about the spread the runs show.
+    measured = lines["north_finding.sigma_deg"]["measured"]
+    assert 0.5 < result["prediction"]["sigma_deg"] / measured < 2.0
     assert len(result["stages"]["runs"]) == 8
     assert {r["orientation_deg"] for r in result["stages"]["runs"]} == {0.0, 180.0}
 
@@ -168,7 +172,18 @@ def test_resume_keeps_the_stages_done(good):
 
 
 class _Balance(HTMLParser):
-    VOID = {"meta", "br", "img", "hr", "input", "link", "circle", "line", "rect", "polyline"}
+    VOID: ClassVar[set[str]] = {
+        "meta",
+        "br",
+        "img",
+        "hr",
+        "input",
+        "link",
+        "circle",
+        "line",
+        "rect",
+        "polyline",
+    }
 
     def __init__(self) -> None:
         super().__init__()
@@ -281,7 +296,7 @@ BAD = [
 @pytest.mark.parametrize(("sections", "message"), BAD)
 def test_a_bad_datasheet_is_refused_in_one_line(tmp_path, sections, message):
     ds = write(tmp_path, sections)
-    code, out, err = run_cli("accept", "--datasheet", str(ds), "--sim", "-o", str(tmp_path / "a"))
+    code, _, err = run_cli("accept", "--datasheet", str(ds), "--sim", "-o", str(tmp_path / "a"))
     assert code == 2, err
     assert err.count("\n") == 1 and err.startswith("northfinder accept: error: "), err
     assert message in err
@@ -296,7 +311,7 @@ def test_a_datasheet_that_is_no_toml_is_refused(tmp_path):
 
 def test_a_datasheet_from_a_preset_is_its_figures_times_the_margin(tmp_path):
     path = tmp_path / "rlg.toml"
-    code, out, err = run_cli(
+    code, _, err = run_cli(
         "accept", "--datasheet-from", "paper-rlg", "--margin", "3", "--write-datasheet", str(path)
     )
     assert code == 0, err

@@ -407,6 +407,7 @@ class Stages:
                     f"from {ready['from']}, on the device's clock",
                 )
             )
+        cal = None
         if (out / "static.npz").exists() and any(
             k.startswith(("gyro.", "accel.")) for k in ds.limits
         ):
@@ -433,6 +434,8 @@ class Stages:
             site = runs[0]["latitude_deg"]
             lines.append(acc.repeatability_line(ds, [r["azimuth_deg"] for r in runs], site))
             body["stages"]["runs"] = runs
+            if cal is not None:
+                body["prediction"] = _prediction(args, ds, cal)
         ordered = sorted(lines, key=lambda line: _ORDER.index(line.key.split(".")[0]))
         return {
             "schema": "northfinder-acceptance",
@@ -458,6 +461,33 @@ class Stages:
 
 
 _ORDER = ("unit", "gyro", "accel", "north_finding")
+
+
+def _prediction(args: argparse.Namespace, ds: Any, cal: Any) -> dict[str, Any]:
+    """The planner's repeatability of the datasheet's plan at its latitude from the noise terms
+    the static record resolved (a term it does not resolve counted as 0: optimistic), on the
+    simulated sensor's other figures (``--sim``) or ``paper-rlg``'s."""
+    import dataclasses
+
+    from northfinder.host.accuracy import predict
+    from northfinder.host.plan import Plan
+    from northfinder.simwindows import error_model
+
+    base_name = (args.sensor or "paper-rlg") if args.sim else "paper-rlg"
+    fitted = dataclasses.replace(cal, unresolved="zero").sensor_dict()
+    keys = {
+        "gyro": ("arw_dpsh", "bias_instability_dph", "rrw_dphpsh"),
+        "accel": ("vrw_ug_rthz", "bias_instability_ug"),
+    }
+    values = {f"{sec}.{k}": fitted[sec][k] for sec, ks in keys.items() for k in ks}
+    spec = load_sensor(base_name, values)
+    plan = Plan(tuple(ds.positions_deg), ds.window_s, ds.settle_s, "none", ds.solver)
+    warmup = measure.SIM_WARMUP_S if args.warmup is None else args.warmup
+    sigma = predict(error_model(spec), plan, ds.latitude_deg, warmup_s=warmup).sigma_deg
+    return {
+        "sigma_deg": sigma,
+        "from": f"the noise terms the static record resolved, on {base_name}'s other figures",
+    }
 
 
 def _finite(v: float) -> float | None:
