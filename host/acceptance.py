@@ -62,7 +62,12 @@ LIMITS: Mapping[tuple[str, str], tuple[float, float, str, str]] = {
     ("accel", "vrw_ug_rthz"): (0.0, 1e5, "ug/sqrt(Hz)", "accelerometer noise"),
     ("accel", "bias_instability_ug"): (0.0, 1e5, "ug", "accelerometer bias instability"),
     ("north_finding", "sigma_deg"): (0.0, 180.0, "deg", "north-finding repeatability, 1 sigma"),
-    ("unit", "time_to_ready_s"): (0.0, 86_400.0, "s", "time from RESET to READY"),
+    ("unit", "time_to_ready_s"): (
+        0.0,
+        86_400.0,
+        "s",
+        "time to READY (unit: from RESET; simulator: from power-on)",
+    ),
 }
 #: Settings of the north-finding line: key -> (lowest, highest, unit, what), lowest included.
 _PLAN_KEYS: Mapping[str, tuple[float, float, str, str]] = {

@@ -234,7 +234,9 @@ def _orientation_svg(runs: Sequence[dict[str, Any]], mean: float, limit: float |
         ax.polyline([min(xs) - 1.0, max(xs) + 1.0], [-limit * 60.0] * 2, "#1b7f3b", "6 4", 1.0)
     ax.polyline([min(xs) - 1.0, max(xs) + 1.0], [0.0, 0.0], "#888", width=1.0)
     ax.dots(xs, d, "#1d1d1f")
-    return ax.svg("run", "heading − mean of all runs, arcmin", "headings at one orientation")
+    return ax.svg(
+        "run", "Δ heading, arcmin", "headings at one orientation, about the mean of all runs"
+    )
 
 
 def _headings(result: dict[str, Any]) -> str:
