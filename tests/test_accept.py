@@ -302,6 +302,18 @@ def test_a_bad_datasheet_is_refused_in_one_line(tmp_path, sections, message):
     assert message in err
 
 
+def test_options_that_would_be_ignored_are_refused(tmp_path):
+    ds = write(tmp_path, {"gyro": {"arw_dpsh": 0.01}})
+    code, _, err = run_cli("accept", "--datasheet", str(ds), "--margin", "3", "--sim")
+    assert code == 2 and "--margin: applies to --datasheet-from" in err
+    code, _, err = run_cli(
+        "accept", "--datasheet", str(ds), "--write-datasheet", str(tmp_path / "w.toml")
+    )
+    assert code == 2 and "--write-datasheet: writes the datasheet of --datasheet-from" in err
+    code, _, err = run_cli("accept", "--datasheet", str(ds))
+    assert code == 2 and "choose exactly one device" in err
+
+
 def test_a_datasheet_that_is_no_toml_is_refused(tmp_path):
     ds = tmp_path / "ds.toml"
     ds.write_text("[gyro\narw_dpsh = 1\n")

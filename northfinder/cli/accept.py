@@ -60,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--margin",
         type=bounded_float(1.0, 1000.0),
-        default=MARGIN,
+        default=None,
         metavar="X",
         help=f"--datasheet-from: limits are the sensor's figures times X (default {MARGIN:g})",
     )
@@ -109,7 +109,11 @@ def _datasheet(args: argparse.Namespace) -> Any:
     from northfinder.host.acceptance import datasheet_from_sensor, load_datasheet
 
     if args.datasheet:
+        if args.margin is not None:
+            raise HostConfigError("--margin: applies to --datasheet-from, not to --datasheet")
         return load_datasheet(args.datasheet)
+    if args.margin is None:
+        args.margin = MARGIN
     if not args.datasheet_from:
         raise HostConfigError("give --datasheet FILE or --datasheet-from PRESET")
     from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
@@ -316,9 +320,10 @@ class Stages:
                 }
                 if truth is not None:
                     meta["truth"] = truth
-                writer = RecordingWriter(self.out / "static.npz", meta)
                 window = device.acquire(args.static_s, on_gap="report")
                 device.release_stream()
+                # Written once whole: a static.npz in the folder is a finished stage (--resume).
+                writer = RecordingWriter(self.out / "static.npz", meta)
                 writer.add(RecordedWindow.from_window(window, angle))
                 writer.close("complete")
 
