@@ -193,9 +193,29 @@ def parse_datasheet(data: Mapping[str, Any], source: str = "<datasheet>") -> Dat
         raise _bad(source, "north_finding.sigma_deg needs north_finding.positions_deg (the plan)")
     if ds.positions_deg and "north_finding.sigma_deg" not in limits:
         raise _bad(source, "north_finding.positions_deg needs north_finding.sigma_deg (the limit)")
+    if ds.positions_deg:
+        _check_plan(ds)
     if not (limits or ds.protocol_version or ds.conformance):
         raise _bad(source, "states no limit: give at least one line (docs/accept.md)")
     return ds
+
+
+def _check_plan(ds: Datasheet) -> None:
+    """Refuse a plan the procedure would refuse (angles too close, an unknown solver, a solver
+    that needs another number of positions), before any work."""
+    from northfinder.host.errors import GeometryError
+    from northfinder.host.plan import Plan
+    from northfinder.host.procedure import METHOD_CHOICES, check_plan_for_device
+
+    if ds.solver not in METHOD_CHOICES:
+        raise _bad(
+            ds.source,
+            f"north_finding.solver = {ds.solver!r}; choose one of {', '.join(METHOD_CHOICES)}",
+        )
+    try:
+        check_plan_for_device(Plan(ds.positions_deg, ds.window_s, ds.settle_s, "none", ds.solver))
+    except (HostConfigError, GeometryError) as exc:
+        raise _bad(ds.source, f"north_finding: {exc}") from exc
 
 
 def load_datasheet(path: str | Path) -> Datasheet:

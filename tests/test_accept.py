@@ -288,6 +288,9 @@ BAD = [
     ({"north_finding": {"sigma_deg": 0.1, "positions_deg": [0, 180], "latitude_deg": 95}},
      "north_finding.latitude_deg = 95 is outside its range -89 to 89 deg"),
     ({"unit": {"conformance": []}}, "unit.conformance = [] must be a list of check names"),
+    ({"north_finding": {"sigma_deg": 0.1, "positions_deg": [0, 0.5]}}, "north_finding: positions"),
+    ({"north_finding": {"sigma_deg": 0.1, "positions_deg": [0, 180], "solver": "magic"}},
+     "north_finding.solver = 'magic'; choose one of"),
     ({"name": "empty"}, "states no limit"),
     ({"unit": {"conformance": ["no.such.check"]}}, "unit.conformance: "),
 ]  # fmt: skip
