@@ -292,7 +292,7 @@ def _headings(result: dict[str, Any]) -> str:
 def html_report(result: dict[str, Any]) -> str:
     """The report as one self-contained HTML page."""
     verdict = result["verdict"]
-    dev = result.get("device") or {}
+    dev = result["device"] or {}
     identity = (
         ", ".join(f"{escape(str(k))} {escape(str(v))}" for k, v in dev.items())
         if dev
@@ -311,7 +311,7 @@ def html_report(result: dict[str, Any]) -> str:
         "<table>",
         f"<tr><th>unit</th><td>{identity}</td></tr>",
         f"<tr><th>software</th><td>northfinder {escape(result['northfinder_version'])}</td></tr>",
-        f"<tr><th>command</th><td><code>{escape(result['command'])}</code></td></tr>",
+        f"<tr><th>command</th><td><code>{escape(result['command_line'])}</code></td></tr>",
         f"<tr><th>datasheet</th><td><code>{escape(result['datasheet']['source'])}</code></td></tr>",
         f"<tr><th>created</th><td>{escape(result['created_utc'])}</td></tr>",
     ]

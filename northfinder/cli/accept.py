@@ -372,7 +372,7 @@ class Stages:
     def judge(self, wall_s: float) -> dict[str, Any]:
         """Every datasheet line judged, and what the report shows."""
         from northfinder.host import acceptance as acc
-        from northfinder.host.results import package_version, utc_now
+        from northfinder.host.results import envelope
 
         ds, args, out = self.ds, self.args, self.out
         lines: list[Any] = []
@@ -442,27 +442,26 @@ class Stages:
             if cal is not None:
                 body["prediction"] = _prediction(args, ds, cal)
         ordered = sorted(lines, key=lambda line: _ORDER.index(line.key.split(".")[0]))
-        return {
-            "schema": "northfinder-acceptance",
-            "schema_version": 1,
-            "created_utc": utc_now(),
-            "northfinder_version": package_version(),
-            "command": "northfinder " + shlex.join(getattr(args, "_argv", sys.argv[1:])),
-            "cwd": os.getcwd(),
-            "verdict": acc.overall(ordered),
-            "datasheet": {
-                "name": ds.name,
-                "source": ds.source,
-                "latitude_deg": ds.latitude_deg,
-                "positions_deg": list(ds.positions_deg),
-                "window_s": ds.window_s,
+        return envelope(
+            "accept",
+            identity,
+            {
+                "command_line": "northfinder " + shlex.join(getattr(args, "_argv", sys.argv[1:])),
+                "cwd": os.getcwd(),
+                "verdict": acc.overall(ordered),
+                "datasheet": {
+                    "name": ds.name,
+                    "source": ds.source,
+                    "latitude_deg": ds.latitude_deg,
+                    "positions_deg": list(ds.positions_deg),
+                    "window_s": ds.window_s,
+                },
+                "seed": getattr(args, "seed", None) if args.sim else None,
+                "wall_s": wall_s,
+                "lines": [line.to_dict() for line in ordered],
+                **body,
             },
-            "device": identity,
-            "seed": getattr(args, "seed", None) if args.sim else None,
-            "wall_s": wall_s,
-            "lines": [line.to_dict() for line in ordered],
-            **body,
-        }
+        )
 
 
 _ORDER = ("unit", "gyro", "accel", "north_finding")
