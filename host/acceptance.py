@@ -249,6 +249,7 @@ def datasheet_from_sensor(
     time_to_ready_s: float | None,
     protocol_version: str | None,
     conformance: Sequence[str] = ("*",),
+    source: str = "--datasheet-from",
 ) -> Datasheet:
     """A datasheet whose limits are a sensor's figures times ``margin`` (a sensor in the layout
     of a sensor TOML file: ``SensorSpec.to_dict()``). A term the sensor does not have (0) gives
@@ -270,7 +271,7 @@ def datasheet_from_sensor(
         latitude_deg=float(latitude_deg),
         protocol_version=protocol_version,
         conformance=tuple(conformance),
-        source="--datasheet-from",
+        source=source,
     )
 
 

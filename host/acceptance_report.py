@@ -18,7 +18,7 @@ __all__ = ["html_report", "junit_xml"]
 _COLOURS = {"PASS": "#1b7f3b", "FAIL": "#b3261e", "NOT RESOLVED": "#a15c00"}
 _CSS = """
 body{font:14px/1.45 system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
-max-width:64em;color:#1d1d1f;padding:0 1em}
+max-width:72em;color:#1d1d1f;padding:0 1em}
 h1{font-size:1.6em;margin:.2em 0}h2{font-size:1.2em;margin-top:1.6em;border-bottom:1px solid #ddd}
 h3{font-size:1.05em}
 .verdict{font-size:2em;font-weight:700;padding:.3em .6em;border-radius:.3em;color:#fff;
@@ -27,7 +27,7 @@ table{border-collapse:collapse;width:100%;margin:.5em 0}
 th,td{border:1px solid #ddd;padding:.3em .5em;text-align:left;vertical-align:top}
 th{background:#f4f4f6}td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 .tag{font-weight:700;white-space:nowrap}code{background:#f4f4f6;padding:0 .2em;word-break:break-all}
-.small{color:#555;font-size:.9em}svg{max-width:100%;height:auto;background:#fff}
+.small{color:#555;font-size:.9em}td.small{min-width:12em}td.val{text-align:right}td code{font-size:.85em;word-break:normal}svg{max-width:100%;height:auto;background:#fff}
 """
 
 
@@ -58,7 +58,7 @@ def _lines_table(lines: Sequence[dict[str, Any]]) -> str:
         rows.append(
             f"<tr><td>{escape(line['title'])}<br><code>{escape(line['key'])}</code></td>"
             f'<td class="num">{lim} {escape(line["unit"])}</td>'
-            f'<td class="num">{_num(line["measured"])}</td><td class="num">{interval}</td>'
+            f'<td class="val">{_num(line["measured"])}</td><td class="num">{interval}</td>'
             f"<td>{_tag(line['verdict'])}</td><td class=small>{escape(line['note'])}</td></tr>"
         )
     rows.append("</table>")

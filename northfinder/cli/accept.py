@@ -135,6 +135,7 @@ def _datasheet(args: argparse.Namespace) -> Any:
         time_to_ready_s=measure.SIM_WARMUP_S + 10.0,
         protocol_version="1.1",
         conformance=("*",),
+        source=f"--datasheet-from {args.datasheet_from} --margin {args.margin:g}",
     )
 
 
