@@ -519,6 +519,8 @@ def test_every_json_output_has_the_envelope_and_meets_the_schema(tmp_path, valid
 
     rec = tmp_path / "run.npz"
     assert run_cli("record", str(rec), *FAST, "--seed", "1")[0] == 0
+    datasheet = tmp_path / "datasheet.toml"
+    datasheet.write_text("[gyro]\narw_dpsh = 0.003\n")
     commands = {
         "find": ["find", *FAST, "--seed", "1"],
         "solve": ["solve", str(rec)],
@@ -527,6 +529,18 @@ def test_every_json_output_has_the_envelope_and_meets_the_schema(tmp_path, valid
         "simulate": ["simulate", "--window", "1", "--seed", "1"],
         "calibrate": ["calibrate", str(rec)],
         "conformance": ["conformance", "--sim", "--only", "identify"],
+        "accept": [
+            "accept",
+            "--datasheet",
+            str(datasheet),
+            "--sim",
+            "--seed",
+            "1",
+            "--static-s",
+            "20",
+            "-o",
+            str(tmp_path / "acc"),
+        ],
     }
     for command, argv in commands.items():
         code, out, err = run_cli(*argv, "--json")

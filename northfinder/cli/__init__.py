@@ -59,6 +59,7 @@ COMMANDS: dict[str, str] = {
     "monitor": "northfinder.cli.monitor",
     "dump": "northfinder.cli.dump",
     "reset": "northfinder.cli.reset",
+    "accept": "northfinder.cli.accept",
 }
 
 
@@ -205,6 +206,7 @@ def _main(argv: list[str]) -> int:
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2, its line printed)
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     _configure_logging(args)
+    args._argv = list(argv)  # the command as given, for reports that state it
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt as exc:

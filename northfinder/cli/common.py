@@ -13,6 +13,8 @@ Exit status
   their consistency check (they disagree beyond their noise: a bias step, a drift, a table angle
   error, a wrong latitude). The result is printed (JSON, plot, record) with the warning, its
   sigma scaled; NMEA sends it as not valid. A script must not take it as a good heading.
+- 4 (:data:`EXIT_NOT_RESOLVED`): ``accept`` failed no datasheet line, but the data could not
+  decide at least one (NOT RESOLVED: the record too short); the report says what would decide it.
 - 130, 143, 129: interrupted by SIGINT (Ctrl-C), SIGTERM, SIGHUP (128 + the signal's number);
   a device the command opened is left at rest first (:class:`SignalInterrupt`).
 
@@ -56,6 +58,7 @@ from northfinder.host.errors import (
 EXIT_RUNTIME = 1
 EXIT_USAGE = 2
 EXIT_INCONSISTENT = 3
+EXIT_NOT_RESOLVED = 4
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 
@@ -212,6 +215,7 @@ SUMMARIES: dict[str, str] = {
     "monitor": "live terminal view of a unit (Textual)",
     "dump": "decode a CAN log or a live bus with protocol.dbc",
     "reset": "restart a unit (clears FAULT)",
+    "accept": "acceptance test of a unit against its datasheet, with an HTML report",
 }
 
 

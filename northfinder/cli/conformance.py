@@ -229,16 +229,54 @@ def _finish(args: argparse.Namespace, report: Report) -> int:
 
 def _run_simulated(args: argparse.Namespace, options: SuiteOptions) -> int:
     """The suite against the simulated instrument on virtual CAN in this process, in virtual time."""
+    return _finish(
+        args, simulated_report(args, options, lambda link, **kw: _run(args, link, options, **kw))
+    )
+
+
+def simulated_report(
+    args: argparse.Namespace,
+    options: SuiteOptions,
+    run: Callable[..., Report] | None = None,
+) -> Report:
+    """The suite's report on the simulated instrument of ``--sensor`` and ``--seed``, on virtual
+    CAN in this process, in virtual time (``run(link, clock=...)`` runs it; default
+    :func:`~northfinder.driver.conformance.run_suite` without progress)."""
     from northfinder.driver.clock import VirtualClock
     from northfinder.embed import SimulatedInstrument
     from northfinder.firmware_sim.imu import Truth
 
     sim = SimulatedInstrument(
-        args.sensor, Truth(), seed=args.seed, clock="virtual", warmup_s=0.0, node_id=args.node_id
-    )
+        args.sensor or "paper-rlg", Truth(), seed=args.seed, clock="virtual", warmup_s=0.0,
+        node_id=args.node_id,
+    )  # fmt: skip
     with sim, sim.open_bus() as bus:
         assert isinstance(sim.clock, VirtualClock)
         link = CanRawLink(bus, args.node_id)
-        report = _run(args, link, options, clock=sim.clock)
+        if run is None:
+            report = run_suite(link, options, clock=sim.clock)
+        else:
+            report = run(link, clock=sim.clock)
         sim.check()
-    return _finish(args, report)
+    return report
+
+
+def link_report(args: argparse.Namespace, options: SuiteOptions) -> Report:
+    """The suite's report on the unit of ``--serial`` or the python-can options (no progress)."""
+    closers = []
+    try:
+        if args.serial:
+            port = open_serial_port(args.serial, args.baud)
+            closers.append(port.close)
+            link: CanRawLink | SerialRawLink = SerialRawLink(port)
+        else:
+            bus = open_can_bus(args)
+            closers.append(bus.shutdown)
+            link = CanRawLink(bus, args.node_id)
+        return run_suite(link, options)
+    finally:
+        for close in reversed(closers):
+            try:
+                close()
+            except (can.CanError, serial.SerialException, OSError):
+                pass  # the link is already gone; the report says what failed

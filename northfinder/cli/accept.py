@@ -1,0 +1,499 @@
+"""``northfinder accept --datasheet FILE``: a unit's acceptance test against its datasheet.
+
+Stages, each kept in the output folder (``-o DIR``) so that ``--resume`` skips those done:
+the conformance checks the datasheet names; the time from RESET to READY and a static
+recording (``--static-s``) whose IEEE 952 Allan fit judges the noise lines; ``--runs``
+north-finding runs at ``--orientations`` table orientations that judge the repeatability.
+Each line is PASS, FAIL or NOT RESOLVED (the data cannot decide it: the line says how long a
+record would). ``DIR/report.html`` is the report (one self-contained page); ``--junit`` and
+``--json`` for machines. Exit status: 0 every line passed, 1 a line failed, 4 no line failed
+but one is not resolved. ``--datasheet-from PRESET --margin X`` makes a datasheet of a sensor
+preset (``--write-datasheet FILE`` writes it; without a link that is all).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import math
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from northfinder.cli import measure
+from northfinder.cli.common import (
+    EXIT_NOT_RESOLVED,
+    EXIT_RUNTIME,
+    bounded_float,
+    bounded_int,
+    bus_given,
+    check_output_path,
+    dumps,
+    load_sensor,
+    run_seed,
+    say,
+)
+from northfinder.host.errors import HostConfigError
+
+#: Default length of the static recording, s (device time: seconds of virtual time with --sim).
+STATIC_S = 1800.0
+#: Longest static recording, s: one still window held in memory (8 h at 200 Hz: 5.8 M samples).
+MAX_STATIC_S = 8 * 3600.0
+RUNS = 16
+ORIENTATIONS = 4
+MARGIN = 2.0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("datasheet")
+    x = g.add_mutually_exclusive_group()
+    x.add_argument("--datasheet", metavar="FILE", help="the datasheet TOML (docs/accept.md)")
+    x.add_argument(
+        "--datasheet-from",
+        metavar="PRESET|FILE",
+        help="make the datasheet of a sensor preset or file: its figures times --margin",
+    )
+    g.add_argument(
+        "--margin",
+        type=bounded_float(1.0, 1000.0),
+        default=None,
+        metavar="X",
+        help=f"--datasheet-from: limits are the sensor's figures times X (default {MARGIN:g})",
+    )
+    g.add_argument(
+        "--write-datasheet",
+        metavar="FILE",
+        help="write the datasheet made by --datasheet-from to FILE (without a link: only that)",
+    )
+    g = p.add_argument_group("stages")
+    g.add_argument(
+        "-o",
+        "--output",
+        metavar="DIR",
+        default="acceptance",
+        help="folder of the recordings and the report (default ./acceptance)",
+    )
+    g.add_argument(
+        "--static-s",
+        type=bounded_float(10.0, MAX_STATIC_S, "s"),
+        default=STATIC_S,
+        metavar="SECONDS",
+        help=f"length of the static recording, device seconds (default {STATIC_S:g})",
+    )
+    g.add_argument(
+        "--runs",
+        type=bounded_int(2, 1000),
+        default=RUNS,
+        metavar="N",
+        help=f"north-finding runs (default {RUNS})",
+    )
+    g.add_argument(
+        "--orientations",
+        type=bounded_int(1, 36),
+        default=ORIENTATIONS,
+        metavar="K",
+        help=f"table orientations the runs take in turn, 360/K apart (default {ORIENTATIONS})",
+    )
+    g.add_argument("--resume", action="store_true", help="keep the stages already in DIR")
+    p.add_argument("--junit", metavar="FILE", help="also write JUnit XML, a case per line")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    measure.add_device_arguments(p)
+
+
+def _datasheet(args: argparse.Namespace) -> Any:
+    """The datasheet of ``--datasheet`` or ``--datasheet-from``."""
+    from northfinder.host.acceptance import datasheet_from_sensor, load_datasheet
+
+    if args.datasheet:
+        if args.margin is not None:
+            raise HostConfigError("--margin: applies to --datasheet-from, not to --datasheet")
+        return load_datasheet(args.datasheet)
+    if args.margin is None:
+        args.margin = MARGIN
+    if not args.datasheet_from:
+        raise HostConfigError("give --datasheet FILE or --datasheet-from PRESET")
+    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
+    from northfinder.host.accuracy import predict
+    from northfinder.host.plan import DEFAULT_POSITIONS_DEG, Plan
+    from northfinder.simwindows import error_model
+
+    spec = load_sensor(args.datasheet_from)
+    plan = Plan(tuple(DEFAULT_POSITIONS_DEG), 10.0, 0.0, "none", "auto")
+    latitude = DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
+    sigma = predict(error_model(spec), plan, latitude, warmup_s=measure.SIM_WARMUP_S).sigma_deg
+    return datasheet_from_sensor(
+        spec.to_dict(),
+        args.margin,
+        positions_deg=plan.positions_deg,
+        window_s=plan.window_s,
+        latitude_deg=latitude,
+        predicted_sigma_deg=sigma,
+        time_to_ready_s=measure.SIM_WARMUP_S + 10.0,
+        protocol_version="1.1",
+        conformance=("*",),
+        source=f"--datasheet-from {args.datasheet_from} --margin {args.margin:g}",
+    )
+
+
+def _link_given(args: argparse.Namespace) -> bool:
+    return bool(args.sim or args.serial or bus_given(args))
+
+
+def run(args: argparse.Namespace) -> int:
+    from northfinder.host.acceptance import datasheet_toml
+
+    ds = _datasheet(args)
+    if args.write_datasheet:
+        check_output_path(args.write_datasheet, "--write-datasheet")
+        if not args.datasheet_from:
+            raise HostConfigError("--write-datasheet: writes the datasheet of --datasheet-from")
+        Path(args.write_datasheet).write_text(
+            datasheet_toml(
+                ds,
+                f"made by northfinder accept --datasheet-from "
+                f"{args.datasheet_from} --margin {args.margin:g}",
+            )
+        )
+        if not _link_given(args):
+            say(f"wrote {args.write_datasheet}")
+            return 0
+    out = Path(args.output)
+    if out.exists() and not out.is_dir():
+        raise HostConfigError(f"-o {out}: is a file; give a folder")
+    if not out.parent.is_dir():
+        raise HostConfigError(f"-o {out}: the folder {out.parent} does not exist")
+    if out.is_dir() and any(out.iterdir()) and not args.resume:
+        raise HostConfigError(
+            f"-o {out}: holds an earlier acceptance; give --resume to keep its stages, or "
+            "another folder"
+        )
+    if args.junit:
+        check_output_path(args.junit, "--junit")
+    if args.sim and args.latitude is None:
+        args.latitude = ds.latitude_deg  # the simulated site is the datasheet's
+    measure.check_arguments(args)
+    if args.sim:
+        from numpy.random import default_rng
+
+        seed = run_seed(args)
+        if args.azimuth is None:  # one simulated mount for every run
+            args.azimuth = float(default_rng(seed).uniform(0.0, 360.0))
+    out.mkdir(exist_ok=True)
+    started = time.monotonic()
+    stages = Stages(args, ds, out)
+    stages.conformance()
+    stages.static()
+    stages.runs()
+    result = stages.judge(time.monotonic() - started)
+    from northfinder.host.acceptance_report import html_report, junit_xml
+
+    (out / "datasheet.toml").write_text(datasheet_toml(ds, f"as used; from {ds.source}"))
+    (out / "result.json").write_text(dumps(result) + "\n")
+    (out / "report.html").write_text(html_report(result))
+    if args.junit:
+        Path(args.junit).write_text(junit_xml(result))
+    if args.json:
+        say(dumps(result))
+    else:
+        say(_text(result, out))
+    verdict = result["verdict"]
+    if verdict == "FAIL":
+        return EXIT_RUNTIME
+    return EXIT_NOT_RESOLVED if verdict == "NOT RESOLVED" else 0
+
+
+def _text(result: dict[str, Any], out: Path) -> str:
+    rows = [f"northfinder accept: {result['verdict']} ({result['datasheet']['name']})"]
+    for line in result["lines"]:
+        m = line["measured"]
+        shown = f"{m:.4g}" if isinstance(m, float) else ("-" if m is None else str(m))
+        lim = line["limit"]
+        lim_s = f"<= {lim:.4g}" if isinstance(lim, float) else str(lim)
+        rows.append(
+            f"  {line['verdict']:<12} {line['key']:<28} {lim_s:>12} {line['unit']:<14} "
+            f"measured {shown}  {line['note']}"
+        )
+    rows.append(f"report: {out / 'report.html'}")
+    return "\n".join(rows)
+
+
+def _progress(args: argparse.Namespace, text: str) -> None:
+    """One line per stage on stderr (stdout holds the result alone)."""
+    print(f"accept: {text}", file=sys.stderr, flush=True)
+
+
+def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:
+    """Seconds to READY on the device's clock: for the embedded simulator from its power-on
+    (its clock starts there), for a unit from a RESET sent now (its BOOT seen first)."""
+    from northfinder.driver.protocol.constants import DeviceState
+    from northfinder.host.procedure import wait_until_ready
+
+    clock = device.clock
+    if simulated:
+        wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
+        return {"time_to_ready_s": clock.now(), "from": "power-on"}
+    device.status()
+    t0 = clock.now()
+    device.reset(wait=False)
+    while device.status().state not in (DeviceState.BOOT, DeviceState.WARMUP):
+        if clock.now() - t0 > 3.0:
+            break  # back already (or BOOT missed): READY is timed from the RESET all the same
+        clock.sleep(0.05)
+    wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
+    return {"time_to_ready_s": clock.now() - t0, "from": "RESET"}
+
+
+def _read_json(path: Path) -> Any:
+    return json.loads(path.read_text())
+
+
+class Stages:
+    """The stages of one acceptance, each written to the output folder as it ends."""
+
+    def __init__(self, args: argparse.Namespace, ds: Any, out: Path) -> None:
+        self.args, self.ds, self.out = args, ds, out
+        self.device: dict[str, Any] | None = None
+
+    def _done(self, name: str) -> bool:
+        return bool(self.args.resume) and (self.out / name).exists()
+
+    def conformance(self) -> None:
+        if not self.ds.conformance or self._done("conformance.json"):
+            return
+        from northfinder.cli import conformance as conf
+        from northfinder.driver.conformance import SuiteOptions, select_checks, write_junit
+
+        only = () if tuple(self.ds.conformance) == ("*",) else tuple(self.ds.conformance)
+        try:
+            select_checks(only)
+        except Exception as exc:  # SuiteConfigError: a pattern that names no check
+            raise HostConfigError(f"{self.ds.source}: unit.conformance: {exc}") from exc
+        options = SuiteOptions(node_id=self.args.node_id, only=only)
+        _progress(self.args, f"conformance ({', '.join(self.ds.conformance)})")
+        ns = copy.copy(self.args)
+        report = (
+            conf.simulated_report(ns, options) if self.args.sim else conf.link_report(ns, options)
+        )
+        write_junit(report, str(self.out / "conformance.xml"))
+        (self.out / "conformance.json").write_text(conf.as_json(report) + "\n")
+
+    def static(self) -> None:
+        """The time to READY after a RESET, and the static recording, in one session."""
+        ds = self.ds
+        allan = any(k.startswith(("gyro.", "accel.")) for k in ds.limits)
+        need_ready = not self._done("ready.json")
+        need_static = allan and not self._done("static.npz")
+        if not (need_ready or need_static):
+            return
+        from northfinder.host.procedure import wait_until_ready
+        from northfinder.host.recording import RecordedWindow, RecordingWriter
+        from northfinder.host.results import device_identity, utc_now
+
+        args = self.args
+        with measure.open_device(args) as (device, truth):
+            identity = device_identity(
+                device.identity,
+                simulated=bool(args.sim),
+                sensor=None if truth is None else truth.get("sensor"),
+            )
+            clock = device.clock
+            if need_ready:
+                ready = {"device": identity, **_time_to_ready(device, bool(args.sim))}
+                _progress(args, f"READY {ready['time_to_ready_s']:.1f} s after {ready['from']}")
+                (self.out / "ready.json").write_text(dumps(ready) + "\n")
+            else:
+                wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
+            if need_static:
+                _progress(args, f"static recording of {args.static_s:g} s")
+                angle = float(device.status().angle_deg)
+                meta = {
+                    "latitude_deg": float(args.latitude),
+                    "latitude_source": "--latitude" if not args.sim else "the datasheet",
+                    "sample_rate_hz": float(device.sample_rate_hz),
+                    "plan": {"positions_deg": [angle], "window_s": args.static_s},
+                    "created_utc": utc_now(),
+                    "device": identity,
+                    "stage": "static",
+                }
+                if truth is not None:
+                    meta["truth"] = truth
+                window = device.acquire(args.static_s, on_gap="report")
+                device.release_stream()
+                # Written once whole: a static.npz in the folder is a finished stage (--resume).
+                writer = RecordingWriter(self.out / "static.npz", meta)
+                writer.add(RecordedWindow.from_window(window, angle))
+                writer.close("complete")
+
+    def _orientation(self, r: int) -> float:
+        return (r % self.args.orientations) * 360.0 / self.args.orientations
+
+    def runs(self) -> None:
+        ds, args = self.ds, self.args
+        if not ds.positions_deg:
+            return
+        from northfinder.cli.report import angle_error
+
+        for r in range(args.runs):
+            name = f"run_{r + 1:02d}"
+            if self._done(f"{name}.json"):
+                continue
+            offset = self._orientation(r)
+            a = copy.copy(args)
+            a.positions = [p + offset for p in ds.positions_deg]
+            a.window, a.settle, a.denoise, a.solver = ds.window_s, ds.settle_s, "none", ds.solver
+            a.on_gap, a.can_log, a.can_log_rotate = "remeasure", None, (0, 0.0)
+            a.timeout = 600.0  # longest wait for READY, as find
+            if args.sim:
+                a.seed = args.seed + 1 + r  # a power-on of its own
+            a.command = "accept"
+            _progress(args, f"north finding {r + 1}/{args.runs}, orientation {offset:g} deg")
+            m = measure.run_plan(a, progress=False, record_to=str(self.out / f"{name}.npz"))
+            if m.errors:
+                raise m.errors[0]
+            res = m.result
+            body = {
+                "run": r + 1,
+                "orientation_deg": offset,
+                "azimuth_deg": res.azimuth_deg,
+                "sigma_deg": res.sigma_deg,
+                "consistent": res.consistent,
+                "latitude_deg": m.latitude_deg,
+                "recording": f"{name}.npz",
+                "device": m.device,
+            }
+            if m.truth is not None:
+                body["truth_azimuth_deg"] = m.truth["azimuth_deg"]
+                body["error_deg"] = angle_error(res.azimuth_deg, m.truth["azimuth_deg"])
+            (self.out / f"{name}.json").write_text(dumps(body) + "\n")
+
+    def judge(self, wall_s: float) -> dict[str, Any]:
+        """Every datasheet line judged, and what the report shows."""
+        from northfinder.host import acceptance as acc
+        from northfinder.host.results import envelope
+
+        ds, args, out = self.ds, self.args, self.out
+        lines: list[Any] = []
+        body: dict[str, Any] = {"stages": {}}
+        identity = None
+        if ds.conformance:
+            conf = _read_json(out / "conformance.json")
+            lines.append(acc.conformance_line(ds.conformance, conf["checks"]))
+            identity = conf.get("device")
+            body["stages"]["conformance"] = {
+                "file": "conformance.json",
+                "junit": "conformance.xml",
+                "counts": conf["counts"],
+                "duration_s": conf["duration_s"],
+            }
+        ready = _read_json(out / "ready.json")
+        identity = ready["device"] or identity
+        body["stages"]["ready"] = {
+            "file": "ready.json",
+            "time_to_ready_s": ready["time_to_ready_s"],
+        }
+        if ds.protocol_version:
+            lines.append(
+                acc.equal_line(
+                    "unit.protocol_version",
+                    "protocol version",
+                    ds.protocol_version,
+                    identity.get("protocol_version") if identity else None,
+                )
+            )
+        if "unit.time_to_ready_s" in ds.limits:
+            lines.append(
+                acc.value_line(
+                    "unit.time_to_ready_s",
+                    ds.limits["unit.time_to_ready_s"],
+                    float(ready["time_to_ready_s"]),
+                    f"from {ready['from']}, on the device's clock",
+                )
+            )
+        cal = None
+        if (out / "static.npz").exists() and any(
+            k.startswith(("gyro.", "accel.")) for k in ds.limits
+        ):
+            from northfinder.host.calibrate import calibrate, read_runs
+
+            _progress(args, "Allan deviation and IEEE 952 fit of the static recording")
+            cal = calibrate(read_runs([out / "static.npz"]))
+            record_s = cal.hours * 3600.0
+            lines += acc.allan_lines(ds, cal, record_s)
+            body["stages"]["static"] = {"file": "static.npz", "seconds": record_s}
+            body["allan"] = {
+                axis: {"taus_s": c.taus_s.tolist(), "adev": c.adev.tolist()}
+                for axis, c in cal.curves.items()
+            }
+            body["fits"] = {
+                triad: {
+                    "coefficients": {k: _finite(v) for k, v in fit.coefficients.items()},
+                    "resolved": fit.resolved,
+                }
+                for triad, fit in cal.triad_fits.items()
+            }
+        if ds.positions_deg:
+            runs = [_read_json(out / f"run_{r + 1:02d}.json") for r in range(args.runs)]
+            site = runs[0]["latitude_deg"]
+            lines.append(acc.repeatability_line(ds, [r["azimuth_deg"] for r in runs], site))
+            body["stages"]["runs"] = runs
+            if cal is not None:
+                body["prediction"] = _prediction(args, ds, cal)
+        ordered = sorted(lines, key=lambda line: _ORDER.index(line.key.split(".")[0]))
+        return envelope(
+            "accept",
+            identity,
+            {
+                "command_line": "northfinder " + shlex.join(getattr(args, "_argv", sys.argv[1:])),
+                "cwd": os.getcwd(),
+                "verdict": acc.overall(ordered),
+                "datasheet": {
+                    "name": ds.name,
+                    "source": ds.source,
+                    "latitude_deg": ds.latitude_deg,
+                    "positions_deg": list(ds.positions_deg),
+                    "window_s": ds.window_s,
+                },
+                "seed": getattr(args, "seed", None) if args.sim else None,
+                "wall_s": wall_s,
+                "lines": [line.to_dict() for line in ordered],
+                **body,
+            },
+        )
+
+
+_ORDER = ("unit", "gyro", "accel", "north_finding")
+
+
+def _prediction(args: argparse.Namespace, ds: Any, cal: Any) -> dict[str, Any]:
+    """The planner's repeatability of the datasheet's plan at its latitude from the noise terms
+    the static record resolved (a term it does not resolve counted as 0: optimistic), on the
+    simulated sensor's other figures (``--sim``) or ``paper-rlg``'s."""
+    import dataclasses
+
+    from northfinder.host.accuracy import predict
+    from northfinder.host.plan import Plan
+    from northfinder.simwindows import error_model
+
+    base_name = (args.sensor or "paper-rlg") if args.sim else "paper-rlg"
+    fitted = dataclasses.replace(cal, unresolved="zero").sensor_dict()
+    keys = {
+        "gyro": ("arw_dpsh", "bias_instability_dph", "rrw_dphpsh"),
+        "accel": ("vrw_ug_rthz", "bias_instability_ug"),
+    }
+    values = {f"{sec}.{k}": fitted[sec][k] for sec, ks in keys.items() for k in ks}
+    spec = load_sensor(base_name, values)
+    plan = Plan(tuple(ds.positions_deg), ds.window_s, ds.settle_s, "none", ds.solver)
+    warmup = measure.SIM_WARMUP_S if args.warmup is None else args.warmup
+    sigma = predict(error_model(spec), plan, ds.latitude_deg, warmup_s=warmup).sigma_deg
+    return {
+        "sigma_deg": sigma,
+        "from": f"the noise terms the static record resolved, on {base_name}'s other figures",
+    }
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None

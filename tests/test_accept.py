@@ -1,0 +1,376 @@
+"""``northfinder accept``: a unit judged against its datasheet, in virtual time and seeded.
+
+A good simulated unit passes every line; a unit made bad in one noise term fails exactly the line
+that term governs; a static record too short to decide gives NOT RESOLVED with the length that
+would; bad datasheets are refused in one line (exit 2); the report is one well-formed page that
+needs no network.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import subprocess
+import xml.etree.ElementTree as ET
+from html.parser import HTMLParser
+from pathlib import Path
+from typing import ClassVar
+
+import pytest
+from clirun import run_cli
+
+from northfinder.host.acceptance import (
+    FAIL,
+    NOT_RESOLVED,
+    PASS,
+    judge,
+    load_datasheet,
+    repeatability_line,
+)
+
+DATA = Path(__file__).parent / "data"
+UNIT = DATA / "accept-unit.toml"
+#: The good unit's figures (tests/data/accept-unit.toml): gyro ARW 0.01 deg/sqrt(h), bias
+#: instability 0.25 deg/h; accelerometer noise 10 ug/sqrt(Hz), bias instability 20 ug.
+ALLAN_TWICE = {
+    "gyro": {"arw_dpsh": 0.02, "bias_instability_dph": 0.5},
+    "accel": {"vrw_ug_rthz": 20.0, "bias_instability_ug": 40.0},
+}
+ALLAN_1_5 = {  # 1.5 times the figures (the bias instability 1.6 times)
+    "gyro": {"arw_dpsh": 0.015, "bias_instability_dph": 0.4},
+    "accel": {"vrw_ug_rthz": 15.0, "bias_instability_ug": 30.0},
+}
+#: Short, so that the tests stay cheap: long enough to resolve the good unit's terms.
+STAGES = ["--static-s", "600"]
+
+
+def _toml(sections: dict) -> str:
+    lines = []
+    for section, values in sections.items():
+        if not isinstance(values, dict):
+            lines.insert(0, f"{section} = {json.dumps(values)}")
+            continue
+        lines.append(f"[{section}]")
+        lines += [f"{k} = {json.dumps(v)}" for k, v in values.items()]
+    return "\n".join(lines) + "\n"
+
+
+def write(tmp: Path, sections: dict, name: str = "datasheet.toml") -> Path:
+    path = tmp / name
+    path.write_text(_toml(sections))
+    return path
+
+
+def sensor(tmp: Path, section: str, key: str, value: float) -> Path:
+    """The good unit with one figure changed."""
+    text = UNIT.read_text()
+    new, n = re.subn(rf"^{key} = .*$", f"{key} = {value!r}", text, flags=re.M)
+    assert n == 1
+    path = tmp / f"unit-{key}.toml"
+    path.write_text(new)
+    return path
+
+
+def accept(*argv: str) -> tuple[int, dict, str]:
+    code, out, err = run_cli("accept", *argv, "--json")
+    try:
+        result = json.loads(out)
+    except json.JSONDecodeError:
+        result = {}
+    return code, result, err
+
+
+def verdicts(result: dict) -> dict[str, str]:
+    return {line["key"]: line["verdict"] for line in result["lines"]}
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory):
+    """The good unit against a datasheet of twice its figures: every stage, every line."""
+    tmp = tmp_path_factory.mktemp("good")
+    ds = write(
+        tmp,
+        {
+            "name": "accept-unit x 2",
+            **ALLAN_TWICE,
+            "north_finding": {
+                "sigma_deg": 2.1,  # about three times the planner's 0.65 deg for this plan
+                "positions_deg": [0.0, 180.0, 180.0, 0.0],
+                "latitude_deg": 34.0,
+            },
+            "unit": {
+                "time_to_ready_s": 260.0,
+                "protocol_version": "1.1",
+                "conformance": ["identify", "state.ready"],
+            },
+        },
+    )
+    out = tmp / "acc"
+    junit = tmp / "accept.xml"
+    argv = ["--datasheet", str(ds), "--sim", "--sensor", str(UNIT), "--seed", "5", "-o", str(out)]
+    argv += [*STAGES, "--runs", "8", "--orientations", "2", "--junit", str(junit)]
+    code, result, err = accept(*argv)
+    return {"code": code, "result": result, "err": err, "out": out, "junit": junit, "argv": argv}
+
+
+def test_a_good_unit_passes_every_line(good):
+    assert good["code"] == 0, good["err"]
+    result = good["result"]
+    assert result["verdict"] == PASS
+    assert set(verdicts(result)) == {
+        "unit.conformance", "unit.protocol_version", "unit.time_to_ready_s", "gyro.arw_dpsh",
+        "gyro.bias_instability_dph", "accel.vrw_ug_rthz", "accel.bias_instability_ug",
+        "north_finding.sigma_deg",
+    }  # fmt: skip
+    assert set(verdicts(result).values()) == {PASS}
+    lines = {line["key"]: line for line in result["lines"]}
+    # The fit finds the unit's own figures, within its interval.
+    arw = lines["gyro.arw_dpsh"]
+    assert arw["low"] <= 0.01 <= arw["high"] * 1.02
+    assert lines["north_finding.sigma_deg"]["high"] <= 2.1
+    # The planner, given the fitted terms, predicts about the spread the runs show.
+    measured = lines["north_finding.sigma_deg"]["measured"]
+    assert 0.5 < result["prediction"]["sigma_deg"] / measured < 2.0
+    assert len(result["stages"]["runs"]) == 8
+    assert {r["orientation_deg"] for r in result["stages"]["runs"]} == {0.0, 180.0}
+
+
+def test_every_stage_is_kept_as_recordings_solve_and_calibrate_read(good):
+    out = good["out"]
+    for name in ("conformance.json", "conformance.xml", "ready.json", "static.npz",
+                 "run_01.npz", "run_08.json", "report.html", "result.json", "datasheet.toml"):  # fmt: skip
+        assert (out / name).is_file(), name
+    code, text, err = run_cli("solve", str(out / "run_03.npz"), "--json")
+    run = json.loads((out / "run_03.json").read_text())
+    assert code == (0 if run["consistent"] else 3), err
+    assert json.loads(text)["azimuth_deg"] == pytest.approx(run["azimuth_deg"], abs=1e-9)
+    code, text, err = run_cli("calibrate", str(out / "static.npz"), "--json")
+    assert code == 0, err
+    assert json.loads(text)["sensor"]["gyro"]["arw_dpsh"] == pytest.approx(0.01, rel=0.05)
+    # The datasheet as used reads back as the one given.
+    assert load_datasheet(out / "datasheet.toml").limits["north_finding.sigma_deg"] == 2.1
+
+
+def test_resume_keeps_the_stages_done(good):
+    out = good["out"]
+    kept = {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")}
+    (out / "run_08.json").unlink()  # as if stopped during the last run
+    (out / "run_08.npz").unlink()
+    code, result, err = accept(*good["argv"], "--resume")
+    assert code == 0, err
+    assert "north finding 8/8" in err and "north finding 7/8" not in err
+    assert "static recording of" not in err and "conformance" not in err
+    assert {n: t for n, t in kept.items() if n != "run_08.npz"} == {
+        p.name: p.stat().st_mtime_ns for p in out.glob("*.npz") if p.name != "run_08.npz"
+    }
+    assert result["verdict"] == PASS
+    # Without --resume the folder of an earlier acceptance is refused.
+    code, _, err = accept(*good["argv"])
+    assert code == 2 and "--resume" in err
+
+
+class _Balance(HTMLParser):
+    VOID: ClassVar[set[str]] = {
+        "meta",
+        "br",
+        "img",
+        "hr",
+        "input",
+        "link",
+        "circle",
+        "line",
+        "rect",
+        "polyline",
+    }
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stack: list[str] = []
+        self.errors: list[str] = []
+        self.tags: set[str] = set()
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.add(tag)
+        if tag not in self.VOID:
+            self.stack.append(tag)
+
+    def handle_startendtag(self, tag, attrs):
+        self.tags.add(tag)
+
+    def handle_endtag(self, tag):
+        if tag in self.VOID:
+            return
+        if not self.stack or self.stack[-1] != tag:
+            self.errors.append(f"</{tag}> closes {self.stack[-1:] or 'nothing'}")
+        else:
+            self.stack.pop()
+
+
+def test_the_report_is_one_well_formed_page_that_needs_no_network(good):
+    html = (good["out"] / "report.html").read_text()
+    parser = _Balance()
+    parser.feed(html)
+    parser.close()
+    assert not parser.errors and not parser.stack, (parser.errors, parser.stack)
+    assert html.startswith("<!DOCTYPE html>")
+    assert not re.search(r"https?://", html)
+    assert not re.search(r"<(script|link|img|iframe)\b", html)
+    assert "svg" in parser.tags and "table" in parser.tags
+    # The verdict first, then every line, the unit, the version and the command.
+    assert html.index(">PASS<") < html.index("gyro.arw_dpsh")
+    for line in good["result"]["lines"]:
+        assert line["key"] in html
+    assert "NF-SIM" in html and good["result"]["northfinder_version"] in html
+    assert "northfinder accept --datasheet" in html
+    assert html.count("<h3>Table orientation") == 2
+
+
+def test_the_junit_file_has_a_case_per_line(good):
+    suite = ET.parse(good["junit"]).getroot()
+    cases = suite.findall("testcase")
+    assert {c.get("name") for c in cases} == set(verdicts(good["result"]))
+    assert suite.get("failures") == "0" and suite.get("skipped") == "0"
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "governed"),
+    [
+        (None, None, None, None),  # the good unit: no line fails
+        ("gyro", "arw_dpsh", 0.02, "gyro.arw_dpsh"),  # ARW x2
+        ("gyro", "bias_instability_dph", 0.75, "gyro.bias_instability_dph"),  # x3
+    ],
+)
+def test_a_unit_bad_in_one_term_fails_the_line_it_governs(tmp_path, section, key, value, governed):
+    ds = write(tmp_path, {"name": "x 1.5", **ALLAN_1_5})
+    unit = UNIT if key is None else sensor(tmp_path, section, key, value)
+    code, result, err = accept(
+        "--datasheet", str(ds), "--sim", "--sensor", str(unit), "--seed", "7",
+        "-o", str(tmp_path / "acc"), *STAGES,
+    )  # fmt: skip
+    failed = {k for k, v in verdicts(result).items() if v == FAIL}
+    if governed is None:
+        assert code == 0, err
+        assert failed == set()
+        return
+    assert code == 1, err
+    assert failed == {governed}
+    assert result["verdict"] == FAIL
+
+
+def test_a_static_record_too_short_is_not_resolved_with_the_length_needed(tmp_path):
+    """paper-rlg's bias instability (0.005 deg/h) needs hours of still record; a minute can
+    bound it only far above a limit of 0.01 deg/h."""
+    ds = write(tmp_path, {"gyro": {"bias_instability_dph": 0.01, "arw_dpsh": 0.003}})
+    code, result, err = accept(
+        "--datasheet", str(ds), "--sim", "--seed", "3", "-o", str(tmp_path / "acc"),
+        "--static-s", "60",
+    )  # fmt: skip
+    assert code == 4, err
+    assert result["verdict"] == NOT_RESOLVED
+    line = next(x for x in result["lines"] if x["key"] == "gyro.bias_instability_dph")
+    assert line["verdict"] == NOT_RESOLVED
+    assert line["low"] <= 0.01 < line["high"]
+    need = re.search(r"a static record of at least about ([\d.]+) (s|min|h)", line["note"])
+    assert need, line["note"]
+    seconds = float(need.group(1)) * {"s": 1, "min": 60, "h": 3600}[need.group(2)]
+    assert seconds > 3600.0  # far more than the minute recorded
+    assert verdicts(result)["gyro.arw_dpsh"] == PASS  # the white noise is resolved at once
+
+
+BAD = [
+    ({"gyro": {"arw_dpsh": -0.003}}, "gyro.arw_dpsh = -0.003 is outside its range more than 0"),
+    ({"gyro": {"arw": 0.003}}, "unknown key 'gyro.arw'; [gyro] takes arw_dpsh"),
+    ({"gyros": {"arw_dpsh": 0.003}}, "unknown key 'gyros'"),
+    ({"accel": {"vrw_ug_rthz": "ten"}}, "accel.vrw_ug_rthz = 'ten' must be a number of ug/sqrt(Hz)"),
+    ({"north_finding": {"sigma_deg": 0.1}}, "north_finding.sigma_deg needs north_finding.positions_deg"),
+    ({"north_finding": {"sigma_deg": 0.1, "positions_deg": [0, 180], "latitude_deg": 95}},
+     "north_finding.latitude_deg = 95 is outside its range -89 to 89 deg"),
+    ({"unit": {"conformance": []}}, "unit.conformance = [] must be a list of check names"),
+    ({"north_finding": {"sigma_deg": 0.1, "positions_deg": [0, 0.5]}}, "north_finding: positions"),
+    ({"north_finding": {"sigma_deg": 0.1, "positions_deg": [0, 180], "solver": "magic"}},
+     "north_finding.solver = 'magic'; choose one of"),
+    ({"name": "empty"}, "states no limit"),
+    ({"unit": {"conformance": ["no.such.check"]}}, "unit.conformance: "),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("sections", "message"), BAD)
+def test_a_bad_datasheet_is_refused_in_one_line(tmp_path, sections, message):
+    ds = write(tmp_path, sections)
+    code, _, err = run_cli("accept", "--datasheet", str(ds), "--sim", "-o", str(tmp_path / "a"))
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith("northfinder accept: error: "), err
+    assert message in err
+
+
+def test_options_that_would_be_ignored_are_refused(tmp_path):
+    ds = write(tmp_path, {"gyro": {"arw_dpsh": 0.01}})
+    code, _, err = run_cli("accept", "--datasheet", str(ds), "--margin", "3", "--sim")
+    assert code == 2 and "--margin: applies to --datasheet-from" in err
+    code, _, err = run_cli(
+        "accept", "--datasheet", str(ds), "--write-datasheet", str(tmp_path / "w.toml")
+    )
+    assert code == 2 and "--write-datasheet: writes the datasheet of --datasheet-from" in err
+    code, _, err = run_cli("accept", "--datasheet", str(ds))
+    assert code == 2 and "choose exactly one device" in err
+
+
+def test_a_datasheet_that_is_no_toml_is_refused(tmp_path):
+    ds = tmp_path / "ds.toml"
+    ds.write_text("[gyro\narw_dpsh = 1\n")
+    code, _, err = run_cli("accept", "--datasheet", str(ds), "--sim")
+    assert code == 2 and "not a TOML file" in err and err.count("\n") == 1
+
+
+def test_a_datasheet_from_a_preset_is_its_figures_times_the_margin(tmp_path):
+    path = tmp_path / "rlg.toml"
+    code, _, err = run_cli(
+        "accept", "--datasheet-from", "paper-rlg", "--margin", "3", "--write-datasheet", str(path)
+    )
+    assert code == 0, err
+    ds = load_datasheet(path)
+    assert ds.limits["gyro.arw_dpsh"] == pytest.approx(0.0045)
+    assert ds.limits["gyro.bias_instability_dph"] == pytest.approx(0.015)
+    assert "gyro.rrw_dphpsh" not in ds.limits  # paper-rlg has none
+    assert ds.positions_deg == (0.0, 180.0, 180.0, 0.0) and ds.conformance == ("*",)
+    assert 0.0 < ds.limits["north_finding.sigma_deg"] < 1.0
+
+
+def test_the_verdict_is_decided_by_the_interval_never_by_the_value_alone():
+    assert judge(1.0, 0.5, 0.99) == PASS
+    assert judge(1.0, 1.01, 2.0) == FAIL
+    assert judge(1.0, 0.5, 1.5) == NOT_RESOLVED  # measured 1.0 < limit would not be enough
+    assert judge(1.0, 0.99, 1.01) == NOT_RESOLVED
+
+
+def test_the_repeatability_interval_is_chi_squared_and_scaled_to_the_datasheet_latitude():
+    from scipy.stats import chi2
+
+    from northfinder.host.acceptance import Datasheet
+
+    ds = Datasheet(limits={"north_finding.sigma_deg": 0.1}, positions_deg=(0, 180), latitude_deg=0)
+    az = [359.95, 0.05, 359.95, 0.05, 0.0]  # across north: the spread is 0.05 deg, not 180
+    s = math.sqrt(4 * 0.05**2 / 4)
+    line = repeatability_line(ds, az, 60.0)  # measured at 60 deg: half the Earth rate's lever
+    assert line.measured == pytest.approx(s * 0.5)
+    assert line.high == pytest.approx(s * 0.5 * math.sqrt(4 / chi2.ppf(0.05, 4)))
+    assert line.low == pytest.approx(s * 0.5 * math.sqrt(4 / chi2.ppf(0.95, 4)))
+    assert line.verdict == judge(0.1, line.low, line.high)
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="chromium is not installed")
+def test_chromium_renders_the_report(good, tmp_path):
+    shot = tmp_path / "report.png"
+    subprocess.run(
+        ["chromium", "--headless", "--no-sandbox", "--disable-gpu", f"--screenshot={shot}",
+         "--window-size=1100,1600", (good["out"] / "report.html").as_uri()],
+        check=True, capture_output=True, timeout=120,
+    )  # fmt: skip
+    assert shot.stat().st_size > 10_000
+
+
+def test_accept_help_works():
+    code, out, _ = run_cli("accept", "--help")
+    assert code == 0 and "--datasheet" in out and "--static-s" in out
