@@ -503,21 +503,20 @@ class WindowCollector:
         """
         m = self._received
         r = self._rows
-        temp_raw = r.temperature[:m].astype(np.float64)
-        temperature = np.where(
-            temp_raw == TEMPERATURE_NOT_AVAILABLE, np.nan, temp_raw * scales.temperature_c
-        )
-        del temp_raw
-        counter = r.counter[:m].copy()
+        # Rows are only ever appended: the window shares the columns already in its units
+        # (counter, arrival, validity) and converts the others, one new array each.
+        counter = r.counter[:m]
+        temperature = r.temperature[:m] * scales.temperature_c
+        temperature[r.temperature[:m] == TEMPERATURE_NOT_AVAILABLE] = np.nan
         window = Window(
             counter=counter,
             time_s=counter / float(sample_rate_hz),
-            arrival_s=r.arrival_s[:m].copy(),
+            arrival_s=r.arrival_s[:m],
             gyro_dph=r.gyro[:m] * scales.gyro_dph,
             accel_mps2=r.accel[:m] * scales.accel_mps2,
-            table_deg=r.angle[:m].astype(np.float64) * scales.angle_deg,
+            table_deg=r.angle[:m] * scales.angle_deg,
             temperature_c=temperature,
-            validity=r.validity[:m].copy(),
+            validity=r.validity[:m],
             sample_rate_hz=float(sample_rate_hz),
             requested=self.requested,
             missing=self.missing,
