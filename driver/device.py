@@ -938,7 +938,7 @@ class Device(DeviceLink):
             # that keeps a partial run (a spin recording) takes it from there.
             if collector.received:
                 with contextlib.suppress(Exception):
-                    exc.partial_window = collector.window(rate, self._scales)  # type: ignore[attr-defined]
+                    exc.partial_window = collector.take_window(rate, self._scales)  # type: ignore[attr-defined]
             raise
 
     def _collect_into(
@@ -996,7 +996,7 @@ class Device(DeviceLink):
             # Past the stall deadline, the reader's next read is awaited (:meth:`_stream_stalled`).
             stall_wait = stall_at if now < stall_at else now + READ_POLL_S
             self._clock.wait_until(window_ready, min(deadline, stall_wait, self._link_deadline()))
-        return collector.window(rate, self._scales)
+        return collector.take_window(rate, self._scales)
 
     def _take_items(
         self,

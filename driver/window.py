@@ -17,6 +17,7 @@ into columns preallocated for the whole window. A window of any length costs its
 
 from __future__ import annotations
 
+import dataclasses
 from bisect import bisect_right
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -247,6 +248,10 @@ class SampleColumns:
         for name in _COLUMNS:
             getattr(self, name)[at:end] = getattr(src, name)[start:stop]
 
+
+#: What a released column of a collector is (:meth:`WindowCollector.take_window`).
+_RELEASED = np.empty((0, 3), np.int32)
+_RELEASED.setflags(write=False)
 
 _COLUMNS = ("counter", "gyro", "accel", "angle", "temperature", "validity", "arrival_s")
 
@@ -501,26 +506,44 @@ class WindowCollector:
         scales : CountScales
             The physical value of one count of each channel.
         """
+        return self._window(sample_rate_hz, scales, release=False)
+
+    def take_window(self, sample_rate_hz: float, scales: CountScales) -> Window:
+        """:meth:`window`, and the collector gives up its raw columns as each is converted (the
+        peak of memory is the window's arrays and about half its raw counts); it takes no more
+        samples afterwards."""
+        return self._window(sample_rate_hz, scales, release=True)
+
+    def _window(self, sample_rate_hz: float, scales: CountScales, *, release: bool) -> Window:
         m = self._received
         r = self._rows
         # Rows are only ever appended: the window shares the columns already in its units
         # (counter, arrival, validity) and converts the others, one new array each.
+        converted: dict[str, np.ndarray] = {}
+        for name, column, scale in (
+            ("gyro_dph", "gyro", scales.gyro_dph),
+            ("accel_mps2", "accel", scales.accel_mps2),
+            ("table_deg", "angle", scales.angle_deg),
+            ("temperature_c", "temperature", scales.temperature_c),
+        ):
+            raw = getattr(r, column)[:m]
+            converted[name] = raw * scale
+            if column == "temperature":
+                converted[name][raw == TEMPERATURE_NOT_AVAILABLE] = np.nan
+            if release:
+                del raw
+                r = self._rows = dataclasses.replace(r, **{column: _RELEASED})
         counter = r.counter[:m]
-        temperature = r.temperature[:m] * scales.temperature_c
-        temperature[r.temperature[:m] == TEMPERATURE_NOT_AVAILABLE] = np.nan
         window = Window(
             counter=counter,
             time_s=counter / float(sample_rate_hz),
             arrival_s=r.arrival_s[:m],
-            gyro_dph=r.gyro[:m] * scales.gyro_dph,
-            accel_mps2=r.accel[:m] * scales.accel_mps2,
-            table_deg=r.angle[:m] * scales.angle_deg,
-            temperature_c=temperature,
             validity=r.validity[:m],
             sample_rate_hz=float(sample_rate_hz),
             requested=self.requested,
             missing=self.missing,
             gaps=tuple(self.gaps),
+            **converted,
         )
         for name in _ARRAYS:
             getattr(window, name).setflags(write=False)

@@ -337,13 +337,17 @@ def summarise_window(
     opts = dict(denoise_options or {})
     clean_g = denoise(gyro, denoise_method, axis=0, **opts) if denoise_method != "none" else gyro
     clean_a = denoise(accel, denoise_method, axis=0, **opts) if denoise_method != "none" else accel
-    med = np.median(gyro, axis=0)
+    # Axis by axis: a window of hours takes one column's temporaries at a time, not three.
+    med = np.array([np.median(gyro[:, k]) for k in range(3)])
+    mad = np.array([np.median(np.abs(gyro[:, k] - med[k])) for k in range(3)])
     # A quantised, nearly noise-free output (the simulated ideal sensor) has a MAD of zero while
     # it toggles between neighbouring steps: the spread is at least one output step.
-    spread = np.maximum(1.4826 * np.median(np.abs(gyro - med), axis=0), _output_step(gyro))
-    outliers = int(
-        np.sum(np.any(np.abs(gyro - med) > OUTLIER_SIGMAS * np.maximum(spread, 1e-12), axis=1))
-    )
+    spread = np.maximum(1.4826 * mad, _output_step(gyro))
+    limit = OUTLIER_SIGMAS * np.maximum(spread, 1e-12)
+    impulsive = np.zeros(n, dtype=bool)
+    for k in range(3):
+        impulsive |= np.abs(gyro[:, k] - med[k]) > limit[k]
+    outliers = int(np.sum(impulsive))
     notes = gap_note
     if outliers > 0.005 * n:
         notes.append(
