@@ -627,18 +627,21 @@ _STATUS_WIDTH = max(len(json.dumps(s)) for s in ("recording", "interrupted", "co
 
 
 def _write_csv_rows(fh: Any, i: int, w: RecordedWindow) -> None:
-    # The window is formatted first and written in one call: a signal that interrupts the
-    # formatting leaves nothing of the window in the file.
-    text = io.StringIO()
-    writer = csv.writer(text)
-    for j in range(len(w.counter)):
-        writer.writerow(
-            [i, f"{w.commanded_deg:.6f}", int(w.counter[j]), f"{w.time_s[j]:.6f}"]
-            + [repr(float(v)) for v in w.gyro_dph[j]]
-            + [repr(float(v)) for v in w.accel_mps2[j]]
-            + [f"{w.table_deg[j]:.6f}", f"{w.temperature_c[j]:.2f}", int(w.validity[j])]
-        )
-    fh.write(text.getvalue())
+    # Formatted and written a block of rows at a time (a window of hours is never held as
+    # text). A window cut off part way (an interruption, a full disk) is cut off the file by
+    # the writer, which truncates it to the end of the last complete window.
+    for start in range(0, len(w.counter), _CSV_BLOCK_ROWS):
+        stop = min(start + _CSV_BLOCK_ROWS, len(w.counter))
+        text = io.StringIO()
+        writer = csv.writer(text)
+        for j in range(start, stop):
+            writer.writerow(
+                [i, f"{w.commanded_deg:.6f}", int(w.counter[j]), f"{w.time_s[j]:.6f}"]
+                + [repr(float(v)) for v in w.gyro_dph[j]]
+                + [repr(float(v)) for v in w.accel_mps2[j]]
+                + [f"{w.table_deg[j]:.6f}", f"{w.temperature_c[j]:.2f}", int(w.validity[j])]
+            )
+        fh.write(text.getvalue())
 
 
 def _write_csv_tail(fh: Any, windows: int) -> None:
@@ -736,7 +739,18 @@ class RecordingWriter:
             self._created = True
             self._fh = os.fdopen(fd, "w", newline="")
             self._status_at = _write_csv_head(self._fh, self.meta)
-        _write_csv_rows(self._fh, i, window)
+            self._fh.flush()
+            self._good = self._fh.tell()
+        try:
+            _write_csv_rows(self._fh, i, window)
+        except BaseException:
+            # Written a block at a time: the rows of a window cut off go (the file ends with
+            # complete windows).
+            with contextlib.suppress(OSError, ValueError):
+                self._fh.flush()
+                self._fh.truncate(self._good)
+                self._fh.seek(self._good)
+            raise
         self._fh.flush()
         os.fsync(self._fh.fileno())
         self._good = self._fh.tell()

@@ -7,6 +7,7 @@ is checked against its one-sample path on streams with gaps, repeats, wraps, los
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import tracemalloc
 
@@ -25,7 +26,9 @@ from northfinder.driver.window import (
     WindowCollector,
 )
 from northfinder.embed import SimulatedInstrument
+from northfinder.host import recording
 from northfinder.host.procedure import Plan, find_north
+from northfinder.host.recording import SAMPLE_ARRAYS, RecordedWindow, Recording, RecordingWriter
 
 U32 = 1 << 32
 RATE_HZ = 200
@@ -188,3 +191,72 @@ def test_memory_per_sample_of_a_find_is_bounded():
     assert n_long - n_short == 2 * 135 * RATE_HZ
     per_sample = (long - short) / (n_long - n_short)
     assert per_sample < 100, f"{per_sample:.0f} bytes a sample"
+
+
+class _CutOff:
+    """A column whose row ``at`` cannot be read: the run is interrupted while it is written."""
+
+    def __init__(self, a: np.ndarray, at: int) -> None:
+        self.a, self.at = a, at
+
+    def __len__(self) -> int:
+        return len(self.a)
+
+    def __getitem__(self, j):
+        if j == self.at:
+            raise KeyboardInterrupt
+        return self.a[j]
+
+
+def _recorded(n: int, first: int, commanded: float) -> RecordedWindow:
+    counter = np.arange(first, first + n, dtype=np.int64)
+    return RecordedWindow(
+        commanded,
+        counter,
+        counter / RATE_HZ,
+        np.tile([1.0, 2.0, 3.0], (n, 1)),
+        np.tile([0.0, 0.0, 9.8], (n, 1)),
+        np.full(n, commanded),
+        np.full(n, 20.0),
+        np.full(n, 3, dtype=np.uint8),
+    )
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_long_window_recorded_in_blocks_round_trips(tmp_path, monkeypatch, suffix):
+    monkeypatch.setattr(recording, "_CSV_BLOCK_ROWS", 7)
+    monkeypatch.setattr(recording, "_NPZ_CHUNK_BYTES", 100)
+    windows = (_recorded(50, 10, 0.0), _recorded(33, 200, 90.0))
+    writer = RecordingWriter(
+        tmp_path / f"run{suffix}", {"latitude_deg": 34.0, "sample_rate_hz": RATE_HZ}
+    )
+    for w in windows:
+        writer.add(w)
+    writer.close()
+    back = Recording.load(tmp_path / f"run{suffix}")
+    assert len(back.windows) == 2
+    for a, b in zip(windows, back.windows, strict=True):
+        for name in SAMPLE_ARRAYS:
+            np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("complete", [0, 1])
+def test_a_csv_window_cut_off_between_blocks_leaves_complete_windows(
+    tmp_path, monkeypatch, complete
+):
+    monkeypatch.setattr(recording, "_CSV_BLOCK_ROWS", 10)
+    path = tmp_path / "run.csv"
+    writer = RecordingWriter(path, {"latitude_deg": 34.0, "sample_rate_hz": RATE_HZ})
+    for k in range(complete):
+        writer.add(_recorded(40, 100 * k, 0.0))
+    cut = _recorded(40, 100 * complete, 90.0)
+    cut = dataclasses.replace(cut, gyro_dph=_CutOff(cut.gyro_dph, 25))  # after 2 blocks
+    with pytest.raises(KeyboardInterrupt):
+        writer.add(cut)
+    writer.close("interrupted")
+    rows = [line for line in path.read_text().splitlines() if not line.startswith("#")]
+    assert len(rows) == 1 + 40 * complete  # the column names, and the complete windows' rows
+    if complete:
+        back = Recording.load(path, min_windows=1)
+        assert back.status == "interrupted" and len(back.windows) == 1
+        np.testing.assert_array_equal(back.windows[0].counter, np.arange(40))
