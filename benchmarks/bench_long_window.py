@@ -33,6 +33,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +58,7 @@ def northfinder() -> str:
     return str(exe if exe.exists() else "northfinder")
 
 
-def measure(args: list[str]) -> dict[str, float]:
+def measure(args: list[str]) -> dict[str, Any]:
     out = subprocess.run(
         [sys.executable, "-c", _WRAPPER, northfinder(), *args],
         capture_output=True,
@@ -85,7 +86,7 @@ def simulated_s(window_s: float, seed: int, tmp: Path) -> float:
         return (int(d["counter"][-1]) + 1) / RATE_HZ
 
 
-def row(label: str, runs: list[dict[str, float]], sim_s: float, samples: int) -> dict[str, float]:
+def row(label: str, runs: list[dict[str, Any]], sim_s: float, samples: int) -> dict[str, Any]:
     wall = statistics.median(r["wall"] for r in runs)
     cpu = statistics.median(r["cpu"] for r in runs)
     mb = statistics.median(r["maxrss_kib"] for r in runs) / 1024

@@ -598,7 +598,7 @@ def _replace_npz(p: Path, meta: dict[str, Any], windows: tuple[RecordedWindow, .
                     a = np.ascontiguousarray(piece(i, w), dtype=like.dtype)
                     flat = a.reshape(-1).view(np.uint8)
                     for k in range(0, len(flat), _NPZ_CHUNK_BYTES):
-                        out.write(flat[k : k + _NPZ_CHUNK_BYTES])
+                        out.write(flat[k : k + _NPZ_CHUNK_BYTES].data)
 
 
 #: Bytes handed to the compressor at a time while an NPZ is written.

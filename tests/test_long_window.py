@@ -36,10 +36,11 @@ RATE_HZ = 200
 
 def _sample(rng: np.random.Generator, counter: int) -> Sample:
     temp = int(rng.integers(-3000, 8000)) if rng.random() > 0.1 else TEMPERATURE_NOT_AVAILABLE
+    g, a = rng.integers(-(2**31), 2**31, 3), rng.integers(-(2**23), 2**23, 3)
     return Sample(
         counter % U32,
-        tuple(int(v) for v in rng.integers(-(2**31), 2**31, 3)),
-        tuple(int(v) for v in rng.integers(-(2**23), 2**23, 3)),
+        (int(g[0]), int(g[1]), int(g[2])),
+        (int(a[0]), int(a[1]), int(a[2])),
         int(rng.integers(0, 360_000_000)),
         temp,
         Validity(int(rng.integers(0, 256))),
@@ -250,7 +251,8 @@ def test_a_csv_window_cut_off_between_blocks_leaves_complete_windows(
     for k in range(complete):
         writer.add(_recorded(40, 100 * k, 0.0))
     cut = _recorded(40, 100 * complete, 90.0)
-    cut = dataclasses.replace(cut, gyro_dph=_CutOff(cut.gyro_dph, 25))  # after 2 blocks
+    # Cut off after two blocks of rows were written.
+    cut = dataclasses.replace(cut, gyro_dph=_CutOff(cut.gyro_dph, 25))  # type: ignore[arg-type]
     with pytest.raises(KeyboardInterrupt):
         writer.add(cut)
     writer.close("interrupted")
