@@ -325,7 +325,7 @@ def summarise_window(
             f"window at {commanded_deg:g} deg: {int(bad.sum())} of {n} samples unusable ({what})"
         )
     enc = np.asarray(window.table_deg, dtype=float)
-    unwrapped = np.degrees(np.unwrap(np.radians(enc)))
+    unwrapped = _unwrap_deg(enc)
     span = float(np.ptp(unwrapped))
     if span > MAX_ENCODER_SPAN_DEG:
         raise QualityError(
@@ -366,6 +366,37 @@ def summarise_window(
         notes=tuple(notes),
         time_s=_mid_time(window),
     )
+
+
+#: Samples unwrapped at a time by :func:`_unwrap_deg`.
+_UNWRAP_BLOCK = 1 << 16
+
+
+def _unwrap_deg(enc_deg: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.degrees(np.unwrap(np.radians(enc_deg)))`` to the last bit, in three arrays of the
+    window's length rather than eight: numpy's steps (its ``unwrap``, period 2 pi) on a block of
+    differences at a time, and one running sum of the corrections over the whole window."""
+    p = np.radians(enc_deg)
+    n = len(p)
+    if n < 2:
+        return np.degrees(p)
+    period = 2 * np.pi
+    discont = period / 2
+    interval_high = period / 2
+    interval_low = -interval_high
+    correction = np.empty(n - 1)
+    for a in range(0, n - 1, _UNWRAP_BLOCK):
+        b = min(a + _UNWRAP_BLOCK, n - 1)
+        dd = p[a + 1 : b + 1] - p[a:b]
+        ddmod = np.mod(dd - interval_low, period) + interval_low
+        np.copyto(ddmod, interval_high, where=(ddmod == interval_low) & (dd > 0))
+        ph_correct = ddmod - dd
+        np.copyto(ph_correct, 0, where=abs(dd) < discont)
+        correction[a:b] = ph_correct
+    np.cumsum(correction, out=correction)
+    np.add(p[1:], correction, out=p[1:])
+    del correction
+    return np.degrees(p, out=p)
 
 
 def _output_step(x: NDArray[np.float64]) -> float:
