@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-from collections import deque
 from collections.abc import Callable
 from typing import Any, Concatenate, ParamSpec, TypeVar
 
@@ -102,7 +101,13 @@ from northfinder.driver.transport import (
     bus_open_hint,
     open_serial_port,
 )
-from northfinder.driver.window import OnGap, Window, WindowCollector
+from northfinder.driver.window import (
+    OnGap,
+    SampleColumns,
+    SampleInbox,
+    Window,
+    WindowCollector,
+)
 
 __all__ = [
     "HEARTBEATS_UNTIL_LOST",
@@ -887,7 +892,7 @@ class Device(DeviceLink):
             n = round(seconds * rate)
             if n < 1:
                 raise ArgumentError(f"seconds={seconds!r} is less than one sample at {rate} Hz")
-            inbox: deque[tuple[str, Any, float, float]] = deque()
+            inbox = SampleInbox()
             with self._lock:
                 epoch = self._boot_epoch
                 self._inbox = inbox
@@ -904,18 +909,18 @@ class Device(DeviceLink):
                 with self._lock:
                     self._inbox = None
 
-    def _stream_stalled(self, stall_at: float, inbox: deque[Any]) -> bool:
+    def _stream_stalled(self, stall_at: float, inbox: SampleInbox) -> bool:
         """Whether the stream counts as stopped at ``stall_at``: a read that began after it
         brought no sample and no sample waits to be collected. A host that did not run the reader
         for the stall time (a loaded machine) reads the samples that waited in the link first."""
         if not self._no_sample_since(stall_at):
             return False
         with self._lock:
-            return not inbox
+            return not len(inbox)
 
     def _collect(
         self,
-        inbox: deque[tuple[str, Any, float, float]],
+        inbox: SampleInbox,
         n: int,
         rate: float,
         on_gap: OnGap,
@@ -935,13 +940,13 @@ class Device(DeviceLink):
             # that keeps a partial run (a spin recording) takes it from there.
             if collector.received:
                 with contextlib.suppress(Exception):
-                    exc.partial_window = collector.window(rate, self._scales)  # type: ignore[attr-defined]
+                    exc.partial_window = collector.take_window(rate, self._scales)  # type: ignore[attr-defined]
             raise
 
     def _collect_into(
         self,
         collector: WindowCollector,
-        inbox: deque[tuple[str, Any, float, float]],
+        inbox: SampleInbox,
         n: int,
         rate: float,
         t_start: float,
@@ -954,29 +959,15 @@ class Device(DeviceLink):
         while not collector.done:
             with self._lock:
                 alerts = self._inbox_alerts
-                items = list(inbox)
-                inbox.clear()
-            for kind, item, mono, wall in items:
-                if kind == "lost":
-                    raise LinkLost(f"the link was lost during the window: {item}") from item
-                if kind == "reset":
-                    raise DeviceReset(
-                        f"the device restarted during the window after {collector.received} of "
-                        f"{n} samples ({item}); its configuration and stream are back to defaults"
-                    )
-                if kind == "foreign":
-                    raise self._another_host(
-                        item, f"during the window, after {collector.received} of {n} samples"
-                    )
-                if kind == "loss":
-                    collector.add_loss(item)
-                else:
-                    last_sample_at = mono
-                    if collector.add_sample(item, wall):
-                        break
+                block, events = inbox.take()
+                block_mono = inbox.last_sample_mono
+            if self._take_items(collector, block, events, n):
+                break
+            if len(block):
+                last_sample_at = block_mono
             if collector.done:
                 break
-            if items:
+            if len(block) or events:
                 continue
             now = clock.now()
             self._check_open()
@@ -1007,4 +998,32 @@ class Device(DeviceLink):
             # Past the stall deadline, the reader's next read is awaited (:meth:`_stream_stalled`).
             stall_wait = stall_at if now < stall_at else now + READ_POLL_S
             self._clock.wait_until(window_ready, min(deadline, stall_wait, self._link_deadline()))
-        return collector.window(rate, self._scales)
+        return collector.take_window(rate, self._scales)
+
+    def _take_items(
+        self,
+        collector: WindowCollector,
+        block: SampleColumns,
+        events: list[tuple[int, str, Any, float, float]],
+        n: int,
+    ) -> bool:
+        """Feed the collector what the inbox held, in arrival order; True once a sample
+        completed the window (what follows it is not looked at)."""
+        pos = 0
+        for before, kind, item, _mono, _wall in events:
+            if before > pos and collector.add_samples(block, pos, before):
+                return True
+            pos = before
+            if kind == "lost":
+                raise LinkLost(f"the link was lost during the window: {item}") from item
+            if kind == "reset":
+                raise DeviceReset(
+                    f"the device restarted during the window after {collector.received} of "
+                    f"{n} samples ({item}); its configuration and stream are back to defaults"
+                )
+            if kind == "foreign":
+                raise self._another_host(
+                    item, f"during the window, after {collector.received} of {n} samples"
+                )
+            collector.add_loss(item)
+        return pos < len(block) and collector.add_samples(block, pos, len(block))

@@ -15,7 +15,6 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -53,7 +52,7 @@ from northfinder.driver.protocol.messages import (
 )
 from northfinder.driver.protocol.motion import DEFAULT_MAX_ACCEL_DPS2, DEFAULT_MAX_RATE_DPS
 from northfinder.driver.transport import READ_POLL_S, Received, Transport
-from northfinder.driver.window import CountScales
+from northfinder.driver.window import CountScales, SampleInbox
 
 __all__ = [
     "HEARTBEATS_UNTIL_LOST",
@@ -348,7 +347,7 @@ class DeviceLink:
         self._reset_reason = ""
         # What the reader hands to an acquire() in progress: (kind, item, clock time, wall time)
         # for samples, losses, resets and a lost link.
-        self._inbox: deque[tuple[str, Any, float, float]] | None = None
+        self._inbox: SampleInbox | None = None
         self._inbox_since = 0.0  # clock time the inbox was registered
         self._inbox_alerts = 0  # items other than samples put in an inbox, and closings
         self._config: dict[ConfigKey, int] = {}
@@ -638,7 +637,7 @@ class DeviceLink:
                 waiter.error = error
             if self._inbox is not None:
                 now = self._clock.now()
-                self._inbox.append(("lost", error, now, self._clock.wall()))
+                self._inbox.add_event("lost", error, now, self._clock.wall())
                 self._inbox_alerts += 1
             self._events += 1
         self._clock.notify()
@@ -656,9 +655,9 @@ class DeviceLink:
                     # Only what was received after acquire() was called belongs to its window.
                     if self._inbox is not None and mono >= self._inbox_since:
                         if isinstance(item, Sample):
-                            self._inbox.append(("sample", item, mono, wall))
+                            self._inbox.add_sample(item, mono, wall)
                         else:
-                            self._inbox.append(("loss", item, mono, wall))
+                            self._inbox.add_event("loss", item, mono, wall)
                             self._inbox_alerts += 1
                 elif isinstance(item, Reply):
                     self._on_reply(item)
@@ -689,7 +688,7 @@ class DeviceLink:
             self._foreign_disruptive = (self._foreign_disruptive[0] + 1, op)
             log.warning("another host sent %s to this unit", op.name)
             if self._inbox is not None and op != Opcode.RESET:  # a reset shows as a restart
-                self._inbox.append(("foreign", op, mono, self._clock.wall()))
+                self._inbox.add_event("foreign", op, mono, self._clock.wall())
                 self._inbox_alerts += 1
         else:
             log.info("another host sent %s to this unit", op.name)
@@ -793,7 +792,7 @@ class DeviceLink:
         self._transport.restart_stream()
         log.warning("device restart detected: %s", reason)
         if self._inbox is not None:
-            self._inbox.append(("reset", reason, self._clock.now(), self._clock.wall()))
+            self._inbox.add_event("reset", reason, self._clock.now(), self._clock.wall())
             self._inbox_alerts += 1
 
     # -- requests -----------------------------------------------------------------------------

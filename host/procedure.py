@@ -325,7 +325,7 @@ def summarise_window(
             f"window at {commanded_deg:g} deg: {int(bad.sum())} of {n} samples unusable ({what})"
         )
     enc = np.asarray(window.table_deg, dtype=float)
-    unwrapped = np.degrees(np.unwrap(np.radians(enc)))
+    unwrapped = _unwrap_deg(enc)
     span = float(np.ptp(unwrapped))
     if span > MAX_ENCODER_SPAN_DEG:
         raise QualityError(
@@ -337,13 +337,17 @@ def summarise_window(
     opts = dict(denoise_options or {})
     clean_g = denoise(gyro, denoise_method, axis=0, **opts) if denoise_method != "none" else gyro
     clean_a = denoise(accel, denoise_method, axis=0, **opts) if denoise_method != "none" else accel
-    med = np.median(gyro, axis=0)
+    # Axis by axis: a window of hours takes one column's temporaries at a time, not three.
+    med = np.array([np.median(gyro[:, k]) for k in range(3)])
+    mad = np.array([np.median(np.abs(gyro[:, k] - med[k])) for k in range(3)])
     # A quantised, nearly noise-free output (the simulated ideal sensor) has a MAD of zero while
     # it toggles between neighbouring steps: the spread is at least one output step.
-    spread = np.maximum(1.4826 * np.median(np.abs(gyro - med), axis=0), _output_step(gyro))
-    outliers = int(
-        np.sum(np.any(np.abs(gyro - med) > OUTLIER_SIGMAS * np.maximum(spread, 1e-12), axis=1))
-    )
+    spread = np.maximum(1.4826 * mad, _output_step(gyro))
+    limit = OUTLIER_SIGMAS * np.maximum(spread, 1e-12)
+    impulsive = np.zeros(n, dtype=bool)
+    for k in range(3):
+        impulsive |= np.abs(gyro[:, k] - med[k]) > limit[k]
+    outliers = int(np.sum(impulsive))
     notes = gap_note
     if outliers > 0.005 * n:
         notes.append(
@@ -362,6 +366,37 @@ def summarise_window(
         notes=tuple(notes),
         time_s=_mid_time(window),
     )
+
+
+#: Samples unwrapped at a time by :func:`_unwrap_deg`.
+_UNWRAP_BLOCK = 1 << 16
+
+
+def _unwrap_deg(enc_deg: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.degrees(np.unwrap(np.radians(enc_deg)))`` to the last bit, in three arrays of the
+    window's length rather than eight: numpy's steps (its ``unwrap``, period 2 pi) on a block of
+    differences at a time, and one running sum of the corrections over the whole window."""
+    p = np.radians(enc_deg)
+    n = len(p)
+    if n < 2:
+        return np.degrees(p)
+    period = 2 * np.pi
+    discont = period / 2
+    interval_high = period / 2
+    interval_low = -interval_high
+    correction = np.empty(n - 1)
+    for a in range(0, n - 1, _UNWRAP_BLOCK):
+        b = min(a + _UNWRAP_BLOCK, n - 1)
+        dd = p[a + 1 : b + 1] - p[a:b]
+        ddmod = np.mod(dd - interval_low, period) + interval_low
+        np.copyto(ddmod, interval_high, where=(ddmod == interval_low) & (dd > 0))
+        ph_correct = ddmod - dd
+        np.copyto(ph_correct, 0, where=abs(dd) < discont)
+        correction[a:b] = ph_correct
+    np.cumsum(correction, out=correction)
+    np.add(p[1:], correction, out=p[1:])
+    del correction
+    return np.degrees(p, out=p)
 
 
 def _output_step(x: NDArray[np.float64]) -> float:

@@ -128,9 +128,17 @@ class RecordedWindow:
     @classmethod
     def from_window(cls, window: Any, commanded_deg: float) -> RecordedWindow:
         """Copy the sample arrays of a live window (anything with those attributes)."""
-        fields = {name: np.array(getattr(window, name)) for name in SAMPLE_ARRAYS}
-        fields["validity"] = fields["validity"].astype(np.uint8)
+        fields = {name: _kept(getattr(window, name)) for name in SAMPLE_ARRAYS}
+        fields["validity"] = fields["validity"].astype(np.uint8, copy=False)
         return cls(float(commanded_deg), **fields)
+
+
+def _kept(a: Any) -> NDArray[Any]:
+    """``a`` itself when nothing can change it (a read-only array owning its data, as a live
+    window's are), else a copy: a recording of hours holds no second copy of its samples."""
+    if isinstance(a, np.ndarray) and a.flags.owndata and not a.flags.writeable:
+        return a
+    return np.array(a)
 
 
 @dataclass(frozen=True)
@@ -565,9 +573,36 @@ def _atomic(p: Path, mode: str = "w") -> Any:
 
 
 def _replace_npz(p: Path, meta: dict[str, Any], windows: tuple[RecordedWindow, ...]) -> None:
-    payload: dict[str, Any] = {"meta_json": np.array(json.dumps(meta)), **_concat(windows)}
-    with _atomic(p, "wb") as fh:
-        np.savez_compressed(fh, **payload)
+    # The arrays of np.savez_compressed, written column by column and window by window: the
+    # windows are never joined in memory (a copy of the whole run at every window).
+    with _atomic(p, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("meta_json.npy", "w", force_zip64=True) as out:
+            np.lib.format.write_array(out, np.array(json.dumps(meta)), allow_pickle=False)
+        n = sum(len(w.counter) for w in windows)
+        pieces: dict[str, Any] = {
+            "window": lambda i, w: np.full(len(w.counter), i, dtype=np.int64),
+            "commanded_deg": lambda i, w: np.full(len(w.counter), w.commanded_deg),
+            **{name: (lambda i, w, name=name: getattr(w, name)) for name in SAMPLE_ARRAYS},
+        }
+        for name, piece in pieces.items():
+            first = [piece(i, w) for i, w in enumerate(windows[:1])]
+            like = first[0] if first else np.empty(0)
+            header = {
+                "descr": np.lib.format.dtype_to_descr(like.dtype),
+                "fortran_order": False,
+                "shape": (n, *like.shape[1:]),
+            }
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
+                np.lib.format.write_array_header_1_0(out, header)
+                for i, w in enumerate(windows):
+                    a = np.ascontiguousarray(piece(i, w), dtype=like.dtype)
+                    flat = a.reshape(-1).view(np.uint8)
+                    for k in range(0, len(flat), _NPZ_CHUNK_BYTES):
+                        out.write(flat[k : k + _NPZ_CHUNK_BYTES].data)
+
+
+#: Bytes handed to the compressor at a time while an NPZ is written.
+_NPZ_CHUNK_BYTES = 1 << 22
 
 
 def _write_csv_head(fh: Any, meta: dict[str, Any]) -> int:
@@ -592,18 +627,21 @@ _STATUS_WIDTH = max(len(json.dumps(s)) for s in ("recording", "interrupted", "co
 
 
 def _write_csv_rows(fh: Any, i: int, w: RecordedWindow) -> None:
-    # The window is formatted first and written in one call: a signal that interrupts the
-    # formatting leaves nothing of the window in the file.
-    text = io.StringIO()
-    writer = csv.writer(text)
-    for j in range(len(w.counter)):
-        writer.writerow(
-            [i, f"{w.commanded_deg:.6f}", int(w.counter[j]), f"{w.time_s[j]:.6f}"]
-            + [repr(float(v)) for v in w.gyro_dph[j]]
-            + [repr(float(v)) for v in w.accel_mps2[j]]
-            + [f"{w.table_deg[j]:.6f}", f"{w.temperature_c[j]:.2f}", int(w.validity[j])]
-        )
-    fh.write(text.getvalue())
+    # Formatted and written a block of rows at a time (a window of hours is never held as
+    # text). A window cut off part way (an interruption, a full disk) is cut off the file by
+    # the writer, which truncates it to the end of the last complete window.
+    for start in range(0, len(w.counter), _CSV_BLOCK_ROWS):
+        stop = min(start + _CSV_BLOCK_ROWS, len(w.counter))
+        text = io.StringIO()
+        writer = csv.writer(text)
+        for j in range(start, stop):
+            writer.writerow(
+                [i, f"{w.commanded_deg:.6f}", int(w.counter[j]), f"{w.time_s[j]:.6f}"]
+                + [repr(float(v)) for v in w.gyro_dph[j]]
+                + [repr(float(v)) for v in w.accel_mps2[j]]
+                + [f"{w.table_deg[j]:.6f}", f"{w.temperature_c[j]:.2f}", int(w.validity[j])]
+            )
+        fh.write(text.getvalue())
 
 
 def _write_csv_tail(fh: Any, windows: int) -> None:
@@ -701,7 +739,18 @@ class RecordingWriter:
             self._created = True
             self._fh = os.fdopen(fd, "w", newline="")
             self._status_at = _write_csv_head(self._fh, self.meta)
-        _write_csv_rows(self._fh, i, window)
+            self._fh.flush()
+            self._good = self._fh.tell()
+        try:
+            _write_csv_rows(self._fh, i, window)
+        except BaseException:
+            # Written a block at a time: the rows of a window cut off go (the file ends with
+            # complete windows).
+            with contextlib.suppress(OSError, ValueError):
+                self._fh.flush()
+                self._fh.truncate(self._good)
+                self._fh.seek(self._good)
+            raise
         self._fh.flush()
         os.fsync(self._fh.fileno())
         self._good = self._fh.tell()
