@@ -18,6 +18,7 @@ from __future__ import annotations
 import re
 import shlex
 
+import docpages
 import pytest
 from clirun import run_cli
 from docpages import ROOT, Command, commands, output_mismatch, pages
@@ -185,3 +186,39 @@ def test_commands_beside_a_simulator_run_on_its_pty(page, tmp_path, monkeypatch)
         assert mismatch is None, f"{sim}: {mismatch}"
         for command in rest:
             _run(command, command.text.replace("/dev/pts/2", pty))
+
+
+def test_the_comparison_tells_a_changed_label_a_lost_field_and_a_seeded_figure():
+    shown = ("azimuth 184.1778 deg +- 0.0579 (1 sigma), clockwise from true north", "...")
+    printed = "azimuth 184.17779 deg +- 0.0579 (1 sigma), clockwise from true north\nmore\n"
+    assert output_mismatch(shown, printed, numbers=True) is None  # the page's rounding
+    assert output_mismatch(shown, printed.replace("184.17779", "184.1790"), True) is not None
+    assert output_mismatch(shown, printed.replace("184.17779", "184.1790"), False) is None
+    assert output_mismatch(shown, printed.replace("azimuth", "heading"), False) is not None
+    assert output_mismatch(shown, printed.replace("+- 0.0579 ", ""), False) is not None
+    # Without an elision at the end the shown lines are the last printed ones.
+    assert output_mismatch(shown[:1], printed, False) is not None
+    # A line that ends in "..." shows the start of its line.
+    assert output_mismatch(("azimuth 1.0 deg ...",), "azimuth 2.5 deg and more\n", False) is None
+    assert output_mismatch(("azimuth 1.0 deg ...",), "azimuth 2.5 rad and more\n", False)
+
+
+def test_a_page_s_blocks_give_its_commands_and_what_they_show(tmp_path, monkeypatch):
+    page = tmp_path / "page.md"
+    page.write_text(
+        "```sh\npython3 -m venv .venv && .venv/bin/northfinder find --sim  # first\n"
+        "northfinder sweep --sensors a \\\n    --runs 3\n```\n"
+        "```console\n$ northfinder find --sim --seed 1\nazimuth 1 deg\n...\n$ ls\n```\n"
+        "```console\nnorthfinder simctl HOST status\n```\n"
+        "```text\nnorthfinder find: error: not a command\n```\n"
+    )
+    monkeypatch.setattr(docpages, "ROOT", tmp_path)
+    found = commands("page.md")
+    assert [c.text for c in found] == [
+        "northfinder find --sim",
+        "northfinder sweep --sensors a --runs 3",
+        "northfinder find --sim --seed 1",
+        "northfinder simctl HOST status",
+    ]
+    assert found[0].comment == "first"
+    assert found[2].shown == ("azimuth 1 deg", "...")
