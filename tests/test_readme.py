@@ -44,8 +44,6 @@ NOT_RUN: dict[str, str] = {
     "that the page does not make",
     r"northfinder (solve bus_#\*\.log bus\.log|dump 'bus\*\.log') .*": "reads the rotated log "
     "of the simulator on vcan0 (sim -i socketcan ... --log bus.log) above it on the page",
-    r"northfinder simctl 127\.0\.0\.1:7700 .*": "needs a simulator serving its control channel "
-    "on 127.0.0.1:7700 (sim --control); tests/test_hardening_sim.py drives simctl",
     r"northfinder sweep --dask tcp://SCHEDULER-HOST:8786 .*": "SCHEDULER-HOST is a placeholder: "
     "needs a Dask scheduler and its workers",
     r"northfinder sim (--pty|--slcan-pty|-i socketcan) .*": "a simulator that serves until it is "
@@ -70,6 +68,12 @@ BESIDE_A_SIMULATOR: dict[str, tuple[str, ...]] = {
     ),
 }
 
+#: The simulator with a control channel of docs/instrument.md, and the commands that talk to a
+#: simulator's control channel (docs/cli.md's 127.0.0.1:7700), run by
+#: :func:`test_simctl_commands_talk_to_a_simulator_s_control_channel` on the address it prints.
+CONTROLLED_SIM = "northfinder sim --slcan-pty --control 127.0.0.1:0"
+CONTROL_COMMANDS = r"northfinder simctl 127\.0\.0\.1:7700 .*"
+
 #: Pages whose commands include Monte Carlo studies of 1000 runs or more (minutes on one core),
 #: marked ``slow`` as tests/test_study.py's studies are.
 SLOW_PAGES = {"docs/planner.md", "docs/spin.md", "docs/study.md"}
@@ -89,6 +93,8 @@ def _listed(command: Command) -> str | None:
     for pattern in BESIDE_A_SIMULATOR.get(command.page, ()):
         if re.fullmatch(pattern, command.text):
             return "runs beside the page's simulator (a realtime test)"
+    if command.text == CONTROLLED_SIM or re.fullmatch(CONTROL_COMMANDS, command.text):
+        return "runs on a simulator's control channel (a realtime test)"
     for pattern, reason in NOT_RUN.items():
         if re.fullmatch(pattern, command.text):
             return reason
@@ -139,6 +145,8 @@ def test_every_listed_command_is_on_a_page():
     for page, patterns in BESIDE_A_SIMULATOR.items():
         for pattern in patterns:
             assert any(re.fullmatch(pattern, c.text) for c in commands(page)), (page, pattern)
+    assert CONTROLLED_SIM in texts
+    assert any(re.fullmatch(CONTROL_COMMANDS, t) for t in texts)
     for text in FIGURES_PENDING:
         assert text in texts, text
     assert SLOW_PAGES <= set(PAGES)
@@ -186,6 +194,18 @@ def test_commands_beside_a_simulator_run_on_its_pty(page, tmp_path, monkeypatch)
         assert mismatch is None, f"{sim}: {mismatch}"
         for command in rest:
             _run(command, command.text.replace("/dev/pts/2", pty))
+
+
+@pytest.mark.realtime
+def test_simctl_commands_talk_to_a_simulator_s_control_channel(tmp_path, monkeypatch):
+    """docs/instrument.md's simulator with a control channel, and every ``simctl`` command of
+    the pages on the address it prints (the pages' 127.0.0.1:7700)."""
+    monkeypatch.chdir(tmp_path)
+    control = [c for p in PAGES for c in commands(p) if re.fullmatch(CONTROL_COMMANDS, c.text)]
+    args = shlex.split(CONTROLLED_SIM)[2:]
+    with sim_process(*args, wanted=("pty", "control", "truth")) as facts:
+        for command in control:
+            _run(command, command.text.replace("127.0.0.1:7700", facts["control"]))
 
 
 def test_the_comparison_tells_a_changed_label_a_lost_field_and_a_seeded_figure():
