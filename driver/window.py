@@ -254,6 +254,8 @@ _RELEASED = np.empty((0, 3), np.int32)
 _RELEASED.setflags(write=False)
 
 _COLUMNS = ("counter", "gyro", "accel", "angle", "temperature", "validity", "arrival_s")
+#: Rows a collector reserves at first (about 2.8 MB of columns); it doubles them as they fill.
+_INITIAL_ROWS = 1 << 16
 
 
 class SampleInbox:
@@ -342,9 +344,10 @@ class WindowCollector:
             raise ArgumentError(f"requested={requested!r}: must be a whole number of ticks >= 1")
         self.requested = requested
         self.on_gap: OnGap = on_gap
-        # The window keeps at most `requested` samples (distinct ticks of its span): the rows are
-        # allocated once, and taken from the system only as they are written.
-        self._rows = SampleColumns.empty(requested)
+        # The window keeps at most `requested` samples (distinct ticks of its span): rows for up
+        # to _INITIAL_ROWS of them at first, doubled as they fill (a collector of an unbounded
+        # span, as a CAN log's reader makes, must not reserve its whole span).
+        self._rows = SampleColumns.empty(min(requested, _INITIAL_ROWS))
         self._received = 0
         self.gaps: list[tuple[int, int]] = []
         self.missing = 0
@@ -376,6 +379,7 @@ class WindowCollector:
         """
         c = self._admit(sample.counter)
         if c is not None:
+            self._room(1)
             r, m = self._rows, self._received
             r.counter[m] = c
             r.gyro[m] = sample.gyro
@@ -416,6 +420,7 @@ class WindowCollector:
                 run_end = breaks[k] if k < len(breaks) else stop
                 run = min(run_end - i, self._end - self._expected)
             if run > 0:
+                self._room(run)
                 m, c0 = self._received, self._prev + 1
                 self._rows.put(m, block, i, i + run)
                 self._rows.counter[m : m + run] = np.arange(c0, c0 + run, dtype=np.int64)
@@ -427,6 +432,7 @@ class WindowCollector:
             else:
                 c = self._admit(int(raw[i]))
                 if c is not None:
+                    self._room(1)
                     m = self._received
                     self._rows.put(m, block, i, i + 1)
                     self._rows.counter[m] = c
@@ -435,6 +441,14 @@ class WindowCollector:
             if self.done:
                 return True
         return self.done
+
+    def _room(self, n: int) -> None:
+        """Rows for ``n`` more samples: the columns doubled (at most to ``requested``) when full."""
+        need = self._received + n
+        if need > len(self._rows):
+            grown = SampleColumns.empty(min(max(2 * len(self._rows), need), self.requested))
+            grown.put(0, self._rows, 0, self._received)
+            self._rows = grown
 
     def _admit(self, raw: int) -> int | None:
         """Advance over one sample with the 32-bit counter ``raw``: its continued counter if the
