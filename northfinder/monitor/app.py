@@ -8,6 +8,7 @@ slow or dead unit never freezes the screen; every error is a line in the log, ne
 
 from __future__ import annotations
 
+import asyncio
 import functools
 import importlib.resources
 import math
@@ -649,6 +650,14 @@ class MonitorApp(App[int]):
             plot.border_title = f"{title}, y {scale} (a){paused}"
 
     async def action_quit(self) -> None:
+        run, s = self.find_run, self.session
+        device = getattr(s, "device", None)
+        if run is not None and not run.finished and device is not None:
+            # The find's worker thread would hold the process until its plan ends (the app
+            # waits for its workers): closing the device now leaves the unit at rest (STOP,
+            # STREAM_STOP) and ends the find with a LinkError.
+            s.observer.note("find: stopped on quitting", "warn")
+            await asyncio.to_thread(device.close)
         self.exit(0)
 
 
