@@ -8,10 +8,10 @@ slow or dead unit never freezes the screen; every error is a line in the log, ne
 
 from __future__ import annotations
 
-import asyncio
 import functools
 import importlib.resources
 import math
+import threading
 import time
 from pathlib import Path
 from typing import Any, ClassVar
@@ -654,10 +654,13 @@ class MonitorApp(App[int]):
         device = getattr(s, "device", None)
         if run is not None and not run.finished and device is not None:
             # The find's worker thread would hold the process until its plan ends (the app
-            # waits for its workers): closing the device now leaves the unit at rest (STOP,
-            # STREAM_STOP) and ends the find with a LinkError.
+            # waits for its workers as it ends): closing the device leaves the unit at rest
+            # (STOP, STREAM_STOP) and ends the find with a LinkError. In a thread of its own,
+            # so that the screen goes at once whatever the reply takes.
             s.observer.note("find: stopped on quitting", "warn")
-            await asyncio.to_thread(device.close)
+            threading.Thread(
+                target=device.close, name="northfinder-monitor-quit", daemon=True
+            ).start()
         self.exit(0)
 
 
