@@ -73,6 +73,24 @@ def test_the_docs_extra_and_the_ci_build_use_warnings_as_errors():
     assert "sphinx-build -n -W --keep-going -b html docs build/docs" in ci
 
 
+def _prose(page: Path) -> str:
+    """A Markdown page without its fenced blocks (directives, code, output)."""
+    return re.sub(r"^(```|~~~|:::).*?^\1", "", page.read_text(encoding="utf-8"), flags=re.M | re.S)
+
+
+@pytest.mark.parametrize("page", sorted(DOCS.glob("*.md")), ids=lambda p: p.name)
+def test_a_page_reads_on_a_code_host_with_markdown_links_and_full_alt_texts(page):
+    """A code host renders Markdown, not MyST: a role such as {doc}`cli` shows as its source
+    there, where the link ``[the command line](cli.md)`` works on both. An image's alt text is
+    plain words: Sphinx drops a code span from it (the figure of find.md read "The figure of")."""
+    prose = _prose(page)
+    roles = re.findall(r"\{[a-z:]+\}`[^`]*`", prose)
+    assert not roles, f"{page.name}: MyST roles, not Markdown links: {roles}"
+    for alt in re.findall(r"!\[([^\]]*)\]\(", prose):
+        assert len(alt.split()) >= 5, f"{page.name}: an image without a full alt text: {alt!r}"
+        assert "`" not in alt, f"{page.name}: a code span in an alt text is dropped: {alt!r}"
+
+
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> tuple[subprocess.CompletedProcess[str], Path]:
     """The build of ``.ci/run`` (nitpicky, every reference checked; warnings as errors, kept
