@@ -96,6 +96,14 @@ def lacks(*words: str) -> Callable[[str], bool]:
     return lambda screen: not any(w in screen for w in words)
 
 
+def one_line_an_id(screen: str) -> bool:
+    """The frame view's rows: each on one line (cut with an ellipsis, never wrapped)."""
+    lines = screen.splitlines()
+    head = next(i for i, x in enumerate(lines) if x.lstrip().startswith("id       dir"))
+    rows = [x for x in lines[head + 1 : -1] if x.strip()]
+    return bool(rows) and all(re.match(r"\s*[0-9A-F]{3,8} +(rx|tx) ", x) for x in rows)
+
+
 def banner(screen: str) -> str:
     return screen.splitlines()[0] if screen else ""
 
@@ -172,6 +180,15 @@ def test_every_key_in_tmux_against_a_simulator_process(tmp_path: Path):
             key("m")
             term.wait("the frame view",
                       has("frames of the link: all frames", "SAMPLE", "STATUS"))  # fmt: skip
+            # its own keys: / asks for a filter (the rows of one message), p pauses the view
+            term.keys("/")
+            term.wait("the filter question", has("Show the frames whose name or id has:"))
+            term.keys("S", "T", "A", "T", "U", "S", "Enter")
+            term.wait("the filtered view",
+                      lambda s: "filter 'STATUS', 2 ids" in s and " SAMPLE " not in s
+                      and one_line_an_id(s))  # fmt: skip
+            term.keys("p")
+            term.wait("the frame view paused", has("2 ids  PAUSED (p resumes)"))
             term.keys("Escape")
             term.wait("the panels again", has("commands and events", "─ unit "))
             # w: every frame recorded to --record, w again stops (the file then holds them)

@@ -718,7 +718,7 @@ class FramesScreen(Screen[None]):
     DEFAULT_CSS = """
     FramesScreen { layout: vertical; }
     #frames_head { height: 1; padding: 0 1; background: $primary-background; }
-    #frames { height: 1fr; padding: 0 1; }
+    #frames { height: 1fr; padding: 0 1; text-wrap: nowrap; text-overflow: ellipsis; }
     """
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("slash", "filter", "filter"),
