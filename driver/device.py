@@ -7,7 +7,7 @@ from constants.
 
 Threads. A reader thread receives everything the device sends and sorts it: replies go to the
 caller waiting for their sequence number, statuses update :attr:`Device.last_status` (and feed
-link supervision), identify updates :attr:`Device.identity`, samples go to an :meth:`acquire`
+link supervision), identify updates :attr:`Device.identity`, samples go to an :meth:`Device.acquire`
 in progress and are dropped otherwise. Every public method may be called from any thread;
 :meth:`Device.acquire` calls run one at a time.
 

@@ -85,8 +85,8 @@ BAD_BITS = VALIDITY_UNFIT
 #: Impulsive samples: farther from the window median than this many robust sigmas (MAD x 1.4826,
 #: at least one output step).
 OUTLIER_SIGMAS = 8.0
-#: What a window with missing sample ticks (a damaged or lost frame) does: measure it again,
-#: keep it and report the gap in the result, or stop the run.
+#: What a window with missing sample ticks (a damaged or lost frame) does, in this order. It is
+#: measured again, kept with the gap reported in the result, or the run stops.
 ON_GAP_CHOICES = ("remeasure", "report", "fail")
 #: How often a window is measured again before the run stops (``on_gap="remeasure"``).
 MAX_REMEASURE = 3

@@ -15,8 +15,8 @@ runner (whose failure :meth:`~SimulatedInstrument.check` reports)::
 
 Links (``link=``):
 
-- ``"virtual"``: python-can's ``virtual`` bus, reachable from this process only (:meth:`open_bus`);
-- ``"serial-pty"``: the protocol's serial frames on a new pseudo-terminal (:attr:`path`);
+- ``"virtual"``: python-can's ``virtual`` bus, reachable from this process only (:meth:`SimulatedInstrument.open_bus`);
+- ``"serial-pty"``: the protocol's serial frames on a new pseudo-terminal (:attr:`SimulatedInstrument.path`);
 - ``"slcan-pty"``: an SLCAN adapter on a new pseudo-terminal, for python-can's ``slcan`` interface.
 
 A pty is reachable from other processes too (``northfinder find --serial PATH``).
@@ -27,7 +27,7 @@ Time (``clock=``):
   (:class:`~northfinder.firmware_sim.runner.RealTimeClock`) on a background thread;
 - ``clock="virtual"`` or a :class:`~northfinder.driver.clock.VirtualClock`: virtual time, as fast
   as the CPU allows and the same for a seed whatever the machine's load. The simulator has no
-  thread: it is a source of the clock, which the device from :meth:`open_device` shares
+  thread: it is a source of the clock, which the device from :meth:`SimulatedInstrument.open_device` shares
   (``sim.clock``). Time stands still while the host works and jumps to the next event (a
   message due, a deadline) whenever it waits, so a host waits with ``sim.clock.sleep(s)``, never
   ``time.sleep``. ``link="virtual"`` only (a pty is read by other processes on the wall clock);

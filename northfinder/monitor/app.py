@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import importlib.resources
 import math
+import threading
 import time
 from pathlib import Path
 from typing import Any, ClassVar
@@ -649,6 +650,17 @@ class MonitorApp(App[int]):
             plot.border_title = f"{title}, y {scale} (a){paused}"
 
     async def action_quit(self) -> None:
+        run, s = self.find_run, self.session
+        device = getattr(s, "device", None)
+        if run is not None and not run.finished and device is not None:
+            # The find's worker thread would hold the process until its plan ends (the app
+            # waits for its workers as it ends): closing the device leaves the unit at rest
+            # (STOP, STREAM_STOP) and ends the find with a LinkError. In a thread of its own,
+            # so that the screen goes at once whatever the reply takes.
+            s.observer.note("find: stopped on quitting", "warn")
+            threading.Thread(
+                target=device.close, name="northfinder-monitor-quit", daemon=True
+            ).start()
         self.exit(0)
 
 
@@ -706,7 +718,7 @@ class FramesScreen(Screen[None]):
     DEFAULT_CSS = """
     FramesScreen { layout: vertical; }
     #frames_head { height: 1; padding: 0 1; background: $primary-background; }
-    #frames { height: 1fr; padding: 0 1; }
+    #frames { height: 1fr; padding: 0 1; text-wrap: nowrap; text-overflow: ellipsis; }
     """
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("slash", "filter", "filter"),
