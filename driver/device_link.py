@@ -378,8 +378,8 @@ class DeviceLink:
         # Replies to this host's commands by (seq): opcode and when; the other hosts' commands
         # likewise. A second reply to a command of this host's, within TWIN_WINDOW_S and to no
         # other host's command of that seq, came from a second unit answering as this node.
-        self._answered: dict[int, tuple[Opcode, float]] = {}
-        self._foreign_seqs: dict[int, tuple[Opcode, float]] = {}
+        self._answered: dict[int, tuple[int, float]] = {}
+        self._foreign_seqs: dict[int, tuple[int, float]] = {}
         self._twin_replies = 0
         self._reader: threading.Thread | None = None
         if self._clock.virtual:
@@ -490,8 +490,12 @@ class DeviceLink:
         except DriverError:
             pass
         while not self._gone() and self._clock.now() < until:
+
+            def heard(seen: int = seen) -> bool:
+                return self._status_count > seen or self._gone()
+
             self._clock.wait_until(
-                lambda seen=seen: self._status_count > seen or self._gone(),
+                heard,
                 min(until, self._clock.now() + self._heartbeat_period_s() + self.reply_timeout),
             )
             with self._lock:

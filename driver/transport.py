@@ -259,7 +259,7 @@ def _slcan_batch(
                         port.timeout = 0
                 try:
                     msg = bus.recv(0.0)
-                except (can.CanError, *SLCAN_PARSE_ERRORS) as exc:
+                except (can.CanError, ValueError, IndexError) as exc:  # SLCAN_PARSE_ERRORS
                     if on_garbled is None or not garbled_slcan_line(bus, exc):
                         raise
                     on_garbled()
@@ -397,7 +397,7 @@ class CanTransport(_TransportBase):
                 # Block in the bus (one wake-up for the first frame), then take what came with it.
                 try:
                     msg = self.bus.recv(timeout)
-                except (can.CanError, *SLCAN_PARSE_ERRORS) as exc:
+                except (can.CanError, ValueError, IndexError) as exc:  # SLCAN_PARSE_ERRORS
                     if not garbled_slcan_line(self.bus, exc):
                         raise
                     self._garbled()
@@ -405,7 +405,7 @@ class CanTransport(_TransportBase):
                 frames = [] if msg is None else [msg, *self._take(MAX_FRAMES_PER_RECV - 1)]
             else:  # a poll (a virtual clock's, at every instant): nothing but what is waiting
                 frames = self._take(MAX_FRAMES_PER_RECV)
-        except (can.CanError, OSError, *SLCAN_PARSE_ERRORS, serial.SerialException) as exc:
+        except (can.CanError, OSError, ValueError, IndexError, serial.SerialException) as exc:
             raise LinkLost(f"cannot receive from the CAN bus {self._name()}: {exc}") from exc
         if not frames:
             return []

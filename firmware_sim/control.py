@@ -405,7 +405,12 @@ class Controller:
 
     def _set_faults(self, **values: Any) -> dict[str, Any]:
         faults = self.runner.firmware.faults
-        self.runner.firmware.apply(lambda: [setattr(faults, k, v) for k, v in values.items()])
+
+        def set_all() -> None:
+            for k, v in values.items():
+                setattr(faults, k, v)
+
+        self.runner.firmware.apply(set_all)
         return {"faults": dataclasses.asdict(self.runner.firmware.faults)}
 
     def _reset(self) -> None:

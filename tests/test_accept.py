@@ -47,7 +47,7 @@ STAGES = ["--static-s", "600"]
 
 
 def _toml(sections: dict) -> str:
-    lines = []
+    lines: list[str] = []
     for section, values in sections.items():
         if not isinstance(values, dict):
             lines.insert(0, f"{section} = {json.dumps(values)}")

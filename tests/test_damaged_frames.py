@@ -132,7 +132,7 @@ def test_ten_thousand_malformed_slcan_lines_never_end_the_link():
     # Every line python-can's slcan reader cannot parse (IndexError, ValueError, bytes that are
     # not ASCII) is one rejected frame; good frames between them all arrive.
     from northfinder.driver.protocol.can import encode_can
-    from northfinder.driver.protocol.constants import DeviceState
+    from northfinder.driver.protocol.constants import DeviceState, Fault
     from northfinder.driver.protocol.messages import Status
     from northfinder.firmware_sim.adapters import slcan_line
 
@@ -140,7 +140,7 @@ def test_ten_thousand_malformed_slcan_lines_never_end_the_link():
     junk = _fuzz_lines(rng, 10_000)
     good = []
     for i in range(200):
-        status = Status(DeviceState.READY, 0, 0, 0, i, 0, 0, 0)
+        status = Status(DeviceState.READY, 0, 0, Fault(0), i, 0, 0, 0)
         good += [
             slcan_line(can.Message(arbitration_id=a, data=d, is_extended_id=False))
             for a, d in encode_can(status, 1)

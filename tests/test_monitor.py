@@ -25,6 +25,7 @@ import pytest
 pytest.importorskip("textual")
 pytest.importorskip("textual_plotext")
 
+from textual.binding import Binding
 from textual.widgets import Static
 
 from northfinder.cli import main
@@ -906,7 +907,7 @@ KEY_CASES: dict[str, dict[str, Any]] = {
 
 
 def _bound_keys() -> list[str]:
-    return [b.key if hasattr(b, "key") else b[0] for b in MonitorApp.BINDINGS]
+    return [b.key if isinstance(b, Binding) else b[0] for b in MonitorApp.BINDINGS]
 
 
 @pytest.mark.parametrize("key", _bound_keys())
@@ -1255,7 +1256,7 @@ FRAME_KEY_CASES: dict[str, dict[str, Any]] = {
 
 
 def _frame_keys() -> list[str]:
-    return [b.key for b in FramesScreen.BINDINGS]
+    return [b.key if isinstance(b, Binding) else b[0] for b in FramesScreen.BINDINGS]
 
 
 @pytest.mark.parametrize("key", _frame_keys())

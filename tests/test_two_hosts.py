@@ -97,7 +97,7 @@ def _twin(sim: SimulatedInstrument, started_after_s: float):
     from northfinder.firmware_sim.firmware import Firmware, LinkInfo
     from northfinder.firmware_sim.runner import Runner
 
-    sim.clock.sleep(started_after_s)
+    sim.clock.sleep(started_after_s)  # type: ignore[union-attr]
     fw = Firmware(sim.spec, sim.truth, np.random.default_rng(2), warmup_s=0.0, node_id=1,
                   link=LinkInfo("can", 500_000))  # fmt: skip
     bus = _DeviceEndBus(channel=sim.channel)
