@@ -26,14 +26,14 @@ from clirun import run_cli
 from docpages import ROOT, Command, commands, output_mismatch, pages
 from simprocess import sim_process
 
-from northfinder.cli.common import EXIT_INCONSISTENT
+from northfinder.cli.common import EXIT_INCONSISTENT, EXIT_NOT_RESOLVED
 
 #: Commands of the pages that are not run, each with its reason: a pattern (matched against the
 #: whole command, without its comment) -> why.
 NOT_RUN: dict[str, str] = {
     r"northfinder \w+ -i socketcan -c vcan0( .*)?": "needs a CAN bus (SocketCAN vcan0: a kernel "
     "module and root to create it; scripts/hil runs the links on one)",
-    r"northfinder \w+( \S+)? --serial /dev/ttyUSB0( .*)?": "needs a unit on a serial port "
+    r"northfinder \w+( \S+)*? --serial /dev/ttyUSB0( .*)?": "needs a unit on a serial port "
     "(/dev/ttyUSB0)",
     r"northfinder record \S+ \$UNIT .*": "$UNIT is the page's placeholder for a unit (a serial "
     "port or CAN bus); two windows of an hour each",
@@ -108,6 +108,11 @@ def _check_output(command: Command, code: int, out: str, err: str, fixed: bool) 
         assert code != 0, f"{command}: exit 0, the page shows an error\n{out}"
         mismatch = output_mismatch(command.shown, err, seeded)
         assert mismatch is None, f"{command}: {mismatch}"
+        return
+    if code == EXIT_NOT_RESOLVED and argv[1:2] == ["accept"]:
+        # A datasheet line the record was too short to decide: the documented outcome (exit 4),
+        # said so in the report, with the length that would decide it.
+        assert "NOT RESOLVED" in out + err, f"{command}\n{out}\n{err[-2000:]}"
         return
     if code == EXIT_INCONSISTENT and "--seed" not in argv:
         # Unseeded, a correct instrument fails the consistency check at its stated
