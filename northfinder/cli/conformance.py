@@ -176,16 +176,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.sim:
         return _run_simulated(args, options)
-    closers = []
+    closers: list[Any] = []
     try:
-        if args.serial:
-            port = open_serial_port(args.serial, args.baud)
-            closers.append(port.close)
-            link: CanRawLink | SerialRawLink = SerialRawLink(port)
-        else:
-            bus = open_can_bus(args)
-            closers.append(bus.shutdown)
-            link = CanRawLink(bus, args.node_id)
+        link = _open_raw_link(args, closers)
         report = _run(args, link, options)
     finally:
         for close in reversed(closers):
@@ -261,18 +254,23 @@ def simulated_report(
     return report
 
 
+def _open_raw_link(args: argparse.Namespace, closers: list[Any]) -> CanRawLink | SerialRawLink:
+    """The suite's link to the unit of ``--serial`` or the python-can options; what closes it
+    goes to ``closers``."""
+    if args.serial:
+        port = open_serial_port(args.serial, args.baud)
+        closers.append(port.close)
+        return SerialRawLink(port)
+    bus = open_can_bus(args)
+    closers.append(bus.shutdown)
+    return CanRawLink(bus, args.node_id)
+
+
 def link_report(args: argparse.Namespace, options: SuiteOptions) -> Report:
     """The suite's report on the unit of ``--serial`` or the python-can options (no progress)."""
-    closers = []
+    closers: list[Any] = []
     try:
-        if args.serial:
-            port = open_serial_port(args.serial, args.baud)
-            closers.append(port.close)
-            link: CanRawLink | SerialRawLink = SerialRawLink(port)
-        else:
-            bus = open_can_bus(args)
-            closers.append(bus.shutdown)
-            link = CanRawLink(bus, args.node_id)
+        link = _open_raw_link(args, closers)
         return run_suite(link, options)
     finally:
         for close in reversed(closers):
