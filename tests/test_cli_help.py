@@ -10,7 +10,7 @@ from contextlib import redirect_stdout
 import pytest
 
 from northfinder.cli import COMMANDS, main
-from northfinder.cli.common import plain_text
+from northfinder.cli.parsers import plain_text
 
 #: Group titles several commands share (their own groups come before these).
 COMMON_TITLES = {

@@ -12,13 +12,8 @@ import time
 import pytest
 
 from northfinder.cli import main
-from northfinder.cli.common import (
-    EXIT_INTERRUPTED,
-    EXIT_RUNTIME,
-    EXIT_USAGE,
-    dumps,
-    plain_numbers,
-)
+from northfinder.cli.exits import EXIT_INTERRUPTED, EXIT_RUNTIME, EXIT_USAGE
+from northfinder.cli.output import dumps, plain_numbers
 
 # A plan long enough that the run is still going when the signal comes, even on a fast machine.
 LONG_SIM = ["--sim", "--window", "3600", "--warmup", "80000", "--timeout", "86400", "--seed", "1"]

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from northfinder.cli import main
-from northfinder.cli.common import EXIT_RUNTIME, EXIT_USAGE, error_line, exit_status
+from northfinder.cli.exits import EXIT_RUNTIME, EXIT_USAGE, error_line, exit_status
 from northfinder.driver.arguments import finite_number, seconds, whole_number
 from northfinder.driver.errors import ArgumentError, DriverError, LinkError, ReplyTimeout
 from northfinder.driver.protocol.constants import Validity

@@ -272,7 +272,7 @@ def test_sigterm_during_a_window_stops_the_stream_and_flushes_the_can_log(tmp_pa
 
 def test_signal_exit_statuses_are_stated():
     from northfinder.cli import main
-    from northfinder.cli.common import SignalInterrupt
+    from northfinder.cli.exits import SignalInterrupt
 
     assert SignalInterrupt(signal.SIGTERM).signum == 15
     assert isinstance(SignalInterrupt(signal.SIGHUP), KeyboardInterrupt)

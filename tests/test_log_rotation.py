@@ -222,7 +222,7 @@ def test_sim_refuses_a_rotation_without_a_log_before_it_starts():
      ("15min", (0, 900.0)), ("8192B", (8192, 0.0)), ("1G, 2d", (1 << 30, 172_800.0))],
 )  # fmt: skip
 def test_a_rotation_is_a_size_an_age_or_both(text, limits):
-    from northfinder.cli.common import rotation_limits
+    from northfinder.cli.files import rotation_limits
 
     assert rotation_limits(text) == limits
 

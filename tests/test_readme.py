@@ -26,7 +26,7 @@ from clirun import run_cli
 from docpages import ROOT, Command, commands, output_mismatch, pages
 from simprocess import sim_process
 
-from northfinder.cli.common import EXIT_INCONSISTENT, EXIT_NOT_RESOLVED
+from northfinder.cli.exits import EXIT_INCONSISTENT, EXIT_NOT_RESOLVED
 
 #: Commands of the pages that are not run, each with its reason: a pattern (matched against the
 #: whole command, without its comment) -> why.

@@ -232,7 +232,7 @@ def _stepped_recording(tmp_path: Path, step_dph: float = 2.0) -> Path:
 
 
 def test_a_heading_that_failed_its_check_exits_3_and_says_so_as_a_shift(tmp_path):
-    from northfinder.cli.common import EXIT_INCONSISTENT
+    from northfinder.cli.exits import EXIT_INCONSISTENT
 
     assert EXIT_INCONSISTENT == 3
     stepped = _stepped_recording(tmp_path)
@@ -276,7 +276,7 @@ def test_no_negative_zero_in_nmea_or_the_notes():
     body = nfdh_sentence(fix)
     assert ",0.000,0.000," in body and "-0.000" not in body
     assert pynmea2.parse(body, check=True).pitch == 0.0
-    from northfinder.cli.common import dumps
+    from northfinder.cli.output import dumps
 
     assert "-0.0" not in dumps({"notes": ["shift -0.0000 deg"], "x": -0.0})
 

@@ -476,7 +476,7 @@ def test_cli_planner_json(capsys):
 
 
 def test_cli_errors(capsys):
-    # every one a wrong request: exit status 2 (northfinder.cli.common)
+    # every one a wrong request: exit status 2 (northfinder.cli.exits)
     assert main(["study", "--positions", "0", "--runs", "10"]) == 2
     assert "at least 2 positions" in capsys.readouterr().err
     assert main(["study", "--runs", "1"]) == 2

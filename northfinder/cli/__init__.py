@@ -2,7 +2,7 @@
 
 Every subcommand's errors derive from the packages' root exceptions (``HostError``, ``DriverError``,
 ``SimError``); they are printed as one line naming what is wrong, with the exit status of
-:mod:`northfinder.cli.common` (2: the request is wrong, 1: the work failed). ``--debug``
+:mod:`northfinder.cli.exits` (2: the request is wrong, 1: the work failed). ``--debug``
 shows the traceback instead.
 
 SIGINT (Ctrl-C), SIGTERM and SIGHUP end a command the same way: the work stops, a device the
@@ -24,18 +24,20 @@ import time
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from northfinder.cli.common import (
+from northfinder.cli.exits import (
     EXIT_INTERRUPTED,
     EXIT_RUNTIME,
     EXIT_USAGE,
+    SignalInterrupt,
+    ending_of,
+    report_error,
+)
+from northfinder.cli.parsers import (
     SUMMARIES,
     OneLineParser,
-    SignalInterrupt,
     command_parser,
     common_group,
-    ending_of,
     order_groups,
-    report_error,
 )
 from northfinder.driver.errors import DriverError
 from northfinder.firmware_sim.errors import SimError
@@ -63,7 +65,7 @@ COMMANDS: dict[str, str] = {
 }
 
 
-#: The packages' root exceptions (``common.EXIT_STATUS`` gives each kind its exit status).
+#: The packages' root exceptions (``exits.EXIT_STATUS`` gives each kind its exit status).
 ROOT_ERRORS: tuple[type[Exception], ...] = (HostError, SimError, DriverError)
 
 
@@ -163,7 +165,7 @@ CLEANUP_GRACE_S = 3.0
 
 @contextlib.contextmanager
 def ending_signals() -> Iterator[None]:
-    """SIGINT, SIGTERM and SIGHUP raise :class:`~northfinder.cli.common.SignalInterrupt` (a
+    """SIGINT, SIGTERM and SIGHUP raise :class:`~northfinder.cli.exits.SignalInterrupt` (a
     KeyboardInterrupt) in the main thread, so that every ending runs the same clean-up; the
     previous handlers come back afterwards. Outside the main thread nothing changes."""
     if threading.current_thread() is not threading.main_thread():
@@ -218,7 +220,7 @@ def _main(argv: list[str]) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_RUNTIME
-    except Exception as exc:  # one line and a stated status for every error (common.py)
+    except Exception as exc:  # one line and a stated status for every error (exits.py)
         if _caused_by_interrupt(exc):
             # Ctrl-C stopped the work, and the clean-up that followed failed because of it
             # (a device left mid-command, an embedded simulator no longer stepped): the

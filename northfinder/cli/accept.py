@@ -25,18 +25,12 @@ from pathlib import Path
 from typing import Any
 
 from northfinder.cli import measure
-from northfinder.cli.common import (
-    EXIT_NOT_RESOLVED,
-    EXIT_RUNTIME,
-    bounded_float,
-    bounded_int,
-    bus_given,
-    check_output_path,
-    dumps,
-    load_sensor,
-    run_seed,
-    say,
-)
+from northfinder.cli.argtypes import bounded_float, bounded_int
+from northfinder.cli.exits import EXIT_NOT_RESOLVED, EXIT_RUNTIME
+from northfinder.cli.files import check_output_path
+from northfinder.cli.links import bus_given
+from northfinder.cli.output import dumps, say
+from northfinder.cli.simulated import load_sensor, run_seed
 from northfinder.host.errors import HostConfigError
 
 #: Default length of the static recording, s (device time: seconds of virtual time with --sim).

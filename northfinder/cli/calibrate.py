@@ -11,15 +11,12 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from northfinder.cli.common import (
-    bounded_float,
-    check_output_path,
-    check_plot_path,
-    dumps,
-    load_sensor,
-    say,
-)
+from northfinder.cli.argtypes import bounded_float
+from northfinder.cli.files import check_output_path
+from northfinder.cli.output import dumps, say
+from northfinder.cli.plots import check_plot_path
 from northfinder.cli.progress import Progress
+from northfinder.cli.simulated import load_sensor
 from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
 from northfinder.host.calibrate.readers import READERS

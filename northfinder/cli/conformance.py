@@ -19,16 +19,10 @@ import can
 import can.cli
 import serial
 
-from northfinder.cli.common import (
-    add_link_arguments,
-    add_sensor_argument,
-    angle_list,
-    bounded_float,
-    bus_given,
-    check_output_path,
-    open_can_bus,
-    open_serial_port,
-)
+from northfinder.cli.argtypes import angle_list, bounded_float
+from northfinder.cli.files import check_output_path
+from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus, open_serial_port
+from northfinder.cli.options import add_sensor_argument
 from northfinder.driver.conformance import (
     CHECKS,
     CanRawLink,

@@ -19,16 +19,10 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from northfinder.cli.common import (
-    add_bus_arguments,
-    add_duration_argument,
-    add_session_argument,
-    bounded_float,
-    bounded_int,
-    bus_given,
-    open_can_bus,
-    warn,
-)
+from northfinder.cli.argtypes import bounded_float, bounded_int
+from northfinder.cli.links import add_bus_arguments, bus_given, open_can_bus
+from northfinder.cli.options import add_duration_argument, add_session_argument
+from northfinder.cli.output import warn
 from northfinder.host.errors import HostConfigError, RecordingError
 
 

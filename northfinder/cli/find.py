@@ -14,15 +14,11 @@ import sys
 import time
 
 from northfinder.cli import measure, report, spinfind
-from northfinder.cli.common import (
-    baud_rate,
-    check_output_path,
-    check_plot_path,
-    positive_float,
-    result_status,
-    whole_number,
-)
+from northfinder.cli.argtypes import baud_rate, positive_float, whole_number
+from northfinder.cli.exits import result_status
+from northfinder.cli.files import check_output_path
 from northfinder.cli.measure import Measured, run_plan
+from northfinder.cli.plots import check_plot_path
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 

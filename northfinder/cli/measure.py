@@ -15,28 +15,25 @@ from typing import Any
 
 import numpy as np
 
-from northfinder.cli.common import (
+from northfinder.cli.argtypes import bounded_float
+from northfinder.cli.exits import note_at_rest, note_ending
+from northfinder.cli.files import add_log_rotation, can_log_path, check_log_rotation
+from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus
+from northfinder.cli.options import (
     add_latitude_argument,
-    add_link_arguments,
-    add_log_rotation,
     add_positions_argument,
     add_solver_argument,
     add_truth_arguments,
-    bounded_float,
-    bus_given,
-    can_log_path,
-    check_log_rotation,
-    common_group,
+)
+from northfinder.cli.parsers import common_group
+from northfinder.cli.progress import progress_mode
+from northfinder.cli.simulated import (
     latitude_source,
     load_sensor,
-    note_at_rest,
-    note_ending,
-    open_can_bus,
     run_seed,
     sim_latitude,
     sim_truth,
 )
-from northfinder.cli.progress import progress_mode
 from northfinder.driver.device import Device
 from northfinder.driver.errors import DriverError
 from northfinder.driver.framelog import FrameLog

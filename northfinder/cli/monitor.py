@@ -26,13 +26,9 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
-from northfinder.cli.common import (
-    add_duration_argument,
-    bounded_float,
-    bus_given,
-    check_output_path,
-    open_can_bus,
-)
+from northfinder.cli.argtypes import bounded_float
+from northfinder.cli.files import check_output_path
+from northfinder.cli.links import bus_given, open_can_bus
 from northfinder.cli.measure import (
     SIM_WARMUP_S,
     _open_unit,
@@ -41,6 +37,7 @@ from northfinder.cli.measure import (
     embedded_simulator,
     plan_from_args,
 )
+from northfinder.cli.options import add_duration_argument
 from northfinder.host.errors import HostConfigError
 
 SIM_ONLY = ("warmup", "sensor", "azimuth", "pitch", "roll", "seed")

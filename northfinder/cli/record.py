@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 
 from northfinder.cli import measure, spinfind
-from northfinder.cli.common import check_output_path
+from northfinder.cli.files import check_output_path
 from northfinder.cli.measure import run_plan
 
 

@@ -8,7 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from northfinder.cli.common import dumps, plain_numbers, pyplot, save_figure
+from northfinder.cli.output import dumps, plain_numbers
+from northfinder.cli.plots import pyplot, save_figure
 from northfinder.host.procedure import FindResult, pairwise_solutions
 from northfinder.host.results import envelope
 

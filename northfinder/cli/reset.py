@@ -12,12 +12,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 
-from northfinder.cli.common import (
-    add_link_arguments,
-    bounded_float,
-    bus_given,
-    open_can_bus,
-)
+from northfinder.cli.argtypes import bounded_float
+from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus
 from northfinder.driver.device import Device
 from northfinder.driver.errors import DeviceFault
 from northfinder.driver.protocol.constants import DeviceState

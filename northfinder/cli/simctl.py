@@ -14,7 +14,7 @@ import argparse
 import json
 import textwrap
 
-from northfinder.cli.common import dumps
+from northfinder.cli.output import dumps
 from northfinder.firmware_sim.control import OPS, ControlClient
 from northfinder.host.errors import HostConfigError
 

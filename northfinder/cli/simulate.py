@@ -11,17 +11,10 @@ import math
 
 import numpy as np
 
-from northfinder.cli.common import (
-    add_positions_argument,
-    add_sensor_argument,
-    add_truth_arguments,
-    bounded_float,
-    dumps,
-    load_sensor,
-    run_seed,
-    say,
-    sim_truth,
-)
+from northfinder.cli.argtypes import bounded_float
+from northfinder.cli.options import add_positions_argument, add_sensor_argument, add_truth_arguments
+from northfinder.cli.output import dumps, say
+from northfinder.cli.simulated import load_sensor, run_seed, sim_truth
 from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, body_rates

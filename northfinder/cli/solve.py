@@ -17,17 +17,11 @@ from pathlib import Path
 from typing import Any
 
 from northfinder.cli import report, spinfind
-from northfinder.cli.common import (
-    add_session_argument,
-    add_solver_argument,
-    bounded_float,
-    check_plot_path,
-    node_id,
-    positive_float,
-    result_status,
-    say,
-    warn,
-)
+from northfinder.cli.argtypes import bounded_float, node_id, positive_float
+from northfinder.cli.exits import result_status
+from northfinder.cli.options import add_session_argument, add_solver_argument
+from northfinder.cli.output import say, warn
+from northfinder.cli.plots import check_plot_path
 from northfinder.driver.framelog import expand_log_names
 from northfinder.host.canlog import LogSet, is_can_log, read_can_log
 from northfinder.host.denoise import METHODS

@@ -10,16 +10,10 @@ import argparse
 import math
 from typing import Any
 
-from northfinder.cli.common import (
-    bounded_float,
-    dumps,
-    finite_float,
-    latitude_source,
-    plain_numbers,
-    pyplot,
-    save_figure,
-    sim_latitude,
-)
+from northfinder.cli.argtypes import bounded_float, finite_float
+from northfinder.cli.output import dumps, plain_numbers
+from northfinder.cli.plots import pyplot, save_figure
+from northfinder.cli.simulated import latitude_source, sim_latitude
 from northfinder.host.errors import HostConfigError
 
 #: Default spin time: the fewest whole turns that last at least this long, s.
@@ -85,7 +79,7 @@ def run(
     With ``record_to``, a run that ends early (an interruption, an error) writes the samples
     received to that recording, marked ``interrupted`` (:func:`save`), and the line that
     reports the ending says where."""
-    from northfinder.cli.common import note_ending
+    from northfinder.cli.exits import note_ending
     from northfinder.cli.measure import ProgressBar, check_arguments, open_device
     from northfinder.host.procedure import find_north_spin
     from northfinder.host.results import device_identity

@@ -17,25 +17,20 @@ from dataclasses import replace
 from typing import Any
 
 from northfinder.cli import spinfind
-from northfinder.cli.common import (
-    EXIT_RUNTIME,
-    add_execution_arguments,
-    add_key_values,
-    add_sensor_argument,
-    add_solver_argument,
+from northfinder.cli.argtypes import (
     angle_list,
     bounded_float,
     bounded_int,
-    check_plot_path,
-    dumps,
     finite_float,
-    load_sensor,
-    pyplot,
-    say,
     seed_value,
-    study_executor,
 )
+from northfinder.cli.executors import add_execution_arguments, study_executor
+from northfinder.cli.exits import EXIT_RUNTIME
+from northfinder.cli.options import add_key_values, add_sensor_argument, add_solver_argument
+from northfinder.cli.output import dumps, say
+from northfinder.cli.plots import check_plot_path, pyplot
 from northfinder.cli.progress import Progress
+from northfinder.cli.simulated import load_sensor
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES, ErrorModel, budget_bound_deg

@@ -12,18 +12,16 @@ import time
 from dataclasses import replace
 from typing import Any
 
-from northfinder.cli.common import (
-    add_execution_arguments,
-    add_key_values,
+from northfinder.cli.argtypes import (
     angle_list,
     bounded_float,
     bounded_int,
-    dumps,
     finite_float,
-    say,
     seed_value,
-    study_executor,
 )
+from northfinder.cli.executors import add_execution_arguments, study_executor
+from northfinder.cli.options import add_key_values
+from northfinder.cli.output import dumps, say
 from northfinder.cli.progress import Progress
 from northfinder.cli.study import (
     MAX_BIAS_STEP_DPH,
