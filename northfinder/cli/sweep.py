@@ -23,15 +23,15 @@ from northfinder.cli.executors import add_execution_arguments, study_executor
 from northfinder.cli.options import add_key_values
 from northfinder.cli.output import dumps, say
 from northfinder.cli.progress import Progress
-from northfinder.cli.study import (
+from northfinder.cli.studies import (
     MAX_BIAS_STEP_DPH,
     MAX_RATE_HZ,
     MAX_RUNS,
     MAX_SETTLE_S,
     MAX_WARMUP_S,
     MAX_WINDOW_S,
-    _plan_json,
-    _settings,
+    describe_plan,
+    study_settings,
 )
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
@@ -183,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
         specs.append(spec.with_values(dict(args.overrides)) if args.overrides else spec)
     plans = _plans(args)
     combos = list(itertools.product(specs, args.latitudes, plans))
-    settings = {lat: _settings(args, lat) for lat in args.latitudes}
+    settings = {lat: study_settings(args, lat) for lat in args.latitudes}
     bar = Progress("sweep", unit="chunks", enabled=not args.json)
     with study_executor(args) as executor, bar:
         bar.step(f"{len(combos)} studies of {args.runs} runs")
@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
             {
                 "sensor": spec.name,
                 "latitude_deg": lat,
-                "plan": _plan_json(plan, model, args.warmup),
+                "plan": describe_plan(plan, model, args.warmup),
                 "results": study_rows(model, plan, settings[lat], e),
             }
         )
