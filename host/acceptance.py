@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from northfinder.driver.protocol.units import readable_duration as _duration
 from northfinder.host.errors import HostConfigError
 
 __all__ = [
@@ -361,16 +362,6 @@ def overall(lines: Sequence[Line]) -> str:
     if NOT_RESOLVED in verdicts:
         return NOT_RESOLVED
     return PASS
-
-
-def _duration(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "an unknown time"
-    if seconds < 120.0:
-        return f"{seconds:.3g} s"
-    if seconds < 7200.0:
-        return f"{seconds / 60.0:.3g} min"
-    return f"{seconds / 3600.0:.3g} h"
 
 
 _FLOOR = 2.0 * math.log(2.0) / math.pi

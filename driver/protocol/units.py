@@ -92,3 +92,15 @@ def check_latitude_deg(
             "rad/s vanishes there, so north is undefined"
         )
     return lat
+
+
+def readable_duration(seconds: float) -> str:
+    """A length of time in the unit that reads best: s below 2 min, min below 2 h, else h
+    (three significant digits); ``an unknown time`` when not finite."""
+    if not math.isfinite(seconds):
+        return "an unknown time"
+    if seconds < 120.0:
+        return f"{seconds:.3g} s"
+    if seconds < 7200.0:
+        return f"{seconds / 60.0:.3g} min"
+    return f"{seconds / 3600.0:.3g} h"

@@ -32,6 +32,7 @@ from scipy.stats import chi2
 
 from northfinder.driver.protocol.motion import shortest_delta_deg
 from northfinder.driver.protocol.units import UG
+from northfinder.driver.protocol.units import readable_duration as _duration
 from northfinder.host.allan import (
     TERMS,
     AllanCurve,
@@ -494,17 +495,6 @@ class Calibration:
 
     def _written(self) -> str:
         return ", written at the bound" if self.unresolved == "bound" else ""
-
-
-def _duration(seconds: float) -> str:
-    """A length of time in the unit that reads best (s, min or h)."""
-    if not math.isfinite(seconds):
-        return "an unknown time"
-    if seconds < 120.0:
-        return f"{seconds:.3g} s"
-    if seconds < 7200.0:
-        return f"{seconds / 60.0:.3g} min"
-    return f"{seconds / 3600.0:.3g} h"
 
 
 #: How a sensor file may write a term the records do not resolve (:class:`Calibration`).
