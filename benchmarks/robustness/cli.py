@@ -35,19 +35,7 @@ class CliCase:
 
 def _files(tmp: str) -> dict[str, str]:
     """Bad input files for the sweep: sensor TOMLs and mutated recordings, by name."""
-    import numpy as np
-
-    from northfinder.cli import main as cli
-
     out: dict[str, str] = {}
-
-    def write(name: str, text: str) -> str:
-        path = os.path.join(tmp, name)
-        with open(path, "w") as f:
-            f.write(text)
-        out[name] = path
-        return path
-
     for name, body in {
         "rate-tiny.toml": "[table]\nmax_rate_dps = 1e-300\n",
         "rate-huge.toml": "[table]\nmax_rate_dps = 1e300\n",
@@ -62,13 +50,38 @@ def _files(tmp: str) -> dict[str, str]:
         "vec.toml": "[gyro]\nbias_dph = [1, 2]\n",
         "empty.csv": "",
     }.items():
-        write(name, body)
+        _write(out, tmp, name, body)
+    good, good4 = _good_recordings(out, tmp)
+    head, rows = _csv_files(out, tmp, good)
+    _npz_files(out, tmp, good4)
+    _log_files(out, tmp, head, rows)
+    return out
+
+
+def _write(out: dict[str, str], tmp: str, name: str, text: str) -> str:
+    """Write ``text`` to the file ``name`` in ``tmp`` and keep its path in ``out``."""
+    path = os.path.join(tmp, name)
+    with open(path, "w") as f:
+        f.write(text)
+    out[name] = path
+    return path
+
+
+def _good_recordings(out: dict[str, str], tmp: str) -> tuple[str, str]:
+    """Two good recordings of simulated finds: a two-position CSV and a four-position NPZ."""
+    from northfinder.cli import main as cli
+
     good = os.path.join(tmp, "good.csv")
     good4 = os.path.join(tmp, "good4.npz")
     with contextlib.redirect_stdout(io.StringIO()):
         cli(["record", good, *QUICK, "--window", "2", "--positions", "0,180"])
         cli(["record", good4, *QUICK, "--window", "2", "--positions", "0,180,180,0"])
     out["good.csv"], out["good4.npz"] = good, good4
+    return good, good4
+
+
+def _csv_files(out: dict[str, str], tmp: str, good: str) -> tuple[str, list[str]]:
+    """Recordings with a broken header (metadata): the good CSV's header and its rows."""
     text = open(good).read()
     head, _, body = text.partition("window,")
     body = "window," + body
@@ -77,7 +90,7 @@ def _files(tmp: str) -> dict[str, str]:
         lines = [ln for ln in head.splitlines() if not ln.startswith(f"# {key} =")]
         if value is not None:
             lines.append(f"# {key} = {value}")
-        write(name, "\n".join(lines) + "\n" + body)
+        _write(out, tmp, name, "\n".join(lines) + "\n" + body)
 
     meta("sample_rate_hz", "0", "rate-0.csv")
     meta("sample_rate_hz", '"fast"', "rate-string.csv")
@@ -94,17 +107,23 @@ def _files(tmp: str) -> dict[str, str]:
     meta("plan", "7", "plan-number.csv")
     meta("format", '"other"', "format-other.csv")
     meta("version", "99", "version-99.csv")
-    write("meta-not-json.csv", head + "# broken = {\n" + body)
-    write("no-header.csv", head)
-    write("header-only.csv", head + body.splitlines()[0] + "\n")
+    _write(out, tmp, "meta-not-json.csv", head + "# broken = {\n" + body)
+    _write(out, tmp, "no-header.csv", head)
+    _write(out, tmp, "header-only.csv", head + body.splitlines()[0] + "\n")
     rows = body.splitlines()
+    _csv_row_files(out, tmp, head, rows)
+    return head, rows
+
+
+def _csv_row_files(out: dict[str, str], tmp: str, head: str, rows: list[str]) -> None:
+    """Recordings with a broken row, or rows that make no find."""
 
     def cell(column: int, value: str, name: str, row: int = 5) -> None:
         mutated = list(rows)
         parts = mutated[row].split(",")
         parts[column] = value
         mutated[row] = ",".join(parts)
-        write(name, head + "\n".join(mutated) + "\n")
+        _write(out, tmp, name, head + "\n".join(mutated) + "\n")
 
     cell(2, "nan", "counter-nan.csv")
     cell(2, "1.5", "counter-fraction.csv")
@@ -119,13 +138,19 @@ def _files(tmp: str) -> dict[str, str]:
     cell(4, "1e300", "gyro-huge.csv")
     cell(4, "abc", "gyro-text.csv")
     cell(10, "1e300", "table-huge.csv")
-    write("short-row.csv", head + "\n".join([*rows[:6], rows[6][:20], *rows[7:]]) + "\n")
+    _write(out, tmp, "short-row.csv", head + "\n".join([*rows[:6], rows[6][:20], *rows[7:]]) + "\n")
     one = [r for r in rows[1:] if r.startswith("0,")]
-    write("one-window.csv", head + rows[0] + "\n" + "\n".join(one) + "\n")
+    _write(out, tmp, "one-window.csv", head + rows[0] + "\n" + "\n".join(one) + "\n")
     close = [r.replace(",180.000000,", ",0.500000,", 1) for r in rows[1:]]
-    write("positions-close.csv", head + rows[0] + "\n" + "\n".join(close) + "\n")
+    _write(out, tmp, "positions-close.csv", head + rows[0] + "\n" + "\n".join(close) + "\n")
     flagged = [",".join([*r.split(",")[:12], "0"]) for r in rows[1:]]
-    write("validity-clear.csv", head + rows[0] + "\n" + "\n".join(flagged) + "\n")
+    _write(out, tmp, "validity-clear.csv", head + rows[0] + "\n" + "\n".join(flagged) + "\n")
+
+
+def _npz_files(out: dict[str, str], tmp: str, good4: str) -> None:
+    """NPZ recordings of broken metadata, shapes and types."""
+    import numpy as np
+
     with np.load(good4) as data:
         arrays = {k: data[k] for k in data.files}
     for name, meta_json in {
@@ -146,18 +171,24 @@ def _files(tmp: str) -> dict[str, str]:
         os.path.join(tmp, "no-meta.npz"), **{k: v for k, v in arrays.items() if k != "meta_json"}
     )
     out["no-meta.npz"] = os.path.join(tmp, "no-meta.npz")
-    write("garbage.npz", "PK\x03\x04 not really a zip")
-    write("pickle.npz", "x")  # numpy could only unpickle it
+    _write(out, tmp, "garbage.npz", "PK\x03\x04 not really a zip")
+    _write(out, tmp, "pickle.npz", "x")  # numpy could only unpickle it
     np.savez(os.path.join(tmp, "half.npz"),
              **{**arrays, "gyro_dph": arrays["gyro_dph"].astype(np.float16)})  # fmt: skip
     out["half.npz"] = os.path.join(tmp, "half.npz")
+
+
+def _log_files(out: dict[str, str], tmp: str, head: str, rows: list[str]) -> None:
+    """Sensor TOMLs of out-of-range fields, CAN logs of junk, a rotated log with a gap."""
+    from northfinder.cli import main as cli
+
     for name, body in {
         "ambient-1e9.toml": "[thermal]\nambient_c = 1e9\n",
         "misalignment-1e9.toml": "[gyro]\nmisalignment_urad = 1e9\n",
         "indexing-45.toml": "[table]\nindexing_error_deg = 45\n",
     }.items():
-        write(name, body)
-    write("short.blf", "LOGG")  # a BLF too short for its header
+        _write(out, tmp, name, body)
+    _write(out, tmp, "short.blf", "LOGG")  # a BLF too short for its header
     # CAN logs of binary junk, a FIFO and a folder named as logs, a DBC that is none.
     junk = bytes((i * 7919 + 13) % 256 for i in range(100_000))
     for name in ("junk.trc", "junk.asc", "junk.log", "junk.dbc"):
@@ -173,7 +204,7 @@ def _files(tmp: str) -> dict[str, str]:
         f"{w},0.000000,{2 * w + i},{(2 * w + i) / 200:.6f},1,1,1,0,0,9.8,0,20,3"
         for w in range(1100) for i in range(2)
     ]  # fmt: skip
-    write("windows-1100.csv", head + "\n".join(many) + "\n")
+    _write(out, tmp, "windows-1100.csv", head + "\n".join(many) + "\n")
     # A rotated CAN log of a four-window find, and the same without one of its middle parts.
     rotated = os.path.join(tmp, "rot", "run.log")
     os.makedirs(os.path.dirname(rotated))
@@ -184,7 +215,6 @@ def _files(tmp: str) -> dict[str, str]:
     parts = [str(x) for x in log_parts(rotated)] + [rotated]
     out["rotated"] = " ".join(parts)
     out["rotated-gap"] = " ".join(parts[:1] + parts[2:])
-    return out
 
 
 def cli_cases(
@@ -199,88 +229,111 @@ def cli_cases(
         c.append(CliCase(command, (command, *argv), exit, names))
 
     missing_dir = os.path.join(tmp, "no", "such", "dir")
+    _find_and_record_cases(add, f, tmp, missing_dir)
+    _solve_and_dump_cases(add, f, tmp, missing_dir, garbage)
+    _study_cases(add, f, tmp, missing_dir)
+    _simulate_and_sim_cases(add, f, tmp, missing_dir)
+    _simctl_cases(add, tmp, control, silent)
+    _conformance_and_calibrate_cases(add, f, tmp, missing_dir)
+    return c
+
+
+def _device_rows(tmp: str) -> list[tuple[list[str], int, str]]:
+    """The device options of ``find`` and ``record``: (argv, exit status, names)."""
+    return [
+        ([], 2, "choose exactly one device"),
+        (["--sim", "--serial", "/dev/null"], 2, "choose exactly one device"),
+        (["--serial", "/dev/null"], 2, "--latitude"),
+        (["-i", "virtual", "-c", "nf-sweep"], 2, "--latitude"),
+        (["--serial", os.path.join(tmp, "no-port")], 2, "--latitude"),
+        (["--serial", os.path.join(tmp, "no-port"), "--latitude", "34"], 1, "no-port"),
+        (["--serial", "/dev/null", "--latitude", "34"], 1, "/dev/null"),
+        (["-i", "virtual", "-c", "nf-sweep", "--latitude", "34"], 1, "reply"),
+        (["-i", "no-such-interface", "-c", "x", "--latitude", "34"], 2, "interface"),
+        (
+            ["--serial", "/dev/null", "--latitude", "34", "--reply-timeout", "0.05"],
+            2,
+            "--reply-timeout",
+        ),
+        (
+            ["--serial", "/dev/null", "--latitude", "34", "--reply-timeout", "1e300"],
+            2,
+            "--reply-timeout",
+        ),
+        (
+            ["--serial", "/dev/null", "--latitude", "34", "--link-timeout", "1e300"],
+            2,
+            "--link-timeout",
+        ),
+        (
+            ["--serial", "/dev/null", "--latitude", "34", "--link-timeout", "0"],
+            2,
+            "--link-timeout",
+        ),
+        (["--serial", "/dev/null", "--latitude", "34", "--speed", "5"], 2, "--speed"),
+        (["--serial", "/dev/null", "--latitude", "34", "--sensor", "mems"], 2, "--sensor"),
+        (["--serial", "/dev/null", "--latitude", "91"], 2, "latitude"),
+        (["--serial", "/dev/null", "--latitude", "nan"], 2, "--latitude"),
+    ]
+
+
+def _plan_rows(f: dict[str, str], tmp: str) -> list[tuple[list[str], int, str]]:
+    """The plan and simulation options of ``find`` and ``record`` (with ``--sim``)."""
+    return [
+        ([*QUICK, "--positions", "0,1"], 2, "positions"),
+        ([*QUICK, "--positions", ","], 2, "--positions"),
+        ([*QUICK, "--positions", "0,nan"], 2, "--positions"),
+        ([*QUICK, "--positions", "0,1e400"], 2, "--positions"),
+        ([*QUICK, "--positions", ",".join(["0", "180"] * 200)], 2, "positions"),
+        ([*QUICK, "--window", "0"], 2, "--window"),
+        ([*QUICK, "--window", "0.01"], 2, "window"),
+        ([*QUICK, "--window", "1e7"], 2, "window"),
+        ([*QUICK, "--window", "abc"], 2, "--window"),
+        ([*QUICK, "--settle", "-1"], 2, "settle"),
+        ([*QUICK, "--settle", "1e9"], 2, "settle"),
+        ([*QUICK, "--speed", "0"], 2, "--speed"),
+        ([*QUICK, "--speed", "1e300"], 2, "speed"),
+        ([*QUICK, "--warmup", "-1"], 2, "--warmup"),
+        ([*QUICK, "--warmup", "1e300"], 2, "warmup"),
+        ([*QUICK, "--timeout", "0"], 2, "--timeout"),
+        ([*QUICK, "--timeout", "1e300"], 2, "timeout"),
+        ([*QUICK, "--latitude", "91"], 2, "latitude"),
+        ([*QUICK, "--latitude", "89.99"], 2, "latitude"),
+        ([*QUICK, "--pitch", "40"], 2, "pitch"),  # beyond the solvers' tilt limit
+        ([*QUICK, "--azimuth", "inf"], 2, "--azimuth"),
+        ([*QUICK, "--seed", "-1"], 2, "--seed"),
+        ([*QUICK, "--seed", "1.5"], 2, "--seed"),
+        ([*QUICK, "--node-id", "0"], 2, "--node-id"),
+        ([*QUICK, "--baud", "0"], 2, "--baud"),
+        ([*QUICK, "--sensor", "no-such-preset"], 2, "no-such-preset"),
+        ([*QUICK, "--sensor", f["rate-tiny.toml"]], 2, "max_rate_dps"),
+        ([*QUICK, "--sensor", f["rate-huge.toml"]], 2, "max_rate_dps"),
+        ([*QUICK, "--sensor", f["impulses.toml"]], 2, "impulse_rate_hz"),
+        ([*QUICK, "--sensor", f["arw-huge.toml"]], 2, "arw_dpsh"),
+        ([*QUICK, "--sensor", f["not-toml.toml"]], 2, "not-toml"),
+        ([*QUICK, "--sensor", f["unknown-field.toml"]], 2, "warp_factor"),
+        ([*QUICK, "--sensor", f["string-value.toml"]], 2, "arw_dpsh"),
+        ([*QUICK, "--sensor", f["section-value.toml"]], 2, "gyro"),
+        ([*QUICK, "--sensor", f["nan.toml"]], 2, "arw_dpsh"),
+        ([*QUICK, "--sensor", f["negative.toml"]], 2, "settle_s"),
+        ([*QUICK, "--sensor", f["vec.toml"]], 2, "bias_dph"),
+        ([*QUICK, "--sensor", tmp], 2, "sensor"),
+        ([*QUICK, "--denoise", "magic"], 2, "--denoise"),
+        ([*QUICK, "--method", "pairwise"], 2, "--method"),
+        ([*QUICK, "--method", "two-position", "--positions", "0,90,180"], 2, "two-position"),
+        ([*QUICK, "--reply-timeout", "0.05"], 2, "--reply-timeout"),
+        ([*QUICK, "--reply-timeout", "1e300"], 2, "--reply-timeout"),
+        ([*QUICK, "--link-timeout", "1e300"], 2, "--link-timeout"),
+        ([*QUICK, "--no-such-option"], 2, "unrecognized"),
+    ]
+
+
+def _find_and_record_cases(
+    add: Callable[[str, list[str], int, str], None], f: dict[str, str], tmp: str, missing_dir: str
+) -> None:
     # find and record share the device and plan options: every case is run for both.
     for cmd, lead in (("find", []), ("record", [os.path.join(tmp, "out.npz")])):
-        for argv, exit, names in [
-            ([], 2, "choose exactly one device"),
-            (["--sim", "--serial", "/dev/null"], 2, "choose exactly one device"),
-            (["--serial", "/dev/null"], 2, "--latitude"),
-            (["-i", "virtual", "-c", "nf-sweep"], 2, "--latitude"),
-            (["--serial", os.path.join(tmp, "no-port")], 2, "--latitude"),
-            (["--serial", os.path.join(tmp, "no-port"), "--latitude", "34"], 1, "no-port"),
-            (["--serial", "/dev/null", "--latitude", "34"], 1, "/dev/null"),
-            (["-i", "virtual", "-c", "nf-sweep", "--latitude", "34"], 1, "reply"),
-            (["-i", "no-such-interface", "-c", "x", "--latitude", "34"], 2, "interface"),
-            (
-                ["--serial", "/dev/null", "--latitude", "34", "--reply-timeout", "0.05"],
-                2,
-                "--reply-timeout",
-            ),
-            (
-                ["--serial", "/dev/null", "--latitude", "34", "--reply-timeout", "1e300"],
-                2,
-                "--reply-timeout",
-            ),
-            (
-                ["--serial", "/dev/null", "--latitude", "34", "--link-timeout", "1e300"],
-                2,
-                "--link-timeout",
-            ),
-            (
-                ["--serial", "/dev/null", "--latitude", "34", "--link-timeout", "0"],
-                2,
-                "--link-timeout",
-            ),
-            (["--serial", "/dev/null", "--latitude", "34", "--speed", "5"], 2, "--speed"),
-            (["--serial", "/dev/null", "--latitude", "34", "--sensor", "mems"], 2, "--sensor"),
-            (["--serial", "/dev/null", "--latitude", "91"], 2, "latitude"),
-            (["--serial", "/dev/null", "--latitude", "nan"], 2, "--latitude"),
-            ([*QUICK, "--positions", "0,1"], 2, "positions"),
-            ([*QUICK, "--positions", ","], 2, "--positions"),
-            ([*QUICK, "--positions", "0,nan"], 2, "--positions"),
-            ([*QUICK, "--positions", "0,1e400"], 2, "--positions"),
-            ([*QUICK, "--positions", ",".join(["0", "180"] * 200)], 2, "positions"),
-            ([*QUICK, "--window", "0"], 2, "--window"),
-            ([*QUICK, "--window", "0.01"], 2, "window"),
-            ([*QUICK, "--window", "1e7"], 2, "window"),
-            ([*QUICK, "--window", "abc"], 2, "--window"),
-            ([*QUICK, "--settle", "-1"], 2, "settle"),
-            ([*QUICK, "--settle", "1e9"], 2, "settle"),
-            ([*QUICK, "--speed", "0"], 2, "--speed"),
-            ([*QUICK, "--speed", "1e300"], 2, "speed"),
-            ([*QUICK, "--warmup", "-1"], 2, "--warmup"),
-            ([*QUICK, "--warmup", "1e300"], 2, "warmup"),
-            ([*QUICK, "--timeout", "0"], 2, "--timeout"),
-            ([*QUICK, "--timeout", "1e300"], 2, "timeout"),
-            ([*QUICK, "--latitude", "91"], 2, "latitude"),
-            ([*QUICK, "--latitude", "89.99"], 2, "latitude"),
-            ([*QUICK, "--pitch", "40"], 2, "pitch"),  # beyond the solvers' tilt limit
-            ([*QUICK, "--azimuth", "inf"], 2, "--azimuth"),
-            ([*QUICK, "--seed", "-1"], 2, "--seed"),
-            ([*QUICK, "--seed", "1.5"], 2, "--seed"),
-            ([*QUICK, "--node-id", "0"], 2, "--node-id"),
-            ([*QUICK, "--baud", "0"], 2, "--baud"),
-            ([*QUICK, "--sensor", "no-such-preset"], 2, "no-such-preset"),
-            ([*QUICK, "--sensor", f["rate-tiny.toml"]], 2, "max_rate_dps"),
-            ([*QUICK, "--sensor", f["rate-huge.toml"]], 2, "max_rate_dps"),
-            ([*QUICK, "--sensor", f["impulses.toml"]], 2, "impulse_rate_hz"),
-            ([*QUICK, "--sensor", f["arw-huge.toml"]], 2, "arw_dpsh"),
-            ([*QUICK, "--sensor", f["not-toml.toml"]], 2, "not-toml"),
-            ([*QUICK, "--sensor", f["unknown-field.toml"]], 2, "warp_factor"),
-            ([*QUICK, "--sensor", f["string-value.toml"]], 2, "arw_dpsh"),
-            ([*QUICK, "--sensor", f["section-value.toml"]], 2, "gyro"),
-            ([*QUICK, "--sensor", f["nan.toml"]], 2, "arw_dpsh"),
-            ([*QUICK, "--sensor", f["negative.toml"]], 2, "settle_s"),
-            ([*QUICK, "--sensor", f["vec.toml"]], 2, "bias_dph"),
-            ([*QUICK, "--sensor", tmp], 2, "sensor"),
-            ([*QUICK, "--denoise", "magic"], 2, "--denoise"),
-            ([*QUICK, "--method", "pairwise"], 2, "--method"),
-            ([*QUICK, "--method", "two-position", "--positions", "0,90,180"], 2, "two-position"),
-            ([*QUICK, "--reply-timeout", "0.05"], 2, "--reply-timeout"),
-            ([*QUICK, "--reply-timeout", "1e300"], 2, "--reply-timeout"),
-            ([*QUICK, "--link-timeout", "1e300"], 2, "--link-timeout"),
-            ([*QUICK, "--no-such-option"], 2, "unrecognized"),
-        ]:
+        for argv, exit, names in _device_rows(tmp) + _plan_rows(f, tmp):
             add(cmd, [*lead, *argv], exit, names)
     add("find", [*QUICK, "--record", os.path.join(tmp, "x.txt")], 2, "--record")
     add("find", [*QUICK, "--record", os.path.join(missing_dir, "x.csv")], 2, "--record")
@@ -289,6 +342,14 @@ def cli_cases(
     add("record", [tmp + "/", *QUICK], 2, "file")
     add("record", [], 2, "file")
 
+
+def _solve_and_dump_cases(
+    add: Callable[[str, list[str], int, str], None],
+    f: dict[str, str],
+    tmp: str,
+    missing_dir: str,
+    garbage: str | None,
+) -> None:
     # solve: every broken recording
     bad_recordings = {
         "rate-0.csv": "sample_rate_hz", "rate-string.csv": "sample_rate_hz",
@@ -353,6 +414,10 @@ def cli_cases(
     if garbage is not None:  # a serial link whose bytes never parse: another baud rate
         add("find", ["--serial", f"socket://{garbage}", "--latitude", "34"], 1, "wrong baud rate")
 
+
+def _study_cases(
+    add: Callable[[str, list[str], int, str], None], f: dict[str, str], tmp: str, missing_dir: str
+) -> None:
     # study
     for argv, exit, names in [
         (["--set", "gyro.arw_dpsh=1e300"], 2, "arw_dpsh"),
@@ -410,6 +475,10 @@ def cli_cases(
     ]:
         add("study", [*argv, "--runs", "20"] if "--runs" not in argv else argv, exit, names)
 
+
+def _simulate_and_sim_cases(
+    add: Callable[[str, list[str], int, str], None], f: dict[str, str], tmp: str, missing_dir: str
+) -> None:
     # simulate
     for argv, exit, names in [
         (["--window", "1e7"], 2, "window"),
@@ -458,6 +527,10 @@ def cli_cases(
     ]:
         add("sim", argv, exit, names)
 
+
+def _simctl_cases(
+    add: Callable[[str, list[str], int, str], None], tmp: str, control: str, silent: str
+) -> None:
     # simctl, against a live simulator and a listener that never answers
     for argv, exit, names in [
         ([], 2, "address"),
@@ -484,6 +557,10 @@ def cli_cases(
     ]:
         add("simctl", argv, exit, names)
 
+
+def _conformance_and_calibrate_cases(
+    add: Callable[[str, list[str], int, str], None], f: dict[str, str], tmp: str, missing_dir: str
+) -> None:
     # conformance
     for argv, exit, names in [
         ([], 2, "choose exactly one link"),
@@ -519,7 +596,6 @@ def cli_cases(
         ([f["validity-clear.csv"]], 1, "good samples"),  # a valid file whose data are unusable
     ]:
         add("calibrate", argv, exit, names)
-    return c
 
 
 @contextlib.contextmanager
