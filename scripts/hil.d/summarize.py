@@ -39,6 +39,19 @@ def main(out: str) -> int:
     timings = read_kv(os.path.join(out, "timings.env"))
     guest = read_kv(os.path.join(out, "guest-started"))
     status = read(os.path.join(out, "status"))
+    summary = collect(out, timings, guest, status)
+    verdict, rc = verdict_of(status, summary["steps"])
+    summary["verdict"] = verdict
+    summary["exit_status"] = rc
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=2)
+        f.write("\n")
+    print_summary(out, summary, timings)
+    return rc
+
+
+def collect(out: str, timings: dict, guest: dict, status: str | None) -> dict:
+    """The summary of a run: its machine, timings and steps with their results."""
     summary: dict = {
         "mode": timings.get("mode"),
         "mode_reason": timings.get("mode_reason"),
@@ -79,10 +92,15 @@ def main(out: str) -> int:
     summary["conformance_counted"] = rehearsal.get("conformance_counted")
     summary["report_only"] = rehearsal.get("report_only")
 
+    return summary
+
+
+def verdict_of(status: str | None, steps: list[dict]) -> tuple[str, int]:
+    """The run's verdict and exit status (see the module doc)."""
     # A retried step's first attempt (<name>.attempt1) is in the summary, not in the verdict: the
     # verdict is the last attempt's (guest.sh makes a judged failure followed by "not judged" a
     # failure).
-    final = [s for s in summary["steps"] if not s["name"].endswith(".attempt1")]
+    final = [s for s in steps if not s["name"].endswith(".attempt1")]
     if status is None:
         verdict, rc = "ERROR (no status from the guest: see vm.log / guest.log)", 2
     elif status == "pass" and all(s["rc"] == 0 for s in final):
@@ -96,13 +114,10 @@ def main(out: str) -> int:
         verdict, rc = f"ERROR ({status})", 2
     else:
         verdict, rc = f"FAIL ({status})", 1
-    summary["verdict"] = verdict
-    summary["exit_status"] = rc
+    return verdict, rc
 
-    with open(os.path.join(out, "summary.json"), "w") as f:
-        json.dump(summary, f, indent=2)
-        f.write("\n")
 
+def print_summary(out: str, summary: dict, timings: dict) -> None:
     t = summary["timings_s"]
     fmt = lambda v: "-" if v is None else f"{v:.1f} s"  # noqa: E731
     print(
@@ -115,68 +130,8 @@ def main(out: str) -> int:
         f"VM total {fmt(t['vm_total'])}, run total {fmt(t['total'])}"
     )
     for s in summary["steps"]:
-        line = f"hil: step {s['name']}: rc {s['rc']} in {fmt(s['seconds'])}"
         r = s.get("result") or {}
-        if s["name"] == "smoke" and r:
-            rx = r.get("receiver", {})
-            line += (
-                f"; sent {r.get('frames_sent')} received {r.get('frames_received')} "
-                f"lost {r.get('frames_lost')} candump {r.get('candump_data_frames')} "
-                f"at {r.get('achieved_rate_hz')} Hz; inter-arrival p50 "
-                f"{rx.get('interarrival', {}).get('p50_us')} us p99 "
-                f"{rx.get('interarrival', {}).get('p99_us')} us; jitter p50 "
-                f"{rx.get('jitter', {}).get('p50_us')} us p99 {rx.get('jitter', {}).get('p99_us')} us"
-            )
-        if s["name"] == "probe" and r:
-            line += (
-                f"; 2e6-iteration loop {r.get('python_loop_2e6_s')} s, time.monotonic "
-                f"{r.get('monotonic_call_us')} us, SocketCAN send {r.get('socketcan_send_ms')} ms"
-            )
-        if s["name"] == "driver" and r:
-            line += (
-                f"; driver tests on SocketCAN: {r.get('tests')} run, {r.get('failures')} failed, "
-                f"{r.get('errors')} errors, {r.get('skipped')} skipped"
-            )
-        if s["name"] == "interrupt" and r:
-            if "tests" in r:
-                line += f"; tests {r.get('tests')} run, {r.get('failures')} failed"
-            for row in r.get("rows") or []:
-                line += (
-                    f"; {row['link']} {row['signal']}: {row['at_rest']}/{row['runs']} at rest, "
-                    f"{row['caught_moving']}/{row['runs']} caught moving, {row['rotating']} "
-                    f"left ROTATING, exit {row['exit_s_median']:.2f} s (median)"
-                )
-        if s["name"] == "rehearsal" and r:
-            err, sigma = r.get("azimuth_error_deg"), r.get("sigma_deg")
-            if err is not None and sigma is not None:
-                line += f"; azimuth error {err:+.3f} deg, sigma {sigma:.3f} deg"
-            spin = r.get("spin") or {}
-            if spin:
-                line += (
-                    f"; spin {spin.get('rate_dps', 0):+.2f} deg/s, {spin.get('turns')} turns: "
-                    f"azimuth error {spin['azimuth_error_deg']:+.3f} deg, sigma "
-                    f"{spin['sigma_deg']:.3f} deg = {spin['sigma_over_bound']:.2f} x the "
-                    f"white-noise bound {spin['bound_deg']:.3f} deg"
-                )
-            checks = r.get("spin_conformance") or {}
-            if checks:
-                line += "; " + ", ".join(f"{n} {st}" for n, st in sorted(checks.items()))
-            line += (
-                f"; candump {r.get('frames')} frames, {r.get('unknown_frames')} unknown, "
-                f"{r.get('undecodable_frames')} undecodable, {r.get('ticks_lost')} ticks lost"
-            )
-            c = r.get("conformance_counted") or {}
-            if c:
-                line += f"; conformance counted {c.get('passed')}/{c.get('checks')} passed"
-                if c.get("failed"):
-                    line += f" (failed: {', '.join(c['failed'])})"
-            if r.get("machine_cpu_busy_percent") is not None:
-                line += f"; guest CPU {r['machine_cpu_busy_percent']} % busy"
-            stalls = r.get("machine_stalls")  # a message instead when the monitor failed
-            clock = stalls.get("clock_call_us") if isinstance(stalls, dict) else None
-            if clock and clock.get("p50") is not None:
-                line += f"; clock read {clock['p50']} us (p90 {clock['p90']})"
-        print(line)
+        print(step_line(s, r, fmt))
         if r.get("not_judged_because"):
             print(f"hil:   NOT JUDGED: {r['not_judged_because']}")
         elif r.get("why_judged"):
@@ -195,8 +150,79 @@ def main(out: str) -> int:
         print(
             f"hil: sample arrival jitter on {timings.get('can_if', 'vcan0')}: p50 {j.get('p50')} ms, p99 {j.get('p99')} ms"
         )
-    print(f"hil: {verdict}  (summary: {os.path.join(out, 'summary.json')})")
-    return rc
+    print(f"hil: {summary['verdict']}  (summary: {os.path.join(out, 'summary.json')})")
+
+
+def step_line(s: dict, r: dict, fmt) -> str:
+    """The one line of a step: its status and time, and the figures of its result."""
+    line = f"hil: step {s['name']}: rc {s['rc']} in {fmt(s['seconds'])}"
+    if s["name"] == "smoke" and r:
+        rx = r.get("receiver", {})
+        line += (
+            f"; sent {r.get('frames_sent')} received {r.get('frames_received')} "
+            f"lost {r.get('frames_lost')} candump {r.get('candump_data_frames')} "
+            f"at {r.get('achieved_rate_hz')} Hz; inter-arrival p50 "
+            f"{rx.get('interarrival', {}).get('p50_us')} us p99 "
+            f"{rx.get('interarrival', {}).get('p99_us')} us; jitter p50 "
+            f"{rx.get('jitter', {}).get('p50_us')} us p99 {rx.get('jitter', {}).get('p99_us')} us"
+        )
+    if s["name"] == "probe" and r:
+        line += (
+            f"; 2e6-iteration loop {r.get('python_loop_2e6_s')} s, time.monotonic "
+            f"{r.get('monotonic_call_us')} us, SocketCAN send {r.get('socketcan_send_ms')} ms"
+        )
+    if s["name"] == "driver" and r:
+        line += (
+            f"; driver tests on SocketCAN: {r.get('tests')} run, {r.get('failures')} failed, "
+            f"{r.get('errors')} errors, {r.get('skipped')} skipped"
+        )
+    if s["name"] == "interrupt" and r:
+        if "tests" in r:
+            line += f"; tests {r.get('tests')} run, {r.get('failures')} failed"
+        for row in r.get("rows") or []:
+            line += (
+                f"; {row['link']} {row['signal']}: {row['at_rest']}/{row['runs']} at rest, "
+                f"{row['caught_moving']}/{row['runs']} caught moving, {row['rotating']} "
+                f"left ROTATING, exit {row['exit_s_median']:.2f} s (median)"
+            )
+    if s["name"] == "rehearsal" and r:
+        line += rehearsal_figures(r)
+    return line
+
+
+def rehearsal_figures(r: dict) -> str:
+    """The rehearsal's figures: the find, the spin, the candump, the conformance, the machine."""
+    line = ""
+    err, sigma = r.get("azimuth_error_deg"), r.get("sigma_deg")
+    if err is not None and sigma is not None:
+        line += f"; azimuth error {err:+.3f} deg, sigma {sigma:.3f} deg"
+    spin = r.get("spin") or {}
+    if spin:
+        line += (
+            f"; spin {spin.get('rate_dps', 0):+.2f} deg/s, {spin.get('turns')} turns: "
+            f"azimuth error {spin['azimuth_error_deg']:+.3f} deg, sigma "
+            f"{spin['sigma_deg']:.3f} deg = {spin['sigma_over_bound']:.2f} x the "
+            f"white-noise bound {spin['bound_deg']:.3f} deg"
+        )
+    checks = r.get("spin_conformance") or {}
+    if checks:
+        line += "; " + ", ".join(f"{n} {st}" for n, st in sorted(checks.items()))
+    line += (
+        f"; candump {r.get('frames')} frames, {r.get('unknown_frames')} unknown, "
+        f"{r.get('undecodable_frames')} undecodable, {r.get('ticks_lost')} ticks lost"
+    )
+    c = r.get("conformance_counted") or {}
+    if c:
+        line += f"; conformance counted {c.get('passed')}/{c.get('checks')} passed"
+        if c.get("failed"):
+            line += f" (failed: {', '.join(c['failed'])})"
+    if r.get("machine_cpu_busy_percent") is not None:
+        line += f"; guest CPU {r['machine_cpu_busy_percent']} % busy"
+    stalls = r.get("machine_stalls")  # a message instead when the monitor failed
+    clock = stalls.get("clock_call_us") if isinstance(stalls, dict) else None
+    if clock and clock.get("p50") is not None:
+        line += f"; clock read {clock['p50']} us (p90 {clock['p90']})"
+    return line
 
 
 if __name__ == "__main__":
