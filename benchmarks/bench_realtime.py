@@ -65,7 +65,7 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -402,129 +402,157 @@ def run_bare(link: str, duration_s: float) -> RunResult:
     8 bits of the tick it carries). No simulator, no protocol decoding, no :class:`Device`: what a
     link in Python costs on this machine before any of the instrument's work. It ends when all
     samples came or after 10 s without one (a guest may stall for seconds)."""
-    from northfinder.driver.protocol.serial import HEADER_SIZE, SerialEncoder
-    from northfinder.driver.transport import open_serial_port
-    from northfinder.firmware_sim.adapters import PseudoTerminal, slcan_line
-    from northfinder.firmware_sim.sender import ProcessSender
-    from northfinder.firmware_sim.sender_child import DROPPED, FAILED, SLIP, SPIN_S
-
     n = round(duration_s / PERIOD_S)
     result = RunResult(f"bare {link}")
     ticks = _Ticks()
-    last_id = _can_messages(0)[-1].arbitration_id  # a sample's last frame
-
-    def read_frames(bus: Any) -> None:
-        while len(ticks.stamps) < n and (msg := bus.recv(10.0)) is not None:
-            if msg.arbitration_id == last_id:
-                ticks.add(msg.data[0], time.time())
-
     with ExitStack() as stack:
         if link == "can":
-            channel = f"bench-bare-{uuid.uuid4().hex}"
-            tx = stack.enter_context(can.Bus(interface="virtual", channel=channel))
-            rx = stack.enter_context(can.Bus(interface="virtual", channel=channel))
-            stop = threading.Event()
-            t_start = time.monotonic() + 0.5
-
-            def send() -> None:
-                for k in range(n):
-                    messages = _can_messages(k)
-                    due = t_start + k * PERIOD_S
-                    wait = due - time.monotonic() - SPIN_S
-                    if stop.is_set():
-                        return
-                    if wait > 0:
-                        time.sleep(wait)
-                    while time.monotonic() < due:
-                        pass
-                    for m in messages:
-                        tx.send(m)
-
-            sending = threading.Thread(target=send, daemon=True)
-            sending.start()
-            stack.callback(sending.join)
-            stack.callback(stop.set)
-            read_frames(rx)
+            _bare_virtual_can(stack, n, ticks)
         else:
-            bus: Any = None
-            port: Any = None
-            if link == "socketcan":
-                from can.interfaces.socketcan.socketcan import build_can_frame
-
-                tx_bus: Any = stack.enter_context(can.Bus(interface="socketcan", channel=CHANNEL))
-                bus = stack.enter_context(can.Bus(interface="socketcan", channel=CHANNEL))
-                out_fd = tx_bus.socket.fileno()
-                chunks = lambda k: [build_can_frame(m) for m in _can_messages(k)]  # noqa: E731
-            else:
-                pty = PseudoTerminal()
-                stack.callback(pty.close)
-                out_fd = pty.master
-                if link == "slcan":
-                    chunks = lambda k: [b"".join(map(slcan_line, _can_messages(k)))]  # noqa: E731
-                    bus = stack.enter_context(
-                        can.Bus(
-                            interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0
-                        )
-                    )
-                else:
-                    encoder = SerialEncoder()
-                    chunks = lambda k: [encoder.encode(_bare_sample(k))]  # noqa: E731
-                    port = open_serial_port(pty.path, 115_200)  # before any byte is written
-                    stack.callback(port.close)
-            sender = ProcessSender(out_fd)
-            stack.callback(sender.close)
-            deadline = time.monotonic() + 30.0
-            while sender.priority is None and sender.alive and time.monotonic() < deadline:
-                sender.reports()  # its first report says it runs (a Python start: seconds in a VM)
-                time.sleep(0.01)
-            t_start = time.monotonic() + 0.5
-            stop = threading.Event()
-
-            def feed() -> None:
-                """Blocks while the sender's pipe is full: it takes them as they fall due."""
-                try:
-                    for k in range(n):
-                        if stop.is_set():
-                            return
-                        sender.put(t_start + k * PERIOD_S, chunks(k))
-                except Exception as exc:  # the sender ended: its samples do not arrive
-                    result.errors.append(f"feeding the sender: {exc}")
-
-            feeder = threading.Thread(target=feed, daemon=True)
-            feeder.start()
-            # Closed in this order: the feeder stops before the sender's pipe closes.
-            stack.callback(feeder.join, 5.0)
-            stack.callback(stop.set)
-            if bus is not None:
-                read_frames(bus)
-            else:
-                size = len(SerialEncoder().encode(_bare_sample(0)))
-                buf = bytearray()
-                port.timeout = 10.0
-                while len(ticks.stamps) < n:
-                    data = port.read(1)
-                    if not data:
-                        break
-                    waiting = port.in_waiting
-                    buf += data + (port.read(waiting) if waiting else b"")
-                    stamp = time.time()
-                    while len(buf) >= size:
-                        ticks.add(
-                            buf[HEADER_SIZE], stamp
-                        )  # the payload's first byte: the tick's low 8 bits
-                        del buf[:size]
-            for kind, value in sender.reports():
-                if kind == SLIP:
-                    result.errors.append(f"the sender slipped {value / 1e6:.1f} ms")
-                elif kind == DROPPED:
-                    result.errors.append(f"the sender dropped {value} chunks (link full)")
-                elif kind == FAILED:
-                    result.errors.append(f"the sender failed (errno {value})")
+            _bare_process_sender(stack, link, n, ticks, result)
     result.counters = np.asarray(ticks.counters, dtype=np.int64)
     result.arrivals = np.asarray(ticks.stamps, dtype=np.float64)
     if len(ticks.stamps) < n:
         result.errors.append(f"{n - len(ticks.stamps)} of {n} samples did not come")
     return result
+
+
+def _read_frames(bus: Any, n: int, ticks: _Ticks) -> None:
+    """Stamp each sample's last frame as it is received, until ``n`` came or none for 10 s."""
+    last_id = _can_messages(0)[-1].arbitration_id  # a sample's last frame
+    while len(ticks.stamps) < n and (msg := bus.recv(10.0)) is not None:
+        if msg.arbitration_id == last_id:
+            ticks.add(msg.data[0], time.time())
+
+
+def _bare_virtual_can(stack: ExitStack, n: int, ticks: _Ticks) -> None:
+    """Virtual CAN: a thread of this process sends (only it can reach the bus), this one reads."""
+    from northfinder.firmware_sim.sender_child import SPIN_S
+
+    channel = f"bench-bare-{uuid.uuid4().hex}"
+    tx = stack.enter_context(can.Bus(interface="virtual", channel=channel))
+    rx = stack.enter_context(can.Bus(interface="virtual", channel=channel))
+    stop = threading.Event()
+    t_start = time.monotonic() + 0.5
+
+    def send() -> None:
+        for k in range(n):
+            messages = _can_messages(k)
+            due = t_start + k * PERIOD_S
+            wait = due - time.monotonic() - SPIN_S
+            if stop.is_set():
+                return
+            if wait > 0:
+                time.sleep(wait)
+            while time.monotonic() < due:
+                pass
+            for m in messages:
+                tx.send(m)
+
+    sending = threading.Thread(target=send, daemon=True)
+    sending.start()
+    stack.callback(sending.join)
+    stack.callback(stop.set)
+    _read_frames(rx, n, ticks)
+
+
+def _bare_endpoints(
+    stack: ExitStack, link: str
+) -> tuple[Any, Any, int, Callable[[int], list[bytes]]]:
+    """The reader's bus (or serial port), the descriptor the sender writes to, and the bytes of
+    sample ``k`` as the sender writes them."""
+    from northfinder.driver.protocol.serial import SerialEncoder
+    from northfinder.driver.transport import open_serial_port
+    from northfinder.firmware_sim.adapters import PseudoTerminal, slcan_line
+
+    bus: Any = None
+    port: Any = None
+    if link == "socketcan":
+        from can.interfaces.socketcan.socketcan import build_can_frame
+
+        tx_bus: Any = stack.enter_context(can.Bus(interface="socketcan", channel=CHANNEL))
+        bus = stack.enter_context(can.Bus(interface="socketcan", channel=CHANNEL))
+        out_fd = tx_bus.socket.fileno()
+        chunks = lambda k: [build_can_frame(m) for m in _can_messages(k)]  # noqa: E731
+    else:
+        pty = PseudoTerminal()
+        stack.callback(pty.close)
+        out_fd = pty.master
+        if link == "slcan":
+            chunks = lambda k: [b"".join(map(slcan_line, _can_messages(k)))]  # noqa: E731
+            bus = stack.enter_context(
+                can.Bus(interface="slcan", channel=pty.path, bitrate=500_000, sleep_after_open=0)
+            )
+        else:
+            encoder = SerialEncoder()
+            chunks = lambda k: [encoder.encode(_bare_sample(k))]  # noqa: E731
+            port = open_serial_port(pty.path, 115_200)  # before any byte is written
+            stack.callback(port.close)
+    return bus, port, out_fd, chunks
+
+
+def _bare_process_sender(
+    stack: ExitStack, link: str, n: int, ticks: _Ticks, result: RunResult
+) -> None:
+    """The simulator's sender process writes fixed samples at their deadlines; this process reads."""
+    from northfinder.firmware_sim.sender import ProcessSender
+    from northfinder.firmware_sim.sender_child import DROPPED, FAILED, SLIP
+
+    bus, port, out_fd, chunks = _bare_endpoints(stack, link)
+    sender = ProcessSender(out_fd)
+    stack.callback(sender.close)
+    deadline = time.monotonic() + 30.0
+    while sender.priority is None and sender.alive and time.monotonic() < deadline:
+        sender.reports()  # its first report says it runs (a Python start: seconds in a VM)
+        time.sleep(0.01)
+    t_start = time.monotonic() + 0.5
+    stop = threading.Event()
+
+    def feed() -> None:
+        """Blocks while the sender's pipe is full: it takes them as they fall due."""
+        try:
+            for k in range(n):
+                if stop.is_set():
+                    return
+                sender.put(t_start + k * PERIOD_S, chunks(k))
+        except Exception as exc:  # the sender ended: its samples do not arrive
+            result.errors.append(f"feeding the sender: {exc}")
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    # Closed in this order: the feeder stops before the sender's pipe closes.
+    stack.callback(feeder.join, 5.0)
+    stack.callback(stop.set)
+    if bus is not None:
+        _read_frames(bus, n, ticks)
+    else:
+        _read_serial(port, n, ticks)
+    for kind, value in sender.reports():
+        if kind == SLIP:
+            result.errors.append(f"the sender slipped {value / 1e6:.1f} ms")
+        elif kind == DROPPED:
+            result.errors.append(f"the sender dropped {value} chunks (link full)")
+        elif kind == FAILED:
+            result.errors.append(f"the sender failed (errno {value})")
+
+
+def _read_serial(port: Any, n: int, ticks: _Ticks) -> None:
+    """Stamp each sample as its last byte is read, until ``n`` came or none for 10 s."""
+    from northfinder.driver.protocol.serial import HEADER_SIZE, SerialEncoder
+
+    size = len(SerialEncoder().encode(_bare_sample(0)))
+    buf = bytearray()
+    port.timeout = 10.0
+    while len(ticks.stamps) < n:
+        data = port.read(1)
+        if not data:
+            break
+        waiting = port.in_waiting
+        buf += data + (port.read(waiting) if waiting else b"")
+        stamp = time.time()
+        while len(buf) >= size:
+            ticks.add(buf[HEADER_SIZE], stamp)  # the payload's first byte: the tick's low 8 bits
+            del buf[:size]
 
 
 def jitter(arrivals: np.ndarray, counters: np.ndarray) -> np.ndarray:
@@ -711,6 +739,30 @@ def print_table(rows: list[dict[str, Any]], duration_s: float, window_s: float) 
 
 
 def main() -> None:
+    ap = _parser()
+    args = ap.parse_args()
+    global SENDER, CHANNEL
+    SENDER = args.paced_sender
+    CHANNEL = args.channel
+    runners = {"can": run_can, "serial": run_serial, "slcan": run_slcan, "socketcan": run_socketcan}
+    links = [s.strip() for s in args.links.split(",") if s.strip()]
+    for link in links:
+        if link not in runners:
+            ap.error(f"--links: unknown link {link!r}; choose from {', '.join(runners)}")
+    print(
+        f"{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, load average "
+        f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, Python {sys.version.split()[0]}"
+    )
+    rows, timers, beside, bare = _run_links(args, runners, links)
+    print_table(rows, args.duration, args.window)
+    # name -> (median of the slices' ratios over the timer loop beside it, slices)
+    sliced = {s["link"]: sliced_ratio(s, beside[s["link"]]) for s in rows if s["link"] in beside}
+    _print_over_beside(rows, beside, sliced)
+    _print_over_bare(rows, beside, bare, sliced)
+    _print_over_timer(rows, timers)
+
+
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -741,19 +793,16 @@ def main() -> None:
         help="seconds of each link's bare floor (fixed samples, a reader that only reads) run "
         "after the link with a timer loop beside it (default: --duration; 0: skip)",
     )
-    args = ap.parse_args()
-    global SENDER, CHANNEL
-    SENDER = args.paced_sender
-    CHANNEL = args.channel
-    runners = {"can": run_can, "serial": run_serial, "slcan": run_slcan, "socketcan": run_socketcan}
-    links = [s.strip() for s in args.links.split(",") if s.strip()]
-    for link in links:
-        if link not in runners:
-            ap.error(f"--links: unknown link {link!r}; choose from {', '.join(runners)}")
-    print(
-        f"{time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, load average "
-        f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, Python {sys.version.split()[0]}"
-    )
+    return ap
+
+
+def _run_links(
+    args: argparse.Namespace, runners: dict[str, Any], links: list[str]
+) -> tuple[
+    list[dict[str, Any]], list[dict[str, Any]], dict[str, dict[str, Any]], dict[str, dict[str, Any]]
+]:
+    """Every link (and its bare floor) with a timer loop beside it, between two timer loops of
+    their own: the rows of the table, the timer loops', the loops beside and the bare floors."""
     rows = []
     timers = []
     if args.baseline > 0:
@@ -787,9 +836,12 @@ def main() -> None:
         timers.append(summarise(run_timer(args.baseline)))
         timers[-1]["link"] += " (after the links)"
         rows.append(timers[-1])
-    print_table(rows, args.duration, args.window)
-    # name -> (median of the slices' ratios over the timer loop beside it, slices)
-    sliced = {s["link"]: sliced_ratio(s, beside[s["link"]]) for s in rows if s["link"] in beside}
+    return rows, timers, beside, bare
+
+
+def _print_over_beside(
+    rows: list[dict[str, Any]], beside: dict[str, dict[str, Any]], sliced: dict[str, Any]
+) -> None:
     if beside:
         print("jitter p99 over that of a timer loop in a process of its own beside the link, for the "
               "same minutes (goal <= 1.2):")  # fmt: skip
@@ -802,6 +854,14 @@ def main() -> None:
                     f"{s['p99_ms'] / t['p99_ms']:.2f}; median over {k} slices of {SLICE_S:g} s "
                     f"{med:.2f}; lost {s['lost']}"
                 )
+
+
+def _print_over_bare(
+    rows: list[dict[str, Any]],
+    beside: dict[str, dict[str, Any]],
+    bare: dict[str, dict[str, Any]],
+    sliced: dict[str, Any],
+) -> None:
     if bare:
         print(
             "jitter p99 over the bare link's (the same link carrying fixed samples, a reader that "
@@ -828,6 +888,9 @@ def main() -> None:
                 f"{s['p99_ms'] / f['p99_ms']:.2f}{both}; bare lost {f['lost']}"
                 + "".join(f"; bare: {e}" for e in f["errors"])
             )
+
+
+def _print_over_timer(rows: list[dict[str, Any]], timers: list[dict[str, Any]]) -> None:
     if timers:
         floor = float(np.mean([t["p99_ms"] for t in timers]))
         floors = ", ".join(f"{t['p99_ms']:.3f}" for t in timers)
