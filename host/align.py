@@ -340,6 +340,127 @@ def sage_husa_alignment(
     AlignmentError
         The coarse alignment is undefined or the filter diverges.
     """
+    gyro_blocks, accel_blocks, lat, dt, n_coarse = _filter_blocks(
+        gyro, accel, fs_hz, latitude_deg, settings, filter_rate_hz, coarse_s
+    )
+    n_steps = gyro_blocks.shape[0]
+    omega_n, omega_u = OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)
+    omega_ie = np.array([0.0, omega_n, omega_u])
+    g = float(normal_gravity(lat))
+    gravity_n = np.array([0.0, 0.0, -g])
+    rot_earth = _rotation(-omega_ie * dt)
+
+    c_bn, coarse_az, _, _ = coarse_alignment(
+        gyro_blocks[:n_coarse].mean(axis=0), accel_blocks[:n_coarse].mean(axis=0)
+    )
+
+    s = settings
+    x = np.zeros(10)
+    p, q, r, gyro_density, accel_density, ratio = _filter_noise(
+        s, gyro_blocks, accel_blocks, dt, n_coarse, omega_n
+    )
+    r_floor = s.r_floor_sigma**2
+    v = np.zeros(2)
+
+    start = n_coarse
+    times = np.arange(start + 1, n_steps + 1, dtype=np.float64) * dt
+    az_hist = np.empty(n_steps - start)
+    sig_hist = np.empty(n_steps - start)
+    for k, i in enumerate(range(start, n_steps)):
+        # Mechanisation over one step: attitude by the gyros less Earth rate, velocity by the
+        # specific force less gravity and Coriolis (horizontal channels only).
+        c_old = c_bn
+        c_bn = rot_earth @ c_bn @ _rotation(gyro_blocks[i] * dt)
+        f_n = 0.5 * (c_old + c_bn) @ accel_blocks[i] + gravity_n
+        coriolis = 2.0 * np.cross(omega_ie, np.array([v[0], v[1], 0.0]))
+        v = v + (f_n[:2] - coriolis[:2]) * dt
+
+        phi = _transition(c_bn, omega_n, omega_u, g, lat, dt)
+        x, p, r = _kalman_step(x, p, q, r, phi, v, s, k, r_floor)
+
+        # Closed loop: correct the mechanisation, zero the fed-back states.
+        c_bn = _rotation(x[2:5]) @ c_bn
+        v = v - x[:2]
+        x[:5] = 0.0
+        if not np.all(np.isfinite(p)):
+            raise AlignmentError(f"the filter diverged at t = {times[k]:.1f} s")
+        az_hist[k] = _enu_to_attitude(c_bn)[0]
+        sig_hist[k] = math.degrees(math.sqrt(p[4, 4]))
+
+    azimuth, pitch, roll = _enu_to_attitude(c_bn)
+    notes = _alignment_notes(s, ratio, r, r_floor)
+    return AlignmentResult(
+        azimuth_deg=azimuth,
+        pitch_deg=pitch,
+        roll_deg=roll,
+        sigma_deg=math.degrees(math.sqrt(p[4, 4])),
+        level_sigma_deg=(math.degrees(math.sqrt(p[2, 2])), math.degrees(math.sqrt(p[3, 3]))),
+        gyro_bias=x[7:10].copy(),
+        accel_bias=x[5:7].copy(),
+        coarse_azimuth_deg=coarse_az,
+        times_s=times,
+        azimuth_history_deg=az_hist,
+        sigma_history_deg=sig_hist,
+        gyro_noise_density=gyro_density,
+        accel_noise_density=accel_density,
+        noise_ratio=(float(ratio[0]), float(ratio[1])),
+        consistent=not notes,
+        notes=tuple(notes),
+    )
+
+
+def _kalman_step(
+    x: np.ndarray,
+    p: np.ndarray,
+    q: np.ndarray,
+    r: np.ndarray,
+    phi: np.ndarray,
+    v: np.ndarray,
+    s: KalmanSettings,
+    k: int,
+    r_floor: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One prediction and update of the error state ``x`` (covariance ``p``) by the transition
+    ``phi`` with the horizontal velocity ``v`` as the measurement; the measurement noise ``r``
+    adapted (Sage-Husa, step ``k``) when ``s.adaptive``. Returns the new ``x``, ``p``, ``r``."""
+    h = np.zeros((2, 10))
+    h[0, 0] = h[1, 1] = 1.0
+    eye10 = np.eye(10)
+    x_pred = phi @ x
+    p_pred = phi @ p @ phi.T + q
+    innovation = v - h @ x_pred
+    hph = h @ p_pred @ h.T
+    gain = p_pred @ h.T @ np.linalg.inv(hph + r)
+    x = x_pred + gain @ innovation
+    ikh = eye10 - gain @ h
+    p = ikh @ p_pred @ ikh.T + gain @ r @ gain.T
+    if s.adaptive:
+        d = (1.0 - s.forgetting) / (1.0 - s.forgetting ** (k + 1))
+        r = (1.0 - d) * r + d * (np.outer(innovation, innovation) - hph)
+        r = 0.5 * (r + r.T)
+        np.fill_diagonal(r, np.maximum(np.diag(r), r_floor))
+        if np.linalg.det(r) <= 0.0:
+            r = np.diag(np.diag(r))
+    return x, p, r
+
+
+def _filter_blocks(
+    gyro: ArrayLike,
+    accel: ArrayLike,
+    fs_hz: float,
+    latitude_deg: float,
+    settings: KalmanSettings,
+    filter_rate_hz: float,
+    coarse_s: float,
+) -> tuple[np.ndarray, np.ndarray, float, float, int]:
+    """The checked record in block means of the filter's step: gyro and accelerometer blocks,
+    the latitude (rad), the step (s) and the steps of the coarse alignment.
+
+    Raises
+    ------
+    InputError, LatitudeError
+        As :func:`sage_husa_alignment`.
+    """
     g_b = np.asarray(gyro, dtype=float)
     f_b = np.asarray(accel, dtype=float)
     if g_b.ndim != 2 or g_b.shape[1] != 3 or f_b.shape != g_b.shape:
@@ -367,19 +488,19 @@ def sage_husa_alignment(
             f"record too short: {g_b.shape[0] / fs_hz:.3g} s gives {n_steps} filter steps; "
             f"need the {coarse_s} s coarse alignment plus at least 10 steps"
         )
+    return gyro_blocks, accel_blocks, lat, dt, n_coarse
 
-    omega_n, omega_u = OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)
-    omega_ie = np.array([0.0, omega_n, omega_u])
-    g = float(normal_gravity(lat))
-    gravity_n = np.array([0.0, 0.0, -g])
-    rot_earth = _rotation(-omega_ie * dt)
 
-    c_bn, coarse_az, _, _ = coarse_alignment(
-        gyro_blocks[:n_coarse].mean(axis=0), accel_blocks[:n_coarse].mean(axis=0)
-    )
-
-    s = settings
-    x = np.zeros(10)
+def _filter_noise(
+    s: KalmanSettings,
+    gyro_blocks: np.ndarray,
+    accel_blocks: np.ndarray,
+    dt: float,
+    n_coarse: int,
+    omega_n: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, tuple[float, float]]:
+    """The filter's initial covariance P, process noise Q and measurement noise R, the noise
+    densities used and the record's noise over the settings' (gyro, accelerometer)."""
     p0 = np.asarray(s.p0_sigma, dtype=float).copy()
     gyro_density, accel_density = s.gyro_noise_density, s.accel_noise_density
     ratio = (
@@ -399,52 +520,14 @@ def sage_husa_alignment(
     p = np.diag(np.square(p0))
     q = np.diag([accel_density**2] * 2 + [gyro_density**2] * 3 + [0.0] * 5) * dt
     r = np.eye(2) * s.r0_sigma**2
-    r_floor = s.r_floor_sigma**2
-    h = np.zeros((2, 10))
-    h[0, 0] = h[1, 1] = 1.0
-    eye10 = np.eye(10)
-    v = np.zeros(2)
+    return p, q, r, gyro_density, accel_density, ratio
 
-    start = n_coarse
-    times = np.arange(start + 1, n_steps + 1, dtype=np.float64) * dt
-    az_hist = np.empty(n_steps - start)
-    sig_hist = np.empty(n_steps - start)
-    for k, i in enumerate(range(start, n_steps)):
-        # Mechanisation over one step: attitude by the gyros less Earth rate, velocity by the
-        # specific force less gravity and Coriolis (horizontal channels only).
-        c_old = c_bn
-        c_bn = rot_earth @ c_bn @ _rotation(gyro_blocks[i] * dt)
-        f_n = 0.5 * (c_old + c_bn) @ accel_blocks[i] + gravity_n
-        coriolis = 2.0 * np.cross(omega_ie, np.array([v[0], v[1], 0.0]))
-        v = v + (f_n[:2] - coriolis[:2]) * dt
 
-        phi = _transition(c_bn, omega_n, omega_u, g, lat, dt)
-        x_pred = phi @ x
-        p_pred = phi @ p @ phi.T + q
-        innovation = v - h @ x_pred
-        hph = h @ p_pred @ h.T
-        gain = p_pred @ h.T @ np.linalg.inv(hph + r)
-        x = x_pred + gain @ innovation
-        ikh = eye10 - gain @ h
-        p = ikh @ p_pred @ ikh.T + gain @ r @ gain.T
-        if s.adaptive:
-            d = (1.0 - s.forgetting) / (1.0 - s.forgetting ** (k + 1))
-            r = (1.0 - d) * r + d * (np.outer(innovation, innovation) - hph)
-            r = 0.5 * (r + r.T)
-            np.fill_diagonal(r, np.maximum(np.diag(r), r_floor))
-            if np.linalg.det(r) <= 0.0:
-                r = np.diag(np.diag(r))
-
-        # Closed loop: correct the mechanisation, zero the fed-back states.
-        c_bn = _rotation(x[2:5]) @ c_bn
-        v = v - x[:2]
-        x[:5] = 0.0
-        if not np.all(np.isfinite(p)):
-            raise AlignmentError(f"the filter diverged at t = {times[k]:.1f} s")
-        az_hist[k] = _enu_to_attitude(c_bn)[0]
-        sig_hist[k] = math.degrees(math.sqrt(p[4, 4]))
-
-    azimuth, pitch, roll = _enu_to_attitude(c_bn)
+def _alignment_notes(
+    s: KalmanSettings, ratio: tuple[float, float], r: np.ndarray, r_floor: float
+) -> list[str]:
+    """What makes the alignment's sigma doubtful: a record noisier than the settings, a
+    measurement noise adapted far above its floor."""
     notes = []
     if max(ratio) > NOISE_RATIO_LIMIT:
         notes.append(
@@ -458,24 +541,7 @@ def sage_husa_alignment(
             f"the adapted measurement noise ends x{r_ratio:.3g} above its floor: the velocity "
             "innovations hold more than the model's noise"
         )
-    return AlignmentResult(
-        azimuth_deg=azimuth,
-        pitch_deg=pitch,
-        roll_deg=roll,
-        sigma_deg=math.degrees(math.sqrt(p[4, 4])),
-        level_sigma_deg=(math.degrees(math.sqrt(p[2, 2])), math.degrees(math.sqrt(p[3, 3]))),
-        gyro_bias=x[7:10].copy(),
-        accel_bias=x[5:7].copy(),
-        coarse_azimuth_deg=coarse_az,
-        times_s=times,
-        azimuth_history_deg=az_hist,
-        sigma_history_deg=sig_hist,
-        gyro_noise_density=gyro_density,
-        accel_noise_density=accel_density,
-        noise_ratio=(float(ratio[0]), float(ratio[1])),
-        consistent=not notes,
-        notes=tuple(notes),
-    )
+    return notes
 
 
 def _transition(
