@@ -45,6 +45,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -621,6 +622,72 @@ def solve_multi_position(
         As for :func:`solve_two_position`; GeometryError also when fewer than two distinct
         positions are given or the fit does not converge.
     """
+    mus_in, gyro, accel, lat, rate_scale, gyro_sigma, accel_sigma = _multi_position_inputs(
+        gyro_means, mu_deg, accel_means, latitude_deg, rate_unit, gyro_noise, accel_noise
+    )
+    n = mus_in.size
+    rot = table_rotation(np.radians(mus_in))  # (N, 2, 2)
+    omega_n = OMEGA_IE * math.cos(lat) / rate_scale
+    omega_u = OMEGA_IE * math.sin(lat) / rate_scale
+    theta, gamma, accel_bias, accel_res, tilt_cov = _multi_position_tilt(
+        accel, accel_sigma, accel_unit, rot, lat, pitch_deg, roll_deg
+    )
+    sig_g = None if gyro_sigma is None else gyro_sigma.ravel()
+    w = np.ones(2 * n) if sig_g is None else 1.0 / sig_g
+    fit = fit_heading(
+        gyro[None], rot[None], np.array([theta]), np.array([gamma]), omega_n, omega_u,
+        None if sig_g is None else w[None], max_iterations=max_iterations,
+    )  # fmt: skip
+    if not fit.converged[0]:
+        raise GeometryError(
+            f"multi-position fit did not converge in {max_iterations} iterations "
+            f"(mu_deg = {mus_in.tolist()})"
+        )
+    alpha, bias = float(fit.alpha[0]), fit.bias[0]
+    h, dh = earth_rate_body(alpha, theta, gamma, omega_n, omega_u)
+    res_g = (gyro - np.einsum("nij,j->ni", rot, h) - bias).ravel()
+    jac = np.empty((2 * n, 3))
+    jac[:, 0] = np.einsum("nij,j->ni", rot, dh[:, 0]).ravel()
+    jac[:, 1:] = np.tile(np.eye(2), (n, 1))
+    jw = jac * w[:, None]
+    normal = jw.T @ jw
+    # Geometry alone decides separability: extreme weights (noise-free windows) must not.
+    if np.linalg.cond(jac.T @ jac) > 1e12:
+        raise GeometryError(
+            f"mu_deg = {mus_in.tolist()}: the positions do not separate heading from gyro bias"
+        )
+    ninv_g = np.linalg.inv(normal)
+    scale_g = _posterior_scale(res_g * w, 3, sig_g)
+
+    names, cov = _multi_position_covariance(
+        scale_g, ninv_g, accel is not None, tilt_cov, rot, dh, jw, w
+    )
+    return MultiPositionSolution(
+        azimuth_deg=float(np.mod(-math.degrees(alpha), 360.0)),
+        pitch_deg=math.degrees(theta),
+        roll_deg=math.degrees(gamma),
+        sigma_deg=None if cov is None else math.degrees(math.sqrt(cov[0, 0])),
+        mu_deg=tuple(float(v) for v in mus_in),
+        gyro_bias=bias,
+        accel_bias=accel_bias,
+        parameter_names=tuple(names),
+        covariance=cov,
+        gyro_residuals=res_g.reshape(n, 2),
+        accel_residuals=accel_res,
+    )
+
+
+def _multi_position_inputs(
+    gyro_means: ArrayLike,
+    mu_deg: ArrayLike,
+    accel_means: ArrayLike | None,
+    latitude_deg: float,
+    rate_unit: str | float,
+    gyro_noise: ArrayLike | None,
+    accel_noise: ArrayLike | None,
+) -> tuple[Any, Any, Any, float, float, Any, Any]:
+    """The checked inputs of :func:`solve_multi_position`: table angles (deg), horizontal gyro
+    and accelerometer means, latitude (rad), the rate unit's scale and the noise of the means."""
     mus_in = np.asarray(mu_deg, dtype=float)
     if mus_in.ndim != 1 or mus_in.size < 2:
         raise InputError(f"mu_deg: expected shape (N,) with N >= 2, got {mus_in.shape}")
@@ -645,10 +712,22 @@ def solve_multi_position(
             f"{MIN_MU_SEPARATION_DEG} deg apart (mod 360) for the biases to separate from the "
             "Earth rate"
         )
-    rot = table_rotation(np.radians(mus_in))  # (N, 2, 2)
-    omega_n = OMEGA_IE * math.cos(lat) / rate_scale
-    omega_u = OMEGA_IE * math.sin(lat) / rate_scale
+    return mus_in, gyro, accel, lat, rate_scale, gyro_sigma, accel_sigma
 
+
+def _multi_position_tilt(
+    accel: Any,
+    accel_sigma: Any,
+    accel_unit: str | float,
+    rot: Any,
+    lat: float,
+    pitch_deg: float,
+    roll_deg: float,
+) -> tuple[float, float, Any, Any, Any]:
+    """Pitch and roll (rad) of :func:`solve_multi_position`, with the accelerometer biases,
+    residuals and the covariance of (pitch, roll, bias x, bias y) when accelerometer means are
+    given; else the known tilt (no biases, no covariance)."""
+    n = rot.shape[0]
     # Tilt: linear in (f0x, f0y, bias_x, bias_y); biases cancel only through the rotation.
     tilt_cov = None
     accel_bias = accel_res = None
@@ -677,39 +756,20 @@ def solve_multi_position(
         if not (math.isfinite(theta) and math.isfinite(gamma)):
             raise InputError(f"pitch_deg, roll_deg: must be finite, got {pitch_deg}, {roll_deg}")
         _check_tilt(theta, gamma, "as given")
+    return theta, gamma, accel_bias, accel_res, tilt_cov
 
-    sig_g = None if gyro_sigma is None else gyro_sigma.ravel()
-    w = np.ones(2 * n) if sig_g is None else 1.0 / sig_g
-    fit = fit_heading(
-        gyro[None], rot[None], np.array([theta]), np.array([gamma]), omega_n, omega_u,
-        None if sig_g is None else w[None], max_iterations=max_iterations,
-    )  # fmt: skip
-    if not fit.converged[0]:
-        raise GeometryError(
-            f"multi-position fit did not converge in {max_iterations} iterations "
-            f"(mu_deg = {mus_in.tolist()})"
-        )
-    alpha, bias = float(fit.alpha[0]), fit.bias[0]
-    h, dh = earth_rate_body(alpha, theta, gamma, omega_n, omega_u)
-    res_g = (gyro - np.einsum("nij,j->ni", rot, h) - bias).ravel()
-    jac = np.empty((2 * n, 3))
-    jac[:, 0] = np.einsum("nij,j->ni", rot, dh[:, 0]).ravel()
-    jac[:, 1:] = np.tile(np.eye(2), (n, 1))
-    jw = jac * w[:, None]
-    normal = jw.T @ jw
-    # Geometry alone decides separability: extreme weights (noise-free windows) must not.
-    if np.linalg.cond(jac.T @ jac) > 1e12:
-        raise GeometryError(
-            f"mu_deg = {mus_in.tolist()}: the positions do not separate heading from gyro bias"
-        )
-    ninv_g = np.linalg.inv(normal)
-    scale_g = _posterior_scale(res_g * w, 3, sig_g)
 
+def _multi_position_covariance(
+    scale_g: Any, ninv_g: Any, with_accel: bool, tilt_cov: Any, rot: Any, dh: Any, jw: Any, w: Any
+) -> tuple[list[str], NDArray[np.float64] | None]:
+    """The names of the solution's parameters and their covariance (None without a noise
+    estimate), the tilt's covariance carried into the heading's."""
+    n = rot.shape[0]
     names = ["alpha", "gyro_bias_x", "gyro_bias_y"]
     cov: NDArray[np.float64] | None = None
     if scale_g is not None:
         cov = np.asarray(scale_g * ninv_g, dtype=np.float64)
-        if accel is not None:
+        if with_accel:
             names += ["pitch", "roll", "accel_bias_x", "accel_bias_y"]
             if tilt_cov is None:
                 cov = None
@@ -725,19 +785,6 @@ def solve_multi_position(
                 full[3:, :3] = full[:3, 3:].T
                 full[3:, 3:] = tilt_cov
                 cov = full
-    elif accel is not None:
+    elif with_accel:
         names += ["pitch", "roll", "accel_bias_x", "accel_bias_y"]
-
-    return MultiPositionSolution(
-        azimuth_deg=float(np.mod(-math.degrees(alpha), 360.0)),
-        pitch_deg=math.degrees(theta),
-        roll_deg=math.degrees(gamma),
-        sigma_deg=None if cov is None else math.degrees(math.sqrt(cov[0, 0])),
-        mu_deg=tuple(float(v) for v in mus_in),
-        gyro_bias=bias,
-        accel_bias=accel_bias,
-        parameter_names=tuple(names),
-        covariance=cov,
-        gyro_residuals=res_g.reshape(n, 2),
-        accel_residuals=accel_res,
-    )
+    return names, cov
