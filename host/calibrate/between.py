@@ -35,7 +35,7 @@ With few runs a component's estimate often sits at zero: its interval then gives
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -477,20 +477,79 @@ def fit_between_positions(
     blocks = [_component_blocks(r, tau_s, ref, heat_tau_s) for r in runs]
     known = [_slow_cov(r, slow) for r in runs]
     n_moves = sum(r.moves for r in runs)
-    # What the records can show: the turn-on value needs a second run, the move terms moves.
-    usable = {
-        "white": True,
-        "turn_on": len(runs) >= 2,
-        "move_walk": n_moves > 0,
-        "move_transient": n_moves > 0,
-    }
-    names = [c for c in COMPONENTS if usable[c]]
+    names = _shown_components(len(runs), n_moves)
+    fixed = _checked_fixed(fixed)
+    nll, scale, unit = _scaled_likelihood(x, y, known, blocks, names)
+    dof = nll.n - nll.rank
+    if dof < 2:
+        raise InputError(
+            f"{nll.n} window means (x and y) against {nll.rank} fixed parameters: need more "
+            "windows or runs"
+        )
+
+    held = {i: fixed[name] * unit[i] / scale for i, name in enumerate(names) if name in fixed}
+    # Starts: every component alike, and each one alone carrying the residual variance.
+    starts = [np.full(len(names), v) for v in (0.2, 0.6)]
+    starts += [np.where(np.arange(len(names)) == i, 1.0, 0.05) for i in range(len(names))]
+    f_min, est = min((_minimise(nll, len(names), held, x0) for x0 in starts), key=lambda r: r[0])
+
+    def profile(i: int, v: float) -> float:
+        return _minimise(nll, len(names), {**held, i: v}, est)[0] - f_min - PROFILE_DROP
+
+    sigma, interval = _sigmas_and_intervals(
+        names, est, held, fixed, scale, unit, intervals, profile
+    )
+    bias = np.full(2, math.nan)
+    if design == "per-run":
+        bias = _gls_bias(runs, x, known, blocks, names, est * scale / unit)
+    return BetweenFit(
+        sigma=sigma,
+        interval=interval,
+        window_s=ref,
+        tau_s=float(tau_s),
+        heat_tau_s=float(heat_tau_s),
+        design=design,
+        runs=len(runs),
+        windows=sum(r.windows for r in runs),
+        moves=n_moves,
+        dof=int(dof),
+        log_likelihood=-f_min - dof * math.log(scale),
+        bias_dph=bias,
+    )
+
+
+def _checked_fixed(fixed: Mapping[str, float] | None) -> dict[str, float]:
+    """The components held at a value, checked: known names, finite sigmas >= 0."""
     fixed = dict(fixed or {})
     for name, value in fixed.items():
         if name not in COMPONENTS:
             raise InputError(f"fixed: unknown component {name!r}; components are {COMPONENTS}")
         if not (math.isfinite(value) and value >= 0):
             raise InputError(f"fixed {name}: must be a finite sigma >= 0, got {value!r}")
+    return fixed
+
+
+def _shown_components(n_runs: int, n_moves: int) -> list[str]:
+    """The components the records can show."""
+    # What the records can show: the turn-on value needs a second run, the move terms moves.
+    usable = {
+        "white": True,
+        "turn_on": n_runs >= 2,
+        "move_walk": n_moves > 0,
+        "move_transient": n_moves > 0,
+    }
+    return [c for c in COMPONENTS if usable[c]]
+
+
+def _scaled_likelihood(
+    x: list[NDArray[np.float64]],
+    y: list[NDArray[np.float64]],
+    known: list[NDArray[np.float64]],
+    blocks: list[dict[str, NDArray[np.float64]]],
+    names: list[str],
+) -> tuple[_Reml, float, NDArray[np.float64]]:
+    """The restricted likelihood of the window means in units of their residual spread: the
+    likelihood, that spread (deg/h) and each component's unit."""
     # Work in units of the residual spread so that the optimiser's tolerances suit any data.
     flat_x = np.concatenate([xi.reshape(-1, xi.shape[-1]) for xi in x])
     flat_y = np.concatenate([yi.ravel() for yi in y])
@@ -511,42 +570,42 @@ def fit_between_positions(
         [kn / scale**2 for kn in known],
         [[b[c] / (u * u) for b in blocks] for c, u in zip(names, unit, strict=True)],
     )
-    dof = nll.n - nll.rank
-    if dof < 2:
-        raise InputError(
-            f"{nll.n} window means (x and y) against {nll.rank} fixed parameters: need more "
-            "windows or runs"
-        )
+    return nll, scale, unit
 
-    def minimise(
-        fixed: dict[int, float], x0: NDArray[np.float64]
-    ) -> tuple[float, NDArray[np.float64]]:
-        free = [i for i in range(len(names)) if i not in fixed]
-        s = np.array(x0, dtype=float)
-        for i, val in fixed.items():
-            s[i] = val
-        if not free:
-            return nll(s), s
 
-        def f(v: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-            s[free] = v
-            value, grad = nll.value_and_grad(s)
-            return value, grad[free]
+def _minimise(
+    nll: _Reml, n_names: int, fixed: dict[int, float], x0: NDArray[np.float64]
+) -> tuple[float, NDArray[np.float64]]:
+    free = [i for i in range(n_names) if i not in fixed]
+    s = np.array(x0, dtype=float)
+    for i, val in fixed.items():
+        s[i] = val
+    if not free:
+        return nll(s), s
 
-        res = minimize(f, s[free], jac=True, method="L-BFGS-B", bounds=[(0.0, None)] * len(free))
-        out = s.copy()
-        out[free] = res.x
-        return float(res.fun), out
+    def f(v: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+        s[free] = v
+        value, grad = nll.value_and_grad(s)
+        return value, grad[free]
 
-    held = {i: fixed[name] * unit[i] / scale for i, name in enumerate(names) if name in fixed}
-    # Starts: every component alike, and each one alone carrying the residual variance.
-    starts = [np.full(len(names), v) for v in (0.2, 0.6)]
-    starts += [np.where(np.arange(len(names)) == i, 1.0, 0.05) for i in range(len(names))]
-    f_min, est = min((minimise(held, x0) for x0 in starts), key=lambda r: r[0])
+    res = minimize(f, s[free], jac=True, method="L-BFGS-B", bounds=[(0.0, None)] * len(free))
+    out = s.copy()
+    out[free] = res.x
+    return float(res.fun), out
 
-    def profile(i: int, v: float) -> float:
-        return minimise({**held, i: v}, est)[0] - f_min - PROFILE_DROP
 
+def _sigmas_and_intervals(
+    names: list[str],
+    est: NDArray[np.float64],
+    held: dict[int, float],
+    fixed: dict[str, float],
+    scale: float,
+    unit: NDArray[np.float64],
+    intervals: Sequence[str] | None,
+    profile: Callable[[int, float], float],
+) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
+    """Each component's sigma and profile interval (nan where the records cannot show it, the
+    held value where it was fixed)."""
     sigma: dict[str, float] = {c: math.nan for c in COMPONENTS}
     interval: dict[str, tuple[float, float]] = {c: (math.nan, math.nan) for c in COMPONENTS}
     for i, name in enumerate(names):
@@ -568,23 +627,7 @@ def fit_between_positions(
         if profile(i, hi) >= 0.0:
             up = brentq(lambda s, i=i: profile(i, s), v, hi, xtol=1e-3 * hi)
         interval[name] = (lo * scale / unit[i], up * scale / unit[i])
-    bias = np.full(2, math.nan)
-    if design == "per-run":
-        bias = _gls_bias(runs, x, known, blocks, names, est * scale / unit)
-    return BetweenFit(
-        sigma=sigma,
-        interval=interval,
-        window_s=ref,
-        tau_s=float(tau_s),
-        heat_tau_s=float(heat_tau_s),
-        design=design,
-        runs=len(runs),
-        windows=sum(r.windows for r in runs),
-        moves=n_moves,
-        dof=int(dof),
-        log_likelihood=-f_min - dof * math.log(scale),
-        bias_dph=bias,
-    )
+    return sigma, interval
 
 
 def _gls_bias(
