@@ -43,10 +43,10 @@ from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.firmware_sim.turntable import Turntable
 
-__all__ = ["MAX_TILT_DEG", "Instrument", "SampleBlock", "Truth", "body_rates"]
+__all__ = ["MAX_BASE_TILT_DEG", "Instrument", "SampleBlock", "Truth", "body_rates"]
 
 #: Largest pitch or roll the simulated base can stand at, deg.
-MAX_TILT_DEG = 45.0
+MAX_BASE_TILT_DEG = 45.0
 
 
 @dataclass(frozen=True)
@@ -65,9 +65,9 @@ class Truth:
                 raise SimConfigError(f"truth {f.name}: must be a finite number, got {v!r}")
         check_latitude(self.latitude_deg, "truth latitude_deg")
         for name in ("pitch_deg", "roll_deg"):
-            if abs(getattr(self, name)) > MAX_TILT_DEG:
+            if abs(getattr(self, name)) > MAX_BASE_TILT_DEG:
                 raise SimConfigError(
-                    f"truth {name}: {getattr(self, name)} deg exceeds the +-{MAX_TILT_DEG} deg the "
+                    f"truth {name}: {getattr(self, name)} deg exceeds the +-{MAX_BASE_TILT_DEG} deg the "
                     "simulated base can stand at"
                 )
 

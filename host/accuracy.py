@@ -61,7 +61,8 @@ from numpy.typing import ArrayLike, NDArray
 from northfinder.driver.protocol.motion import encoder_angle_deg, spin_angle_deg, wobble_matrix
 from northfinder.driver.protocol.units import DPH, DPH_PSH, DPSH, OMEGA_IE, UG, normal_gravity
 from northfinder.host.errors import GeometryError, HostConfigError, check_choice
-from northfinder.host.kernels import MAX_TILT_DEG, earth_rate_body, latitude_rad, table_rotation
+from northfinder.host.kernels import MAX_SOLVER_TILT_DEG as MAX_TILT_DEG
+from northfinder.host.kernels import earth_rate_body, latitude_rad, table_rotation
 from northfinder.host.plan import (
     Plan,
     SpinPlan,

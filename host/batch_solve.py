@@ -7,7 +7,7 @@ every run with the vectorised solvers of :mod:`northfinder.host.kernels`
 :mod:`northfinder.host.heading`: azimuth of body x clockwise from true north, table angles
 right-handed about up, gyro means in rad/s, accelerometer means (specific force) in m/s^2.
 
-A run whose tilt is beyond :data:`~northfinder.host.kernels.MAX_TILT_DEG` (or whose least-squares
+A run whose tilt is beyond :data:`~northfinder.host.kernels.MAX_SOLVER_TILT_DEG` (or whose least-squares
 fit does not converge) has no solution: its error is NaN, and :class:`Summary` counts it in
 ``rejected`` instead of hiding it in the statistics.
 """
@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from northfinder.host.denoise import METHODS, denoised_mean
 from northfinder.host.errors import InputError, check_choice
 from northfinder.host.kernels import (
-    MAX_TILT_DEG,
+    MAX_SOLVER_TILT_DEG,
     solve_least_squares_batch,
     solve_two_position_batch,
 )
@@ -193,7 +193,7 @@ def _summary(col: NDArray[np.float64]) -> Summary:
     if ok.size < 2:
         raise InputError(
             f"errors: need at least 2 solved runs, got {ok.size} of {col.size}; {rejected} had "
-            f"no solution (tilt beyond +-{MAX_TILT_DEG:g} deg or a fit that did not converge)"
+            f"no solution (tilt beyond +-{MAX_SOLVER_TILT_DEG:g} deg or a fit that did not converge)"
         )
     rmse = float(np.sqrt(np.mean(ok * ok)))
     kurt = float(np.mean(ok**4)) / max(float(np.mean(ok * ok)) ** 2, 1e-300)

@@ -63,7 +63,7 @@ from northfinder.host.accuracy import bound_deg
 from northfinder.host.errors import GeometryError, HostConfigError, InputError, TiltError
 from northfinder.host.kernels import (
     MAX_LATITUDE_DEG,
-    MAX_TILT_DEG,
+    MAX_SOLVER_TILT_DEG,
     MIN_MU_SEPARATION_DEG,
     earth_rate_body,
     eq14,
@@ -80,7 +80,7 @@ from northfinder.host.plan import PAPER_SWEEP, Plan
 __all__ = [
     "ACCEL_UNITS",
     "MAX_LATITUDE_DEG",
-    "MAX_TILT_DEG",
+    "MAX_SOLVER_TILT_DEG",
     "MIN_MU_SEPARATION_DEG",
     "RATE_UNITS",
     "HeadingSolution",
@@ -265,7 +265,7 @@ def _check_tilt(pitch: float, roll: float, source: str) -> None:
             value = math.degrees(pitch if label == "pitch" else roll)
             raise TiltError(
                 f"{label} {value:.3f} deg ({source}) exceeds the limit of "
-                f"+-{MAX_TILT_DEG} deg: level the instrument first"
+                f"+-{MAX_SOLVER_TILT_DEG} deg: level the instrument first"
             )
 
 
@@ -376,7 +376,7 @@ def solve_two_position(
     LatitudeError
         Latitude missing (with accelerometers), not finite, or beyond +-:data:`MAX_LATITUDE_DEG`.
     TiltError
-        Pitch or roll beyond +-:data:`MAX_TILT_DEG`, or accelerometer means inconsistent with g.
+        Pitch or roll beyond +-:data:`MAX_SOLVER_TILT_DEG`, or accelerometer means inconsistent with g.
     HostConfigError
         Unknown unit.
 

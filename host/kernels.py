@@ -11,7 +11,7 @@ components passed in are in the same unit; accelerometer means likewise with gra
 Excessive tilt has one behaviour everywhere: the scalar solvers raise
 :class:`~northfinder.host.errors.TiltError`; the vectorised solvers return NaN for that run (and
 the accuracy study counts those runs). A tilt is excessive when pitch or roll exceeds
-:data:`MAX_TILT_DEG`, or when the accelerometer means contradict gravity.
+:data:`MAX_SOLVER_TILT_DEG`, or when the accelerometer means contradict gravity.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from northfinder.host.errors import LatitudeError
 
 __all__ = [
     "MAX_LATITUDE_DEG",
-    "MAX_TILT_DEG",
+    "MAX_SOLVER_TILT_DEG",
     "MIN_MU_SEPARATION_DEG",
     "Eq14",
     "HeadingFit",
@@ -55,10 +55,10 @@ __all__ = [
 #: The table angle must differ from 0 (mod 360) by at least this much. The Earth-rate difference
 #: between the positions is 2 Omega_H sin(mu/2): at 5 deg it is 23 times smaller than at 180 deg.
 MIN_MU_SEPARATION_DEG = 5.0
-#: Largest pitch or roll accepted. The equations are exact at any tilt, but beyond this a north
+#: Largest pitch or roll the heading solvers accept. The equations are exact at any tilt, but beyond this a north
 #: finder is outside its levelling range and the accelerometer model (no cross-coupling, no
 #: misalignment) stops being credible.
-MAX_TILT_DEG = 15.0
+MAX_SOLVER_TILT_DEG = 15.0
 
 Array = NDArray[np.float64]
 
@@ -130,10 +130,10 @@ def f0_from_two_positions(
 
 
 def tilt_within_limit(theta: ArrayLike, gamma: ArrayLike) -> NDArray[np.bool_]:
-    """True where pitch and roll (rad) are defined and within +-:data:`MAX_TILT_DEG`."""
+    """True where pitch and roll (rad) are defined and within +-:data:`MAX_SOLVER_TILT_DEG`."""
     t = np.abs(np.degrees(np.asarray(theta, dtype=float)))
     r = np.abs(np.degrees(np.asarray(gamma, dtype=float)))
-    return (t <= MAX_TILT_DEG) & (r <= MAX_TILT_DEG)
+    return (t <= MAX_SOLVER_TILT_DEG) & (r <= MAX_SOLVER_TILT_DEG)
 
 
 # ----------------------------------------------------------------------------------------------

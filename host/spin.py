@@ -42,7 +42,7 @@ from northfinder.driver.protocol.constants import VALIDITY_SPIN_UNFIT, VALIDITY_
 from northfinder.driver.protocol.units import DPH, OMEGA_IE, normal_gravity
 from northfinder.host.errors import GeometryError, InputError, TiltError
 from northfinder.host.kernels import (
-    MAX_TILT_DEG,
+    MAX_SOLVER_TILT_DEG,
     azimuths_of_rotated,
     bias_design,
     earth_rate_body,
@@ -418,7 +418,7 @@ def _solve_one(
     if not tilt_within_limit(theta, gamma)[0]:
         raise TiltError(
             f"pitch {math.degrees(theta[0]):.2f} deg, roll {math.degrees(gamma[0]):.2f} deg: "
-            f"beyond the +-{MAX_TILT_DEG:g} deg a north finder levels within"
+            f"beyond the +-{MAX_SOLVER_TILT_DEG:g} deg a north finder levels within"
         )
     w = data.gyro_rps[None, :, :2]
     fit = fit_heading(w, rot[None], theta, gamma, on, ou, nuisance=nuisance)

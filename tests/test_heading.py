@@ -27,7 +27,7 @@ from northfinder.host.errors import (
     TiltError,
 )
 from northfinder.host.heading import (
-    MAX_TILT_DEG,
+    MAX_SOLVER_TILT_DEG,
     pairwise_azimuths,
     solve_multi_position,
     solve_two_position,
@@ -334,7 +334,9 @@ def test_accelerometers_need_latitude() -> None:
 
 
 def test_tilt_beyond_limit_is_refused() -> None:
-    gyro, accel = closed_form_means(10.0, MAX_TILT_DEG + 1.0, 0.0, 30.0, np.array([0.0, 90.0]))
+    gyro, accel = closed_form_means(
+        10.0, MAX_SOLVER_TILT_DEG + 1.0, 0.0, 30.0, np.array([0.0, 90.0])
+    )
     with pytest.raises(TiltError, match=r"pitch .* exceeds the limit of \+-15\.0 deg"):
         solve_two_position(
             gyro[0], gyro[1], 90.0, accel0=accel[0], accel1=accel[1], latitude_deg=30.0

@@ -21,7 +21,7 @@ import serial
 
 from northfinder.cli.argtypes import angle_list, bounded_float
 from northfinder.cli.files import check_output_path
-from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus, open_serial_port
+from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus, open_serial_option
 from northfinder.cli.options import add_sensor_argument
 from northfinder.driver.conformance import (
     CHECKS,
@@ -252,7 +252,7 @@ def _open_raw_link(args: argparse.Namespace, closers: list[Any]) -> CanRawLink |
     """The suite's link to the unit of ``--serial`` or the python-can options; what closes it
     goes to ``closers``."""
     if args.serial:
-        port = open_serial_port(args.serial, args.baud)
+        port = open_serial_option(args.serial, args.baud)
         closers.append(port.close)
         return SerialRawLink(port)
     bus = open_can_bus(args)

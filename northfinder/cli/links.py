@@ -127,8 +127,9 @@ def open_can_bus(args: argparse.Namespace) -> Any:
         ) from exc
 
 
-def open_serial_port(path: str, baud: int) -> Any:
-    """A pyserial port (non-blocking) for ``--serial PATH``.
+def open_serial_option(path: str, baud: int) -> Any:
+    """A pyserial port (non-blocking) for the option ``--serial PATH``, its errors naming the
+    option (the driver's own is :func:`northfinder.driver.transport.open_serial_port`).
 
     Raises
     ------

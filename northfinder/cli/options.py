@@ -87,9 +87,11 @@ def add_truth_arguments(parser: argparse.ArgumentParser, *, latitude: bool = Tru
     )
     if latitude:
         add_latitude_argument(g, device=False)
-    from northfinder.host.kernels import MAX_TILT_DEG  # numpy: only for the commands that take it
+    from northfinder.host.kernels import (
+        MAX_SOLVER_TILT_DEG,  # numpy: only for the commands that take it
+    )
 
-    tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")
+    tilt = bounded_float(-MAX_SOLVER_TILT_DEG, MAX_SOLVER_TILT_DEG, "deg (the solvers' tilt limit)")
     g.add_argument("--pitch", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument("--roll", type=tilt, default=None, help="deg (default: 0)")
     g.add_argument(

@@ -19,7 +19,7 @@ import numpy as np
 
 from northfinder.cli.argtypes import bounded_float, bounded_int
 from northfinder.cli.files import add_log_rotation, can_log_path, check_log_rotation
-from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus, open_serial_port
+from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus, open_serial_option
 from northfinder.cli.options import add_sensor_argument, add_truth_arguments
 from northfinder.cli.simulated import load_sensor, run_seed, sim_truth
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         pty = PseudoTerminal()
         closers.append(pty.close)
     if args.serial:
-        port = open_serial_port(args.serial, args.baud)
+        port = open_serial_option(args.serial, args.baud)
         closers.append(port.close)
         info = LinkInfo("serial", args.baud)
     elif args.pty:

@@ -49,7 +49,7 @@ from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
 from northfinder.host.denoise import METHODS, check_denoise
 from northfinder.host.errors import HostConfigError
-from northfinder.host.kernels import MAX_TILT_DEG
+from northfinder.host.kernels import MAX_SOLVER_TILT_DEG
 from northfinder.host.montecarlo import study_rows
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG, PLANS, SOLVERS, Plan
 from northfinder.host.results import envelope
@@ -87,7 +87,7 @@ def _add_site_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="true azimuth, deg (default: uniform random per run)",
     )
-    tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")
+    tilt = bounded_float(-MAX_SOLVER_TILT_DEG, MAX_SOLVER_TILT_DEG, "deg (the solvers' tilt limit)")
     g.add_argument("--pitch", type=tilt, default=0.0, help="deg (default: 0)")
     g.add_argument("--roll", type=tilt, default=0.0, help="deg (default: 0)")
 
@@ -298,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
     rejected = max(r["rejected"] for r in rows)
     if rejected:
         say(
-            f"{rejected} of {args.runs} runs had no solution (tilt beyond +-{MAX_TILT_DEG:g} deg "
+            f"{rejected} of {args.runs} runs had no solution (tilt beyond +-{MAX_SOLVER_TILT_DEG:g} deg "
             "or a fit that did not converge); the statistics are over the others"
         )
     if args.plot:

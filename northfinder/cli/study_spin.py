@@ -12,7 +12,7 @@ from northfinder.cli.studies import describe_plan, print_rows, simulated_monte_c
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ErrorModel
 from northfinder.host.errors import HostConfigError
-from northfinder.host.kernels import MAX_TILT_DEG
+from northfinder.host.kernels import MAX_SOLVER_TILT_DEG
 from northfinder.host.montecarlo import StudySettings, study_rows
 from northfinder.host.plan import SpinPlan
 from northfinder.host.results import envelope
@@ -89,7 +89,7 @@ def run_spin(
     if rows[0]["rejected"]:
         say(
             f"{rows[0]['rejected']} of {args.runs} runs had no solution (tilt beyond "
-            f"+-{MAX_TILT_DEG:g} deg or a fit that did not converge); the statistics are over "
+            f"+-{MAX_SOLVER_TILT_DEG:g} deg or a fit that did not converge); the statistics are over "
             "the others"
         )
     return 0

@@ -37,7 +37,7 @@ from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.accuracy import ANGLE_SOURCES, TILT_SOURCES
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
-from northfinder.host.kernels import MAX_TILT_DEG
+from northfinder.host.kernels import MAX_SOLVER_TILT_DEG
 from northfinder.host.montecarlo import monte_carlo_many, study_rows
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG, PLANS, SOLVERS, Plan
 from northfinder.host.results import envelope
@@ -117,7 +117,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "override a field of every sensor, e.g. gyro.arw_dpsh=0.002 (repeatable)",
     )
     g.add_argument("--azimuth", type=finite_float, default=None, help="deg (default: random)")
-    tilt = bounded_float(-MAX_TILT_DEG, MAX_TILT_DEG, "deg (the solvers' tilt limit)")
+    tilt = bounded_float(-MAX_SOLVER_TILT_DEG, MAX_SOLVER_TILT_DEG, "deg (the solvers' tilt limit)")
     g.add_argument("--pitch", type=tilt, default=0.0, help="deg (default: 0)")
     g.add_argument("--roll", type=tilt, default=0.0, help="deg (default: 0)")
     g.add_argument(
