@@ -49,6 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from northfinder.driver.protocol.heat import move_heat
 from northfinder.driver.protocol.units import DPH, DPH_PSH, DPS, DPSH, G0, UG
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.sensors import SensorSpec, ThermalSpec
@@ -339,36 +340,6 @@ def draw_move(rng: np.random.Generator, shape: tuple[int, ...] = ()) -> NDArray[
     """Draw the z-scores of ``shape`` moves, ``(*shape, 2, 6)``: the lasting step (row 0) and the
     transient (row 1) of every channel, move after move in C order."""
     return rng.standard_normal((*shape, 2, 6))
-
-
-def move_heat(
-    start_s: ArrayLike, angle_deg: ArrayLike, heat_tau_s: float, last: int | None = None
-) -> NDArray[np.float64]:
-    """Size of each move's disturbance (deg): the heat the motor holds as it starts.
-
-    Parameters
-    ----------
-    start_s, angle_deg : (M,) float
-        Start time (s) and commanded angle turned (deg) of every move so far, in order.
-    heat_tau_s : float
-        Time constant of the motor's heat, s; 0 sizes each move by its own angle.
-    last : int, optional
-        Size only the last ``last`` moves (the earlier ones still heat the motor).
-
-    Returns
-    -------
-    (M,) or (last,) float
-        ``sum over moves j <= m of |d_j| exp(-(t_m - t_j) / heat_tau_s)``.
-    """
-    t = np.asarray(start_s, dtype=float)
-    d = np.abs(np.asarray(angle_deg, dtype=float))
-    rows = slice(None) if last is None else slice(d.size - last, None)
-    if heat_tau_s <= 0.0 or d.size < 2:
-        return d[rows]
-    lag = t[rows, None] - t[None, :]
-    return np.asarray(
-        (np.where(lag >= 0.0, np.exp(-np.maximum(lag, 0.0) / heat_tau_s), 0.0) * d).sum(axis=1)
-    )
 
 
 def move_bias(

@@ -58,6 +58,7 @@ from typing import TypedDict, Unpack
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from northfinder.driver.protocol.heat import move_heat
 from northfinder.driver.protocol.motion import encoder_angle_deg, spin_angle_deg, wobble_matrix
 from northfinder.driver.protocol.units import DPH, DPH_PSH, DPSH, OMEGA_IE, UG, normal_gravity
 from northfinder.host.errors import GeometryError, HostConfigError, check_choice
@@ -445,18 +446,6 @@ def _linearise(
 # ----------------------------------------------------------------------------------------------
 # The window means' errors over the plan's timeline
 # ----------------------------------------------------------------------------------------------
-
-
-def move_heat(start_s: ArrayLike, angle_deg: ArrayLike, heat_tau_s: float) -> NDArray[np.float64]:
-    """Size of each move's disturbance, deg: ``sum over moves j <= m of |d_j| exp(-(t_m - t_j) /
-    heat_tau_s)`` (``|d_m|`` alone when ``heat_tau_s`` is 0), as the instrument defines it."""
-    t = np.asarray(start_s, dtype=float)
-    d = np.abs(np.asarray(angle_deg, dtype=float))
-    if heat_tau_s <= 0.0 or d.size < 2:
-        return d
-    lag = t[:, None] - t[None, :]
-    weight = np.where(lag >= 0.0, np.exp(-np.maximum(lag, 0.0) / heat_tau_s), 0.0)
-    return np.asarray((weight * d).sum(axis=1))
 
 
 @dataclass(frozen=True)
