@@ -62,6 +62,7 @@ from northfinder.firmware_sim.error_terms import (
     random_directions,
     slow_noise_jump,
     slow_noise_window,
+    spin_heat_bias,
     vibration,
 )
 from northfinder.firmware_sim.errors import SimConfigError
@@ -744,9 +745,10 @@ def simulate_spin(
     table axis, the error matrices (scale factor, misalignment), the constant and turn-on biases,
     white noise, flicker and random walks, the warm-up transient, temperature and ramps (of time
     since power-on), impulses, vibration, an optional bias step, range and quantisation, and the
-    encoder's periodic error and resolution (:attr:`SpinBatch.encoder_rad`). A spin starts no
-    move transient (the instrument's rule), and the steady spin follows no stop, so neither moves
-    nor the ring-down enter.
+    encoder's periodic error and resolution (:attr:`SpinBatch.encoder_rad`), and the drive's heat
+    (the table's ``spin_heat``, :func:`~northfinder.firmware_sim.error_terms.spin_heat_bias`:
+    the ramp as one move, the steady turning as a train of short ones). The steady spin follows
+    no stop, so neither discrete moves nor the ring-down enter.
 
     Parameters
     ----------
@@ -869,6 +871,11 @@ def simulate_spin(
         v /= np.linalg.norm(v, axis=1, keepdims=True)
         on = (t_on[None, :] - 1.0 / fs) >= t_step[:, None]  # (R, n)
         out[..., :3] += (bias_step_dph * DPH * v)[:, None, :] * on[..., None]
+    heat = spin_heat_bias(
+        terms, rate_dps, tab.max_accel_dps2, tab.spin_heat, n, fs, rng.spawn(1)[0], n_runs
+    )
+    if heat is not None:
+        out += heat
     limit = terms.range
     if np.any(out > limit) or np.any(out < -limit):
         np.clip(out, -limit, limit, out=out)

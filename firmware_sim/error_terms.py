@@ -49,6 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from northfinder.driver.protocol.heat import move_heat, spin_heat_state, spin_heat_steps
 from northfinder.driver.protocol.units import DPH, DPH_PSH, DPS, DPSH, G0, UG
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.sensors import SensorSpec, ThermalSpec
@@ -80,6 +81,7 @@ __all__ = [
     "slow_noise_jump",
     "slow_noise_steps",
     "slow_noise_window",
+    "spin_heat_bias",
     "temperature_c",
     "triad_matrices",
     "vibration",
@@ -341,36 +343,6 @@ def draw_move(rng: np.random.Generator, shape: tuple[int, ...] = ()) -> NDArray[
     return rng.standard_normal((*shape, 2, 6))
 
 
-def move_heat(
-    start_s: ArrayLike, angle_deg: ArrayLike, heat_tau_s: float, last: int | None = None
-) -> NDArray[np.float64]:
-    """Size of each move's disturbance (deg): the heat the motor holds as it starts.
-
-    Parameters
-    ----------
-    start_s, angle_deg : (M,) float
-        Start time (s) and commanded angle turned (deg) of every move so far, in order.
-    heat_tau_s : float
-        Time constant of the motor's heat, s; 0 sizes each move by its own angle.
-    last : int, optional
-        Size only the last ``last`` moves (the earlier ones still heat the motor).
-
-    Returns
-    -------
-    (M,) or (last,) float
-        ``sum over moves j <= m of |d_j| exp(-(t_m - t_j) / heat_tau_s)``.
-    """
-    t = np.asarray(start_s, dtype=float)
-    d = np.abs(np.asarray(angle_deg, dtype=float))
-    rows = slice(None) if last is None else slice(d.size - last, None)
-    if heat_tau_s <= 0.0 or d.size < 2:
-        return d[rows]
-    lag = t[rows, None] - t[None, :]
-    return np.asarray(
-        (np.where(lag >= 0.0, np.exp(-np.maximum(lag, 0.0) / heat_tau_s), 0.0) * d).sum(axis=1)
-    )
-
-
 def move_bias(
     terms: ErrorTerms,
     t: NDArray[np.float64],
@@ -408,6 +380,41 @@ def move_bias(
         amp = zm[..., 1, :] * terms.move_transient
         decay = np.exp(-np.maximum(tt[:, None] - t0, 0.0) / terms.move_tau_s)  # (n, 6)
         out += on[:, None] * (step[..., None, :] + amp[..., None, :] * decay)
+    return out
+
+
+def spin_heat_bias(
+    terms: ErrorTerms,
+    rate_dps: float,
+    accel_dps2: float,
+    spin_heat: float,
+    n: int,
+    fs: float,
+    rng: np.random.Generator,
+    n_runs: int,
+) -> NDArray[np.float64] | None:
+    """The bias the drive's heat adds over ``n`` samples of a steady spin from its start, SI,
+    ``(n_runs, n, 6)`` (the module :mod:`northfinder.driver.protocol.heat`): on every channel
+    with move terms, a Gauss-Markov transient and a random walk in the angle turned, each from
+    the state the ramp left. None when ``spin_heat`` is 0 or no channel has move terms."""
+    chans = [ch for ch in range(6) if terms.move_transient[ch] or terms.move_walk[ch]]
+    if spin_heat <= 0.0 or not chans:
+        return None
+    from scipy.signal import lfilter  # imported when first needed: it takes a second
+
+    out = np.zeros((n_runs, n, 6))
+    for ch in chans:
+        tau = float(terms.move_tau_s[ch])
+        v0_t, v0_w = spin_heat_state(rate_dps, accel_dps2, tau, spin_heat)
+        phi, q_t, q_w = spin_heat_steps(rate_dps, tau, spin_heat, 1.0 / fs)
+        for amp, v0, a, q in ((terms.move_transient[ch], v0_t, phi, q_t),
+                              (terms.move_walk[ch], v0_w, 1.0, q_w)):  # fmt: skip
+            if not amp:
+                continue
+            z = rng.standard_normal((n_runs, n + 1))
+            z[:, 0] *= math.sqrt(v0)
+            z[:, 1:] *= math.sqrt(q)
+            out[..., ch] += amp * lfilter([1.0], [1.0, -a], z, axis=-1)[:, 1:]
     return out
 
 

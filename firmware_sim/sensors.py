@@ -207,6 +207,13 @@ class TableSpec:
         lo=0.0,
         hi=1e6,
     )
+    spin_heat: float = _f(
+        0.0,
+        doc="while spinning: the drive's heat, as the fraction of a move's bias disturbance per "
+        "degree that steady turning carries (northfinder.driver.protocol.heat); 0 = none",
+        lo=0.0,
+        hi=1.0,
+    )
     rate_ripple: float = _f(
         0.0,
         doc="while spinning: once-per-turn rate ripple, amplitude as a fraction of the rate "

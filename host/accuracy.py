@@ -58,6 +58,7 @@ from typing import TypedDict, Unpack
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from northfinder.driver.protocol.heat import move_heat, spin_heat_state, spin_heat_steps
 from northfinder.driver.protocol.motion import encoder_angle_deg, spin_angle_deg, wobble_matrix
 from northfinder.driver.protocol.units import DPH, DPH_PSH, DPSH, OMEGA_IE, UG, normal_gravity
 from northfinder.host.errors import GeometryError, HostConfigError, check_choice
@@ -446,18 +447,6 @@ def _linearise(
 # ----------------------------------------------------------------------------------------------
 # The window means' errors over the plan's timeline
 # ----------------------------------------------------------------------------------------------
-
-
-def move_heat(start_s: ArrayLike, angle_deg: ArrayLike, heat_tau_s: float) -> NDArray[np.float64]:
-    """Size of each move's disturbance, deg: ``sum over moves j <= m of |d_j| exp(-(t_m - t_j) /
-    heat_tau_s)`` (``|d_m|`` alone when ``heat_tau_s`` is 0), as the instrument defines it."""
-    t = np.asarray(start_s, dtype=float)
-    d = np.abs(np.asarray(angle_deg, dtype=float))
-    if heat_tau_s <= 0.0 or d.size < 2:
-        return d
-    lag = t[:, None] - t[None, :]
-    weight = np.where(lag >= 0.0, np.exp(-np.maximum(lag, 0.0) / heat_tau_s), 0.0)
-    return np.asarray((weight * d).sum(axis=1))
 
 
 @dataclass(frozen=True)
@@ -944,6 +933,162 @@ def _spin_channel_vars(
     return out
 
 
+def _spin_heat_var(
+    c: NDArray[np.float64], ch: _Channel, table: TableModel, rate_dps: float, fs: float
+) -> NDArray[np.float64] | None:
+    """Variance of ``sum_k c_k e_k`` for the drive's heat during a spin
+    (:mod:`northfinder.driver.protocol.heat`: a transient and a walk from the state the ramp
+    left), rad^2; None when off. ``c`` (..., N)."""
+    if table.spin_heat <= 0.0 or not (ch.move_transient or ch.move_walk):
+        return None
+    from scipy.signal import lfilter  # imported when first needed
+
+    tau = ch.move_tau_s
+    v0_t, v0_w = spin_heat_state(rate_dps, table.max_accel_dps2, tau, table.spin_heat)
+    phi, q_t, q_w = spin_heat_steps(rate_dps, tau, table.spin_heat, 1.0 / fs)
+    out = np.zeros(c.shape[:-1])
+    for amp, v0, a, q in ((ch.move_transient, v0_t, phi, q_t), (ch.move_walk, v0_w, 1.0, q_w)):
+        if amp:
+            # sum_k c_k x_k = x_0 a sum_k c_k a^(k-1) + sum_m w_m g_m, g_m = sum_(k>=m) c_k a^(k-m).
+            g = lfilter([1.0], [1.0, -a], c[..., ::-1], axis=-1)[..., ::-1]
+            out += amp * amp * (v0 * (a * g[..., 0]) ** 2 + q * np.sum(g * g, axis=-1))
+    return out
+
+
+@dataclass(frozen=True)
+class _SpinSetup:
+    """A spin plan's noise-free samples and the solver's first-order weights on them."""
+
+    t: NDArray[np.float64]  # (n,) s from the steady start
+    t_on: NDArray[np.float64]  # (n,) s from power-on
+    edge: NDArray[np.float64]  # (n+1,) true table angle at the sample edges, deg
+    mu: NDArray[np.float64]  # the same, rad
+    h: NDArray[np.float64]  # (A, 2) horizontal Earth rate in the body frame
+    f_xy: NDArray[np.float64]  # (2,) horizontal specific force
+    gyro: NDArray[np.float64]  # (A, n, 3) noise-free gyro samples, sensor frame
+    accel: NDArray[np.float64]  # (A, n, 3)
+    wg: NDArray[np.float64]  # (A, 2, n) azimuth weights on the gyro x, y samples
+    wa: NDArray[np.float64]  # (A, 2, n) on the accelerometer's (0: level)
+
+
+def _spin_setup(
+    model: ErrorModel,
+    plan: SpinPlan,
+    latitude_deg: float,
+    az: NDArray[np.float64],
+    warmup_s: float,
+    level: bool,
+    fs: float,
+    tilt: tuple[float, float],
+) -> _SpinSetup:
+    """The samples and weights of :func:`_spin_prediction` (``tilt``: pitch, roll in rad)."""
+    tab = model.table
+    n = round(plan.spin_s * fs)
+    if n < 16:
+        raise GeometryError(f"a spin of {plan.spin_s:g} s at {fs:g} Hz holds fewer than 16 samples")
+    lat = latitude_rad(latitude_deg, "the prediction")
+    grav = float(normal_gravity(lat))
+    on, ou = OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)
+    t = np.arange(1, n + 1) / fs
+    edge = spin_angle_deg(
+        plan.rate_dps, spin_start_deg(plan, tab), np.arange(n + 1) / fs, tab.rate_ripple,
+        tab.rate_ripple_phase_deg,
+    )  # fmt: skip
+    mu = np.radians(edge)
+    rot = interval_rotation(mu[:-1], mu[1:])  # (n, 2, 2)
+    nuisance = nuisance_design(t, plan.drift)[0]
+    th, ga = tilt
+    st, ct, sg, cg = math.sin(th), math.cos(th), math.sin(ga), math.cos(ga)
+    a_count = az.size
+    alpha = -np.radians(az)
+    h, _ = earth_rate_body(alpha, th, ga, on, ou)  # (A, 2)
+    omega_z = on * (np.sin(alpha) * sg + np.cos(alpha) * st * cg) + ou * ct * cg
+    f_xy = np.array([-st, sg * ct]) * grav
+    # Noise-free samples in the sensor frame, (A, n, 3): the table rate on its axis, the wobble.
+    gyro = np.concatenate(
+        [np.einsum("nij,aj->ani", rot, h),
+         (omega_z[:, None] + np.diff(mu)[None, :] * fs)[..., None]], -1,
+    )  # fmt: skip
+    accel = np.concatenate(
+        [np.broadcast_to(np.einsum("nij,j->ni", rot, f_xy), (a_count, n, 2)),
+         np.full((a_count, n, 1), cg * ct * grav)], -1,
+    )  # fmt: skip
+    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
+    if wob is not None:
+        gyro, accel = gyro @ wob.T, accel @ wob.T
+    # Weights of the azimuth (= -alpha) on every sample's gyro and accelerometer x and y.
+    wg = np.empty((a_count, 2, n))
+    wa = np.zeros((a_count, 2, n))
+    pinv = amplitude_pinv(rot, nuisance)
+    for a in range(a_count):
+        c_g, c_a = heading_weights(
+            rot, nuisance, float(alpha[a]), 0.0 if level else th, 0.0 if level else ga, on, ou,
+            grav, pinv=pinv,
+        )  # fmt: skip
+        wg[a] = -c_g.reshape(n, 2).T
+        if not level:
+            wa[a] = -c_a.reshape(n, 2).T
+    return _SpinSetup(t, warmup_s + spin_ramp_s(plan, tab) + t, edge, mu, h, f_xy, gyro, accel,
+                      wg, wa)  # fmt: skip
+
+
+def _spin_deterministic(
+    su: _SpinSetup, model: ErrorModel, plan: SpinPlan, latitude_deg: float,
+    az: NDArray[np.float64], level: bool, tilted: bool,
+) -> NDArray[np.float64]:  # fmt: skip
+    """The error of the solver itself on the noise-free samples given the encoder's reading
+    (table ripple and wobble, periodic encoder error, a level solver tilted), rad, (A,)."""
+    tab = model.table
+    if not (tab.rate_ripple or tab.wobble_urad or tab.encoder_error_deg or (level and tilted)):
+        return np.zeros(az.size)
+    read = np.radians(encoder_angle_deg(
+        su.edge, tab.encoder_error_deg, tab.encoder_error_harmonic, tab.encoder_error_phase_deg
+    ))  # fmt: skip
+    found = solve_spin_batch(
+        su.gyro, None if level else su.accel, read[:-1], read[1:], latitude_deg=latitude_deg,
+        time_s=su.t, drift=plan.drift,
+    )  # fmt: skip
+    if not np.all(np.isfinite(found)):
+        raise GeometryError(
+            f"{plan.label()}: the solver has no solution even without noise; no prediction"
+        )
+    return np.radians((found - az + 180.0) % 360.0 - 180.0)
+
+
+def _spin_table_vars(
+    su: _SpinSetup, model: ErrorModel, level: bool
+) -> dict[str, NDArray[np.float64]]:
+    """The encoder resolution's and the error matrices' variances, rad^2, (A,) each."""
+    out: dict[str, NDArray[np.float64]] = {}
+    wg, wa, mu = su.wg, su.wa, su.mu
+    res = math.radians(model.table.encoder_resolution_deg)
+    if res:
+        # An angle error at an edge moves both samples it bounds by half of it; a sample's
+        # angle error moves its regressors by dR/dmu.
+        mid = 0.5 * (mu[:-1] + mu[1:])
+        drot = np.stack(
+            [np.stack([-np.sin(mid), np.cos(mid)], -1),
+             np.stack([-np.cos(mid), -np.sin(mid)], -1)], -2,
+        )  # fmt: skip
+        d = -np.einsum("acn,ncj,aj->an", wg, drot, su.h)
+        if not level:
+            d -= np.einsum("acn,ncj,j->an", wa, drot, su.f_xy)
+        zero = np.zeros((wg.shape[0], 1))
+        u = 0.5 * (np.concatenate([zero, d], 1) + np.concatenate([d, zero], 1))
+        out["encoder"] = res * res / 12.0 * np.sum(u * u, axis=-1)
+    sf, mis = model.scale_factor_ppm * 1e-6, model.misalignment_urad * 1e-6
+    sf_a, mis_a = model.accel_scale_factor_ppm * 1e-6, model.accel_misalignment_urad * 1e-6
+    if sf or mis or (not level and (sf_a or mis_a)):
+        var = np.zeros(wg.shape[0])
+        for w, true, s_, m_ in ((wg, su.gyro, sf, mis), (wa, su.accel, sf_a, mis_a)):
+            sm = np.einsum("acn,anj->acj", w, true)  # sensitivity to the matrix element (c, j)
+            var += s_ * s_ * (sm[:, 0, 0] ** 2 + sm[:, 1, 1] ** 2)
+            var += m_ * m_ * (sm[:, 0, 1] ** 2 + sm[:, 0, 2] ** 2 + sm[:, 1, 0] ** 2
+                              + sm[:, 1, 2] ** 2)  # fmt: skip
+        out["misalignment"] = var
+    return out
+
+
 def _spin_prediction(
     model: ErrorModel,
     plan: SpinPlan,
@@ -959,138 +1104,53 @@ def _spin_prediction(
 ) -> Prediction:
     """The prediction of a spin: the demodulating solver's first-order weights on every sample
     (:func:`~northfinder.host.spin.heading_weights`) against every error term over the spin's
-    own timeline; the deterministic terms (drift, table ripple and wobble, periodic encoder
-    error, a level solver on a tilted instrument) through the solver itself."""
-    tab = model.table
-    n = round(plan.spin_s * fs)
-    if n < 16:
-        raise GeometryError(f"a spin of {plan.spin_s:g} s at {fs:g} Hz holds fewer than 16 samples")
-    ramp = spin_ramp_s(plan, tab)
-    lat = latitude_rad(latitude_deg, "the prediction")
-    grav = float(normal_gravity(lat))
-    on, ou = OMEGA_IE * math.cos(lat), OMEGA_IE * math.sin(lat)
-    t = np.arange(1, n + 1) / fs
-    t_on = warmup_s + ramp + t
-    edge = spin_angle_deg(
-        plan.rate_dps, spin_start_deg(plan, tab), np.arange(n + 1) / fs, tab.rate_ripple,
-        tab.rate_ripple_phase_deg,
-    )  # fmt: skip
-    mu = np.radians(edge)
-    rot = interval_rotation(mu[:-1], mu[1:])  # (n, 2, 2)
-    nuisance = nuisance_design(t, plan.drift)[0]
+    own timeline, the drive's heat included; the deterministic terms (drift, table ripple and
+    wobble, periodic encoder error, a level solver on a tilted instrument) through the solver
+    itself."""
     limit = MAX_TILT_DEG - 1e-6
-    th = math.radians(min(max(pitch_deg, -limit), limit))
-    ga = math.radians(min(max(roll_deg, -limit), limit))
-    st, ct, sg, cg = math.sin(th), math.cos(th), math.sin(ga), math.cos(ga)
+    tilt = (math.radians(min(max(pitch_deg, -limit), limit)),
+            math.radians(min(max(roll_deg, -limit), limit)))  # fmt: skip
     az = np.asarray(azimuths_deg, dtype=float)
-    a_count = az.size
-    alpha = -np.radians(az)
-    h, _ = earth_rate_body(alpha, th, ga, on, ou)  # (A, 2)
-    omega_z = on * (np.sin(alpha) * sg + np.cos(alpha) * st * cg) + ou * ct * cg
-    f_xy = np.array([-st, sg * ct]) * grav
-    f_z = cg * ct * grav
-    # Noise-free samples in the sensor frame, (A, n, 3): the table rate on its axis, the wobble.
-    gyro = np.concatenate(
-        [np.einsum("nij,aj->ani", rot, h),
-         (omega_z[:, None] + np.diff(mu)[None, :] * fs)[..., None]], -1,
-    )  # fmt: skip
-    accel = np.concatenate(
-        [np.broadcast_to(np.einsum("nij,j->ni", rot, f_xy), (a_count, n, 2)),
-         np.full((a_count, n, 1), f_z)], -1,
-    )  # fmt: skip
-    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
-    if wob is not None:
-        gyro, accel = gyro @ wob.T, accel @ wob.T
-    det = np.zeros(a_count)
-    if (
-        tab.rate_ripple or wob is not None or tab.encoder_error_deg
-        or (level and (pitch_deg or roll_deg))
-    ):  # fmt: skip
-        # The solver on the noise-free samples, given the encoder's reading: its own error.
-        read = np.radians(encoder_angle_deg(
-            edge, tab.encoder_error_deg, tab.encoder_error_harmonic, tab.encoder_error_phase_deg
-        ))  # fmt: skip
-        found = solve_spin_batch(
-            gyro, None if level else accel, read[:-1], read[1:], latitude_deg=latitude_deg,
-            time_s=t, drift=plan.drift,
-        )  # fmt: skip
-        if not np.all(np.isfinite(found)):
-            raise GeometryError(
-                f"{plan.label()} at pitch {pitch_deg:g}, roll {roll_deg:g} deg: the solver has no "
-                "solution even without noise; no prediction"
-            )
-        det = np.radians((found - az + 180.0) % 360.0 - 180.0)
-    # Weights of the azimuth (= -alpha) on every sample's gyro and accelerometer x and y.
-    wg = np.empty((a_count, 2, n))
-    wa = np.zeros((a_count, 2, n))
-    pinv = amplitude_pinv(rot, nuisance)
-    for a in range(a_count):
-        c_g, c_a = heading_weights(
-            rot, nuisance, float(alpha[a]), 0.0 if level else th, 0.0 if level else ga, on, ou,
-            grav, pinv=pinv,
-        )  # fmt: skip
-        wg[a] = -c_g.reshape(n, 2).T
-        if not level:
-            wa[a] = -c_a.reshape(n, 2).T
+    su = _spin_setup(model, plan, latitude_deg, az, warmup_s, level, fs, tilt)
     gyro_ch, accel_ch = _channels(model)
     step = bias_step_dph * DPH
     parts: dict[str, NDArray[np.float64]] = {}
 
     def add(name: str, var: NDArray[np.float64]) -> None:
-        parts[name] = parts.get(name, np.zeros(a_count)) + var
+        parts[name] = parts.get(name, np.zeros(az.size)) + var
 
-    for w, ch, is_gyro in ((wg, gyro_ch, True), (wa, accel_ch, False)):
+    for w, ch, is_gyro in ((su.wg, gyro_ch, True), (su.wa, accel_ch, False)):
         if not is_gyro and level:
             continue
-        for cause, var in _spin_channel_vars(
-            w, ch, model, t_on, fs, step if is_gyro else 0.0
-        ).items():
+        causes = _spin_channel_vars(w, ch, model, su.t_on, fs, step if is_gyro else 0.0)
+        heat = _spin_heat_var(w, ch, model.table, plan.rate_dps, fs)
+        if heat is not None:
+            causes["spin_heat"] = heat
+        for cause, var in causes.items():
             name = "tilt" if not is_gyro and cause in ("white", "slow_noise") else cause
             add(name, var.sum(axis=-1))  # x and y
-    drift_g = None if model.drift_rps is None else np.asarray(model.drift_rps(t_on), float)
+    det = _spin_deterministic(su, model, plan, latitude_deg, az, level, bool(pitch_deg or roll_deg))
+    drift_g = None if model.drift_rps is None else np.asarray(model.drift_rps(su.t_on), float)
     drift_a = (
         None
         if model.accel_drift_mps2 is None or level
-        else np.asarray(model.accel_drift_mps2(t_on), float)
+        else np.asarray(model.accel_drift_mps2(su.t_on), float)
     )
     if drift_g is not None or drift_a is not None or np.any(np.abs(det) > 1e-9):
         lin = det.copy()
         if drift_g is not None:
-            lin += np.einsum("acn,nc->a", wg, drift_g)
+            lin += np.einsum("acn,nc->a", su.wg, drift_g)
         if drift_a is not None:
-            lin += np.einsum("acn,nc->a", wa, drift_a)
+            lin += np.einsum("acn,nc->a", su.wa, drift_a)
         add("drift", lin * lin)
-    res = math.radians(tab.encoder_resolution_deg)
-    if res:
-        # An angle error at an edge moves both samples it bounds by half of it; a sample's
-        # angle error moves its regressors by dR/dmu.
-        mid = 0.5 * (mu[:-1] + mu[1:])
-        drot = np.stack(
-            [np.stack([-np.sin(mid), np.cos(mid)], -1),
-             np.stack([-np.cos(mid), -np.sin(mid)], -1)], -2,
-        )  # fmt: skip
-        d = -np.einsum("acn,ncj,aj->an", wg, drot, h)
-        if not level:
-            d -= np.einsum("acn,ncj,j->an", wa, drot, f_xy)
-        zero = np.zeros((a_count, 1))
-        u = 0.5 * (np.concatenate([zero, d], 1) + np.concatenate([d, zero], 1))
-        add("encoder", res * res / 12.0 * np.sum(u * u, axis=-1))
-    sf, mis = model.scale_factor_ppm * 1e-6, model.misalignment_urad * 1e-6
-    sf_a, mis_a = model.accel_scale_factor_ppm * 1e-6, model.accel_misalignment_urad * 1e-6
-    if sf or mis or (not level and (sf_a or mis_a)):
-        var = np.zeros(a_count)
-        for w, true, s_, m_ in ((wg, gyro, sf, mis), (wa, accel, sf_a, mis_a)):
-            sm = np.einsum("acn,anj->acj", w, true)  # sensitivity to the matrix element (c, j)
-            var += s_ * s_ * (sm[:, 0, 0] ** 2 + sm[:, 1, 1] ** 2)
-            var += m_ * m_ * (sm[:, 0, 1] ** 2 + sm[:, 0, 2] ** 2 + sm[:, 1, 0] ** 2
-                              + sm[:, 1, 2] ** 2)  # fmt: skip
-        add("misalignment", var)
-    parts.setdefault("white", np.zeros(a_count))
+    for name, var in _spin_table_vars(su, model, level).items():
+        add(name, var)
+    parts.setdefault("white", np.zeros(az.size))
     mean_parts = {k: float(np.mean(v)) for k, v in parts.items()}
     total = sum(mean_parts.values())
     return Prediction(
         sigma_deg=math.degrees(angle_rms(math.sqrt(max(total, 0.0)))),
         bound_deg=math.degrees(math.sqrt(mean_parts["white"])),
-        plan_time_s=plan_time_s(plan, tab),
+        plan_time_s=plan_time_s(plan, model.table),
         parts_deg={k: math.degrees(math.sqrt(max(v, 0.0))) for k, v in mean_parts.items()},
     )

@@ -112,6 +112,9 @@ class TableModel(TableLimits):
     heat_tau_s : float
         Time constant of the heat the drive holds, s: it sizes the bias disturbance of a move
         (0: each move by its own angle).
+    spin_heat : float
+        While spinning: the fraction of a move's bias disturbance per degree that steady turning
+        carries (:mod:`northfinder.driver.protocol.heat`; 0: none).
     rate_ripple, rate_ripple_phase_deg : float
         While spinning: once-per-turn rate ripple (fraction of the rate) and the table angle of
         its fastest point, deg.
@@ -125,6 +128,7 @@ class TableModel(TableLimits):
     indexing_error_deg: float = 0.0
     encoder_resolution_deg: float = 0.0
     heat_tau_s: float = 0.0
+    spin_heat: float = 0.0
     rate_ripple: float = 0.0
     rate_ripple_phase_deg: float = 0.0
     wobble_urad: float = 0.0

@@ -153,3 +153,12 @@ def test_an_installed_northfinder_dumps_with_its_own_dbc(tmp_path):
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert ":: SAMPLE_X(Tick: 5, " in res.stdout
+
+
+def test_the_drive_s_heat_is_defined_once():
+    from northfinder.driver.protocol import heat
+    from northfinder.firmware_sim import error_terms
+    from northfinder.host import accuracy
+
+    assert error_terms.move_heat is heat.move_heat
+    assert accuracy.move_heat is heat.move_heat

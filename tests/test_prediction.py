@@ -172,11 +172,11 @@ NOT_TERMS = {
     "table.indexing_error_deg",
     # The ring-down after a stop: damped to 0.03 % of its amplitude by the end of settling.
     "table.overshoot_deg", "table.overshoot_hz",
-    # A spinning table's (docs/spin.md; zero in every preset): the rate ripple acts only while
+    # A spinning table's (docs/spin.md): the rate ripple and the drive's heat act only while
     # spinning; the wobble is a fixed tilt in the sensor frame (constant offsets, estimated away).
     # (A spin's prediction sees them: tests/test_spin_study.py.)
     "table.rate_ripple", "table.rate_ripple_phase_deg", "table.wobble_urad",
-    "table.wobble_phase_deg",
+    "table.wobble_phase_deg", "table.spin_heat",
     # Shape of the periodic encoder error (a term above).
     "table.encoder_error_harmonic", "table.encoder_error_phase_deg",
 }  # fmt: skip

@@ -11,6 +11,7 @@ Pure code: no I/O, no clock, no threads. Byte order is little-endian everywhere.
 - :mod:`~northfinder.driver.protocol.budget`: link load and which sample rates fit a link.
 - :mod:`~northfinder.driver.protocol.counters`: the sample counter across its wrap, the CAN tick extension.
 - :mod:`~northfinder.driver.protocol.motion`: the table's move time (trapezoidal profile).
+- :mod:`~northfinder.driver.protocol.heat`: the heat the table's drive puts into the unit (moves, spins).
 - :mod:`~northfinder.driver.protocol.units`: units and physical constants.
 - :mod:`~northfinder.driver.protocol.errors`: :class:`ProtocolError` and its family; the codec raises
   nothing else for any input, and imports nothing outside this package.
