@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,11 +34,16 @@ from northfinder.driver.protocol.units import readable_duration as _duration
 from northfinder.host.errors import HostConfigError
 
 __all__ = [
+    "ALLAN_KEYS",
+    "CONFORMANCE_GROUPS",
     "LIMITS",
+    "REPEAT_KEY",
     "VERDICTS",
     "Datasheet",
     "Line",
     "allan_lines",
+    "bias_repeatability_lines",
+    "conformance_lines",
     "datasheet_from_sensor",
     "datasheet_toml",
     "judge",
@@ -60,6 +65,12 @@ LIMITS: Mapping[tuple[str, str], tuple[float, float, str, str]] = {
     ("gyro", "arw_dpsh"): (0.0, 100.0, "deg/sqrt(h)", "gyro angle random walk"),
     ("gyro", "bias_instability_dph"): (0.0, 1000.0, "deg/h", "gyro bias instability"),
     ("gyro", "rrw_dphpsh"): (0.0, 1000.0, "deg/h/sqrt(h)", "gyro rate random walk"),
+    ("gyro", "bias_repeatability_dph"): (
+        0.0,
+        1000.0,
+        "deg/h",
+        "gyro bias repeatability between windows at one table angle, 1 sigma",
+    ),
     ("accel", "vrw_ug_rthz"): (0.0, 1e5, "ug/sqrt(Hz)", "accelerometer noise"),
     ("accel", "bias_instability_ug"): (0.0, 1e5, "ug", "accelerometer bias instability"),
     ("north_finding", "sigma_deg"): (0.0, 180.0, "deg", "north-finding repeatability, 1 sigma"),
@@ -79,6 +90,7 @@ _PLAN_KEYS: Mapping[str, tuple[float, float, str, str]] = {
 _TEXT_KEYS = {("unit", "protocol_version"), ("north_finding", "solver")}
 _LIST_KEYS = {("unit", "conformance"), ("north_finding", "positions_deg")}
 _SECTIONS = ("gyro", "accel", "north_finding", "unit")
+_REPEAT = REPEAT_KEY = "gyro.bias_repeatability_dph"
 
 
 @dataclass(frozen=True)
@@ -192,10 +204,22 @@ def parse_datasheet(data: Mapping[str, Any], source: str = "<datasheet>") -> Dat
     ds = Datasheet(limits=limits, **kw)
     if "north_finding.sigma_deg" in limits and not ds.positions_deg:
         raise _bad(source, "north_finding.sigma_deg needs north_finding.positions_deg (the plan)")
-    if ds.positions_deg and "north_finding.sigma_deg" not in limits:
+    if "gyro.bias_repeatability_dph" in limits and not ds.positions_deg:
+        raise _bad(
+            source,
+            "gyro.bias_repeatability_dph needs north_finding.positions_deg (the plan whose "
+            "windows at one angle it compares)",
+        )
+    if ds.positions_deg and not ({"north_finding.sigma_deg", _REPEAT} & set(limits)):
         raise _bad(source, "north_finding.positions_deg needs north_finding.sigma_deg (the limit)")
     if ds.positions_deg:
         _check_plan(ds)
+    if _REPEAT in limits and not same_angle_pairs(ds.positions_deg):
+        raise _bad(
+            source,
+            f"gyro.bias_repeatability_dph needs a plan that comes back to an angle; "
+            f"north_finding.positions_deg = {list(ds.positions_deg)} visits each once",
+        )
     if not (limits or ds.protocol_version or ds.conformance):
         raise _bad(source, "states no limit: give at least one line (docs/accept.md)")
     return ds
@@ -373,6 +397,8 @@ _ALLAN = {
     "accel.vrw_ug_rthz": ("accel", "arw", 1.0),
     "accel.bias_instability_ug": ("accel", "bias_instability", 1.0),
 }
+#: The lines the static recording judges.
+ALLAN_KEYS = tuple(_ALLAN)
 
 
 def allan_lines(ds: Datasheet, cal: Any, record_s: float) -> list[Line]:
@@ -520,3 +546,98 @@ def conformance_line(patterns: Sequence[str], checks: Sequence[Mapping[str, Any]
         verdict, note = PASS, f"{len(checks)} checks"
     return Line("unit.conformance", "conformance checks (protocol.md)", "",
                 ", ".join(patterns), measured, math.nan, math.nan, verdict, note)  # fmt: skip
+
+
+def same_angle_pairs(positions_deg: Sequence[float]) -> list[tuple[int, int]]:
+    """The windows of a plan at one table angle (mod 360, within 0.01 deg): each window paired
+    with the one before it at that angle."""
+    pairs = []
+    for j, b in enumerate(positions_deg):
+        for i in range(j - 1, -1, -1):
+            if abs((positions_deg[i] - b + 180.0) % 360.0 - 180.0) < 0.01:
+                pairs.append((i, j))
+                break
+    return pairs
+
+
+AXES = ("x", "y", "z")
+
+
+def bias_repeatability_lines(
+    ds: Datasheet, runs_gyro_means_dph: Sequence[Sequence[Sequence[float]]]
+) -> list[Line]:
+    """A line per gyro axis: the root mean square change of the axis's mean rate between two
+    windows of one run at one table angle (:func:`same_angle_pairs`), each change a bias change
+    plus the windows' noise; its chi-squared interval on as many degrees of freedom as there
+    are changes (their mean is zero: the Earth rate is the same at one angle).
+
+    ``runs_gyro_means_dph[r][w]`` is the mean gyro rate (x, y, z) of window ``w`` of run ``r``.
+    """
+    from scipy.stats import chi2
+
+    limit = ds.limits[_REPEAT]
+    _, _, unit, what = LIMITS[("gyro", "bias_repeatability_dph")]
+    pairs = same_angle_pairs(ds.positions_deg)
+    d = np.array(
+        [np.subtract(run[j], run[i]) for run in runs_gyro_means_dph for i, j in pairs], float
+    ).reshape(-1, 3)
+    n = len(d)
+    out = []
+    for a, axis in enumerate(AXES):
+        key = f"{_REPEAT}.{axis}"
+        title = f"{what}, {axis} axis"
+        if n == 0:
+            out.append(Line(key, title, unit, limit, None, math.nan, math.nan, NOT_RESOLVED,
+                            "no pair of windows at one angle"))  # fmt: skip
+            continue
+        s = float(np.sqrt(np.mean(d[:, a] ** 2)))
+        low = s * math.sqrt(n / chi2.ppf(0.5 + LEVEL / 2, n))
+        high = s * math.sqrt(n / chi2.ppf(0.5 - LEVEL / 2, n))
+        verdict = judge(limit, low, high)
+        note = f"{n} changes in {len(runs_gyro_means_dph)} runs ({ds.window_s:g} s windows)"
+        if verdict == NOT_RESOLVED:
+            need = _changes_needed(s, limit, chi2)
+            note += f"; about {need} changes would decide it" if need else ""
+        out.append(Line(key, title, unit, limit, s, low, high, verdict, note))
+    return out
+
+
+def _changes_needed(s: float, limit: float, chi2: Any) -> int | None:
+    """The fewest changes (degrees of freedom) whose interval falls on one side of the limit."""
+    for n in range(2, 100_001):
+        if s < limit and s * math.sqrt(n / chi2.ppf(0.5 - LEVEL / 2, n)) <= limit:
+            return n
+        if s > limit and s * math.sqrt(n / chi2.ppf(0.5 + LEVEL / 2, n)) > limit:
+            return n
+    return None
+
+
+#: The conformance lines: (line, what it covers, check name patterns), the first match counts.
+CONFORMANCE_GROUPS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("rates", "heartbeat and sample rate (protocol.md 6)",
+     ("heartbeat.*", "stream.rate", "command.set_config")),
+    ("stream", "sample stream: counters and validity (protocol.md 4.5, 8)", ("stream.*",)),
+    ("table", "table moves and spin (protocol.md 4.1, 5)", ("rotation.*", "spin.*")),
+    ("commands", "commands, replies and refusals (protocol.md 2, 4, 9)", ("*",)),
+)  # fmt: skip
+
+
+def conformance_group(name: str) -> str:
+    """The conformance line a check counts in (:data:`CONFORMANCE_GROUPS`)."""
+    from fnmatch import fnmatchcase
+
+    return next(g for g, _, pats in CONFORMANCE_GROUPS if any(fnmatchcase(name, p) for p in pats))
+
+
+def conformance_lines(patterns: Sequence[str], checks: Sequence[Mapping[str, Any]]) -> list[Line]:
+    """A conformance line per group of checks that ran (:data:`CONFORMANCE_GROUPS`), each
+    :func:`conformance_line` of its checks; no check at all gives one NOT RESOLVED line."""
+    if not checks:
+        return [conformance_line(patterns, checks)]
+    out = []
+    for group, title, _ in CONFORMANCE_GROUPS:
+        mine = [c for c in checks if conformance_group(c["name"]) == group]
+        if mine:
+            line = conformance_line(patterns, mine)
+            out.append(replace(line, key=f"unit.conformance.{group}", title=title))
+    return out

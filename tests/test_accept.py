@@ -64,9 +64,11 @@ def write(tmp: Path, sections: dict, name: str = "datasheet.toml") -> Path:
 
 
 def sensor(tmp: Path, section: str, key: str, value: float) -> Path:
-    """The good unit with one figure changed."""
+    """The good unit with one figure changed (or added to its section)."""
     text = UNIT.read_text()
     new, n = re.subn(rf"^{key} = .*$", f"{key} = {value!r}", text, flags=re.M)
+    if n == 0:
+        new, n = re.subn(rf"^\[{section}\]$", f"[{section}]\n{key} = {value!r}", text, flags=re.M)
     assert n == 1
     path = tmp / f"unit-{key}.toml"
     path.write_text(new)
@@ -94,7 +96,8 @@ def good(tmp_path_factory):
         tmp,
         {
             "name": "accept-unit x 2",
-            **ALLAN_TWICE,
+            "gyro": {**ALLAN_TWICE["gyro"], "bias_repeatability_dph": 1.0},
+            "accel": ALLAN_TWICE["accel"],
             "north_finding": {
                 "sigma_deg": 2.1,  # about three times the planner's 0.65 deg for this plan
                 "positions_deg": [0.0, 180.0, 180.0, 0.0],
@@ -120,9 +123,10 @@ def test_a_good_unit_passes_every_line(good):
     result = good["result"]
     assert result["verdict"] == PASS
     assert set(verdicts(result)) == {
-        "unit.conformance", "unit.protocol_version", "unit.time_to_ready_s", "gyro.arw_dpsh",
-        "gyro.bias_instability_dph", "accel.vrw_ug_rthz", "accel.bias_instability_ug",
-        "north_finding.sigma_deg",
+        "unit.conformance.commands", "unit.protocol_version", "unit.time_to_ready_s",
+        "gyro.arw_dpsh", "gyro.bias_instability_dph", "accel.vrw_ug_rthz",
+        "accel.bias_instability_ug", "north_finding.sigma_deg", "gyro.bias_repeatability_dph.x",
+        "gyro.bias_repeatability_dph.y", "gyro.bias_repeatability_dph.z",
     }  # fmt: skip
     assert set(verdicts(result).values()) == {PASS}
     lines = {line["key"]: line for line in result["lines"]}
@@ -257,6 +261,66 @@ def test_a_unit_bad_in_one_term_fails_the_line_it_governs(tmp_path, section, key
     assert code == 1, err
     assert failed == {governed}
     assert result["verdict"] == FAIL
+
+
+def test_a_bias_step_at_each_move_fails_the_bias_repeatability_lines(tmp_path):
+    """Each table move adds a lasting bias step (1 sigma 0.2 deg/h per sqrt(deg) turned: 2.7 deg/h
+    for a half turn): the changes between windows at one angle fail the bias repeatability line
+    of every axis; the noise lines, which a still record judges, pass. (The steps also spread the
+    headings, so a repeatability line of the headings would fail too: it is left out here.)"""
+    limits = {"gyro": {**ALLAN_1_5["gyro"], "bias_repeatability_dph": 1.0}}
+    ds = write(tmp_path, {"name": "steps", **limits, "accel": ALLAN_1_5["accel"],
+                          "north_finding": {"positions_deg": [0.0, 180.0, 180.0, 0.0]}})  # fmt: skip
+    axes = {f"gyro.bias_repeatability_dph.{a}" for a in "xyz"}
+    for unit, failing in (
+        (UNIT, set()),
+        (sensor(tmp_path, "gyro", "move_walk_dph_per_rtdeg", 0.2), axes),
+    ):
+        code, result, err = accept(
+            "--datasheet", str(ds), "--sim", "--sensor", str(unit), "--seed", "7",
+            "-o", str(tmp_path / f"acc-{len(failing)}"), *STAGES, "--runs", "8",
+            "--orientations", "2",
+        )  # fmt: skip
+        assert code == (1 if failing else 0), err
+        assert {k for k, v in verdicts(result).items() if v == FAIL} == failing
+        assert axes <= set(verdicts(result))
+
+
+#: Defects of the protocol, set in every simulated unit the acceptance opens (its firmware's
+#: fault injection, as ``northfinder simctl`` orders it): (fault, value, the line it governs).
+PROTOCOL_DEFECTS = {
+    "slow heartbeat": ("heartbeat_factor", 2.0, "unit.conformance.rates"),
+    "dropped reply": ("drop_replies", 1, "unit.conformance.commands"),
+}
+
+
+@pytest.mark.parametrize("defect", [None, *PROTOCOL_DEFECTS])
+def test_a_protocol_defect_fails_the_conformance_line_it_governs(tmp_path, monkeypatch, defect):
+    from northfinder.firmware_sim import firmware
+
+    if defect is not None:
+        name, value, governed = PROTOCOL_DEFECTS[defect]
+        built = firmware.Firmware.__init__
+
+        def with_fault(self, *args, **kwargs):
+            built(self, *args, **kwargs)
+            setattr(self.faults, name, value)
+
+        monkeypatch.setattr(firmware.Firmware, "__init__", with_fault)
+    ds = write(tmp_path, {"name": "protocol", "gyro": {"arw_dpsh": 0.02},
+                          "unit": {"time_to_ready_s": 260.0, "protocol_version": "1.1",
+                                   "conformance": ["*"]}})  # fmt: skip
+    code, result, err = accept(
+        "--datasheet", str(ds), "--sim", "--seed", "2", "-o", str(tmp_path / "acc"),
+        "--static-s", "60",
+    )  # fmt: skip
+    groups = {f"unit.conformance.{g}" for g in ("commands", "rates", "stream", "table")}
+    assert groups <= set(verdicts(result)), err
+    failed = {k for k, v in verdicts(result).items() if v == FAIL}
+    if defect is None:
+        assert code == 0 and failed == set(), err
+    else:
+        assert code == 1 and failed == {governed}, err
 
 
 def test_a_static_record_too_short_is_not_resolved_with_the_length_needed(tmp_path):

@@ -208,7 +208,7 @@ def _text(result: dict[str, Any], out: Path) -> str:
         lim = line["limit"]
         lim_s = f"<= {lim:.4g}" if isinstance(lim, float) else str(lim)
         rows.append(
-            f"  {line['verdict']:<12} {line['key']:<28} {lim_s:>12} {line['unit']:<14} "
+            f"  {line['verdict']:<12} {line['key']:<31} {lim_s:>12} {line['unit']:<14} "
             f"measured {shown}  {line['note']}"
         )
     rows.append(f"report: {out / 'report.html'}")
@@ -278,7 +278,7 @@ class Stages:
     def static(self) -> None:
         """The time to READY after a RESET, and the static recording, in one session."""
         ds = self.ds
-        allan = any(k.startswith(("gyro.", "accel.")) for k in ds.limits)
+        allan = _wants_static(ds)
         need_ready = not self._done("ready.json")
         need_static = allan and not self._done("static.npz")
         if not (need_ready or need_static):
@@ -369,73 +369,12 @@ class Stages:
         from northfinder.host import acceptance as acc
         from northfinder.host.results import envelope
 
-        ds, args, out = self.ds, self.args, self.out
-        lines: list[Any] = []
+        ds, args = self.ds, self.args
         body: dict[str, Any] = {"stages": {}}
-        identity = None
-        if ds.conformance:
-            conf = _read_json(out / "conformance.json")
-            lines.append(acc.conformance_line(ds.conformance, conf["checks"]))
-            identity = conf.get("device")
-            body["stages"]["conformance"] = {
-                "file": "conformance.json",
-                "junit": "conformance.xml",
-                "counts": conf["counts"],
-                "duration_s": conf["duration_s"],
-            }
-        ready = _read_json(out / "ready.json")
-        identity = ready["device"] or identity
-        body["stages"]["ready"] = {
-            "file": "ready.json",
-            "time_to_ready_s": ready["time_to_ready_s"],
-        }
-        if ds.protocol_version:
-            lines.append(
-                acc.equal_line(
-                    "unit.protocol_version",
-                    "protocol version",
-                    ds.protocol_version,
-                    identity.get("protocol_version") if identity else None,
-                )
-            )
-        if "unit.time_to_ready_s" in ds.limits:
-            lines.append(
-                acc.value_line(
-                    "unit.time_to_ready_s",
-                    ds.limits["unit.time_to_ready_s"],
-                    float(ready["time_to_ready_s"]),
-                    f"from {ready['from']}, on the device's clock",
-                )
-            )
-        cal = None
-        if (out / "static.npz").exists() and any(
-            k.startswith(("gyro.", "accel.")) for k in ds.limits
-        ):
-            from northfinder.host.calibrate import calibrate, read_runs
-
-            _progress(args, "Allan deviation and IEEE 952 fit of the static recording")
-            cal = calibrate(read_runs([out / "static.npz"]))
-            record_s = cal.hours * 3600.0
-            lines += acc.allan_lines(ds, cal, record_s)
-            body["stages"]["static"] = {"file": "static.npz", "seconds": record_s}
-            body["allan"] = {
-                axis: {"taus_s": c.taus_s.tolist(), "adev": c.adev.tolist()}
-                for axis, c in cal.curves.items()
-            }
-            body["fits"] = {
-                triad: {
-                    "coefficients": {k: _finite(v) for k, v in fit.coefficients.items()},
-                    "resolved": fit.resolved,
-                }
-                for triad, fit in cal.triad_fits.items()
-            }
+        lines, identity = self._unit_lines(body)
+        cal = self._allan(body, lines)
         if ds.positions_deg:
-            runs = [_read_json(out / f"run_{r + 1:02d}.json") for r in range(args.runs)]
-            site = runs[0]["latitude_deg"]
-            lines.append(acc.repeatability_line(ds, [r["azimuth_deg"] for r in runs], site))
-            body["stages"]["runs"] = runs
-            if cal is not None:
-                body["prediction"] = _prediction(args, ds, cal)
+            lines += self._run_lines(body, cal)
         ordered = sorted(lines, key=lambda line: _ORDER.index(line.key.split(".")[0]))
         return envelope(
             "accept",
@@ -457,6 +396,100 @@ class Stages:
                 **body,
             },
         )
+
+    def _unit_lines(self, body: dict[str, Any]) -> tuple[list[Any], dict[str, Any] | None]:
+        """The conformance, protocol version and time to READY lines, and the unit's identity."""
+        from northfinder.host import acceptance as acc
+
+        ds, out = self.ds, self.out
+        lines: list[Any] = []
+        identity = None
+        if ds.conformance:
+            conf = _read_json(out / "conformance.json")
+            lines += acc.conformance_lines(ds.conformance, conf["checks"])
+            identity = conf.get("device")
+            body["stages"]["conformance"] = {
+                "file": "conformance.json",
+                "junit": "conformance.xml",
+                "counts": conf["counts"],
+                "duration_s": conf["duration_s"],
+            }
+        ready = _read_json(out / "ready.json")
+        identity = ready["device"] or identity
+        body["stages"]["ready"] = {
+            "file": "ready.json",
+            "time_to_ready_s": ready["time_to_ready_s"],
+        }
+        if ds.protocol_version:
+            reported = identity.get("protocol_version") if identity else None
+            lines.append(acc.equal_line("unit.protocol_version", "protocol version",
+                                        ds.protocol_version, reported))  # fmt: skip
+        if "unit.time_to_ready_s" in ds.limits:
+            lines.append(
+                acc.value_line(
+                    "unit.time_to_ready_s",
+                    ds.limits["unit.time_to_ready_s"],
+                    float(ready["time_to_ready_s"]),
+                    f"from {ready['from']}, on the device's clock",
+                )
+            )
+        return lines, identity
+
+    def _allan(self, body: dict[str, Any], lines: list[Any]) -> Any:
+        """The Allan lines from the static recording (added to ``lines``); its calibration."""
+        from northfinder.host import acceptance as acc
+
+        out = self.out
+        if not ((out / "static.npz").exists() and _wants_static(self.ds)):
+            return None
+        from northfinder.host.calibrate import calibrate, read_runs
+
+        _progress(self.args, "Allan deviation and IEEE 952 fit of the static recording")
+        cal = calibrate(read_runs([out / "static.npz"]))
+        record_s = cal.hours * 3600.0
+        lines += acc.allan_lines(self.ds, cal, record_s)
+        body["stages"]["static"] = {"file": "static.npz", "seconds": record_s}
+        body["allan"] = {
+            axis: {"taus_s": c.taus_s.tolist(), "adev": c.adev.tolist()}
+            for axis, c in cal.curves.items()
+        }
+        body["fits"] = {
+            triad: {
+                "coefficients": {k: _finite(v) for k, v in fit.coefficients.items()},
+                "resolved": fit.resolved,
+            }
+            for triad, fit in cal.triad_fits.items()
+        }
+        return cal
+
+    def _run_lines(self, body: dict[str, Any], cal: Any) -> list[Any]:
+        """The repeatability line and the bias repeatability lines from the runs."""
+        from northfinder.host import acceptance as acc
+        from northfinder.host.recording import Recording
+
+        ds, args, out = self.ds, self.args, self.out
+        runs = [_read_json(out / f"run_{r + 1:02d}.json") for r in range(args.runs)]
+        body["stages"]["runs"] = runs
+        lines = []
+        if "north_finding.sigma_deg" in ds.limits:
+            site = runs[0]["latitude_deg"]
+            lines.append(acc.repeatability_line(ds, [r["azimuth_deg"] for r in runs], site))
+            if cal is not None:
+                body["prediction"] = _prediction(args, ds, cal)
+        if acc.REPEAT_KEY in ds.limits:
+            means = []
+            for r in runs:
+                windows = Recording.load(out / r["recording"]).windows
+                means.append([w.gyro_dph.mean(axis=0).tolist() for w in windows])
+            lines += acc.bias_repeatability_lines(ds, means)
+        return lines
+
+
+def _wants_static(ds: Any) -> bool:
+    """Whether the datasheet has a line the static recording judges."""
+    from northfinder.host.acceptance import ALLAN_KEYS
+
+    return any(k in ds.limits for k in ALLAN_KEYS)
 
 
 _ORDER = ("unit", "gyro", "accel", "north_finding")
