@@ -63,7 +63,7 @@ from northfinder.driver.protocol.messages import (
     Status,
     validity_of,
 )
-from northfinder.driver.protocol.units import DPH, G0
+from northfinder.driver.protocol.units import DEFAULT_WARMUP_S, DPH, G0
 from northfinder.firmware_sim.error_terms import quantise_carry
 from northfinder.firmware_sim.errors import SimConfigError
 from northfinder.firmware_sim.imu import Instrument, SampleBlock, Truth
@@ -240,7 +240,7 @@ class Firmware:
         truth: Truth,
         rng: np.random.Generator,
         *,
-        warmup_s: float = 120.0,
+        warmup_s: float = DEFAULT_WARMUP_S,
         boot_s: float = 0.5,
         node_id: int = 1,
         link: LinkInfo | None = None,

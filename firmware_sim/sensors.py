@@ -374,6 +374,10 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>") -> SensorSpec:
     return SensorSpec(**kwargs)
 
 
+#: The sensor a simulation runs when none is named (the source paper's ring-laser gyro unit).
+DEFAULT_SENSOR = "paper-rlg"
+
+
 def preset_names() -> list[str]:
     """Names of the presets shipped with the package."""
     files = resources.files("northfinder.firmware_sim").joinpath("presets").iterdir()

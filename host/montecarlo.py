@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import ThreadpoolController
 
-from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG, DEFAULT_WARMUP_S
 from northfinder.host.accuracy import (
     ANGLE_SOURCES,
     TILT_SOURCES,
@@ -217,7 +217,7 @@ class StudySettings:
     azimuth_deg: float | None = None
     pitch_deg: float = 0.0
     roll_deg: float = 0.0
-    warmup_s: float = 120.0
+    warmup_s: float = DEFAULT_WARMUP_S
     sample_rate_hz: float = 200.0
     denoise_accel: bool = False
     tilt: str = "accel"

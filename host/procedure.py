@@ -47,11 +47,13 @@ from northfinder.host.plan import HEADING_SOLVERS, Plan
 
 __all__ = [
     "BAD_BITS",
+    "DEFAULT_ON_GAP",
     "MAX_ENCODER_SPAN_DEG",
     "MAX_REMEASURE",
     "MAX_SETTLE_S",
     "METHOD_CHOICES",
     "ON_GAP_CHOICES",
+    "READY_TIMEOUT_S",
     "WINDOW_RANGE_S",
     "FindResult",
     "Plan",
@@ -95,6 +97,10 @@ METHOD_CHOICES = HEADING_SOLVERS
 #: Window and settle-time limits of a run on a device, s.
 WINDOW_RANGE_S = (0.5, 3600.0)
 MAX_SETTLE_S = 600.0
+#: Longest wait for READY after the warm-up when none is given, device s.
+READY_TIMEOUT_S = 600.0
+#: What a window with missing sample ticks gets when nothing is said (see :func:`find_north`).
+DEFAULT_ON_GAP = ON_GAP_CHOICES[0]
 
 
 class WindowLike(Protocol):
@@ -657,13 +663,13 @@ def find_north(
     plan: Plan,
     latitude_deg: float,
     *,
-    warmup_timeout_s: float = 600.0,
+    warmup_timeout_s: float = READY_TIMEOUT_S,
     progress: Callable[[Progress], None] | None = None,
     sleep: Callable[[float], None] | None = None,
     clock: Callable[[], float] | None = None,
     latitude_source: str = "",
     on_window: Callable[[int, Any], None] | None = None,
-    on_gap: str = "remeasure",
+    on_gap: str = DEFAULT_ON_GAP,
 ) -> tuple[FindResult, list[Any]]:
     """Run the plan on ``device`` and solve; return the result and the raw windows.
 

@@ -51,10 +51,12 @@ import can
 import numpy as np
 from can.interfaces.virtual import VirtualBus
 
+from northfinder.config import RELAXED_LINK_TIMEOUT_S, RELAXED_REPLY_TIMEOUT_S
 from northfinder.driver.clock import VirtualClock
 from northfinder.driver.device import Device
 from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT, SERIAL_BAUD_DEFAULT
+from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
 from northfinder.firmware_sim.adapters import (
     CanLink,
     PseudoTerminal,
@@ -66,7 +68,7 @@ from northfinder.firmware_sim.errors import SimError
 from northfinder.firmware_sim.firmware import Firmware, LinkInfo
 from northfinder.firmware_sim.imu import Truth
 from northfinder.firmware_sim.runner import BackgroundRunner, Clock, Link, RealTimeClock, Runner
-from northfinder.firmware_sim.sensors import SensorSpec, load_spec
+from northfinder.firmware_sim.sensors import DEFAULT_SENSOR, SensorSpec, load_spec
 from northfinder.host.errors import HostConfigError
 
 __all__ = [
@@ -79,7 +81,10 @@ __all__ = [
 LINKS = ("virtual", "serial-pty", "slcan-pty")
 """The links :class:`SimulatedInstrument` can put the simulator on."""
 
-RELAXED_DEVICE_OPTIONS: dict[str, float] = {"reply_timeout": 2.0, "min_supervision_s": 3.0}
+RELAXED_DEVICE_OPTIONS: dict[str, float] = {
+    "reply_timeout": RELAXED_REPLY_TIMEOUT_S,
+    "min_supervision_s": RELAXED_LINK_TIMEOUT_S,
+}
 """Driver options for a device whose simulator runs in the same interpreter on a busy machine: a
 reply can wait for the other thread, so allow more than a real unit's deadlines
 (``sim.open_device(**RELAXED_DEVICE_OPTIONS)``)."""
@@ -166,7 +171,8 @@ class SimulatedInstrument:
     speed : float, optional
         Simulated seconds per wall second of the default clock (default 1). Not with ``clock``.
     warmup_s : float
-        The instrument's warm-up time, simulated s (the firmware's default 120; 0 for none).
+        The instrument's warm-up time, simulated s (default
+        :data:`~northfinder.driver.protocol.units.DEFAULT_WARMUP_S`; 0 for none).
     link : {"virtual", "serial-pty", "slcan-pty"}
         Where the simulator is reachable (see the module docstring).
     node_id : int
@@ -210,12 +216,12 @@ class SimulatedInstrument:
 
     def __init__(
         self,
-        sensor: str | Path | SensorSpec = "paper-rlg",
+        sensor: str | Path | SensorSpec = DEFAULT_SENSOR,
         truth: Truth | None = None,
         *,
         seed: int | np.random.Generator | None = None,
         speed: float | None = None,
-        warmup_s: float = 120.0,
+        warmup_s: float = DEFAULT_WARMUP_S,
         link: str = "virtual",
         node_id: int = 1,
         clock: Clock | VirtualClock | str | None = None,

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
 from northfinder.firmware_sim.batch import BatchWindows, SpinBatch, simulate_spin, simulate_windows
 from northfinder.firmware_sim.error_terms import ACCEL, GYRO, ErrorTerms
 from northfinder.firmware_sim.imu import Truth
@@ -185,7 +186,7 @@ def write_recordings(
     folder: str | Path,
     *,
     sample_rate_hz: float = 20.0,
-    warmup_s: float = 120.0,
+    warmup_s: float = DEFAULT_WARMUP_S,
 ) -> list[str]:
     """Simulated power-ons written as recordings, one file per run (``folder/run{seed}-{r}.npz``,
     as ``northfinder record`` writes them), for calibration; returns their paths.

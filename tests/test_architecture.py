@@ -133,7 +133,7 @@ def test_the_source_is_found_and_read():
     edges = {(a, b) for a, b, _ in imports_of("northfinder")}
     assert ("northfinder.driver.device", "northfinder.driver.window") in edges
     # an import inside a function counts (the CLI loads the simulator lazily)
-    assert ("northfinder.cli.measure", "northfinder.embed") in edges
+    assert ("northfinder.session", "northfinder.embed") in edges
 
 
 @pytest.mark.parametrize("rule", [DRIVER, WIRE, SIM, HOST, APP])

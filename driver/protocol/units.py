@@ -54,6 +54,10 @@ def normal_gravity(latitude_rad: ArrayLike) -> NDArray[np.float64] | float:
 #: 34 deg N). A real device's latitude is never assumed.
 DEFAULT_LATITUDE_DEG = 34.0
 
+#: Warm-up of a simulated instrument when none is given, s (the source paper's 2 min; protocol.md
+#: 5 leaves a real device's to the device). Simulator, studies and command line read it here.
+DEFAULT_WARMUP_S = 120.0
+
 #: Latitudes closer to a pole than this are refused: the horizontal Earth rate vanishes there.
 MAX_LATITUDE_DEG = 89.0
 

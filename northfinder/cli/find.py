@@ -19,13 +19,14 @@ from northfinder.cli.exits import result_status
 from northfinder.cli.files import check_output_path
 from northfinder.cli.measure import Measured, run_plan
 from northfinder.cli.plots import check_plot_path
+from northfinder.config import DEFAULT_PLAN
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
-from northfinder.host.plan import DEFAULT_POSITIONS_DEG
 
 #: The stop-and-go plan options and their defaults (refused with ``--spin`` when changed).
 PLAN_DEFAULTS = {
-    "positions": list(DEFAULT_POSITIONS_DEG), "window": 10.0, "settle": 0.0, "denoise": "none",
-    "solver": "auto",
+    "positions": list(DEFAULT_PLAN.positions_deg), "window": DEFAULT_PLAN.window_s,
+    "settle": DEFAULT_PLAN.settle_s, "denoise": DEFAULT_PLAN.denoise,
+    "solver": DEFAULT_PLAN.method,
 }  # fmt: skip
 
 
