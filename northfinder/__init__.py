@@ -37,7 +37,8 @@ from typing import Any as _Any
 
 __version__ = "0.2.0"
 
-#: Public name -> the module that defines it.
+#: Public name -> the module that defines it: the one list of the public names (``__all__`` is
+#: made from it; the imports for static tools below are checked against it by tests/test_api.py).
 _PUBLIC: dict[str, str] = {
     # the device and what it reports
     "Device": "northfinder.driver.device",
@@ -88,90 +89,53 @@ _PUBLIC: dict[str, str] = {
     "SimConfigError": "northfinder.firmware_sim.errors",
 }
 
-__all__ = [
-    "ArgumentError",
-    "Device",
-    "DeviceFault",
-    "DeviceRefused",
-    "DeviceReset",
-    "DeviceStatus",
-    "DriverError",
-    "DriverTimeout",
-    "EmptyWindow",
-    "FindResult",
-    "HostConfigError",
-    "HostError",
-    "LinkError",
-    "LinkLost",
-    "LinkStats",
-    "MoveTimeout",
-    "NodeConflict",
-    "Plan",
-    "ProtocolError",
-    "QualityError",
-    "RecordedWindow",
-    "Recording",
-    "RecordingError",
-    "ReplyTimeout",
-    "SensorSpec",
-    "SimConfigError",
-    "SimError",
-    "SimulatedInstrument",
-    "SpinFind",
-    "SpinPlan",
-    "SpinSolution",
-    "StreamGap",
-    "StreamTimeout",
-    "TableModel",
-    "Truth",
-    "VirtualClock",
-    "WallClock",
-    "Window",
-    "__version__",
-    "find_north",
-    "find_north_spin",
-    "load_spec",
-    "preset_names",
-    "solve_windows",
-]
+#: What ``from northfinder import *`` gives: the public names, once, from :data:`_PUBLIC`.
+__all__ = sorted(["__version__", *_PUBLIC])
 
-if _TYPE_CHECKING:  # what static tools and the API reference see
-    from northfinder.driver.clock import VirtualClock, WallClock
-    from northfinder.driver.device import Device
-    from northfinder.driver.device_link import DeviceStatus, LinkStats
-    from northfinder.driver.errors import (
-        ArgumentError,
-        DeviceFault,
-        DeviceRefused,
-        DeviceReset,
-        DriverError,
-        DriverTimeout,
-        EmptyWindow,
-        LinkError,
-        LinkLost,
-        MoveTimeout,
-        NodeConflict,
-        ProtocolError,
-        ReplyTimeout,
-        StreamGap,
-        StreamTimeout,
-    )
-    from northfinder.driver.window import Window
-    from northfinder.embed import SimulatedInstrument
-    from northfinder.firmware_sim.errors import SimConfigError, SimError
-    from northfinder.firmware_sim.imu import Truth
-    from northfinder.firmware_sim.sensors import SensorSpec, load_spec, preset_names
-    from northfinder.host.errors import HostConfigError, HostError, QualityError, RecordingError
-    from northfinder.host.plan import Plan, SpinPlan, TableModel
-    from northfinder.host.procedure import (
-        FindResult,
-        SpinFind,
-        find_north,
-        find_north_spin,
-        solve_windows,
-    )
-    from northfinder.host.recording import RecordedWindow, Recording
-    from northfinder.host.spin import SpinSolution
+if _TYPE_CHECKING:  # what static tools see: the names of _PUBLIC, re-exported
+    from northfinder.driver.clock import VirtualClock as VirtualClock
+    from northfinder.driver.clock import WallClock as WallClock
+    from northfinder.driver.device import Device as Device
+    from northfinder.driver.device_link import DeviceStatus as DeviceStatus
+    from northfinder.driver.device_link import LinkStats as LinkStats
+    from northfinder.driver.errors import ArgumentError as ArgumentError
+    from northfinder.driver.errors import DeviceFault as DeviceFault
+    from northfinder.driver.errors import DeviceRefused as DeviceRefused
+    from northfinder.driver.errors import DeviceReset as DeviceReset
+    from northfinder.driver.errors import DriverError as DriverError
+    from northfinder.driver.errors import DriverTimeout as DriverTimeout
+    from northfinder.driver.errors import EmptyWindow as EmptyWindow
+    from northfinder.driver.errors import LinkError as LinkError
+    from northfinder.driver.errors import LinkLost as LinkLost
+    from northfinder.driver.errors import MoveTimeout as MoveTimeout
+    from northfinder.driver.errors import NodeConflict as NodeConflict
+    from northfinder.driver.errors import ProtocolError as ProtocolError
+    from northfinder.driver.errors import ReplyTimeout as ReplyTimeout
+    from northfinder.driver.errors import StreamGap as StreamGap
+    from northfinder.driver.errors import StreamTimeout as StreamTimeout
+    from northfinder.driver.window import Window as Window
+    from northfinder.embed import SimulatedInstrument as SimulatedInstrument
+    from northfinder.firmware_sim.errors import SimConfigError as SimConfigError
+    from northfinder.firmware_sim.errors import SimError as SimError
+    from northfinder.firmware_sim.imu import Truth as Truth
+    from northfinder.firmware_sim.sensors import SensorSpec as SensorSpec
+    from northfinder.firmware_sim.sensors import load_spec as load_spec
+    from northfinder.firmware_sim.sensors import preset_names as preset_names
+    from northfinder.host.errors import HostConfigError as HostConfigError
+    from northfinder.host.errors import HostError as HostError
+    from northfinder.host.errors import QualityError as QualityError
+    from northfinder.host.errors import RecordingError as RecordingError
+    from northfinder.host.plan import Plan as Plan
+    from northfinder.host.plan import SpinPlan as SpinPlan
+    from northfinder.host.plan import TableModel as TableModel
+    from northfinder.host.procedure import FindResult as FindResult
+    from northfinder.host.procedure import SpinFind as SpinFind
+    from northfinder.host.procedure import find_north as find_north
+    from northfinder.host.procedure import find_north_spin as find_north_spin
+    from northfinder.host.procedure import solve_windows as solve_windows
+    from northfinder.host.recording import RecordedWindow as RecordedWindow
+    from northfinder.host.recording import Recording as Recording
+    from northfinder.host.spin import SpinSolution as SpinSolution
 
 
 def __getattr__(name: str) -> _Any:

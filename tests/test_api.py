@@ -153,3 +153,22 @@ def test_a_spin_finds_north_through_the_public_names():
     assert found.solution.azimuth_deg == pytest.approx(123.0, abs=1e-6)
     plan = northfinder.SpinPlan(10.0, 36.0)
     assert plan.rate_dps == 10.0
+
+
+def test_the_imports_static_tools_see_are_the_public_names():
+    import ast
+
+    tree = ast.parse(inspect.getsource(northfinder))
+    block = next(
+        node
+        for node in tree.body
+        if isinstance(node, ast.If) and getattr(node.test, "id", "") == "_TYPE_CHECKING"
+    )
+    imported = {
+        alias.name: node.module
+        for node in block.body
+        if isinstance(node, ast.ImportFrom)
+        for alias in node.names
+    }
+    assert imported == northfinder._PUBLIC
+    assert set(northfinder.__all__) == {"__version__", *northfinder._PUBLIC}

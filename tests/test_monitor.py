@@ -692,24 +692,23 @@ async def refused_in_warmup(key, *typed, opcode):
         await quit_in_time(app, pilot)
 
 
-async def key_t():
+async def move_by_key(keys: tuple[str, ...], settle_s: float, logged: str, table: float):
+    """Type a move key and its angle: the line the move logs, and where the table ends, deg."""
     async with on_screen() as (sim, _session, app, pilot):
         await advance(app, pilot, sim, 0.5)
-        await pilot.press("t", "9", "0", "enter")
-        await settle(app, pilot, sim, 40.0)
-        assert "ROTATE_TO 90.000 deg -> OK in" in log_text(app)
-        assert table_deg(app) == pytest.approx(90.0, abs=0.02)
+        await pilot.press(*keys)
+        await settle(app, pilot, sim, settle_s)
+        assert logged in log_text(app)
+        assert table_deg(app) == pytest.approx(table, abs=0.02)
         await quit_in_time(app, pilot)
+
+
+async def key_t():
+    await move_by_key(("t", "9", "0", "enter"), 40.0, "ROTATE_TO 90.000 deg -> OK in", 90.0)
 
 
 async def key_b():
-    async with on_screen() as (sim, _session, app, pilot):
-        await advance(app, pilot, sim, 0.5)
-        await pilot.press("b", "4", "5", "enter")
-        await settle(app, pilot, sim, 30.0)
-        assert "ROTATE_BY +45.000 deg -> OK in" in log_text(app)
-        assert table_deg(app) == pytest.approx(45.0, abs=0.02)
-        await quit_in_time(app, pilot)
+    await move_by_key(("b", "4", "5", "enter"), 30.0, "ROTATE_BY +45.000 deg -> OK in", 45.0)
 
 
 async def key_s():

@@ -41,3 +41,11 @@ def test_imports_and_comments_are_no_repeated_code(tmp_path):
         (tmp_path / name).write_text(imports + f"X_{name[0]} = 1\n")
     files = [str(tmp_path / "a.py"), str(tmp_path / "b.py")]
     assert _script().repeated_pairs(files) == []
+
+
+@pytest.mark.slow
+def test_the_repository_has_at_most_15_repeated_pairs(monkeypatch):
+    script = _script()
+    monkeypatch.chdir(script.ROOT)  # the files are named relative to the repository's root
+    pairs = script.repeated_pairs(script.python_files())
+    assert len(pairs) <= 15, "\n".join(f"{n} lines: {a} ~ {b}" for n, a, b in pairs)

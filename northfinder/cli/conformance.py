@@ -9,10 +9,11 @@ could not keep pace: docs/conformance.md). For a simulator at ``--speed S`` give
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import can
@@ -170,16 +171,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.sim:
         return _run_simulated(args, options)
-    closers: list[Any] = []
-    try:
-        link = _open_raw_link(args, closers)
+    with _raw_link(args) as link:
         report = _run(args, link, options)
-    finally:
-        for close in reversed(closers):
-            try:
-                close()
-            except (can.CanError, serial.SerialException, OSError):
-                pass  # the link is already gone; the report says what failed
     return _finish(args, report)
 
 
@@ -262,10 +255,17 @@ def _open_raw_link(args: argparse.Namespace, closers: list[Any]) -> CanRawLink |
 
 def link_report(args: argparse.Namespace, options: SuiteOptions) -> Report:
     """The suite's report on the unit of ``--serial`` or the python-can options (no progress)."""
+    with _raw_link(args) as link:
+        return run_suite(link, options)
+
+
+@contextlib.contextmanager
+def _raw_link(args: argparse.Namespace) -> Iterator[Any]:
+    """The unit's link of ``--serial`` or the python-can options, closed on leaving (what was
+    opened of it, when opening failed half-way)."""
     closers: list[Any] = []
     try:
-        link = _open_raw_link(args, closers)
-        return run_suite(link, options)
+        yield _open_raw_link(args, closers)
     finally:
         for close in reversed(closers):
             try:

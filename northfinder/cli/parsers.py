@@ -13,9 +13,9 @@ from northfinder.cli.exits import EXIT_USAGE
 #: The one-line help of each command in the command list (:func:`command_parser` takes it from
 #: here; the list shows it without importing the command's module).
 SUMMARIES: dict[str, str] = {
-    "simulate": "summarise simulated windows (physics only)",
-    "sim": "run the simulated instrument on a link",
-    "simctl": "control a running simulator",
+    "simulate": "one simulated window per position, summarised: physics only, no device or link",
+    "sim": "serve the simulated instrument on a link (CAN, serial, pty) for other commands",
+    "simctl": "change a running sim through its control channel (truth, sensor, faults)",
     "conformance": "check a unit on a link against protocol.md",
     "study": "Monte Carlo accuracy of a plan against the physical bound; plan search",
     "sweep": "Monte Carlo studies over presets, latitudes, plans and windows (threads or Dask)",

@@ -1,7 +1,7 @@
 """``find --spin``: north finding on a continuously turning table (protocol 1.1), on every link.
 
-The options, the run (through :func:`northfinder.host.spin.find_north_spin`) and how the result
-is shown (text and JSON); ``find`` calls :func:`run` when ``--spin`` is given.
+The options, the run (through :func:`northfinder.host.procedure.find_north_spin`) and how the
+result is shown (text and JSON); ``find`` calls :func:`run` when ``--spin`` is given.
 """
 
 from __future__ import annotations
