@@ -818,7 +818,7 @@ def find_north_spin(
     latitude_deg: float,
     *,
     drift: bool = False,
-    warmup_timeout_s: float = 600.0,
+    warmup_timeout_s: float = READY_TIMEOUT_S,
     latitude_source: str = "",
     progress: Callable[[Progress], None] | None = None,
 ) -> SpinFind:

@@ -34,6 +34,7 @@ from northfinder.config import (
     LinkConfig,
     OutputConfig,
     SimConfig,
+    SpinConfig,
 )
 from northfinder.driver.device import Device
 from northfinder.driver.device_link import HEARTBEATS_UNTIL_LOST, REPLY_TIMEOUT_S
@@ -321,12 +322,20 @@ def sim_config(args: argparse.Namespace) -> SimConfig:
 def find_config(args: argparse.Namespace) -> FindConfig:
     """The run the command line names, parsed once (:class:`~northfinder.config.FindConfig`)."""
     config = FindConfig(
-        link=link_config(args), plan=plan_from_args(args), latitude_deg=args.latitude,
+        link=link_config(args), plan=plan_from_args(args), spin=spin_config(args),
+        latitude_deg=args.latitude,
         on_gap=args.on_gap, ready_timeout_s=args.timeout,
         output=OutputConfig(verbose=getattr(args, "verbose", 0) or 0),
     )  # fmt: skip
     check_config(config)
     return config
+
+
+def spin_config(args: argparse.Namespace) -> SpinConfig | None:
+    """``--spin RATE_DPS`` and its options (None: the stop-and-go plan)."""
+    if getattr(args, "spin", None) is None:
+        return None
+    return SpinConfig(args.spin, args.spin_time, bool(args.spin_drift))
 
 
 def run_plan(
