@@ -60,7 +60,10 @@ __all__ = [
     "latitude_source",
     "link_statistics",
     "open_unit",
+    "real_unit",
     "recording_meta",
+    "relaxed_device",
+    "simulated_unit",
     "site_latitude",
 ]
 
@@ -322,6 +325,17 @@ def simulated_unit(
         except DriverError:
             instrument.check()  # a simulator that failed is the cause, not the link: say so
             raise
+
+
+def relaxed_device(instrument: Any) -> Device:
+    """A device on a started :class:`~northfinder.embed.SimulatedInstrument` with the driver's
+    relaxed deadlines (:data:`~northfinder.config.RELAXED_REPLY_TIMEOUT_S`,
+    :data:`~northfinder.config.RELAXED_LINK_TIMEOUT_S`): the simulator shares this
+    interpreter, as in the pytest plugin's ``northfinder_device``."""
+    device: Device = instrument.open_device(
+        reply_timeout=RELAXED_REPLY_TIMEOUT_S, min_supervision_s=RELAXED_LINK_TIMEOUT_S
+    )
+    return device
 
 
 # -- running a plan -------------------------------------------------------------------------

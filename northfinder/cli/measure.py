@@ -38,9 +38,8 @@ from northfinder.config import (
 )
 from northfinder.driver.device import Device
 from northfinder.driver.device_link import HEARTBEATS_UNTIL_LOST, REPLY_TIMEOUT_S
-from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.constants import HEARTBEAT_PERIOD_DEFAULT_MS
-from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG, DEFAULT_WARMUP_S
+from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
 from northfinder.firmware_sim.sensors import DEFAULT_SENSOR
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
@@ -212,26 +211,6 @@ def open_device(
     config = _unit_config(args)
     latitude = session.site_latitude(config)
     with session.open_unit(config.link, latitude_deg=latitude, deferred=deferred) as unit:
-        yield unit.device, unit.truth
-
-
-@contextlib.contextmanager
-def _open_unit(args: argparse.Namespace, tap: FrameLog | None) -> Iterator[Device]:
-    with session.real_unit(link_config(args), tap) as device:
-        yield device
-
-
-@contextlib.contextmanager
-def embedded_simulator(
-    args: argparse.Namespace, tap: FrameLog | None = None
-) -> Iterator[tuple[Device, dict[str, Any]]]:
-    """A device on the simulated instrument in this process (virtual CAN), and its truth
-    (:func:`northfinder.session.simulated_unit`)."""
-    link = link_config(args)
-    assert link.sim is not None
-    latitude = DEFAULT_LATITUDE_DEG if args.latitude is None else float(args.latitude)
-    with session.simulated_unit(link, link.sim, latitude, tap) as unit:
-        assert unit.truth is not None
         yield unit.device, unit.truth
 
 
