@@ -8,7 +8,7 @@ commanded ones.
 What it measures is a :class:`~northfinder.host.plan.Plan` (the one plan type of studies and the
 planner too). After each move the device settles on its own and reports READY; the procedure then
 waits whatever remains of the plan's ``settle_s`` (see :mod:`northfinder.host.plan`). Time is
-injected: ``sleep`` and ``clock`` default to the wall clock.
+injected: ``sleep`` and ``clock`` default to the device's own clock (:class:`DeviceLike`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, ParamSpec, Protocol, TypeVar
@@ -55,12 +54,16 @@ __all__ = [
     "ON_GAP_CHOICES",
     "READY_TIMEOUT_S",
     "WINDOW_RANGE_S",
+    "DeviceClock",
+    "DeviceLike",
     "FindResult",
     "Plan",
     "PositionWindow",
     "Progress",
     "QualityError",
     "SpinFind",
+    "SpinningDeviceLike",
+    "WindowsSolution",
     "base_attitude",
     "batch_sem",
     "check_plan_for_device",
@@ -122,8 +125,25 @@ class WindowLike(Protocol):
     def missing(self) -> int: ...
 
 
+class DeviceClock(Protocol):
+    """The time a device keeps (the driver's :class:`~northfinder.driver.clock.WallClock` or
+    :class:`~northfinder.driver.clock.VirtualClock`), s."""
+
+    def now(self) -> float: ...
+    def sleep(self, seconds: float) -> None: ...
+
+
 class DeviceLike(Protocol):
+    """Everything the procedures use of a device: the driver's
+    :class:`~northfinder.driver.device.Device` has it all, and a stand-in in a test needs all of
+    it too (no method is looked up by name at run time)."""
+
+    @property
+    def clock(self) -> DeviceClock: ...
+    @property
+    def last_status(self) -> Any: ...
     def status(self) -> Any: ...
+    def wait_ready(self, timeout: float = ...) -> Any: ...
     def get_config(self, key: ConfigKey) -> int: ...
     def rotate_to(
         self, angle_deg: float, *, wait: bool = True, timeout: float | None = None
@@ -132,6 +152,15 @@ class DeviceLike(Protocol):
         self, seconds: float, *, on_gap: Literal["raise", "report"] = "raise"
     ) -> WindowLike: ...
     def stop_streaming(self) -> None: ...
+    def release_stream(self) -> None: ...
+    def leave_at_rest(self) -> Any: ...
+
+
+class SpinningDeviceLike(DeviceLike, Protocol):
+    """A device that can spin its table (protocol 1.1), as :func:`find_north_spin` uses it."""
+
+    def spin(self, rate_dps: float, *, wait: bool = False, timeout: float | None = None) -> Any: ...
+    def stop(self, *, wait: bool = False, timeout: float | None = None) -> Any: ...
 
 
 def unfit_samples(validity: Any) -> NDArray[np.bool_]:
@@ -490,9 +519,21 @@ def pairwise_solutions(
     return out
 
 
+@dataclass(frozen=True)
+class WindowsSolution:
+    """What :func:`solve_windows` finds: the heading and its 1-sigma, the base's tilt and the
+    azimuth of each pair of windows (:func:`pairwise_solutions`), deg."""
+
+    azimuth_deg: float
+    sigma_deg: float | None
+    pitch_deg: float
+    roll_deg: float
+    pairwise_deg: tuple[float, ...]
+
+
 def solve_windows(
     windows: Sequence[PositionWindow], latitude_deg: float, plan: Plan
-) -> tuple[float, float | None, float, float, tuple[float, ...]]:
+) -> WindowsSolution:
     """Heading, sigma, pitch, roll and pairwise azimuths from summarised windows.
 
     ``plan.solver`` picks the solver (``pairwise`` is refused: it gives no single heading).
@@ -518,12 +559,14 @@ def solve_windows(
             rate_unit="deg/h", gyro_noise=g_sem, accel_noise=a_sem,
         )  # fmt: skip
         azimuth, pitch, roll = base_attitude(s.azimuth_deg, s.pitch_deg, s.roll_deg, float(mu[0]))
-        return azimuth, s.sigma_deg, pitch, roll, tuple(pairwise)
+        return WindowsSolution(azimuth, s.sigma_deg, pitch, roll, tuple(pairwise))
     m: MultiPositionSolution = solve_multi_position(
         gyro, mu, latitude_deg=latitude_deg, accel_means=accel, rate_unit="deg/h",
         gyro_noise=g_sem, accel_noise=a_sem,
     )  # fmt: skip
-    return m.azimuth_deg % 360.0, m.sigma_deg, m.pitch_deg, m.roll_deg, tuple(pairwise)
+    return WindowsSolution(
+        m.azimuth_deg % 360.0, m.sigma_deg, m.pitch_deg, m.roll_deg, tuple(pairwise)
+    )
 
 
 def result_from_windows(
@@ -540,7 +583,8 @@ def result_from_windows(
     sigma by its Birge ratio and adds the warning to the notes; a plan without redundancy says
     in the notes that it was not checked.
     """
-    azimuth, sigma, pitch, roll, pairwise = solve_windows(windows, latitude_deg, plan)
+    solved = solve_windows(windows, latitude_deg, plan)
+    sigma = solved.sigma_deg
     check = check_windows(
         [w.encoder_deg for w in windows],
         np.array([w.gyro_dph for w in windows]),
@@ -562,15 +606,15 @@ def result_from_windows(
     if sigma is not None and check.consistent is False:
         sigma *= check.sigma_scale
     return FindResult(
-        azimuth_deg=azimuth,
+        azimuth_deg=solved.azimuth_deg,
         sigma_deg=sigma,
-        pitch_deg=pitch,
-        roll_deg=roll,
+        pitch_deg=solved.pitch_deg,
+        roll_deg=solved.roll_deg,
         method=plan.solver,
         denoise=plan.denoise,
         latitude_deg=latitude_deg,
         windows=tuple(windows),
-        pairwise_deg=pairwise if len(windows) > 2 else (),
+        pairwise_deg=solved.pairwise_deg if len(windows) > 2 else (),
         notes=tuple(notes),
         latitude_source=latitude_source,
         check=check,
@@ -596,20 +640,15 @@ def wait_until_ready(
 ) -> None:
     """Wait until ``device`` is READY (its warm-up over), calling ``on_wait`` with the status at
     every poll; raise :class:`HostError` on FAULT or after ``warmup_timeout_s`` (by ``clock``,
-    default the device's own)."""
+    default the device's own). The device's heartbeats are waited for on its own clock
+    (:meth:`~northfinder.driver.device.Device.wait_ready`); ``sleep`` is taken for callers of
+    0.2 and not needed."""
     report = on_wait or (lambda status: None)
-    device_clock = getattr(device, "clock", None)
-    pause: Callable[[float], None] = sleep or (
-        device_clock.sleep if device_clock is not None else time.sleep
-    )
-    now: Callable[[], float] = clock or (
-        device_clock.now if device_clock is not None else time.monotonic
-    )
+    now: Callable[[], float] = clock or device.clock.now
     deadline = now() + warmup_timeout_s
     # A device that reports its status by itself (heartbeats, protocol.md 6) is watched, not
     # asked: one GET_STATUS first, then the heartbeats until READY, with a progress report every
-    # WARMUP_POLL_S. A device without ``wait_ready`` is asked every WARMUP_POLL_S.
-    wait_ready = getattr(device, "wait_ready", None)
+    # WARMUP_POLL_S.
     status = device.status()
     while True:
         state = _state_name(status)
@@ -625,16 +664,12 @@ def wait_until_ready(
                 f"the device did not become READY within {warmup_timeout_s:g} s (state {state})"
             )
         report(status)
-        if wait_ready is None:
-            pause(WARMUP_POLL_S)
-            status = device.status()
-            continue
         try:
-            status = wait_ready(timeout=WARMUP_POLL_S)
+            status = device.wait_ready(timeout=WARMUP_POLL_S)
         except DeviceFault:
             status = device.status()  # FAULT: reported below, as when asked
         except DriverTimeout:
-            status = getattr(device, "last_status", None) or device.status()
+            status = device.last_status or device.status()
 
 
 def _at_rest_on_error(procedure: Callable[P, T]) -> Callable[P, T]:
@@ -648,10 +683,8 @@ def _at_rest_on_error(procedure: Callable[P, T]) -> Callable[P, T]:
         try:
             return procedure(*args, **kwargs)
         except BaseException:
-            device = args[0] if args else kwargs.get("device")
-            leave = getattr(device, "leave_at_rest", None)
-            if leave is not None:
-                leave()
+            device = args[0] if args else kwargs["device"]
+            device.leave_at_rest()  # type: ignore[attr-defined]
             raise
 
     return run
@@ -688,8 +721,7 @@ def find_north(
         Called with a :class:`Progress` at every phase.
     sleep, clock : callable
         How to wait and what time it is, s (default: the device's own clock, ``device.clock``,
-        where it has one, so that a device in virtual time is waited for in virtual time; else
-        the wall clock).
+        so that a device in virtual time is waited for in virtual time).
     latitude_source : str
         Where the latitude came from, stated in the result.
     on_window : callable, optional
@@ -710,71 +742,94 @@ def find_north(
     """
     check_plan_for_device(plan)
     report = progress or (lambda p: None)
+    pause = sleep or device.clock.sleep
+    timing = _PlanTiming.of(device, plan)
     n = len(plan.positions_deg)
-    rate_dps = device.get_config(ConfigKey.TABLE_MAX_RATE_MDPS) / 1000.0
-    settle_dev = device.get_config(ConfigKey.SETTLE_TIME_MS) / 1000.0
-    # A denoising method the windows cannot take is refused now, not after the measurement.
-    n_samples = round(plan.window_s * device.get_config(ConfigKey.SAMPLE_RATE_HZ))
-    check_denoise(plan.denoise, dict(plan.denoise_options), n_samples, "denoise")
-    extra = extra_settle_s(plan, settle_dev)
-
-    def seconds_left(i: int, here: float | None) -> float:
-        left, angle = 0.0, here
-        for p in plan.positions_deg[i:]:
-            if angle is not None:
-                d = abs(shortest_delta_deg(angle, p))
-                left += d / max(rate_dps, 1e-6) + settle_dev
-            angle = p
-            left += extra + plan.window_s
-        return left
-
     wait_until_ready(
         device, warmup_timeout_s, lambda st: report(Progress("warm-up", 0, n, _angle(st), None)),
-        sleep=sleep, clock=clock,
+        clock=clock,
     )  # fmt: skip
-    if sleep is None:
-        device_clock = getattr(device, "clock", None)
-        sleep = device_clock.sleep if device_clock is not None else time.sleep
     windows: list[PositionWindow] = []
     raw: list[Any] = []
     here = _angle(device.status())
-    options = dict(plan.denoise_options)
     for i, target in enumerate(plan.positions_deg):
-        report(Progress("rotate", i + 1, n, here, seconds_left(i, here)))
+        report(Progress("rotate", i + 1, n, here, timing.seconds_left(i, here)))
         device.rotate_to(target % 360.0, wait=True)
-        if extra:
-            report(
-                Progress("settle", i + 1, n, target % 360.0, seconds_left(i, None) - plan.window_s)
-            )
-            sleep(extra)
-        report(Progress("acquire", i + 1, n, target % 360.0, seconds_left(i, None) - extra))
-        window, remeasured = _acquire(device, plan.window_s, on_gap)
-        # Stop the stream between windows, but only one this host started (another host on
-        # the bus may be using it): a Device has release_stream for that. A window complete
-        # in hand is kept when the stop's reply does not come (the next window starts with
-        # the next sample whether the stream ran on or not).
-        stream_note = []
-        try:
-            getattr(device, "release_stream", device.stop_streaming)()
-        except DriverTimeout as exc:
-            stream_note.append(f"STREAM_STOP unanswered after the window ({exc})")
+        if timing.extra_s:
+            left = timing.seconds_left(i, None) - plan.window_s
+            report(Progress("settle", i + 1, n, target % 360.0, left))
+            pause(timing.extra_s)
+        left = timing.seconds_left(i, None) - timing.extra_s
+        report(Progress("acquire", i + 1, n, target % 360.0, left))
+        window, summary = _measure_window(device, plan, target, on_gap)
         raw.append(window)
         if on_window is not None:
             on_window(i, window)
-        summary = summarise_window(
-            window, target, plan.denoise, options, allow_gaps=on_gap == "report"
-        )
-        extra_notes = [*stream_note]
-        if remeasured:
-            extra_notes.append(f"measured again {remeasured} time(s): sample ticks were missing")
-        if extra_notes:
-            summary = dataclasses.replace(summary, notes=(*summary.notes, *extra_notes))
-        windows.append(summary)
-        here = summary.encoder_deg
+        windows.append(summary())
+        here = windows[-1].encoder_deg
     report(Progress("solve", n, n, here, 0.0))
     result = result_from_windows(windows, latitude_deg, plan, latitude_source=latitude_source)
     report(Progress("done", n, n, here, 0.0))
     return result, raw
+
+
+@dataclass(frozen=True)
+class _PlanTiming:
+    """What a plan takes on a device: the table's rate limit (deg/s), the device's own
+    settling and the plan's extra settling after each move (s)."""
+
+    plan: Plan
+    rate_dps: float
+    device_settle_s: float
+    extra_s: float
+
+    @classmethod
+    def of(cls, device: DeviceLike, plan: Plan) -> _PlanTiming:
+        """The device's rates and settling; a denoising method the windows cannot take is
+        refused now, not after the measurement."""
+        rate_dps = device.get_config(ConfigKey.TABLE_MAX_RATE_MDPS) / 1000.0
+        settle_dev = device.get_config(ConfigKey.SETTLE_TIME_MS) / 1000.0
+        n_samples = round(plan.window_s * device.get_config(ConfigKey.SAMPLE_RATE_HZ))
+        check_denoise(plan.denoise, dict(plan.denoise_options), n_samples, "denoise")
+        return cls(plan, rate_dps, settle_dev, extra_settle_s(plan, settle_dev))
+
+    def seconds_left(self, i: int, here: float | None) -> float:
+        """Device seconds from position ``i`` (the table at ``here``; None: there) to the end."""
+        left, angle = 0.0, here
+        for p in self.plan.positions_deg[i:]:
+            if angle is not None:
+                d = abs(shortest_delta_deg(angle, p))
+                left += d / max(self.rate_dps, 1e-6) + self.device_settle_s
+            angle = p
+            left += self.extra_s + self.plan.window_s
+        return left
+
+
+def _measure_window(
+    device: DeviceLike, plan: Plan, target: float, on_gap: str
+) -> tuple[Any, Callable[[], PositionWindow]]:
+    """Acquire the window at ``target`` (by ``on_gap``) and stop the stream; the raw window
+    and how to summarise it (after the caller has handed the raw window on)."""
+    window, remeasured = _acquire(device, plan.window_s, on_gap)
+    # Stop the stream between windows, but only one this host started (another host on the
+    # bus may be using it). A window complete in hand is kept when the stop's reply does not
+    # come (the next window starts with the next sample whether the stream ran on or not).
+    notes = []
+    try:
+        device.release_stream()
+    except DriverTimeout as exc:
+        notes.append(f"STREAM_STOP unanswered after the window ({exc})")
+    if remeasured:
+        notes.append(f"measured again {remeasured} time(s): sample ticks were missing")
+
+    def summary() -> PositionWindow:
+        s = summarise_window(
+            window, target, plan.denoise, dict(plan.denoise_options),
+            allow_gaps=on_gap == "report",
+        )  # fmt: skip
+        return dataclasses.replace(s, notes=(*s.notes, *notes)) if notes else s
+
+    return window, summary
 
 
 def _acquire(device: DeviceLike, window_s: float, on_gap: str) -> tuple[Any, int]:
@@ -812,13 +867,13 @@ class SpinFind:
 
 @_at_rest_on_error
 def find_north_spin(
-    device: Any,
+    device: SpinningDeviceLike,
     rate_dps: float,
     spin_s: float,
     latitude_deg: float,
     *,
     drift: bool = False,
-    warmup_timeout_s: float = 600.0,
+    warmup_timeout_s: float = READY_TIMEOUT_S,
     latitude_source: str = "",
     progress: Callable[[Progress], None] | None = None,
 ) -> SpinFind:

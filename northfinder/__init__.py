@@ -1,6 +1,18 @@
 """northfinder: a workbench for gyro north finders.
 
-What a user needs is named here, as python-can names ``can.Bus`` and ``can.Message``::
+What a user needs is named here, as python-can names ``can.Bus`` and ``can.Message``. A run is
+configured by the same typed objects the command line builds (:mod:`northfinder.config`) and
+run through the session layer (:mod:`northfinder.session`)::
+
+    import northfinder
+
+    config = northfinder.FindConfig(
+        northfinder.LinkConfig(sim=northfinder.SimConfig(seed=1)),  # find --sim --seed 1
+        plan=northfinder.Plan((0.0, 180.0, 180.0, 0.0), 10.0),
+    )
+    measured = northfinder.find(config)
+
+or, a step lower, with a device in hand::
 
     import northfinder
 
@@ -20,7 +32,9 @@ The package is laid out in layers, imports going one way only:
 - :mod:`northfinder.driver`: the host-side driver and the wire codec (imports neither other package);
 - :mod:`northfinder.firmware_sim`: the simulated instrument (imports only the wire codec);
 - :mod:`northfinder.host`: north finding (imports the driver, never the simulator);
-- this package's own modules, the application layer: the command line (:mod:`northfinder.cli`),
+- this package's own modules, the application layer: the configuration of a run
+  (:mod:`northfinder.config`) and the session that opens a unit and runs it
+  (:mod:`northfinder.session`), the command line (:mod:`northfinder.cli`),
   the embedded simulator (:mod:`northfinder.embed`), the pytest plugin
   (:mod:`northfinder.pytest_plugin`) and the study's simulated windows
   (:mod:`northfinder.simwindows`). Only they import all three.
@@ -65,6 +79,19 @@ _PUBLIC: dict[str, str] = {
     "solve_windows": "northfinder.host.procedure",
     "Recording": "northfinder.host.recording",
     "RecordedWindow": "northfinder.host.recording",
+    # configuring and running a session (the command line builds the same objects)
+    "FindConfig": "northfinder.config",
+    "LinkConfig": "northfinder.config",
+    "SimConfig": "northfinder.config",
+    "SpinConfig": "northfinder.config",
+    "OutputConfig": "northfinder.config",
+    "NmeaConfig": "northfinder.config",
+    "find": "northfinder.session",
+    "find_spin": "northfinder.session",
+    "open_unit": "northfinder.session",
+    "Unit": "northfinder.session",
+    "Measured": "northfinder.session",
+    "SpinMeasured": "northfinder.session",
     # the errors: one root per package, and what a host handles by kind
     "DriverError": "northfinder.driver.errors",
     "ArgumentError": "northfinder.driver.errors",
@@ -93,6 +120,12 @@ _PUBLIC: dict[str, str] = {
 __all__ = sorted(["__version__", *_PUBLIC])
 
 if _TYPE_CHECKING:  # what static tools see: the names of _PUBLIC, re-exported
+    from northfinder.config import FindConfig as FindConfig
+    from northfinder.config import LinkConfig as LinkConfig
+    from northfinder.config import NmeaConfig as NmeaConfig
+    from northfinder.config import OutputConfig as OutputConfig
+    from northfinder.config import SimConfig as SimConfig
+    from northfinder.config import SpinConfig as SpinConfig
     from northfinder.driver.clock import VirtualClock as VirtualClock
     from northfinder.driver.clock import WallClock as WallClock
     from northfinder.driver.device import Device as Device
@@ -136,6 +169,12 @@ if _TYPE_CHECKING:  # what static tools see: the names of _PUBLIC, re-exported
     from northfinder.host.recording import RecordedWindow as RecordedWindow
     from northfinder.host.recording import Recording as Recording
     from northfinder.host.spin import SpinSolution as SpinSolution
+    from northfinder.session import Measured as Measured
+    from northfinder.session import SpinMeasured as SpinMeasured
+    from northfinder.session import Unit as Unit
+    from northfinder.session import find as find
+    from northfinder.session import find_spin as find_spin
+    from northfinder.session import open_unit as open_unit
 
 
 def __getattr__(name: str) -> _Any:

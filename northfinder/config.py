@@ -20,6 +20,7 @@ the driver's deadlines in :mod:`northfinder.driver.device_link`, the plan's in
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,7 +29,7 @@ from northfinder.driver.protocol.constants import NODE_ID_DEFAULT, SERIAL_BAUD_D
 from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
 from northfinder.firmware_sim.sensors import DEFAULT_SENSOR
 from northfinder.host.nmea import NMEA_BAUD
-from northfinder.host.plan import DEFAULT_POSITIONS_DEG, Plan, SpinPlan
+from northfinder.host.plan import DEFAULT_POSITIONS_DEG, Plan
 from northfinder.host.procedure import DEFAULT_ON_GAP, READY_TIMEOUT_S
 
 __all__ = [
@@ -41,6 +42,7 @@ __all__ = [
     "NmeaConfig",
     "OutputConfig",
     "SimConfig",
+    "SpinConfig",
     "default_of",
 ]
 
@@ -109,7 +111,7 @@ class LinkConfig:
 
     Attributes
     ----------
-    bus : mapping
+    bus : dict
         ``can.Bus(**bus)`` keywords (``interface``, ``channel``, ``bitrate``, ...); empty: no bus.
     serial : str or None
         Serial port path or pyserial URL.
@@ -151,6 +153,29 @@ class LinkConfig:
         return tuple(name for name, yes in given if yes)
 
 
+#: Default spin time: the fewest whole turns that last at least this long, s.
+DEFAULT_SPIN_MIN_S = 60.0
+
+
+@dataclass(frozen=True)
+class SpinConfig:
+    """A spin instead of the stop-and-go plan (``find --spin RATE_DPS``): the table turns at
+    ``rate_dps`` for ``spin_s`` seconds (None: the fewest whole turns lasting at least
+    :data:`DEFAULT_SPIN_MIN_S`), and the fit takes a gyro drift too with ``drift``."""
+
+    rate_dps: float
+    spin_s: float | None = None
+    drift: bool = False
+
+    @property
+    def seconds(self) -> float:
+        """The spin's duration, s."""
+        if self.spin_s is not None:
+            return float(self.spin_s)
+        turn = 360.0 / abs(self.rate_dps)
+        return math.ceil(DEFAULT_SPIN_MIN_S / turn - 1e-9) * turn
+
+
 @dataclass(frozen=True)
 class NmeaConfig:
     """The heading sent as NMEA 0183 (``--nmea TARGET`` and its options)."""
@@ -184,7 +209,7 @@ class FindConfig:
         The unit (or the embedded simulator).
     plan : Plan
         The stop-and-go plan.
-    spin : SpinPlan or None
+    spin : SpinConfig or None
         A spin instead of the plan (``find --spin``).
     latitude_deg : float or None
         The site's latitude, deg north positive: required with a unit (never assumed); with the
@@ -199,7 +224,7 @@ class FindConfig:
 
     link: LinkConfig
     plan: Plan = DEFAULT_PLAN
-    spin: SpinPlan | None = None
+    spin: SpinConfig | None = None
     latitude_deg: float | None = None
     on_gap: str = DEFAULT_ON_GAP
     ready_timeout_s: float = READY_TIMEOUT_S

@@ -45,13 +45,15 @@ from typing import Any
 
 import pytest
 
-from northfinder.embed import RELAXED_DEVICE_OPTIONS, SimulatedInstrument
+from northfinder.embed import SimulatedInstrument
 from northfinder.firmware_sim.imu import Truth
+from northfinder.firmware_sim.sensors import DEFAULT_SENSOR
+from northfinder.session import relaxed_device
 
 __all__ = ["DEFAULTS", "northfinder_device", "northfinder_sim", "simulator_options"]
 
 DEFAULTS: dict[str, Any] = {
-    "sensor": "paper-rlg",
+    "sensor": DEFAULT_SENSOR,
     "seed": 0,
     "warmup_s": 0.0,
     "link": "virtual",
@@ -113,6 +115,6 @@ def northfinder_sim(request: pytest.FixtureRequest) -> Iterator[SimulatedInstrum
 @pytest.fixture
 def northfinder_device(northfinder_sim: SimulatedInstrument) -> Iterator[Any]:
     """A READY :class:`~northfinder.driver.device.Device` on ``northfinder_sim``."""
-    with northfinder_sim.open_device(**RELAXED_DEVICE_OPTIONS) as device:
+    with relaxed_device(northfinder_sim) as device:
         device.wait_ready(timeout=10.0)
         yield device

@@ -38,20 +38,32 @@ from northfinder.driver.errors import DriverError, LinkError
 from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.errors import HostConfigError, HostError
-from northfinder.host.procedure import FindResult, Plan, Progress, find_north
+from northfinder.host.procedure import (
+    FindResult,
+    Plan,
+    Progress,
+    SpinFind,
+    find_north,
+    find_north_spin,
+)
 from northfinder.host.recording import RecordedWindow, Recording, RecordingWriter
 from northfinder.host.results import device_identity, utc_now
 
 __all__ = [
     "Measured",
+    "SpinMeasured",
     "Unit",
     "check_config",
     "check_link",
     "find",
+    "find_spin",
     "latitude_source",
     "link_statistics",
     "open_unit",
+    "real_unit",
     "recording_meta",
+    "relaxed_device",
+    "simulated_unit",
     "site_latitude",
 ]
 
@@ -90,6 +102,19 @@ class Measured:
     errors: tuple[Exception, ...] = ()
     #: What was recorded (``record_to``), as written.
     recording: Recording | None = None
+
+
+@dataclass(frozen=True)
+class SpinMeasured:
+    """What :func:`find_spin` gives: the spin's solution and raw window, the latitude it was
+    solved at and where that came from, the simulated truth (None for a real unit) and the
+    device's identity."""
+
+    found: SpinFind
+    latitude_deg: float
+    latitude_source: str
+    truth: dict[str, Any] | None
+    device: dict[str, Any]
 
 
 # -- checks, once, before a unit is opened ---------------------------------------------------
@@ -302,6 +327,17 @@ def simulated_unit(
             raise
 
 
+def relaxed_device(instrument: Any) -> Device:
+    """A device on a started :class:`~northfinder.embed.SimulatedInstrument` with the driver's
+    relaxed deadlines (:data:`~northfinder.config.RELAXED_REPLY_TIMEOUT_S`,
+    :data:`~northfinder.config.RELAXED_LINK_TIMEOUT_S`): the simulator shares this
+    interpreter, as in the pytest plugin's ``northfinder_device``."""
+    device: Device = instrument.open_device(
+        reply_timeout=RELAXED_REPLY_TIMEOUT_S, min_supervision_s=RELAXED_LINK_TIMEOUT_S
+    )
+    return device
+
+
 # -- running a plan -------------------------------------------------------------------------
 
 
@@ -388,6 +424,46 @@ def find(
         sample_rate_hz=rate, truth=truth, device=identity, created_utc=created,
         errors=tuple(deferred), recording=recording,
     )  # fmt: skip
+
+
+def find_spin(
+    config: FindConfig,
+    *,
+    progress: Callable[[Progress], None] | None = None,
+    on_ending: Callable[[BaseException, SpinMeasured], str] | None = None,
+) -> SpinMeasured:
+    """Open the unit, spin (``config.spin``), solve, and leave the unit at rest.
+
+    ``on_ending`` is called when the spin ends early (an error, an interruption) with the
+    exception and what is known of the run (its ``found`` None); the clause it returns (what it
+    kept) is noted on the exception for its one line.
+    """
+    spin = config.spin
+    if spin is None:
+        raise HostConfigError("find_spin needs a spin (FindConfig.spin)")
+    check_config(config)
+    latitude, source = site_latitude(config), latitude_source(config)
+    with open_unit(config.link, latitude_deg=latitude) as unit:
+        device, truth = unit.device, unit.truth
+        identity = device_identity(
+            device.identity,
+            simulated=unit.simulated,
+            sensor=None if truth is None else truth.get("sensor"),
+        )
+        try:
+            found = find_north_spin(
+                device, spin.rate_dps, spin.seconds, latitude, drift=spin.drift,
+                warmup_timeout_s=config.ready_timeout_s, latitude_source=source,
+                progress=progress,
+            )  # fmt: skip
+        except BaseException as exc:
+            if on_ending is not None:
+                from northfinder.cli.exits import note_ending
+
+                known = SpinMeasured(None, latitude, source, truth, identity)  # type: ignore[arg-type]
+                note_ending(exc, on_ending(exc, known))
+            raise
+    return SpinMeasured(found, latitude, source, truth, identity)
 
 
 def _write(writer: RecordingWriter, plan: Plan, i: int, window: Any) -> None:

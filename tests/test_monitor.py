@@ -1150,12 +1150,13 @@ def test_the_help_and_the_page_say_the_simulator_runs_paced():
     assert "which the monitor runs paced, not in virtual time" in page
     # and the code does so: a paced simulator by default
     from northfinder.cli import build_parser
-    from northfinder.cli.monitor import open_session
+    from northfinder.cli.monitor import monitor_link, open_session
 
     args = build_parser("monitor").parse_args(["monitor", "--sim", "--warmup", "0"])
     session = open_session(args)
     try:
-        assert args.speed == 1.0 and not session.clock.virtual
+        link = monitor_link(args)
+        assert link.sim is not None and link.sim.speed == 1.0 and not session.clock.virtual
     finally:
         session.close()
 

@@ -162,3 +162,50 @@ def test_the_drive_s_heat_is_defined_once():
 
     assert error_terms.move_heat is heat.move_heat
     assert accuracy.move_heat is heat.move_heat
+
+
+def _default(function, name):
+    import inspect
+
+    return inspect.signature(function).parameters[name].default
+
+
+def test_one_warm_up_default():
+    """The simulated warm-up (the paper's 2 min) is written once and read by every side."""
+    from northfinder.config import SimConfig
+    from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
+    from northfinder.embed import SimulatedInstrument
+    from northfinder.firmware_sim.firmware import Firmware
+    from northfinder.simwindows import write_recordings
+
+    sides = {
+        "firmware": _default(Firmware, "warmup_s"),
+        "embed": _default(SimulatedInstrument, "warmup_s"),
+        "study": StudySettings().warmup_s,
+        "recordings": _default(write_recordings, "warmup_s"),
+        "config": SimConfig().warmup_s,
+    }
+    assert set(sides.values()) == {DEFAULT_WARMUP_S}, sides
+
+
+def test_one_default_sensor():
+    from northfinder.config import SimConfig
+    from northfinder.embed import SimulatedInstrument
+    from northfinder.firmware_sim.sensors import DEFAULT_SENSOR, preset_names
+
+    assert DEFAULT_SENSOR in preset_names()
+    assert _default(SimulatedInstrument, "sensor") == SimConfig().sensor == DEFAULT_SENSOR
+
+
+def test_one_set_of_plan_defaults():
+    """The plan options of ``find`` and ``record`` default to the configuration's plan, and
+    ``find --spin`` refuses a change from the same defaults."""
+    from northfinder.cli import build_parser, find
+    from northfinder.cli.measure import plan_from_args
+    from northfinder.config import DEFAULT_PLAN, FindConfig
+
+    for command in ("find", "record"):
+        argv = [command, "out.npz"] if command == "record" else [command]
+        args = build_parser(only=command).parse_args(argv)
+        assert plan_from_args(args) == DEFAULT_PLAN == FindConfig(None).plan  # type: ignore[arg-type]
+        assert {name: getattr(args, name) for name in find.PLAN_DEFAULTS} == find.PLAN_DEFAULTS

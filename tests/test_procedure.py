@@ -9,11 +9,19 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from northfinder.driver.clock import VirtualClock
 from northfinder.driver.protocol.constants import ConfigKey, DeviceState
 from northfinder.driver.protocol.units import DPH
 from northfinder.firmware_sim.earth import body_rates, mat_table
 from northfinder.host.errors import HostConfigError
-from northfinder.host.procedure import Plan, extra_settle_s, find_north, solve_windows
+from northfinder.host.procedure import (
+    DeviceLike,
+    Plan,
+    WindowsSolution,
+    extra_settle_s,
+    find_north,
+    solve_windows,
+)
 
 AZIMUTH, LATITUDE, SAMPLES = 123.4, 34.0, 200
 
@@ -25,6 +33,8 @@ class StandIn:
     settle_ms: int = 2000
     angle: float = 0.0
     calls: list[str] = field(default_factory=list)
+    rests: int = 0  # how often it was left at rest (after an error)
+    _clock: VirtualClock = field(default_factory=VirtualClock)
 
     def status(self) -> SimpleNamespace:
         return SimpleNamespace(state=DeviceState.READY, angle_deg=self.angle)
@@ -56,6 +66,24 @@ class StandIn:
 
     def stop_streaming(self) -> None:
         self.calls.append("stop")
+
+    # The rest of the device protocol (DeviceLike): a stand-in has it all, as a Device has.
+    @property
+    def clock(self) -> VirtualClock:
+        return self._clock
+
+    @property
+    def last_status(self) -> SimpleNamespace:
+        return self.status()
+
+    def wait_ready(self, timeout: float = 5.0) -> SimpleNamespace:
+        return self.status()
+
+    def release_stream(self) -> None:
+        self.stop_streaming()
+
+    def leave_at_rest(self) -> None:
+        self.rests += 1
 
 
 def run(plan: Plan, device: StandIn) -> tuple[float, list[float]]:
@@ -90,3 +118,21 @@ def test_what_a_device_cannot_do_is_refused_before_the_table_moves():
         assert device.calls == []
     with pytest.raises(HostConfigError, match="no single heading"):
         solve_windows([], LATITUDE, Plan(method="pairwise"))
+
+
+def test_the_device_protocol_is_written_out_in_full():
+    """What the procedures call on a device is the protocol's (a Device and the stand-in have
+    each method), and solving gives a named solution, not a tuple."""
+    from northfinder.driver.device import Device
+
+    names = {n for n in dir(DeviceLike) if not n.startswith("_")}
+    assert {"clock", "last_status", "wait_ready", "release_stream", "leave_at_rest"} <= names
+    for cls in (Device, StandIn):
+        missing = [n for n in names if not hasattr(cls, n)]
+        assert not missing, (cls.__name__, missing)
+    device = StandIn()
+    result, _ = find_north(device, Plan((0.0, 180.0), 1.0), LATITUDE)
+    assert "stop" in device.calls  # the stream released by name, never looked up
+    solved = solve_windows(result.windows, LATITUDE, Plan((0.0, 180.0), 1.0))
+    assert isinstance(solved, WindowsSolution)
+    assert solved.azimuth_deg == pytest.approx(result.azimuth_deg, abs=1e-12)

@@ -10,17 +10,20 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import sys
 import time
 
+from northfinder import session
 from northfinder.cli import measure, report, spinfind
 from northfinder.cli.argtypes import baud_rate, positive_float, whole_number
 from northfinder.cli.exits import result_status
 from northfinder.cli.files import check_output_path
-from northfinder.cli.measure import Measured, run_plan
+from northfinder.cli.measure import run_config
 from northfinder.cli.plots import check_plot_path
-from northfinder.config import DEFAULT_PLAN
+from northfinder.config import DEFAULT_PLAN, FindConfig, NmeaConfig, OutputConfig
 from northfinder.host.nmea import NMEA_BAUD, HeadingFix, NmeaOutput, hdt_sentence, nfdh_sentence
+from northfinder.session import Measured
 
 #: The stop-and-go plan options and their defaults (refused with ``--spin`` when changed).
 PLAN_DEFAULTS = {
@@ -69,26 +72,52 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def send_nmea(args: argparse.Namespace, m: Measured, out: NmeaOutput) -> int:
-    """Send the heading ``--nmea-count`` times at ``--nmea-rate``; return how many were sent."""
+def output_config(args: argparse.Namespace) -> OutputConfig:
+    """What ``find`` writes besides its result (``--json``, ``--plot``, ``--record``,
+    ``--nmea`` and its options, ``-v``)."""
+    nmea = None
+    if args.nmea:
+        nmea = NmeaConfig(
+            args.nmea, rate_hz=args.nmea_rate, count=args.nmea_count, baud=args.nmea_baud,
+            max_sigma_deg=args.nmea_max_sigma,
+        )  # fmt: skip
+    return OutputConfig(
+        json=bool(args.json), plot=args.plot, record=args.record, nmea=nmea,
+        verbose=getattr(args, "verbose", 0) or 0,
+    )  # fmt: skip
+
+
+def find_config(args: argparse.Namespace) -> FindConfig:
+    """The run ``find``'s command line names, parsed once."""
+    spinfind.check(args, PLAN_DEFAULTS)
+    if args.record:
+        check_output_path(args.record, "--record", (".csv", ".npz"))
+    if args.plot:
+        check_plot_path(args.plot)
+    return dataclasses.replace(measure.find_config(args), output=output_config(args))
+
+
+def send_nmea(nmea: NmeaConfig, m: Measured, out: NmeaOutput) -> int:
+    """Send the heading ``nmea.count`` times at ``nmea.rate_hz``; return how many were sent."""
     r = m.result
     fix = HeadingFix(
-        r.azimuth_deg, r.sigma_deg, r.pitch_deg, r.roll_deg, len(r.windows), args.nmea_max_sigma,
+        r.azimuth_deg, r.sigma_deg, r.pitch_deg, r.roll_deg, len(r.windows), nmea.max_sigma_deg,
         consistent=r.consistent,
     )  # fmt: skip
-    return send_fix(args, fix, out)
+    return send_fix(nmea, fix, out)
 
 
-def send_fix(args: argparse.Namespace, fix: HeadingFix, out: NmeaOutput) -> int:
-    """Send ``fix`` ``--nmea-count`` times at ``--nmea-rate``; return how many were sent."""
+def send_fix(nmea: NmeaConfig, fix: HeadingFix, out: NmeaOutput) -> int:
+    """Send ``fix`` ``nmea.count`` times at ``nmea.rate_hz`` (count 0: until interrupted);
+    return how many were sent."""
     lines = (hdt_sentence(fix), nfdh_sentence(fix))
-    period = 1.0 / args.nmea_rate
+    period = 1.0 / nmea.rate_hz
     n = 0
     next_at = time.monotonic()
-    while args.nmea_count == 0 or n < args.nmea_count:
+    while nmea.count == 0 or n < nmea.count:
         out.send(*lines)
         n += 1
-        if args.nmea_count and n >= args.nmea_count:
+        if nmea.count and n >= nmea.count:
             break
         next_at += period
         time.sleep(max(0.0, next_at - time.monotonic()))
@@ -96,51 +125,51 @@ def send_fix(args: argparse.Namespace, fix: HeadingFix, out: NmeaOutput) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    spinfind.check(args, PLAN_DEFAULTS)
-    if args.record:
-        check_output_path(args.record, "--record", (".csv", ".npz"))
-    if args.plot:
-        check_plot_path(args.plot)
-    to_stdout = args.nmea == "-"
+    config = find_config(args)
+    nmea = config.output.nmea
+    to_stdout = nmea is not None and nmea.target == "-"
     with contextlib.ExitStack() as stack:
-        nmea = (
-            stack.enter_context(NmeaOutput(args.nmea, baudrate=args.nmea_baud))
-            if args.nmea
+        out = (
+            stack.enter_context(NmeaOutput(nmea.target, baudrate=nmea.baud))
+            if nmea is not None
             else None
         )
-        if args.spin is not None:
-            return _find_spin(args, nmea, to_stdout)
-        return _find(args, nmea, to_stdout)
+        if config.spin is not None:
+            return _find_spin(config, out, to_stdout)
+        return _find(config, out, to_stdout)
 
 
-def _find_spin(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
-    found, truth, identity = spinfind.run(args)
+def _find_spin(config: FindConfig, out: NmeaOutput | None, to_stdout: bool) -> int:
+    spun = session.find_spin(config)
+    found, truth, identity = spun.found, spun.truth, spun.device
     sol = found.solution
-    if args.plot:
-        spinfind.plot(args.plot, found, truth)
-    out = spinfind.as_json(found, truth, identity) if args.json else spinfind.text(found, truth)
-    print(out, file=sys.stderr if to_stdout else sys.stdout, flush=True)
-    if nmea is not None:
+    output = config.output
+    if output.plot:
+        spinfind.plot(output.plot, found, truth)
+    text = spinfind.as_json(found, truth, identity) if output.json else spinfind.text(found, truth)
+    print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
+    if out is not None and output.nmea is not None:
         fix = HeadingFix(
-            sol.azimuth_deg, sol.sigma_deg, sol.pitch_deg, sol.roll_deg, 1, args.nmea_max_sigma,
-            consistent=sol.consistent,
+            sol.azimuth_deg, sol.sigma_deg, sol.pitch_deg, sol.roll_deg, 1,
+            output.nmea.max_sigma_deg, consistent=sol.consistent,
         )  # fmt: skip
-        send_fix(args, fix, nmea)
+        send_fix(output.nmea, fix, out)
     return result_status(sol.consistent)
 
 
-def _find(args: argparse.Namespace, nmea: NmeaOutput | None, to_stdout: bool) -> int:
-    m = run_plan(args, progress=not (args.json or to_stdout), record_to=args.record)
-    if args.plot:
-        report.plot(args.plot, m.result, m.windows, m.plan.denoise, m.truth)
+def _find(config: FindConfig, out: NmeaOutput | None, to_stdout: bool) -> int:
+    output = config.output
+    m = run_config(config, progress=not (output.json or to_stdout), record_to=output.record)
+    if output.plot:
+        report.plot(output.plot, m.result, m.windows, m.plan.denoise, m.truth)
     text = (
         report.as_json("find", m.result, m.truth, m.device)
-        if args.json
+        if output.json
         else report.text(m.result, m.truth)
     )
     print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
     if m.errors:  # the heading is out; now what could not be written (exit 1)
         raise m.errors[0]
-    if nmea is not None:
-        send_nmea(args, m, nmea)
+    if out is not None and output.nmea is not None:
+        send_nmea(output.nmea, m, out)
     return result_status(m.result.consistent)

@@ -33,12 +33,12 @@ from northfinder.config import (
     LinkConfig,
     OutputConfig,
     SimConfig,
+    SpinConfig,
 )
 from northfinder.driver.device import Device
 from northfinder.driver.device_link import HEARTBEATS_UNTIL_LOST, REPLY_TIMEOUT_S
-from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.constants import HEARTBEAT_PERIOD_DEFAULT_MS
-from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG, DEFAULT_WARMUP_S
+from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
 from northfinder.firmware_sim.sensors import DEFAULT_SENSOR
 from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
@@ -213,26 +213,6 @@ def open_device(
         yield unit.device, unit.truth
 
 
-@contextlib.contextmanager
-def _open_unit(args: argparse.Namespace, tap: FrameLog | None) -> Iterator[Device]:
-    with session.real_unit(link_config(args), tap) as device:
-        yield device
-
-
-@contextlib.contextmanager
-def embedded_simulator(
-    args: argparse.Namespace, tap: FrameLog | None = None
-) -> Iterator[tuple[Device, dict[str, Any]]]:
-    """A device on the simulated instrument in this process (virtual CAN), and its truth
-    (:func:`northfinder.session.simulated_unit`)."""
-    link = link_config(args)
-    assert link.sim is not None
-    latitude = DEFAULT_LATITUDE_DEG if args.latitude is None else float(args.latitude)
-    with session.simulated_unit(link, link.sim, latitude, tap) as unit:
-        assert unit.truth is not None
-        yield unit.device, unit.truth
-
-
 class ProgressBar:
     """Progress of a plan on stderr. On a terminal that reports its width, a tqdm bar in
     wall-clock seconds: it counts the plan's device seconds done, so elapsed and remaining are
@@ -320,12 +300,20 @@ def sim_config(args: argparse.Namespace) -> SimConfig:
 def find_config(args: argparse.Namespace) -> FindConfig:
     """The run the command line names, parsed once (:class:`~northfinder.config.FindConfig`)."""
     config = FindConfig(
-        link=link_config(args), plan=plan_from_args(args), latitude_deg=args.latitude,
+        link=link_config(args), plan=plan_from_args(args), spin=spin_config(args),
+        latitude_deg=args.latitude,
         on_gap=args.on_gap, ready_timeout_s=args.timeout,
         output=OutputConfig(verbose=getattr(args, "verbose", 0) or 0),
     )  # fmt: skip
     check_config(config)
     return config
+
+
+def spin_config(args: argparse.Namespace) -> SpinConfig | None:
+    """``--spin RATE_DPS`` and its options (None: the stop-and-go plan)."""
+    if getattr(args, "spin", None) is None:
+        return None
+    return SpinConfig(args.spin, args.spin_time, bool(args.spin_drift))
 
 
 def run_plan(

@@ -20,24 +20,26 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import sys
 import time
 from collections.abc import Iterator
 from typing import Any
 
+import northfinder.session as units
 from northfinder.cli.argtypes import bounded_float
 from northfinder.cli.files import check_output_path
 from northfinder.cli.links import bus_given, open_can_bus
 from northfinder.cli.measure import (
-    SIM_WARMUP_S,
-    _open_unit,
     add_device_arguments,
     add_plan_arguments,
-    embedded_simulator,
+    link_config,
     plan_from_args,
 )
 from northfinder.cli.options import add_duration_argument
+from northfinder.config import LinkConfig
+from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.errors import HostConfigError
 
 SIM_ONLY = ("warmup", "sensor", "azimuth", "pitch", "roll", "seed")
@@ -128,6 +130,15 @@ def _describe(args: argparse.Namespace) -> str:
     return f"{args.interface or 'can'} {args.channel or ''} node {args.node_id}".replace("  ", " ")
 
 
+def monitor_link(args: argparse.Namespace) -> LinkConfig:
+    """The link of the arguments, as the session layer opens it; the embedded simulator runs
+    paced (at 1 by default): a live view needs its time to pass by itself."""
+    link = link_config(args)
+    if link.sim is not None and link.sim.speed is None:
+        link = dataclasses.replace(link, sim=dataclasses.replace(link.sim, speed=1.0))
+    return link
+
+
 def open_session(args: argparse.Namespace) -> Any:
     """The session the arguments name (active or passive)."""
     from northfinder.monitor.session import ActiveSession, PassiveSession
@@ -140,18 +151,18 @@ def open_session(args: argparse.Namespace) -> Any:
             latitude_deg=args.latitude,
             trace_seconds=args.trace_seconds,
         )
-    if args.sim and args.speed is None:
-        args.speed = 1.0  # a live view runs paced: virtual time would not move on its own
+    link = monitor_link(args)
+    sim = link.sim
+    latitude = DEFAULT_LATITUDE_DEG if args.latitude is None else float(args.latitude)
 
     @contextlib.contextmanager
     def opener(tap: Any) -> Iterator[tuple[Any, dict[str, Any] | None]]:
-        if args.sim:
-            with embedded_simulator(args, tap) as (device, truth):
+        if sim is not None:
+            with units.simulated_unit(link, sim, latitude, tap) as unit:
                 # how long it warms up: the screen counts the warm-up down
-                warmup = SIM_WARMUP_S if args.warmup is None else args.warmup
-                yield device, {**truth, "warmup_s": warmup}
+                yield unit.device, {**(unit.truth or {}), "warmup_s": sim.warmup_s}
         else:
-            with _open_unit(args, tap) as device:
+            with units.real_unit(link, tap) as device:
                 yield device, None
 
     return ActiveSession(

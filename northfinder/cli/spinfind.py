@@ -13,11 +13,9 @@ from typing import Any
 from northfinder.cli.argtypes import bounded_float, finite_float
 from northfinder.cli.output import dumps, plain_numbers
 from northfinder.cli.plots import pyplot, save_figure
-from northfinder.cli.simulated import latitude_source, sim_latitude
+from northfinder.config import SpinConfig
 from northfinder.host.errors import HostConfigError
 
-#: Default spin time: the fewest whole turns that last at least this long, s.
-DEFAULT_SPIN_MIN_S = 60.0
 #: Longest spin, s.
 MAX_SPIN_S = 86_400.0
 
@@ -46,10 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def spin_seconds(args: argparse.Namespace) -> float:
     """``--spin-time``, or the fewest whole turns lasting at least :data:`DEFAULT_SPIN_MIN_S`."""
-    if args.spin_time is not None:
-        return float(args.spin_time)
-    turn = 360.0 / abs(args.spin)
-    return math.ceil(DEFAULT_SPIN_MIN_S / turn - 1e-9) * turn
+    return SpinConfig(args.spin, args.spin_time).seconds
 
 
 def check(args: argparse.Namespace, plan_defaults: dict[str, Any]) -> None:
@@ -79,40 +74,27 @@ def run(
     With ``record_to``, a run that ends early (an interruption, an error) writes the samples
     received to that recording, marked ``interrupted`` (:func:`save`), and the line that
     reports the ending says where."""
-    from northfinder.cli.exits import note_ending
-    from northfinder.cli.measure import ProgressBar, check_arguments, open_device
-    from northfinder.host.procedure import find_north_spin
-    from northfinder.host.results import device_identity
+    from northfinder import session
+    from northfinder.cli.measure import ProgressBar, find_config
 
-    check_arguments(args)
-    latitude = sim_latitude(args) if args.sim else float(args.latitude)
-    source = latitude_source(args, args.sim)
-    with open_device(args) as (device, truth):
-        identity = device_identity(
-            device.identity,
-            simulated=bool(args.sim),
-            sensor=None if truth is None else truth.get("sensor"),
-        )
-        bar = ProgressBar(enabled=record_to is not None, label=args.command or "record")
-        try:
-            found = find_north_spin(
-                device,
-                args.spin,
-                spin_seconds(args),
-                latitude,
-                drift=args.spin_drift,
-                warmup_timeout_s=args.timeout,
-                latitude_source=source,
-                progress=_spin_progress(bar),
-            )
-        except BaseException as exc:
-            if record_to is not None:
-                note_ending(exc, _save_partial(record_to, args, exc, latitude, source, truth,
-                                               identity))  # fmt: skip
-            raise
-        finally:
-            bar.close()
-    return found, truth, identity
+    config = find_config(args)
+    bar = ProgressBar(enabled=record_to is not None, label=args.command or "record")
+
+    def keep_partial(exc: BaseException, spun: session.SpinMeasured) -> str:
+        assert record_to is not None
+        return _save_partial(
+            record_to, args, exc, spun.latitude_deg, spun.latitude_source, spun.truth,
+            spun.device,
+        )  # fmt: skip
+
+    try:
+        spun = session.find_spin(
+            config, progress=_spin_progress(bar),
+            on_ending=None if record_to is None else keep_partial,
+        )  # fmt: skip
+    finally:
+        bar.close()
+    return spun.found, spun.truth, spun.device
 
 
 def _spin_progress(bar: Any) -> Any:

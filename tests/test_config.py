@@ -1,0 +1,204 @@
+"""The command line and a script configure a run the same way: ``find``'s options are parsed once
+into the typed objects of :mod:`northfinder.config`, which a script builds by hand and runs
+through :mod:`northfinder.session` (``northfinder.find``) to the same result."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import pytest
+
+import northfinder
+from northfinder.cli import build_parser, find, main
+from northfinder.config import DEFAULT_PLAN, default_of
+from northfinder.host.errors import HostConfigError
+
+nf = northfinder
+
+
+def parsed(*argv: str) -> nf.FindConfig:
+    """The configuration ``northfinder find ARGV`` runs."""
+    args = build_parser(only="find").parse_args(["find", *argv])
+    return find.find_config(args)
+
+
+SIM1 = nf.LinkConfig(sim=nf.SimConfig(seed=1))
+
+# Each command line, and the configuration a script writes for it.
+CASES = [
+    (["--sim", "--seed", "1"], nf.FindConfig(SIM1)),
+    (
+        [
+            "--sim",
+            "--seed",
+            "7",
+            "--warmup",
+            "0",
+            "--sensor",
+            "nav-fog",
+            "--azimuth",
+            "42",
+            "--pitch",
+            "1.5",
+            "--roll",
+            "-2",
+            "--speed",
+            "50",
+        ],
+        nf.FindConfig(
+            nf.LinkConfig(
+                sim=nf.SimConfig(
+                    sensor="nav-fog",
+                    seed=7,
+                    speed=50.0,
+                    warmup_s=0.0,
+                    azimuth_deg=42.0,
+                    pitch_deg=1.5,
+                    roll_deg=-2.0,
+                )
+            )
+        ),
+    ),
+    (
+        [
+            "--sim",
+            "--seed",
+            "1",
+            "--positions",
+            "0,180",
+            "--window",
+            "2",
+            "--settle",
+            "1",
+            "--solver",
+            "two-position",
+            "--latitude",
+            "45",
+            "--on-gap",
+            "report",
+            "--timeout",
+            "30",
+        ],
+        nf.FindConfig(
+            SIM1,
+            plan=nf.Plan((0.0, 180.0), 2.0, 1.0, "none", "two-position"),
+            latitude_deg=45.0,
+            on_gap="report",
+            ready_timeout_s=30.0,
+        ),
+    ),
+    (
+        ["--sim", "--seed", "1", "--spin", "6", "--spin-time", "120", "--spin-drift"],
+        nf.FindConfig(SIM1, spin=nf.SpinConfig(6.0, 120.0, drift=True)),
+    ),
+    (
+        [
+            "--sim",
+            "--seed",
+            "1",
+            "--json",
+            "--nmea",
+            "-",
+            "--nmea-rate",
+            "2",
+            "--nmea-count",
+            "0",
+            "--link-timeout",
+            "5",
+            "--reply-timeout",
+            "1",
+        ],
+        nf.FindConfig(
+            nf.LinkConfig(sim=nf.SimConfig(seed=1), link_timeout_s=5.0, reply_timeout_s=1.0),
+            output=nf.OutputConfig(json=True, nmea=nf.NmeaConfig("-", rate_hz=2.0, count=0)),
+        ),
+    ),
+    (
+        ["-i", "virtual", "-c", "bench", "--node-id", "3", "--latitude", "51.5"],
+        nf.FindConfig(
+            nf.LinkConfig(bus={"interface": "virtual", "channel": "bench"}, node_id=3),
+            latitude_deg=51.5,
+        ),
+    ),
+    (
+        ["--serial", "/dev/ttyUSB0", "--baud", "115200", "--latitude", "-33"],
+        nf.FindConfig(nf.LinkConfig(serial="/dev/ttyUSB0", baud=115200), latitude_deg=-33.0),
+    ),
+]
+
+
+@pytest.mark.parametrize(("argv", "config"), CASES, ids=[" ".join(a) for a, _ in CASES])
+def test_the_command_line_and_a_script_build_the_same_configuration(argv, config):
+    assert parsed(*argv) == config
+
+
+def test_a_changed_option_gives_a_different_configuration():
+    """The comparison above can fail: one option more is another configuration."""
+    assert parsed("--sim", "--seed", "1", "--window", "5") != nf.FindConfig(SIM1)
+    assert parsed("--sim", "--seed", "2") != nf.FindConfig(SIM1)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--seed", "1", "--latitude", "3"], "choose exactly one device"),
+        (["--sim", "--serial", "/dev/null"], "choose exactly one device"),
+        (["-i", "virtual", "-c", "x", "--seed", "1", "--latitude", "3"], "--seed: applies"),
+        (["-i", "virtual", "-c", "x"], "--latitude: give the site's latitude"),
+    ],
+)
+def test_a_configuration_is_checked_once_as_it_is_parsed(argv, message):
+    with pytest.raises(HostConfigError, match=message):
+        parsed(*argv)
+
+
+def test_the_defaults_are_the_owners(capsys):
+    """The command line's defaults are the configuration's, which are the lower layers'."""
+    from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
+    from northfinder.firmware_sim.sensors import DEFAULT_SENSOR
+    from northfinder.host.procedure import DEFAULT_ON_GAP, READY_TIMEOUT_S
+
+    config = parsed("--sim", "--seed", "1")
+    assert config.plan == DEFAULT_PLAN and config.link.sim is not None
+    assert config.link.sim.warmup_s == DEFAULT_WARMUP_S == default_of(nf.SimConfig, "warmup_s")
+    assert config.link.sim.sensor == DEFAULT_SENSOR
+    assert (config.on_gap, config.ready_timeout_s) == (DEFAULT_ON_GAP, READY_TIMEOUT_S)
+    assert main(["find", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert f"--sim warm-up time (default {DEFAULT_WARMUP_S:g})" in " ".join(text.split())
+    assert f"(default: {DEFAULT_SENSOR})" in text
+
+
+SCRIPT = """
+import json, northfinder as nf
+config = nf.FindConfig(
+    nf.LinkConfig(sim=nf.SimConfig(seed=5, warmup_s=1.0, azimuth_deg=123.0)),
+    plan=nf.Plan((0.0, 180.0), 1.0),
+)
+m = nf.find(config)
+print(json.dumps([repr(m.result.azimuth_deg), repr(m.result.sigma_deg), m.truth["seed"]]))
+"""
+
+
+def test_a_script_runs_what_the_command_line_runs(capsys):
+    """``python -c "import northfinder; ..."`` with the configuration the command line builds
+    gives the command's result to the last digit."""
+    argv = ["--sim", "--seed", "5", "--warmup", "1", "--azimuth", "123", "--positions",
+            "0,180", "--window", "1"]  # fmt: skip
+    config = nf.FindConfig(
+        nf.LinkConfig(sim=nf.SimConfig(seed=5, warmup_s=1.0, azimuth_deg=123.0)),
+        plan=nf.Plan((0.0, 180.0), 1.0, 0.0),
+    )
+    assert parsed(*argv) == dataclasses.replace(config)
+    done = subprocess.run(
+        [sys.executable, "-c", SCRIPT], capture_output=True, text=True, timeout=300, check=True
+    )
+    azimuth, sigma, seed = json.loads(done.stdout)
+    assert main(["find", *argv, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert seed == 5
+    assert float(azimuth) == out["azimuth_deg"]
+    assert float(sigma) == out["sigma_deg"]
