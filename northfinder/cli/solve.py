@@ -28,6 +28,7 @@ from northfinder.cli.common import (
     say,
     warn,
 )
+from northfinder.cli.logprogress import LogProgress
 from northfinder.driver.framelog import expand_log_names
 from northfinder.host.canlog import LogSet, is_can_log, read_can_log
 from northfinder.host.denoise import METHODS
@@ -161,10 +162,11 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
         logs = LogSet(names)
         path = Path(logs.name)
         # Damaged lines are read past even with --strict, so that it names the first one.
-        session = read_can_log(
-            logs.files, node_id=args.node_id, window_s=args.window, skip_damaged=True,
-            session=args.session, windows=args.windows, min_windows=1,
-        )  # fmt: skip
+        with LogProgress("solve", logs.files, enabled=not args.json) as progress:
+            session = read_can_log(
+                logs.files, node_id=args.node_id, window_s=args.window, skip_damaged=True,
+                session=args.session, windows=args.windows, min_windows=1, progress=progress,
+            )  # fmt: skip
         if args.strict and session.first_damaged:
             raise QualityError(
                 f"{session.first_damaged}; --strict refuses a log with a damaged line "
