@@ -1169,6 +1169,19 @@ def read_can_log(
     cut: list[str] = []
     skipped: list[tuple[int, str]] = []
     scan.read(logs.messages(cut, skipped if skip_damaged else None), progress)
+    return _session(scan, cut, skipped, session, windows, min_windows)
+
+
+def _session(
+    scan: _Scan,
+    cut: list[str],
+    skipped: list[tuple[int, str]],
+    session: int | None,
+    windows: Sequence[int] | None,
+    min_windows: int,
+) -> CanLogSession:
+    """The session a scan read: the windows asked for in physical units, and the notes."""
+    logs = scan.logs
     node = scan.check_nodes()
     numbered, counts, chosen = scan.choose(session, windows)
     incomplete: list[str] = list(cut)
