@@ -83,6 +83,7 @@ __all__ = [
     "LOG_SUFFIXES",
     "CanLogSession",
     "LogSet",
+    "ReadProgress",
     "SessionCounter",
     "check_log_file",
     "decode_signals",

@@ -286,3 +286,18 @@ def test_a_seeded_log_reads_and_solves_the_same_decoded_together_as_one_by_one(
     solved_alone.pop("created_utc")
     assert solved == solved_alone  # the heading and every figure to the last digit
     assert solved["azimuth_deg"] == solved_alone["azimuth_deg"]
+
+
+def test_calibrate_shows_the_reading_of_a_long_log(seeded_logs, monkeypatch):
+    path = seeded_logs[".blf"]
+    monkeypatch.setattr(logprogress, "PROGRESS_BYTES", 0)  # the log counts as long
+    code, _, err = run_cli("calibrate", str(path))
+    assert code == 0, err
+    lines = [line for line in err.splitlines() if line.startswith("calibrate: ")]
+    reading = lines.index("calibrate: reading the log")
+    assert lines[reading - 1] == "calibrate: reading 1 recording(s)"
+    assert any(line.endswith("(100%)") for line in lines[reading:])
+    assert lines[-1] == "calibrate: done"
+    monkeypatch.setattr(logprogress, "PROGRESS_BYTES", path.stat().st_size + 1)
+    code, _, err = run_cli("calibrate", str(path))  # a short log: no progress of its reading
+    assert code == 0 and "calibrate: reading the log" not in err

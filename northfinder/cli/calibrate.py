@@ -19,6 +19,7 @@ from northfinder.cli.common import (
     load_sensor,
     say,
 )
+from northfinder.cli.logprogress import LogProgress
 from northfinder.cli.progress import Progress
 from northfinder.firmware_sim.sensors import spec_from_dict
 from northfinder.host.calibrate import DESIGNS, calibrate, read_runs
@@ -75,7 +76,9 @@ def run(args: argparse.Namespace) -> int:
     base: dict[str, Any] | None = load_sensor(args.base).to_dict() if args.base else None
     with Progress("calibrate", enabled=not args.json) as bar:
         bar.step(f"reading {len(args.recordings)} recording(s)")
-        runs = read_runs(args.recordings)
+        runs = read_runs(
+            args.recordings, lambda p: LogProgress("calibrate", [p], enabled=not args.json)
+        )
         samples = sum(len(w.counter) for run in runs for w in run.windows)
         bar.step(f"fitting {samples} samples: Allan deviation, then the terms between positions")
         cal = calibrate(
