@@ -37,17 +37,19 @@ import functools
 import io
 import logging
 import math
+import os
 import re
 import sqlite3
 import stat
 import struct
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import can
+import numpy as np
 
 from northfinder.driver.framelog import LOG_SUFFIXES, order_log_parts
 from northfinder.driver.protocol.can import CanReceiver, TickLoss, split_can_id
@@ -72,7 +74,7 @@ from northfinder.driver.protocol.messages import (
     StreamStart,
     StreamStop,
 )
-from northfinder.driver.window import CountScales, WindowCollector
+from northfinder.driver.window import CountScales, SampleColumns, WindowCollector
 from northfinder.host.errors import RecordingError
 from northfinder.host.recording import RecordedWindow, Recording
 from northfinder.host.results import SIMULATOR_MODEL, device_identity
@@ -81,6 +83,7 @@ __all__ = [
     "LOG_SUFFIXES",
     "CanLogSession",
     "LogSet",
+    "ReadProgress",
     "SessionCounter",
     "check_log_file",
     "decode_signals",
@@ -91,6 +94,8 @@ __all__ = [
 
 LogPaths = str | Path | Sequence[str | Path]
 """One log file, or the parts of a log in order (a rotated log)."""
+ReadProgress = Callable[[int, int], None]
+"""Told how far a reading is: ``progress(done, total)`` in bytes of the log's files."""
 
 
 def decode_signals(db: Any, arbitration_id: int, data: bytes) -> tuple[str, int, list[str]]:
@@ -288,6 +293,12 @@ class _Segment:
         #: Frames missing between two parts of the log in or just before this window.
         self.suspect: str | None = None
 
+    def recorded(self, sample_rate_hz: float, scales: CountScales) -> RecordedWindow:
+        """The window's samples in physical units; the collector's raw counts are released as
+        they are converted (call once)."""
+        window = self.collector.take_window(sample_rate_hz, scales)
+        return RecordedWindow.from_window(window, self.commanded_deg)
+
 
 #: python-can's readers of text logs whose lines each hold one frame after a header: a damaged
 #: line among them can be skipped and the rest read on.
@@ -461,9 +472,11 @@ def _text_messages(
     gz: bool,
     skipped: list[tuple[int, str]] | None,
     cut: list[str] | None,
+    opened: list[Any] | None = None,
     **options: Any,
 ) -> Iterator[can.Message]:
-    """The frames of a text log, streamed line by line. With ``skipped`` each damaged line is
+    """The frames of a text log, streamed line by line (the file object read goes to
+    ``opened``). With ``skipped`` each damaged line is
     skipped and noted there as (line number, error), and a new reader goes on after it, given
     the header again; without, the log ends at the first (noted in ``cut``; before any frame an
     error)."""
@@ -477,6 +490,8 @@ def _text_messages(
             fh = path.open(errors="replace", newline="")
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read as a CAN log ({exc})") from exc
+    if opened is not None:
+        opened.append(fh)
     feed = _Feed(fh, suffix)
     trc_log = logging.getLogger("can.io.trc")
     quiet = _TrcWarnings(feed)
@@ -554,9 +569,11 @@ def _messages(
     path: Path,
     cut: list[str] | None = None,
     skipped: list[tuple[int, str]] | None = None,
+    opened: list[Any] | None = None,
     **options: Any,
 ) -> Iterator[can.Message]:
-    """The log's frames, streamed. A file that breaks off after some frames (a copy cut short: a
+    """The log's frames, streamed (the file object read goes to ``opened``: its position is how
+    far the reading is). A file that breaks off after some frames (a copy cut short: a
     partial last line, a truncated BLF container) ends the frames there and says so in ``cut``
     when it is given; without ``cut``, or before any frame, it is an error. With ``skipped`` a
     damaged line of a text log is skipped and noted there (line number, error), and the lines
@@ -564,7 +581,7 @@ def _messages(
     check_log_file(path)
     text = _text_suffix(path)
     if text is not None:
-        yield from _text_messages(path, *text, skipped, cut, **options)
+        yield from _text_messages(path, *text, skipped, cut, opened, **options)
         return
     try:
         reader = can.LogReader(str(path), **options)
@@ -572,6 +589,9 @@ def _messages(
         # NotImplementedError: python-can's reader for the format needs a package not installed
         # (asammdf for .mf4); its message names it.
         raise RecordingError(f"{path}: cannot read as a CAN log ({exc})") from exc
+    file = getattr(reader, "file", None)
+    if opened is not None and file is not None:
+        opened.append(file)
     n = 0
     try:
         with reader:
@@ -613,6 +633,21 @@ class LogSet:
         self.damaged: list[tuple[str, int, str]] = []
         #: ASC stores times from each file's start: parts are read by their absolute times.
         self._reader_options = {"relative_timestamp": False} if len(self.files) > 1 else {}
+        self._sizes = [_size(f) for f in self.files]
+        self._before = 0  # bytes of the parts read before the current one
+        self._opened: list[Any] = []  # the current part's file object
+
+    def position(self) -> tuple[int, int]:
+        """How far the reading is: bytes of the files read so far (of a compressed file, its
+        compressed bytes), and of them all."""
+        total = sum(self._sizes)
+        at = 0
+        if self._opened:
+            try:
+                at = os.lseek(self._opened[-1].fileno(), 0, os.SEEK_CUR)
+            except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+                at = 0
+        return min(self._before + at, total), total
 
     @property
     def name(self) -> str:
@@ -643,7 +678,9 @@ class LogSet:
                 pending = {node: f"{previous} and {path}" for node in last}
             part_skipped: list[tuple[int, str]] | None = None if skipped is None else []
             options = self._reader_options if path.name.lower().endswith(".asc") else {}
-            for msg in _messages(path, cut, part_skipped, **options):
+            self._before = sum(self._sizes[: self.files.index(path)])
+            self._opened = []
+            for msg in _messages(path, cut, part_skipped, self._opened, **options):
                 if (
                     msg.arbitration_id & 0x7F0 == CanFunction.STATUS_COUNTERS
                     and len(msg.data) == 8
@@ -720,25 +757,362 @@ def _noting_gaps(
         yield msg
 
 
-def _pick_node(path: LogSet, skip_damaged: bool = False) -> int:
-    nodes: dict[int, int] = {}
-    for msg in path.messages(
-        [], [] if skip_damaged else None
-    ):  # a log cut short is read to its break (read_can_log says so)
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-            continue
-        try:
-            _, node = split_can_id(msg.arbitration_id)
-        except ProtocolError:
-            continue
-        nodes[node] = nodes.get(node, 0) + 1
-    if not nodes:
-        raise RecordingError(f"{path.name}: no frame of the north finder protocol in this CAN log")
-    if len(nodes) > 1:
-        raise RecordingError(
-            f"{path.name}: frames of nodes {', '.join(map(str, sorted(nodes)))}; choose one (--node-id)"
-        )
-    return next(iter(nodes))
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0  # the reader names what is wrong with it
+
+
+#: The function part (``id & 0x7F0``) of every protocol identifier.
+_FUNCTION_IDS = frozenset(int(f) for f in CanFunction)
+#: The sample frames' functions and their slots in a tick: x, y, z, aux.
+_SAMPLE_SLOTS = {
+    int(CanFunction.SAMPLE_X): 0,
+    int(CanFunction.SAMPLE_Y): 1,
+    int(CanFunction.SAMPLE_Z): 2,
+    int(CanFunction.SAMPLE_AUX): 3,
+}
+_SLOT_FUNCTIONS = tuple(sorted(_SAMPLE_SLOTS, key=_SAMPLE_SLOTS.__getitem__))
+#: A SAMPLE_X/_Y/_Z frame's 8 bytes (tick, gyro i32, accel i24 as its low 16 bits and high byte)
+#: and a SAMPLE_AUX frame's (tick, angle u32, temperature i16, validity u8), as numpy reads them.
+_AXIS_FRAME = np.dtype([("tick", "u1"), ("gyro", "<i4"), ("lo", "<u2"), ("hi", "i1")])
+_AUX_FRAME = np.dtype(
+    [("tick", "u1"), ("angle", "<u4"), ("temperature", "<i2"), ("validity", "u1")]
+)
+#: Sample frames of a streaming window buffered before they are decoded together (64 KiB of
+#: frame data); 0 decodes every frame one by one.
+RUN_FRAMES = 8192
+#: The slots of a tick's frames in the order a device sends them (x, y, z, aux), repeated.
+_TICK_ORDER = bytes(range(4)) * (RUN_FRAMES // 4)
+_U32 = 0xFFFF_FFFF
+
+
+def _tick_columns(frames: np.ndarray, first_raw: int) -> SampleColumns:
+    """The samples of whole ticks from their frames (shape (ticks, 4, 8): slots x, y, z, aux),
+    the first of counter ``first_raw`` and each after it the next (wrapping at 2**32)."""
+    n = len(frames)
+    axis = np.ascontiguousarray(frames[:, :3]).view(_AXIS_FRAME)[..., 0]
+    aux = np.ascontiguousarray(frames[:, 3]).view(_AUX_FRAME)[:, 0]
+    accel = axis["lo"].astype(np.int32) | (axis["hi"].astype(np.int32) << 16)
+    return SampleColumns(
+        (np.arange(n, dtype=np.int64) + first_raw) & _U32,
+        np.ascontiguousarray(axis["gyro"], dtype=np.int32),
+        accel,
+        np.ascontiguousarray(aux["angle"], dtype=np.uint32),
+        np.ascontiguousarray(aux["temperature"], dtype=np.int16),
+        np.ascontiguousarray(aux["validity"], dtype=np.uint8),
+        np.zeros(n, np.float64),  # a recorded window keeps no arrival times
+    )
+
+
+class _Run:
+    """Sample frames of the receiver's node, buffered while a window streams (nothing but them
+    came between them), then added to the window: the same as giving each to the receiver and
+    its samples and losses to the collector, with whole ticks of consecutive counters in a
+    device's frame order decoded together with numpy."""
+
+    def __init__(self) -> None:
+        self.slots = bytearray()
+        self.data = bytearray()
+
+    def add(self, slot: int, data: bytes | bytearray) -> bool:
+        """Buffer a frame; True when the run is full (to be fed)."""
+        self.slots.append(slot)
+        self.data += data
+        return len(self.slots) >= RUN_FRAMES
+
+    def feed(self, receiver: CanReceiver, collector: WindowCollector) -> None:
+        slots, data = self.slots, self.data
+        n = len(slots)
+        ticks = n // 4
+        start = 0
+        if n % 4 == 0 and ticks >= 3 and slots == _TICK_ORDER[:n]:
+            frames = np.frombuffer(bytes(data), dtype=np.uint8).reshape(ticks, 4, 8)
+            tick = frames[:, :, 0]
+            if (tick == tick[:, :1]).all() and (np.diff(tick[:, 0]) == 1).all():  # u8: wraps
+                # The first tick one by one: it places the tick counter (and reports what was
+                # lost before it); each tick after it then is the next counter, whole.
+                repeated = receiver.ticks.duplicates
+                last = self._frames(receiver, collector, 0, 4)
+                start = 4
+                if (
+                    isinstance(last, Sample)
+                    and last.counter & 0xFF == int(tick[0, 0])
+                    and receiver.ticks.duplicates == repeated  # it began a tick of its own
+                ):
+                    self._place(receiver, tick[:, 0], last.counter)
+                    if not collector.done:
+                        collector.add_samples(_tick_columns(frames[1:], (last.counter + 1) & _U32))
+                    start = n
+        self._frames(receiver, collector, start, n)
+        del slots[:], data[:]
+
+    @staticmethod
+    def _place(receiver: CanReceiver, ticks: np.ndarray, first: int) -> None:
+        """Advance the receiver over ticks ``1 ..`` of ``ticks`` as one by one would: the
+        counter placed at most 255 ticks a step, each tick counted complete."""
+        counter = receiver.ticks.counter
+        placed = 0
+        last = len(ticks) - 1
+        for k in [*range(255, last, 255), last]:
+            c, step = counter.place(int(ticks[k]))
+            assert step == k - placed and c == (first + k) & _U32
+            placed = k
+        receiver.ticks.complete += last
+        receiver.frames += 4 * last
+
+    def _frames(
+        self, receiver: CanReceiver, collector: WindowCollector, start: int, end: int
+    ) -> Sample | TickLoss | None:
+        """Frames ``start .. end`` of the run one by one; the last item they gave."""
+        item: Sample | TickLoss | None = None
+        node = receiver.node_id or 0
+        for i in range(start, end):
+            arbitration_id = _SLOT_FUNCTIONS[self.slots[i]] + node
+            for item in receiver.feed(arbitration_id, self.data[8 * i : 8 * i + 8]):
+                if collector.done:
+                    continue
+                if isinstance(item, Sample):
+                    collector.add_sample(item, 0.0)
+                elif isinstance(item, TickLoss):
+                    collector.add_loss(item)
+        return item
+
+
+class _Scan:
+    """One pass over a log's frames: the windows of one node, its identity, scales and rate,
+    the commands and the host sessions (see the module docstring)."""
+
+    def __init__(self, logs: LogSet, node_id: int | None, window_s: float | None) -> None:
+        self.logs = logs
+        self.node_id = node_id
+        self.window_s = window_s
+        # Without node_id the first node with a protocol frame is decoded and every node seen
+        # counted (several are an error, as no choice was made).
+        self.node: int | None = node_id
+        self.receiver: CanReceiver | None = None if node_id is None else CanReceiver(node_id)
+        self.nodes: dict[int, int] = {}
+        self.scales = CountScales()
+        self.identity: Identify | None = None
+        self.rate = float(SAMPLE_RATE_DEFAULT_HZ)
+        self.commanded = 0.0
+        self.commands: list[tuple[float, str]] = []
+        self.segments: list[_Segment] = []
+        self.current: _Segment | None = None
+        self.free: _Segment | None = None  # a window cut by the encoder, for logs without commands
+        self.free_segments: list[_Segment] = []
+        self.saw_stream_start = False
+        self.frames = 0
+        self.t0: float | None = None
+        self.sessions = SessionCounter()
+        self.after_gap: str | None = None
+        self.run = _Run()
+
+    def requested(self) -> int:
+        return _UNBOUNDED if self.window_s is None else max(1, round(self.window_s * self.rate))
+
+    def read(self, stream: Iterator[can.Message], progress: ReadProgress | None) -> None:
+        """Every frame of ``stream`` in order."""
+        logs, run = self.logs, self.run
+        gaps_seen = len(logs.gaps)
+        for msg in stream:
+            if len(logs.gaps) > gaps_seen:
+                # Frames missing at a boundary between parts: the window in progress lost
+                # samples, and the next may have lost its command (its angle).
+                gaps_seen = len(logs.gaps)
+                self.after_gap = logs.gaps[-1]
+                if self.current is not None:
+                    self.current.suspect = self.current.suspect or self.after_gap
+            self.frames += 1
+            if progress is not None and not self.frames & 0xFFFF:
+                progress(*logs.position())
+            if self.t0 is None:
+                self.t0 = msg.timestamp
+            if msg.is_error_frame or msg.is_remote_frame:
+                continue
+            arbitration_id = msg.arbitration_id
+            if self.node_id is None and not self._count_node(arbitration_id, msg.is_extended_id):
+                continue
+            current = self.current
+            if current is not None and RUN_FRAMES:
+                slot = _SAMPLE_SLOTS.get(arbitration_id & 0x7F0)
+                if (
+                    slot is not None
+                    and arbitration_id & 0x0F == self.node
+                    and arbitration_id <= 0x7FF
+                    and not msg.is_extended_id
+                    and len(msg.data) == 8
+                ):
+                    if run.add(slot, msg.data):
+                        run.feed(self.receiver, current.collector)
+                    continue
+                if run.slots:
+                    run.feed(self.receiver, current.collector)
+            assert self.receiver is not None
+            data = bytes(msg.data)
+            for item in self.receiver.feed(arbitration_id, data, is_extended_id=msg.is_extended_id):
+                self._item(item, msg.timestamp)
+        if run.slots:
+            assert self.current is not None and self.receiver is not None
+            run.feed(self.receiver, self.current.collector)
+        if progress is not None:
+            total = logs.position()[1]
+            progress(total, total)
+
+    def _count_node(self, arbitration_id: int, extended: bool) -> bool:
+        """Count the node of a protocol frame; whether to decode the frame (the first node
+        seen is decoded; once there are several nothing is)."""
+        seen = arbitration_id & 0x0F
+        if seen and not extended and arbitration_id & ~0x0F in _FUNCTION_IDS:
+            self.nodes[seen] = self.nodes.get(seen, 0) + 1
+            if self.receiver is None:
+                self.node, self.receiver = seen, CanReceiver(node_id=seen)
+        return self.receiver is not None and len(self.nodes) <= 1
+
+    def _item(self, item: Any, t: float) -> None:
+        """What the receiver decoded from a frame at time ``t``."""
+        if isinstance(item, Sample):
+            self._sample(item, t)
+        elif isinstance(item, TickLoss):
+            for seg in (self.current, self.free):
+                if seg is not None and not seg.collector.done:
+                    seg.collector.add_loss(item)
+        elif isinstance(item, Identify):
+            self.identity, self.scales = item, CountScales.of(item)
+        elif isinstance(item, Reply):
+            if item.ok and item.opcode in (Opcode.GET_CONFIG, Opcode.SET_CONFIG):
+                try:
+                    key, value = item.config_value()
+                except ProtocolError:
+                    return
+                if key == ConfigKey.SAMPLE_RATE_HZ and value > 0:
+                    self.rate = float(value)
+        elif isinstance(item, Command):
+            self._command(item, t)
+
+    def _sample(self, item: Sample, t: float) -> None:
+        current = self.current
+        if current is not None:
+            if not current.collector.done:
+                current.collector.add_sample(item, t)
+        elif not self.saw_stream_start:
+            at_rest = not (int(item.validity) & _MOVING)
+            if at_rest and self.free is None:
+                angle = item.angle * self.scales.angle_deg
+                self.free = _Segment(angle, self.requested(), t)
+                self.free_segments.append(self.free)
+            elif not at_rest:
+                self.free = None
+            if self.free is not None and not self.free.collector.done:
+                self.free.collector.add_sample(item, t)
+
+    def _command(self, item: Command, t: float) -> None:
+        self.commands.append((t - (self.t0 or 0.0), repr(item)))
+        before = self.sessions.number
+        if self.sessions.command(item) != before:
+            self.current = None  # a new host: the last window of the one before is over
+        angle_deg = self.scales.angle_deg
+        if isinstance(item, RotateTo):
+            self.commanded = item.angle * angle_deg
+        elif isinstance(item, RotateBy):
+            self.commanded = (self.commanded + item.delta * angle_deg) % 360.0
+        elif isinstance(item, Home):
+            self.commanded = 0.0
+        if isinstance(item, StreamStop) and self.current is not None:
+            self.current.stopped = True
+        if isinstance(item, RotateTo | RotateBy | Home | Reset | StreamStart):
+            self.current = None
+        if isinstance(item, StreamStart):
+            self.saw_stream_start = True
+            self.free = None
+            assert self.receiver is not None
+            self.receiver.ticks.restart()  # as the driver does: a new stream
+            current = _Segment(self.commanded, self.requested(), t, self.sessions.number)
+            current.suspect, self.after_gap = self.after_gap, None
+            self.segments.append(current)
+            self.current = current
+
+    def check_nodes(self) -> int:
+        """The node read.
+
+        Raises
+        ------
+        RecordingError
+            No node chosen and none, or several, in the log.
+        """
+        p = self.logs.name
+        if self.node_id is None:
+            if not self.nodes:
+                raise RecordingError(f"{p}: no frame of the north finder protocol in this CAN log")
+            if len(self.nodes) > 1:
+                listed = ", ".join(map(str, sorted(self.nodes)))
+                raise RecordingError(f"{p}: frames of nodes {listed}; choose one (--node-id)")
+        assert self.node is not None
+        return self.node
+
+    def choose(
+        self, session: int | None, windows: Sequence[int] | None
+    ) -> tuple[list[tuple[int, _Segment]], dict[int, int], list[_Segment]]:
+        """The windows asked for, numbered (1-based, in their session), the windows of each
+        session, and those of the session read.
+
+        Raises
+        ------
+        RecordingError
+            Windows of several sessions and none chosen; a session or window not in the log.
+        """
+        p = self.logs.name
+        chosen = self.segments if self.saw_stream_start else self.free_segments
+        chosen = [seg for seg in chosen if seg.collector.received > 0]
+        counts: dict[int, int] = {}
+        for seg in chosen:
+            counts[seg.session] = counts.get(seg.session, 0) + 1
+        listing = ", ".join(f"{k}: {v} window(s)" for k, v in sorted(counts.items()))
+        if session is None and len(counts) > 1:
+            raise RecordingError(
+                f"{p}: windows of {len(counts)} host sessions ({listing}); choose one (--session N)"
+            )
+        if session is not None:
+            if session not in counts:
+                raise RecordingError(
+                    f"{p}: no session {session} with windows in the log (sessions: "
+                    f"{listing or 'none'})"
+                )
+            chosen = [seg for seg in chosen if seg.session == session]
+        numbered = list(enumerate(chosen, start=1))
+        if windows is not None:
+            wanted = list(windows)
+            missing = [i for i in wanted if not 1 <= i <= len(chosen)]
+            if missing:
+                raise RecordingError(
+                    f"{p}: no window {missing[0]}: the session holds windows 1..{len(chosen)}"
+                )
+            numbered = [(i, chosen[i - 1]) for i in wanted]
+        return numbered, counts, chosen
+
+    def window_flaws(self, i: int, seg: _Segment) -> tuple[list[str], int]:
+        """What is missing from window ``i``: the notes, and how many of them (the first) are
+        ticks missing inside it."""
+        where = f"window {i} ({seg.commanded_deg:g} deg)"
+        flaws = [
+            f"{where}: {count} tick(s) missing from counter {first}"
+            for first, count in seg.collector.gaps
+        ]
+        gap_notes = len(flaws)
+        ticks = seg.collector.received + seg.collector.missing
+        if self.window_s is not None and not seg.collector.done:
+            flaws.append(f"{where}: the log ends the window after {ticks} of {seg.requested} ticks")
+        if seg is self.current and not seg.stopped and not seg.collector.done:
+            # The host stops every stream it starts: a last window without its STREAM_STOP
+            # is a log cut inside the window, whose samples fall short of what was measured.
+            flaws.append(
+                f"{where}: the log ends inside the window after {ticks} ticks, before its "
+                "STREAM_STOP: the log is cut short"
+            )
+        if seg.suspect is not None:
+            flaws.append(f"{where}: {seg.suspect}")
+        return flaws, gap_notes
 
 
 def read_can_log(
@@ -750,8 +1124,13 @@ def read_can_log(
     skip_damaged: bool = False,
     session: int | None = None,
     windows: Sequence[int] | None = None,
+    progress: ReadProgress | None = None,
 ) -> CanLogSession:
-    """Rebuild a session's windows from a CAN log (see the module docstring).
+    """Rebuild a session's windows from a CAN log (see the module docstring), reading it once.
+
+    Memory: a constant for the reading, plus each window's samples as numpy arrays (raw counts
+    while the window is collected, about 43 bytes a sample; 81 bytes a sample in physical units
+    in the result, the raw counts of one window released as it is converted).
 
     Parameters
     ----------
@@ -773,6 +1152,9 @@ def read_can_log(
         the log holds windows of several sessions.
     windows : sequence of int, optional
         Keep only these windows of the session, 1-based, in this order.
+    progress : callable, optional
+        Called as ``progress(done, total)`` with the bytes of the log's files read so far (of a
+        compressed file its compressed bytes) and in all, every 65536 frames and at the end.
 
     Raises
     ------
@@ -782,122 +1164,27 @@ def read_can_log(
         windows than ``min_windows``.
     """
     logs = LogSet(path)
-    p = logs.name
     if window_s is not None and not (math.isfinite(window_s) and window_s > 0):
         raise RecordingError(f"window: must be a positive number of seconds, got {window_s!r}")
-    node = _pick_node(logs, skip_damaged) if node_id is None else node_id
-    receiver = CanReceiver(node_id=node)
-    scales = CountScales()
-    identity: Identify | None = None
-    rate = float(SAMPLE_RATE_DEFAULT_HZ)
-    commanded = 0.0
-    commands: list[tuple[float, str]] = []
-    segments: list[_Segment] = []
-    current: _Segment | None = None
-    free: _Segment | None = None  # a window cut by the encoder, for logs without commands
-    free_segments: list[_Segment] = []
-    saw_stream_start = False
-    frames = 0
-    t0: float | None = None
-    sessions = SessionCounter()
-
-    def requested() -> int:
-        return _UNBOUNDED if window_s is None else max(1, round(window_s * rate))
-
+    scan = _Scan(logs, node_id, window_s)
     cut: list[str] = []
     skipped: list[tuple[int, str]] = []
-    stream = logs.messages(cut, skipped if skip_damaged else None)
-    gaps_seen = len(logs.gaps)
-    after_gap: str | None = None
-    for msg in stream:
-        if len(logs.gaps) > gaps_seen:
-            # Frames missing at a boundary between parts: the window in progress lost samples,
-            # and the next may have lost its command (its angle).
-            gaps_seen = len(logs.gaps)
-            after_gap = logs.gaps[-1]
-            if current is not None:
-                current.suspect = current.suspect or after_gap
-        frames += 1
-        if t0 is None:
-            t0 = msg.timestamp
-        if msg.is_error_frame or msg.is_remote_frame:
-            continue
-        data = bytes(msg.data)
-        for item in receiver.feed(msg.arbitration_id, data, is_extended_id=msg.is_extended_id):
-            if isinstance(item, Sample):
-                if current is not None:
-                    if not current.collector.done:
-                        current.collector.add_sample(item, msg.timestamp)
-                elif not saw_stream_start:
-                    at_rest = not (int(item.validity) & _MOVING)
-                    if at_rest and free is None:
-                        free = _Segment(item.angle * scales.angle_deg, requested(), msg.timestamp)
-                        free_segments.append(free)
-                    elif not at_rest:
-                        free = None
-                    if free is not None and not free.collector.done:
-                        free.collector.add_sample(item, msg.timestamp)
-            elif isinstance(item, TickLoss):
-                for seg in (current, free):
-                    if seg is not None and not seg.collector.done:
-                        seg.collector.add_loss(item)
-            elif isinstance(item, Identify):
-                identity, scales = item, CountScales.of(item)
-            elif isinstance(item, Reply):
-                if item.ok and item.opcode in (Opcode.GET_CONFIG, Opcode.SET_CONFIG):
-                    try:
-                        key, value = item.config_value()
-                    except ProtocolError:
-                        continue
-                    if key == ConfigKey.SAMPLE_RATE_HZ and value > 0:
-                        rate = float(value)
-            elif isinstance(item, Command):
-                commands.append((msg.timestamp - (t0 or 0.0), repr(item)))
-                before = sessions.number
-                if sessions.command(item) != before:
-                    current = None  # a new host: the last window of the one before is over
-                if isinstance(item, RotateTo):
-                    commanded = item.angle * scales.angle_deg
-                elif isinstance(item, RotateBy):
-                    commanded = (commanded + item.delta * scales.angle_deg) % 360.0
-                elif isinstance(item, Home):
-                    commanded = 0.0
-                if isinstance(item, StreamStop) and current is not None:
-                    current.stopped = True
-                if isinstance(item, RotateTo | RotateBy | Home | Reset | StreamStart):
-                    current = None
-                if isinstance(item, StreamStart):
-                    saw_stream_start = True
-                    free = None
-                    receiver.ticks.restart()  # as the driver does: a new stream
-                    current = _Segment(commanded, requested(), msg.timestamp, sessions.number)
-                    current.suspect, after_gap = after_gap, None
-                    segments.append(current)
-    chosen = segments if saw_stream_start else free_segments
-    chosen = [seg for seg in chosen if seg.collector.received > 0]
-    counts: dict[int, int] = {}
-    for seg in chosen:
-        counts[seg.session] = counts.get(seg.session, 0) + 1
-    listing = ", ".join(f"{k}: {v} window(s)" for k, v in sorted(counts.items()))
-    if session is None and len(counts) > 1:
-        raise RecordingError(
-            f"{p}: windows of {len(counts)} host sessions ({listing}); choose one (--session N)"
-        )
-    if session is not None:
-        if session not in counts:
-            raise RecordingError(
-                f"{p}: no session {session} with windows in the log (sessions: {listing or 'none'})"
-            )
-        chosen = [seg for seg in chosen if seg.session == session]
-    numbered = list(enumerate(chosen, start=1))
-    if windows is not None:
-        wanted = list(windows)
-        missing = [i for i in wanted if not 1 <= i <= len(chosen)]
-        if missing:
-            raise RecordingError(
-                f"{p}: no window {missing[0]}: the session holds windows 1..{len(chosen)}"
-            )
-        numbered = [(i, chosen[i - 1]) for i in wanted]
+    scan.read(logs.messages(cut, skipped if skip_damaged else None), progress)
+    return _session(scan, cut, skipped, session, windows, min_windows)
+
+
+def _session(
+    scan: _Scan,
+    cut: list[str],
+    skipped: list[tuple[int, str]],
+    session: int | None,
+    windows: Sequence[int] | None,
+    min_windows: int,
+) -> CanLogSession:
+    """The session a scan read: the windows asked for in physical units, and the notes."""
+    logs = scan.logs
+    node = scan.check_nodes()
+    numbered, counts, chosen = scan.choose(session, windows)
     incomplete: list[str] = list(cut)
     notes: list[str] = [g for g in logs.gaps if not any(g == s.suspect for s in chosen)]
     if skipped:
@@ -906,6 +1193,8 @@ def read_can_log(
             f"skipped {len(skipped)} damaged line(s) of the log (first: line {first_line}, "
             f"{first_error})"
         )
+    receiver = scan.receiver
+    assert receiver is not None
     if receiver.malformed:
         notes.append(
             f"{receiver.malformed} frame(s) of node {node} did not decode "
@@ -915,47 +1204,26 @@ def read_can_log(
     short: list[int] = []
     gap_only: list[int] = []
     for i, seg in numbered:
-        w = seg.collector.window(rate, scales)
-        rec = RecordedWindow.from_window(w, seg.commanded_deg)
-        before = len(incomplete)
-        for first, count in w.gaps:
-            incomplete.append(
-                f"window {i} ({seg.commanded_deg:g} deg): {count} tick(s) missing from counter {first}"
-            )
-        gap_notes = len(incomplete) - before
-        if window_s is not None and not seg.collector.done:
-            incomplete.append(
-                f"window {i} ({seg.commanded_deg:g} deg): the log ends the window after "
-                f"{seg.collector.received + seg.collector.missing} of {seg.requested} ticks"
-            )
-        if seg is current and not seg.stopped and not seg.collector.done:
-            # The host stops every stream it starts: a last window without its STREAM_STOP
-            # is a log cut inside the window, whose samples fall short of what was measured.
-            incomplete.append(
-                f"window {i} ({seg.commanded_deg:g} deg): the log ends inside the window after "
-                f"{seg.collector.received + seg.collector.missing} ticks, before its STREAM_STOP: "
-                "the log is cut short"
-            )
-        if seg.suspect is not None:
-            incomplete.append(f"window {i} ({seg.commanded_deg:g} deg): {seg.suspect}")
-        if len(incomplete) > before:
+        flaws, gap_notes = scan.window_flaws(i, seg)
+        incomplete += flaws
+        if flaws:
             short.append(len(out))
-            if len(incomplete) - before == gap_notes:
+            if len(flaws) == gap_notes:
                 gap_only.append(len(out))
-        out.append(rec)
+        out.append(seg.recorded(scan.rate, scan.scales))
     damaged = None
     if logs.damaged:
         file, line, error = logs.damaged[0]
         damaged = f"{file}:{line}: damaged line {error}"
     if len(out) < min_windows:
         raise RecordingError(
-            f"{p}: {len(out)} window(s) of node {node} in the log; need at least {min_windows} "
-            "(a window is the samples streamed at one position)"
+            f"{logs.name}: {len(out)} window(s) of node {node} in the log; need at least "
+            f"{min_windows} (a window is the samples streamed at one position)"
             + (f"; the first damaged line: {damaged}" if damaged else "")
         )
     return CanLogSession(
-        str(p), node, rate, tuple(out), identity, tuple(commands),
-        tuple(incomplete + notes), frames, t0, incomplete=tuple(incomplete),
+        str(logs.name), node, scan.rate, tuple(out), scan.identity, tuple(scan.commands),
+        tuple(incomplete + notes), scan.frames, scan.t0, incomplete=tuple(incomplete),
         incomplete_windows=tuple(short), skipped_lines=len(skipped),
         sessions=tuple(sorted(counts.items())), session=session,
         window_numbers=tuple(i for i, _ in numbered),

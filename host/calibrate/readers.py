@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from northfinder.host.canlog import is_can_log, read_can_log
+from northfinder.host.canlog import ReadProgress, is_can_log, read_can_log
 from northfinder.host.errors import RecordingError
 from northfinder.host.procedure import unfit_samples
 from northfinder.host.recording import RecordedWindow, Recording
@@ -100,8 +100,8 @@ def _read_northfinder(path: Path) -> RecordedRun:
     return RecordedRun(str(path), float(rate), tuple(windows[i] for i in order), latitude, rec.meta)
 
 
-def _read_can_log(path: Path) -> RecordedRun:
-    session = read_can_log(path, min_windows=1)
+def _read_can_log(path: Path, progress: ReadProgress | None = None) -> RecordedRun:
+    session = read_can_log(path, min_windows=1, progress=progress)
     gaps = [n for n in session.notes if "missing" in n]
     meta: dict[str, Any] = {"notes": list(session.notes), "gaps": gaps}
     if session.identity is not None:
@@ -126,8 +126,12 @@ for _suffix in (".log", ".asc", ".blf", ".db", ".trc", ".mf4"):
 register_reader(".gz", _read_gz)
 
 
-def read_runs(paths: Sequence[str | Path]) -> list[RecordedRun]:
-    """Read every file, one run each, by the reader its ending names.
+def read_runs(
+    paths: Sequence[str | Path], progress: Callable[[Path], ReadProgress | None] | None = None
+) -> list[RecordedRun]:
+    """Read every file, one run each, by the reader its ending names; a CAN log's reading is
+    told to ``progress(path)`` when that gives a callback
+    (:func:`~northfinder.host.canlog.read_can_log`'s ``progress``).
 
     Raises
     ------
@@ -148,7 +152,8 @@ def read_runs(paths: Sequence[str | Path]) -> list[RecordedRun]:
                 f"{p}: no reader for {p.suffix or 'files without an ending'!r}; readable: "
                 f"{', '.join(sorted(READERS))}"
             )
-        runs.append(reader(p))
+        told = progress(p) if progress is not None else None
+        runs.append(_read_can_log(p, told) if told is not None and is_can_log(p) else reader(p))
     names = list(map(str, paths))
     for j, run in enumerate(runs):
         first = next((names[i] for i in range(j) if same_session(runs[i], run)), None)

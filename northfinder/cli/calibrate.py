@@ -13,6 +13,7 @@ from typing import Any
 
 from northfinder.cli.argtypes import bounded_float
 from northfinder.cli.files import check_output_path
+from northfinder.cli.logprogress import LogProgress
 from northfinder.cli.output import dumps, say
 from northfinder.cli.plots import check_plot_path
 from northfinder.cli.progress import Progress
@@ -72,7 +73,9 @@ def run(args: argparse.Namespace) -> int:
     base: dict[str, Any] | None = load_sensor(args.base).to_dict() if args.base else None
     with Progress("calibrate", enabled=not args.json) as bar:
         bar.step(f"reading {len(args.recordings)} recording(s)")
-        runs = read_runs(args.recordings)
+        runs = read_runs(
+            args.recordings, lambda p: LogProgress("calibrate", [p], enabled=not args.json)
+        )
         samples = sum(len(w.counter) for run in runs for w in run.windows)
         bar.step(f"fitting {samples} samples: Allan deviation, then the terms between positions")
         cal = calibrate(

@@ -19,6 +19,7 @@ from typing import Any
 from northfinder.cli import report, spinfind
 from northfinder.cli.argtypes import bounded_float, node_id, positive_float
 from northfinder.cli.exits import result_status
+from northfinder.cli.logprogress import LogProgress
 from northfinder.cli.options import add_session_argument, add_solver_argument
 from northfinder.cli.output import say, warn
 from northfinder.cli.plots import check_plot_path
@@ -152,68 +153,7 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
     if args.strict and report_gaps:
         raise HostConfigError("--on-gap report: --strict refuses a log with a gap; choose one")
     if is_can_log(path):
-        logs = LogSet(names)
-        path = Path(logs.name)
-        # Damaged lines are read past even with --strict, so that it names the first one.
-        session = read_can_log(
-            logs.files, node_id=args.node_id, window_s=args.window, skip_damaged=True,
-            session=args.session, windows=args.windows, min_windows=1,
-        )  # fmt: skip
-        if args.strict and session.first_damaged:
-            raise QualityError(
-                f"{session.first_damaged}; --strict refuses a log with a damaged line "
-                f"({session.skipped_lines} in all)"
-            )
-        if args.strict and (session.incomplete or session.part_gaps):
-            raise QualityError(f"{path}: " + "; ".join(session.incomplete or session.part_gaps))
-        complete = session.complete(keep_gaps=report_gaps)
-        kept = {session.window_numbers[i] for i in session.gap_windows} if report_gaps else set()
-        reported = [
-            n for n in session.incomplete if any(n.startswith(f"window {k} (") for k in kept)
-        ]  # in the result's notes instead: solved from the samples the window holds
-        warned = [
-            n for n in session.notes
-            if (n in session.incomplete and n not in reported) or n in session.part_gaps
-            or n.startswith("skipped ")
-        ]  # fmt: skip
-        for note in warned:
-            warn("solve", f"{path}: {note}")
-        if len(complete.windows) < len(session.windows):
-            left = ", ".join(str(n) for n in complete.window_numbers)
-            gaps_only = len(session.gap_windows) and not report_gaps
-            warn(
-                "solve",
-                f"{path}: {len(session.windows) - len(complete.windows)} window(s) with samples "
-                f"missing left out; solving the complete windows {left or '(none)'}"
-                + (
-                    f" (--on-gap report solves the {len(session.gap_windows)} with sample "
-                    "ticks missing from the samples they hold)"
-                    if gaps_only
-                    else ""
-                ),
-            )
-        if len(complete.windows) < 2:
-            raise QualityError(
-                f"{path}: {len(complete.windows)} complete window(s); a heading needs two"
-                + ("" if args.strict else " (windows with samples missing are left out")
-                + (
-                    "; --on-gap report solves those with sample ticks missing)"
-                    if session.gap_windows and not (args.strict or report_gaps)
-                    else ")"
-                    if not args.strict
-                    else ""
-                )
-            )
-        source = {
-            "file": str(path), "format": "can-log", "node_id": session.node_id,
-            **({"parts": [str(f) for f in logs.files]} if len(logs.files) > 1 else {}),
-            "frames": session.frames, "sample_rate_hz": session.sample_rate_hz,
-            "window_s": args.window, "notes": list(session.notes),
-            "session": session.session, "sessions": [list(s) for s in session.sessions],
-            "windows": list(complete.window_numbers), "skipped_lines": session.skipped_lines,
-            "warnings": warned, "reported": reported,
-        }  # fmt: skip
-        return complete.recording(), source
+        return _load_can_log(args, names)
     given = [
         name for name in ("window", "node_id", "session", "windows")
         if getattr(args, name) is not None
@@ -230,6 +170,75 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
         source["partial"] = rec.partial
         source["notes"] = [f"partial recording ({rec.partial}): solved from the {held} it holds"]
     return rec, source
+
+
+def _load_can_log(args: argparse.Namespace, names: list[str]) -> tuple[Recording, dict[str, Any]]:
+    """The complete windows of a CAN log (or of its parts) and where they came from; the
+    windows left out warned of."""
+    report_gaps = args.on_gap == "report"
+    logs = LogSet(names)
+    path = Path(logs.name)
+    # Damaged lines are read past even with --strict, so that it names the first one.
+    with LogProgress("solve", logs.files, enabled=not args.json) as progress:
+        session = read_can_log(
+            logs.files, node_id=args.node_id, window_s=args.window, skip_damaged=True,
+            session=args.session, windows=args.windows, min_windows=1, progress=progress,
+        )  # fmt: skip
+    if args.strict and session.first_damaged:
+        raise QualityError(
+            f"{session.first_damaged}; --strict refuses a log with a damaged line "
+            f"({session.skipped_lines} in all)"
+        )
+    if args.strict and (session.incomplete or session.part_gaps):
+        raise QualityError(f"{path}: " + "; ".join(session.incomplete or session.part_gaps))
+    complete = session.complete(keep_gaps=report_gaps)
+    kept = {session.window_numbers[i] for i in session.gap_windows} if report_gaps else set()
+    reported = [
+        n for n in session.incomplete if any(n.startswith(f"window {k} (") for k in kept)
+    ]  # in the result's notes instead: solved from the samples the window holds
+    warned = [
+        n for n in session.notes
+        if (n in session.incomplete and n not in reported) or n in session.part_gaps
+        or n.startswith("skipped ")
+    ]  # fmt: skip
+    for note in warned:
+        warn("solve", f"{path}: {note}")
+    if len(complete.windows) < len(session.windows):
+        left = ", ".join(str(n) for n in complete.window_numbers)
+        gaps_only = len(session.gap_windows) and not report_gaps
+        warn(
+            "solve",
+            f"{path}: {len(session.windows) - len(complete.windows)} window(s) with samples "
+            f"missing left out; solving the complete windows {left or '(none)'}"
+            + (
+                f" (--on-gap report solves the {len(session.gap_windows)} with sample "
+                "ticks missing from the samples they hold)"
+                if gaps_only
+                else ""
+            ),
+        )
+    if len(complete.windows) < 2:
+        raise QualityError(
+            f"{path}: {len(complete.windows)} complete window(s); a heading needs two"
+            + ("" if args.strict else " (windows with samples missing are left out")
+            + (
+                "; --on-gap report solves those with sample ticks missing)"
+                if session.gap_windows and not (args.strict or report_gaps)
+                else ")"
+                if not args.strict
+                else ""
+            )
+        )
+    source = {
+        "file": str(path), "format": "can-log", "node_id": session.node_id,
+        **({"parts": [str(f) for f in logs.files]} if len(logs.files) > 1 else {}),
+        "frames": session.frames, "sample_rate_hz": session.sample_rate_hz,
+        "window_s": args.window, "notes": list(session.notes),
+        "session": session.session, "sessions": [list(s) for s in session.sessions],
+        "windows": list(complete.window_numbers), "skipped_lines": session.skipped_lines,
+        "warnings": warned, "reported": reported,
+    }  # fmt: skip
+    return complete.recording(), source
 
 
 def run(args: argparse.Namespace) -> int:
