@@ -46,6 +46,7 @@ from northfinder.host.montecarlo import (
     StudySettings,
     monte_carlo,
     monte_carlo_many,
+    rmse_interval_deg,
     study_rows,
     verify_plan,
 )
@@ -480,6 +481,14 @@ def _best_of_budget(report: dict[str, Any]) -> dict[str, Any]:
         by_mc = all(rmse is not None for _, rmse in scores.values())
         out["judged_by"] = "monte-carlo" if by_mc else "prediction"
         out["overall"] = min(scores, key=lambda k: scores[k][1] if by_mc else scores[k][0])
+        if by_mc and len(scores) == 2:
+            # Resolved when the two RMSEs' 95 % intervals are apart.
+            runs = {"stop_and_go": report["verified"]["runs"],
+                    "spin": report["verified_spin"]["runs"]}  # fmt: skip
+            iv = {k: rmse_interval_deg(scores[k][1], runs[k]) for k in scores}
+            out["intervals_deg"] = {k: list(v) for k, v in iv.items()}
+            (lo1, hi1), (lo2, hi2) = iv.values()
+            out["resolved"] = hi1 < lo2 or hi2 < lo1
     return out
 
 
@@ -519,9 +528,12 @@ def _print_spins(report: dict[str, Any]) -> None:
                 continue
             mc = "" if b["rmse_deg"] is None else f", Monte Carlo {b['rmse_deg']:.4f}"
             parts.append(f"best {names[kind]} predicted {b['predicted_deg']:.4f} deg{mc}")
+        resolved = {None: "", True: ", 95 % intervals apart",
+                    False: "; not resolved: the 95 % intervals overlap"}[best.get("resolved")]  # fmt: skip
         say(
             "; ".join(parts)
-            + f". Best overall: {names[best['overall']]} (by the {best['judged_by']}); physical "
+            + f". Best overall: {names[best['overall']]} (by the {best['judged_by']}{resolved}"
+            + "); physical "
             f"bound of the budget {report['budget_bound_deg']:.4f} deg"
         )
 
