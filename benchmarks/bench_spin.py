@@ -112,20 +112,23 @@ def sigma_rows(runs: int) -> None:
     from scipy.stats import chi2
 
     from northfinder.firmware_sim.sensors import preset_names
+    from northfinder.host.accuracy import predict
     from northfinder.host.plan import spin_start_deg
     from northfinder.host.plan_search import search_spin_plans
     from northfinder.host.spin import SpinSamples, solve_spin
     from northfinder.simwindows import error_model
 
     print("| preset | spin | runs | RMSE deg [95 %] | mean sigma deg | RMSE / mean sigma | "
-          "batch reported |")  # fmt: skip
-    print("|---|---|---:|---|---:|---|---:|")
+          "predicted deg | mean sigma / predicted | batch reported |")  # fmt: skip
+    print("|---|---|---:|---|---:|---|---:|---:|---:|")
     for name in preset_names():
         if name == "ideal":
             continue
         spec = load_spec(name)
-        plan = search_spin_plans(error_model(spec), LAT, 160.0, warmup_s=120.0,
+        model = error_model(spec)
+        plan = search_spin_plans(model, LAT, 160.0, warmup_s=120.0,
                                  sample_rate_hz=50.0)[0].plan  # fmt: skip
+        pred = predict(model, plan, LAT, warmup_s=120.0, sample_rate_hz=50.0).sigma_deg
         rng = np.random.default_rng(17)
         truths = [Truth(azimuth_deg=a, pitch_deg=p, roll_deg=r, latitude_deg=LAT)
                   for a, p, r in zip(rng.uniform(0, 360, runs), rng.uniform(-1, 1, runs),
@@ -149,7 +152,8 @@ def sigma_rows(runs: int) -> None:
         ms = float(np.mean(sig))
         print(f"| {name} | {plan.rate_dps:+g} deg/s x {plan.spin_s:.1f} s"
               f"{', drift' if plan.drift else ''} | {runs} | {rmse:.5f} [{lo:.5f}, {hi:.5f}] | "
-              f"{ms:.5f} | {rmse / ms:.3f} [{lo / ms:.3f}, {hi / ms:.3f}] | {batch} |",
+              f"{ms:.5f} | {rmse / ms:.3f} [{lo / ms:.3f}, {hi / ms:.3f}] | {pred:.5f} | "
+              f"{ms / pred:.3f} | {batch} |",
               flush=True)  # fmt: skip
 
 
