@@ -106,7 +106,7 @@ def _label(plan: Plan | SpinPlan) -> str:
 
 def compare_table(
     runs: int, seed: int, max_runs: int, settings: StudySettings = SETTINGS,
-    presets: tuple[str, ...] = (),
+    presets: tuple[str, ...] = (), overrides: dict[str, float] | None = None,
 ) -> None:  # fmt: skip
     """Each row starts with ``runs`` runs a plan and doubles them (fresh seeds) while the two
     95 % intervals overlap, up to ``max_runs``; then says which is better or "not resolved"."""
@@ -121,6 +121,9 @@ def compare_table(
     for name, spec, model in noisy_presets():
         if presets and name not in presets:
             continue
+        if overrides:
+            spec = spec.with_values(overrides)
+            model = error_model(spec)
         for budget in BUDGETS:
             bound = budget_bound_deg(budget, model.arw_dpsh, LATITUDE)
             kinds = {}
@@ -187,6 +190,8 @@ def main() -> None:
     ap.add_argument("--max-runs", type=int, default=3200, help="compare: most runs per plan")
     ap.add_argument("--rate", type=float, default=200.0, help="compare: sample rate, Hz")
     ap.add_argument("--presets", nargs="*", default=(), help="compare: these presets only")
+    ap.add_argument("--set", nargs="*", default=(), metavar="SECTION.FIELD=VALUE",
+                    help="compare: override sensor fields of every preset")  # fmt: skip
     args = ap.parse_args()
     if args.only in (None, "sweep"):
         sweep_table(args.runs, args.seed)
@@ -194,7 +199,8 @@ def main() -> None:
         budget_table(args.runs, args.seed)
     if args.only in (None, "compare"):
         compare_table(args.runs, args.seed, args.max_runs,
-                      replace(SETTINGS, sample_rate_hz=args.rate), tuple(args.presets))  # fmt: skip
+                      replace(SETTINGS, sample_rate_hz=args.rate), tuple(args.presets),
+                      {k: float(v) for k, v in (a.split("=", 1) for a in args.set)})  # fmt: skip
 
 
 if __name__ == "__main__":

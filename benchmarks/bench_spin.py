@@ -14,6 +14,9 @@ Prints markdown tables:
    settling.
 3. Wall time of ``northfinder find --sim --warmup 0 --spin 6`` (one turn, virtual time): median of
    three.
+4. Sigma: for every preset, the planner's best spin of a 160 s budget solved run by run
+   (:func:`~northfinder.host.spin.solve_spin`, 120 s after power-on, 50 Hz): the RMSE with its
+   95 % chi-square interval, the mean reported sigma and their ratio (target 0.95 to 1.05).
 """
 
 from __future__ import annotations
@@ -105,10 +108,59 @@ def find_rows() -> None:
     )
 
 
+def sigma_rows(runs: int) -> None:
+    from scipy.stats import chi2
+
+    from northfinder.firmware_sim.sensors import preset_names
+    from northfinder.host.accuracy import predict
+    from northfinder.host.plan import spin_start_deg
+    from northfinder.host.plan_search import search_spin_plans
+    from northfinder.host.spin import SpinSamples, solve_spin
+    from northfinder.simwindows import error_model
+
+    print("| preset | spin | runs | RMSE deg [95 %] | mean sigma deg | RMSE / mean sigma | "
+          "predicted deg | mean sigma / predicted | batch reported |")  # fmt: skip
+    print("|---|---|---:|---|---:|---|---:|---:|---:|")
+    for name in preset_names():
+        if name == "ideal":
+            continue
+        spec = load_spec(name)
+        model = error_model(spec)
+        plan = search_spin_plans(model, LAT, 160.0, warmup_s=120.0,
+                                 sample_rate_hz=50.0)[0].plan  # fmt: skip
+        pred = predict(model, plan, LAT, warmup_s=120.0, sample_rate_hz=50.0).sigma_deg
+        rng = np.random.default_rng(17)
+        truths = [Truth(azimuth_deg=a, pitch_deg=p, roll_deg=r, latitude_deg=LAT)
+                  for a, p, r in zip(rng.uniform(0, 360, runs), rng.uniform(-1, 1, runs),
+                                     rng.uniform(-1, 1, runs), strict=True)]  # fmt: skip
+        start = spin_start_deg(plan, TableModel(max_rate_dps=spec.table.max_rate_dps,
+                                                max_accel_dps2=spec.table.max_accel_dps2))  # fmt: skip
+        b = simulate_spin(spec, truths, plan.rate_dps, plan.spin_s, n_runs=runs, rng=rng,
+                          sample_rate_hz=50.0, start_deg=start, start_s=120.0)  # fmt: skip
+        enc = (b.mu0_rad, b.mu1_rad) if b.encoder_rad is None else (
+            b.encoder_rad[:, :-1], b.encoder_rad[:, 1:])  # fmt: skip
+        err, sig, batch = [], [], 0
+        for r in range(runs):
+            sol = solve_spin(SpinSamples(b.gyro_rps[r], b.accel_mps2[r], enc[0][r], enc[1][r],
+                                         b.time_s), latitude_deg=LAT, drift=plan.drift)  # fmt: skip
+            err.append((sol.azimuth_deg - b.azimuth_deg[r] + 180.0) % 360.0 - 180.0)
+            sig.append(sol.sigma_deg)
+            batch += sol.sigma_deg != sol.sigma_white_deg
+        e = np.asarray(err)
+        rmse = math.sqrt(float(np.mean(e**2)))
+        lo, hi = (rmse * math.sqrt(runs / chi2.ppf(q, runs)) for q in (0.975, 0.025))
+        ms = float(np.mean(sig))
+        print(f"| {name} | {plan.rate_dps:+g} deg/s x {plan.spin_s:.1f} s"
+              f"{', drift' if plan.drift else ''} | {runs} | {rmse:.5f} [{lo:.5f}, {hi:.5f}] | "
+              f"{ms:.5f} | {rmse / ms:.3f} [{lo / ms:.3f}, {hi / ms:.3f}] | {pred:.5f} | "
+              f"{ms / pred:.3f} | {batch} |",
+              flush=True)  # fmt: skip
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=10_000)
-    p.add_argument("--only", choices=("ratio", "budget", "find"))
+    p.add_argument("--only", choices=("ratio", "budget", "find", "sigma"))
     a = p.parse_args()
     if a.only in (None, "ratio"):
         ratio_rows(a.runs)
@@ -116,6 +168,8 @@ def main() -> None:
         budget_rows()
     if a.only in (None, "find"):
         find_rows()
+    if a.only in (None, "sigma"):
+        sigma_rows(min(a.runs, 400))
 
 
 if __name__ == "__main__":

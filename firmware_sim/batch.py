@@ -724,6 +724,93 @@ class SpinBatch:
         return self.mu1_rad if self.encoder_rad is None else self.encoder_rad[:, 1:]
 
 
+def _spin_ideal_samples(
+    tab: TableSpec,
+    az: NDArray[np.float64],
+    lat: NDArray[np.float64],
+    pitch: NDArray[np.float64],
+    roll: NDArray[np.float64],
+    rate_dps: float,
+    start: NDArray[np.float64],
+    n: int,
+    fs: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Error-free samples of spins (R, n, 6): the Earth rate and gravity through the table (sample
+    means over the angle swept), the table rate on its axis, the wobble; with the sample times
+    (n,), the true edge angles in deg and rad (R, n+1)."""
+    n_runs = az.shape[0]
+    c_nb = mat_nb(alpha_from_azimuth(az), np.radians(pitch), np.radians(roll))
+    lat_r = np.radians(lat)
+    omega_b = np.einsum("rij,rj->ri", c_nb, earth_rate_n(lat_r))
+    grav = np.asarray(normal_gravity(lat_r), dtype=float).reshape(-1)
+    f_b = c_nb[:, :, 2] * grav[:, None]
+    t = np.arange(1, n + 1) / fs
+    edge_deg = spin_angles_deg(tab, rate_dps, start[:, None], np.arange(n + 1)[None, :] / fs)
+    edges = np.radians(edge_deg)  # (R, n+1)
+    d = edges[:, 1:] - edges[:, :-1]
+    c = (np.sin(edges[:, 1:]) - np.sin(edges[:, :-1])) / d
+    s = -(np.cos(edges[:, 1:]) - np.cos(edges[:, :-1])) / d
+    out = np.empty((n_runs, n, 6))
+    for k, v in ((0, omega_b), (3, f_b)):
+        out[..., k] = c * v[:, 0, None] + s * v[:, 1, None]
+        out[..., k + 1] = -s * v[:, 0, None] + c * v[:, 1, None]
+        out[..., k + 2] = v[:, 2, None]
+    out[..., 2] += d * fs  # the table rate (mean over each sample)
+    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
+    if wob is not None:
+        out[..., :3] = out[..., :3] @ wob.T
+        out[..., 3:] = out[..., 3:] @ wob.T
+    return out, t, edge_deg, edges
+
+
+def _spin_time_terms(
+    out: NDArray[np.float64],
+    terms: ErrorTerms,
+    spec: SensorSpec,
+    t_on: NDArray[np.float64],
+    fs: float,
+    slow: np.random.Generator,
+    impulses: np.random.Generator,
+    vib_phase: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Add the terms of time since power-on to a spin's samples ``out`` (R, n, 6): drifts,
+    flicker and random walks, impulses, vibration; return the samples (a new array when
+    impulses or vibration are on)."""
+    n_runs = out.shape[0]
+    dist = spec.disturbance
+    det = terms.drift(t_on, spec.thermal)
+    if det.any():
+        out += det[None]
+    slow_chans = [ch for ch in range(6) if terms.flicker_b[ch] + terms.walk_k[ch]]
+    if slow_chans:
+        pos = ((t_on - 0.5 / fs) / FLICKER_GRID_S)[None, :]
+        grid = _grid_windows(pos)
+        coarse = _slow_grid(
+            slow, grid, n_runs, terms.flicker_b[slow_chans], terms.walk_k[slow_chans]
+        )[0]  # (nc, R, m)
+        # Linear between the grid points (as the windows' interpolation matrices).
+        x = pos[0] - grid[0].g0
+        j = np.minimum(np.floor(x).astype(np.int64), grid[0].g1 - grid[0].g0 - 1)
+        f = x - j
+        for i, ch in enumerate(slow_chans):
+            out[..., ch] += coarse[i][:, j] * (1.0 - f) + coarse[i][:, j + 1] * f
+    if (dist.impulse_rate_hz > 0 and terms.impulse_amp.any()) or (
+        dist.vibration_hz > 0 and terms.vibration_amp.any()
+    ):
+        data = np.ascontiguousarray(np.moveaxis(out, -1, 0))[:, :, None, :]  # (6, R, 1, n)
+        if dist.impulse_rate_hz > 0 and terms.impulse_amp.any():
+            _add_impulses(data, ALL_CHANNELS, impulses, t_on[None, :], fs,
+                          dist.impulse_rate_hz, dist.impulse_duration_s, terms.impulse_amp)  # fmt: skip
+        if dist.vibration_hz > 0 and terms.vibration_amp.any():
+            phase = vib_phase
+            for ch in map(int, np.flatnonzero(terms.vibration_amp)):
+                data[ch, :, 0] += vibration(
+                    t_on[None, :], dist.vibration_hz, terms.vibration_amp[ch], phase[:, ch, None]
+                )
+        out = np.moveaxis(data[:, :, 0, :], 0, -1)
+    return out
+
+
 def simulate_spin(
     spec: SensorSpec,
     truth: Truth | Sequence[Truth],
@@ -740,15 +827,12 @@ def simulate_spin(
     """Samples of ``n_runs`` independent steady spins at once (the spin Monte Carlo's generator).
 
     The model is the instrument's (:class:`~northfinder.firmware_sim.imu.Instrument`): the
-    Earth rate and gravity through the table (sample means over the angle swept, exact at a
-    constant rate) and through the table top's wobble, the table rate (with its ripple) on the
-    table axis, the error matrices (scale factor, misalignment), the constant and turn-on biases,
-    white noise, flicker and random walks, the warm-up transient, temperature and ramps (of time
-    since power-on), impulses, vibration, an optional bias step, range and quantisation, and the
-    encoder's periodic error and resolution (:attr:`SpinBatch.encoder_rad`), and the drive's heat
-    (the table's ``spin_heat``, :func:`~northfinder.firmware_sim.error_terms.spin_heat_bias`:
-    the ramp as one move, the steady turning as a train of short ones). The steady spin follows
-    no stop, so neither discrete moves nor the ring-down enter.
+    error-free samples of :func:`_spin_ideal_samples`, the error matrices, the constant and
+    turn-on biases, white noise, the terms of time since power-on (:func:`_spin_time_terms`), an
+    optional bias step, range and quantisation, the encoder's periodic error and resolution
+    (:attr:`SpinBatch.encoder_rad`), and the drive's heat (the table's ``spin_heat``,
+    :func:`~northfinder.firmware_sim.error_terms.spin_heat_bias`). The steady spin follows no
+    stop, so neither discrete moves nor the ring-down enter.
 
     Parameters
     ----------
@@ -786,7 +870,7 @@ def simulate_spin(
     if not (math.isfinite(rate_dps) and rate_dps != 0.0):
         raise SimConfigError(f"rate_dps: must be a finite non-zero rate, got {rate_dps!r}")
     terms = _error_terms(spec)
-    tab, dist = spec.table, spec.disturbance
+    tab = spec.table
     n = round(duration_s * fs)
     if n < 1:
         raise SimConfigError(f"duration_s: {duration_s} s holds no sample at {fs:g} Hz")
@@ -795,32 +879,12 @@ def simulate_spin(
     # Streams of the slower terms, after the first three (so that runs without them keep
     # their draws).
     slow, impulses, quantiser = rng.spawn(3)
-    c_nb = mat_nb(alpha_from_azimuth(az), np.radians(pitch), np.radians(roll))
-    lat_r = np.radians(lat)
-    omega_b = np.einsum("rij,rj->ri", c_nb, earth_rate_n(lat_r))
-    grav = np.asarray(normal_gravity(lat_r), dtype=float).reshape(-1)
-    f_b = c_nb[:, :, 2] * grav[:, None]
     start = (
         table_rng.uniform(0.0, 360.0, n_runs)
         if start_deg is None
         else np.full(n_runs, float(start_deg))
     )
-    t = np.arange(1, n + 1) / fs
-    edge_deg = spin_angles_deg(tab, rate_dps, start[:, None], np.arange(n + 1)[None, :] / fs)
-    edges = np.radians(edge_deg)  # (R, n+1)
-    d = edges[:, 1:] - edges[:, :-1]
-    c = (np.sin(edges[:, 1:]) - np.sin(edges[:, :-1])) / d
-    s = -(np.cos(edges[:, 1:]) - np.cos(edges[:, :-1])) / d
-    out = np.empty((n_runs, n, 6))
-    for k, v in ((0, omega_b), (3, f_b)):
-        out[..., k] = c * v[:, 0, None] + s * v[:, 1, None]
-        out[..., k + 1] = -s * v[:, 0, None] + c * v[:, 1, None]
-        out[..., k + 2] = v[:, 2, None]
-    out[..., 2] += d * fs  # the table rate (mean over each sample)
-    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
-    if wob is not None:
-        out[..., :3] = out[..., :3] @ wob.T
-        out[..., 3:] = out[..., 3:] @ wob.T
+    out, t, edge_deg, edges = _spin_ideal_samples(tab, az, lat, pitch, roll, rate_dps, start, n, fs)
     draws = draw_turn_on(turn_on, (n_runs,))
     if terms.has_matrix:
         mg, ma = terms.matrices(draws)
@@ -835,36 +899,7 @@ def simulate_spin(
         del noise
     # -- terms of time since power-on ---------------------------------------------------------
     t_on = start_s + t  # (n,)
-    det = terms.drift(t_on, spec.thermal)
-    if det.any():
-        out += det[None]
-    slow_chans = [ch for ch in range(6) if terms.flicker_b[ch] + terms.walk_k[ch]]
-    if slow_chans:
-        pos = ((t_on - 0.5 / fs) / FLICKER_GRID_S)[None, :]
-        grid = _grid_windows(pos)
-        coarse = _slow_grid(
-            slow, grid, n_runs, terms.flicker_b[slow_chans], terms.walk_k[slow_chans]
-        )[0]  # (nc, R, m)
-        # Linear between the grid points (as the windows' interpolation matrices).
-        x = pos[0] - grid[0].g0
-        j = np.minimum(np.floor(x).astype(np.int64), grid[0].g1 - grid[0].g0 - 1)
-        f = x - j
-        for i, ch in enumerate(slow_chans):
-            out[..., ch] += coarse[i][:, j] * (1.0 - f) + coarse[i][:, j + 1] * f
-    if (dist.impulse_rate_hz > 0 and terms.impulse_amp.any()) or (
-        dist.vibration_hz > 0 and terms.vibration_amp.any()
-    ):
-        data = np.ascontiguousarray(np.moveaxis(out, -1, 0))[:, :, None, :]  # (6, R, 1, n)
-        if dist.impulse_rate_hz > 0 and terms.impulse_amp.any():
-            _add_impulses(data, ALL_CHANNELS, impulses, t_on[None, :], fs,
-                          dist.impulse_rate_hz, dist.impulse_duration_s, terms.impulse_amp)  # fmt: skip
-        if dist.vibration_hz > 0 and terms.vibration_amp.any():
-            phase = draws.vib_phase
-            for ch in map(int, np.flatnonzero(terms.vibration_amp)):
-                data[ch, :, 0] += vibration(
-                    t_on[None, :], dist.vibration_hz, terms.vibration_amp[ch], phase[:, ch, None]
-                )
-        out = np.moveaxis(data[:, :, 0, :], 0, -1)
+    out = _spin_time_terms(out, terms, spec, t_on, fs, slow, impulses, draws.vib_phase)
     if bias_step_dph:
         t_step = impulses.uniform(t_on[0] - 1.0 / fs, t_on[-1], n_runs)
         v = impulses.standard_normal((n_runs, 3))

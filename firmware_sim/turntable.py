@@ -198,7 +198,9 @@ class Turntable:
             self._segments = [_Segment(-math.inf, start, 0.0, 0.0)]
             self._motion_end = t
             return t
-        # A spin starts no move transient in the sensors (the move log stays as it is).
+        # A spin logs no move (the move log stays as it is). The drive's heat while turning
+        # (spec.spin_heat) is the batch generator's and the prediction's
+        # (northfinder.driver.protocol.heat); this step-by-step table does not start it yet.
         a = self.spec.max_accel_dps2
         ta = abs(rate_dps) / a
         a1 = start + 0.5 * rate_dps * ta

@@ -76,6 +76,7 @@ __all__ = [
     "monte_carlo",
     "monte_carlo_many",
     "prediction_options",
+    "rmse_interval_deg",
     "run_chunk",
     "study_rows",
     "verify_plan",
@@ -472,6 +473,17 @@ def _spin_row(
         "predicted_deg": pred.sigma_deg,
         "predicted_parts_deg": pred.parts_deg,
     }
+
+
+def rmse_interval_deg(rmse_deg: float, runs: int, level: float = 0.95) -> tuple[float, float]:
+    """Confidence interval of an RMSE over ``runs`` independent zero-mean normal errors, deg:
+    ``runs RMSE^2 / sigma^2`` is chi-square with ``runs`` degrees of freedom."""
+    from scipy.stats import chi2  # imported when first needed
+
+    return (
+        rmse_deg * math.sqrt(runs / chi2.ppf(0.5 + level / 2, runs)),
+        rmse_deg * math.sqrt(runs / chi2.ppf(0.5 - level / 2, runs)),
+    )
 
 
 def study_rows(

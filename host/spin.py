@@ -19,10 +19,10 @@ Conventions are those of :mod:`northfinder.host.heading`: the azimuth is that of
 angle 0, clockwise from true north; table angles counter-clockwise seen from above.
 
 Sigma. The heading's first-order weights on every sample (gyro and accelerometer, both axes) are
-computed from the fit; the reported ``sigma_deg`` is the larger of the white-noise sigma (residual
-scatter through those weights) and a batch estimate (the weighted residuals summed over
-:data:`BATCHES` consecutive stretches), which also holds when the noise is correlated over less
-than a stretch. The consistency check solves the first and the second half of the samples
+computed from the fit; the reported ``sigma_deg`` is the white-noise sigma (residual scatter
+through those weights) unless a batch estimate (the weighted residuals summed over :data:`BATCHES`
+consecutive stretches, which also holds when the noise is correlated over less than a stretch)
+exceeds it beyond its own scatter (:func:`reported_sigma`). The consistency check solves the first and the second half of the samples
 separately and asks them to agree within three sigma of their difference.
 
 The white-noise bound is :func:`northfinder.host.accuracy.spin_bound_deg`.
@@ -73,6 +73,19 @@ Array = NDArray[np.float64]
 
 #: Consecutive stretches the batch estimate of sigma sums the weighted residuals over.
 BATCHES = 16
+#: How far the batch estimate's square must exceed the white one's before it is reported: the
+#: 95 % point of chi-square with BATCHES - 1 degrees of freedom over BATCHES - 1 (under white
+#: noise the ratio of the two is that distribution's, so 5 % of white runs report the batch).
+BATCH_EXCESS = 24.99579013972863 / 15.0
+
+
+def reported_sigma(white_deg: float, batch_deg: float) -> float:
+    """The sigma a spin solution reports, deg: the batch estimate where the residuals show
+    correlated noise (its square beyond :data:`BATCH_EXCESS` times the white one's), else the
+    white-noise sigma. (The larger of the two would run about 7 % high under white noise.)"""
+    return batch_deg if batch_deg * batch_deg > BATCH_EXCESS * white_deg * white_deg else white_deg
+
+
 #: A spin solution needs the table to sweep at least this much, deg (the sinusoid must show).
 MIN_SWEEP_DEG = 90.0
 
@@ -355,7 +368,8 @@ class SpinSolution:
     azimuth_deg : float
         Azimuth of body x at table angle 0, clockwise from true north, [0, 360) deg.
     sigma_deg : float
-        1 sigma, deg: the larger of ``sigma_white_deg`` and ``sigma_batch_deg``.
+        1 sigma, deg: ``sigma_batch_deg`` where it exceeds ``sigma_white_deg`` beyond its
+        scatter, else ``sigma_white_deg`` (:func:`reported_sigma`).
     sigma_white_deg, sigma_batch_deg : float
         White-noise sigma from the residual scatter; batch estimate over :data:`BATCHES`
         stretches (see the module docstring).
@@ -493,7 +507,7 @@ def solve_spin(data: SpinSamples, *, latitude_deg: float, drift: bool = False) -
     if min(abs(first.sweep_deg), abs(second.sweep_deg)) >= MIN_SWEEP_DEG and half >= 16:
         a1 = _solve_one(first, lat, drift)
         a2 = _solve_one(second, lat, drift)
-        s1, s2 = max(a1[1], a1[2]), max(a2[1], a2[2])
+        s1, s2 = reported_sigma(a1[1], a1[2]), reported_sigma(a2[1], a2[2])
         halves, halves_sigma = (a1[0], a2[0]), (s1, s2)
         diff = (a1[0] - a2[0] + 180.0) % 360.0 - 180.0
         consistent = abs(diff) <= 3.0 * math.hypot(s1, s2)
@@ -501,7 +515,7 @@ def solve_spin(data: SpinSamples, *, latitude_deg: float, drift: bool = False) -
     dt = float(np.median(np.diff(data.time_s))) if data.n > 1 else 0.0
     return SpinSolution(
         azimuth_deg=az,
-        sigma_deg=max(white, batch),
+        sigma_deg=reported_sigma(white, batch),
         sigma_white_deg=white,
         sigma_batch_deg=batch,
         pitch_deg=math.degrees(th),

@@ -187,7 +187,7 @@ def test_sigma_is_honest_and_the_halves_agree():
         consistent.append(sol.consistent)
     assert_allclose(np.mean(white), bound, rtol=0.03)
     rms = math.sqrt(np.mean(np.square(z)))
-    assert 0.85 < rms < 1.1  # sigma is the larger of two estimates: a little conservative
+    assert 0.9 < rms < 1.1
     assert sum(c is True for c in consistent) > 0.97 * len(consistent)
 
 
@@ -322,7 +322,8 @@ def test_record_then_solve_a_spin_reproduces_find(tmp_path, capsys, suffix):
     solved = json.loads(capsys.readouterr().out)
     assert solved["command"] == "solve" and solved["solver"] == "spin"
     assert solved["azimuth_deg"] == pytest.approx(found["azimuth_deg"], abs=1e-9)
-    assert solved["sigma_deg"] == pytest.approx(found["sigma_deg"], rel=1e-9)
+    # The white-noise sigma is a residual scatter: the CSV's digits move it by parts in 1e9.
+    assert solved["sigma_deg"] == pytest.approx(found["sigma_deg"], rel=1e-8)
     assert main(["solve", path, "--spin-drift", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["spin"]["drift"] is True
     assert main(["solve", path, "--denoise", "hampel"]) == 2

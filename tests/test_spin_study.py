@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from northfinder.cli import main
+from northfinder.cli.study import _best_of_budget
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.accuracy import ErrorModel, budget_bound_deg, predict, spin_bound_deg
 from northfinder.host.errors import GeometryError, HostConfigError
@@ -143,8 +144,14 @@ def test_plan_budget_compares_spins_with_stop_and_go_on_the_same_budget(capsys):
     assert best["judged_by"] == "prediction"
     assert best["spin"]["predicted_deg"] == spins[0]["predicted_deg"]
     assert best["stop_and_go"]["predicted_deg"] == out["plans"][0]["predicted_deg"]
-    # No move transient: the spin wins for this gyro.
-    assert best["overall"] == "spin"
+    # The drive's heat while turning (the move transient read as heat): stop-and-go wins for
+    # this gyro; without it the spin does.
+    assert best["overall"] == "stop_and_go"
+    assert "resolved" not in best  # judged by the prediction: no intervals
+    rc = main(["study", "--sensor", "paper-prototype", "--plan-budget", "60", "--runs", "0",
+               "--json", "--set", "table.spin_heat=0"])  # fmt: skip
+    assert rc == 0
+    assert json.loads(capsys.readouterr().out)["best"]["overall"] == "spin"
 
 
 def test_spin_search_fills_the_budget_within_the_table_limit():
@@ -178,7 +185,18 @@ def test_plan_budget_with_runs_verifies_the_best_of_each_kind(capsys):
     assert best["spin"]["rmse_deg"] == vs["rmse_deg"]
     assert best["stop_and_go"]["rmse_deg"] == v["rmse_deg"]
     assert best["overall"] == ("spin" if vs["rmse_deg"] < v["rmse_deg"] else "stop_and_go")
+    # Each RMSE with its 95 % interval; resolved when they are apart.
+    (lo1, hi1), (lo2, hi2) = best["intervals_deg"]["stop_and_go"], best["intervals_deg"]["spin"]
+    assert lo1 < v["rmse_deg"] < hi1 and lo2 < vs["rmse_deg"] < hi2
+    assert best["resolved"] == (hi1 < lo2 or hi2 < lo1)
     assert main(args) == 0
     text = capsys.readouterr().out
     assert "Monte Carlo of the first spin (40 runs" in text
-    assert "Best overall: spin (by the monte-carlo); physical bound of the budget" in text
+    overall = "spin" if best["overall"] == "spin" else "stop-and-go"
+    how = ", 95 % intervals apart" if best["resolved"] else "; not resolved"
+    assert f"Best overall: {overall} (by the monte-carlo{how}" in text
+    # Two close RMSEs of 40 runs each cannot be told apart.
+    assert not _best_of_budget({
+        "plans": [{"predicted_deg": 1.0}], "spin_plans": [{"predicted_deg": 1.0}],
+        "verified": {"rmse_deg": 1.0, "runs": 40}, "verified_spin": {"rmse_deg": 1.1, "runs": 40},
+    })["resolved"]  # fmt: skip

@@ -15,7 +15,13 @@ from northfinder.cli.output import dumps, say
 from northfinder.cli.studies import describe_plan, study_progress, with_processing
 from northfinder.firmware_sim.sensors import SensorSpec
 from northfinder.host.accuracy import ErrorModel, budget_bound_deg
-from northfinder.host.montecarlo import StudySettings, monte_carlo, study_rows, verify_plan
+from northfinder.host.montecarlo import (
+    StudySettings,
+    monte_carlo,
+    rmse_interval_deg,
+    study_rows,
+    verify_plan,
+)
 from northfinder.host.plan import Plan, SpinPlan
 from northfinder.host.plan_search import (
     PlanCandidate,
@@ -171,6 +177,14 @@ def _best_of_budget(report: dict[str, Any]) -> dict[str, Any]:
         by_mc = all(rmse is not None for _, rmse in scores.values())
         out["judged_by"] = "monte-carlo" if by_mc else "prediction"
         out["overall"] = min(scores, key=lambda k: scores[k][1] if by_mc else scores[k][0])
+        if by_mc and len(scores) == 2:
+            # Resolved when the two RMSEs' 95 % intervals are apart.
+            runs = {"stop_and_go": report["verified"]["runs"],
+                    "spin": report["verified_spin"]["runs"]}  # fmt: skip
+            iv = {k: rmse_interval_deg(scores[k][1], runs[k]) for k in scores}
+            out["intervals_deg"] = {k: list(v) for k, v in iv.items()}
+            (lo1, hi1), (lo2, hi2) = iv.values()
+            out["resolved"] = hi1 < lo2 or hi2 < lo1
     return out
 
 
@@ -210,9 +224,12 @@ def _print_spins(report: dict[str, Any]) -> None:
                 continue
             mc = "" if b["rmse_deg"] is None else f", Monte Carlo {b['rmse_deg']:.4f}"
             parts.append(f"best {names[kind]} predicted {b['predicted_deg']:.4f} deg{mc}")
+        resolved = {None: "", True: ", 95 % intervals apart",
+                    False: "; not resolved: the 95 % intervals overlap"}[best.get("resolved")]  # fmt: skip
         say(
             "; ".join(parts)
-            + f". Best overall: {names[best['overall']]} (by the {best['judged_by']}); physical "
+            + f". Best overall: {names[best['overall']]} (by the {best['judged_by']}{resolved}"
+            + "); physical "
             f"bound of the budget {report['budget_bound_deg']:.4f} deg"
         )
 
