@@ -455,3 +455,22 @@ def test_chromium_renders_the_report(good, tmp_path):
 def test_accept_help_works():
     code, out, _ = run_cli("accept", "--help")
     assert code == 0 and "--datasheet" in out and "--static-s" in out
+
+
+def test_the_default_static_length_decides_the_bias_instability_line_within_bounds():
+    from northfinder.cli.accept import STATIC_DEFAULT_MAX_S, STATIC_S
+    from northfinder.host.acceptance import Datasheet, static_length_s
+
+    def length(**limits):
+        ds = Datasheet(limits={f"gyro.{k}": v for k, v in limits.items()})
+        return static_length_s(ds, STATIC_S, STATIC_DEFAULT_MAX_S)
+
+    # 30 N^2 / (0.441 B^2), N in deg/h sqrt(s): 0.003 deg/sqrt(h) -> 0.18.
+    need = 30 * 0.18**2 / (2 * math.log(2) / math.pi * 0.02**2)
+    assert STATIC_S < need < STATIC_DEFAULT_MAX_S
+    seconds, why = length(arw_dpsh=0.003, bias_instability_dph=0.02)
+    assert seconds == pytest.approx(need) and "30 N^2 / (0.441 B^2)" in why
+    seconds, why = length(arw_dpsh=0.003, bias_instability_dph=0.01)  # paper-rlg x 2: 6.1 h
+    assert seconds == STATIC_DEFAULT_MAX_S and "6.12 h, capped at 2 h" in why
+    assert length(arw_dpsh=0.02, bias_instability_dph=0.5)[0] == STATIC_S
+    assert length(arw_dpsh=0.02) == (STATIC_S, length(rrw_dphpsh=1.0)[1])

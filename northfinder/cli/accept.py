@@ -39,8 +39,11 @@ from northfinder.cli.common import (
 )
 from northfinder.host.errors import HostConfigError
 
-#: Default length of the static recording, s (device time: seconds of virtual time with --sim).
+#: Shortest default length of the static recording, s (device time: virtual seconds with --sim);
+#: the default is the length that decides the datasheet's bias instability, within these bounds.
 STATIC_S = 1800.0
+#: Longest default length of the static recording, s.
+STATIC_DEFAULT_MAX_S = 2 * 3600.0
 #: Longest static recording, s: one still window held in memory (8 h at 200 Hz: 5.8 M samples).
 MAX_STATIC_S = 8 * 3600.0
 RUNS = 16
@@ -80,9 +83,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--static-s",
         type=bounded_float(10.0, MAX_STATIC_S, "s"),
-        default=STATIC_S,
+        default=None,
         metavar="SECONDS",
-        help=f"length of the static recording, device seconds (default {STATIC_S:g})",
+        help="length of the static recording, device seconds (default: the length that decides "
+        f"the datasheet's gyro bias instability beside its ARW, {STATIC_S:g} to "
+        f"{STATIC_DEFAULT_MAX_S:g})",
     )
     g.add_argument(
         "--runs",
@@ -144,7 +149,7 @@ def _link_given(args: argparse.Namespace) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from northfinder.host.acceptance import datasheet_toml
+    from northfinder.host.acceptance import datasheet_toml, static_length_s
 
     ds = _datasheet(args)
     if args.write_datasheet:
@@ -182,6 +187,10 @@ def run(args: argparse.Namespace) -> int:
         seed = run_seed(args)
         if args.azimuth is None:  # one simulated mount for every run
             args.azimuth = float(default_rng(seed).uniform(0.0, 360.0))
+    if args.static_s is None:
+        args.static_s, args.static_from = static_length_s(ds, STATIC_S, STATIC_DEFAULT_MAX_S)
+    else:
+        args.static_from = "--static-s"
     out.mkdir(exist_ok=True)
     started = time.monotonic()
     stages = Stages(args, ds, out)
@@ -308,7 +317,7 @@ class Stages:
             else:
                 wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
             if need_static:
-                _progress(args, f"static recording of {args.static_s:g} s")
+                _progress(args, f"static recording of {args.static_s:g} s ({args.static_from})")
                 angle = float(device.status().angle_deg)
                 meta = {
                     "latitude_deg": float(args.latitude),
@@ -454,7 +463,11 @@ class Stages:
         cal = calibrate(read_runs([out / "static.npz"]))
         record_s = cal.hours * 3600.0
         lines += acc.allan_lines(self.ds, cal, record_s)
-        body["stages"]["static"] = {"file": "static.npz", "seconds": record_s}
+        body["stages"]["static"] = {
+            "file": "static.npz",
+            "seconds": record_s,
+            "length_from": getattr(self.args, "static_from", "--static-s"),
+        }
         body["allan"] = {
             axis: {"taus_s": c.taus_s.tolist(), "adev": c.adev.tolist()}
             for axis, c in cal.curves.items()
