@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from northfinder.host.calibrate.core import _FLOOR, _duration  # one formula, one wording
 from northfinder.host.errors import HostConfigError
 
 __all__ = [
@@ -387,17 +388,6 @@ def overall(lines: Sequence[Line]) -> str:
     return PASS
 
 
-def _duration(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "an unknown time"
-    if seconds < 120.0:
-        return f"{seconds:.3g} s"
-    if seconds < 7200.0:
-        return f"{seconds / 60.0:.3g} min"
-    return f"{seconds / 3600.0:.3g} h"
-
-
-_FLOOR = 2.0 * math.log(2.0) / math.pi
 #: (section.key) -> (triad, IEEE 952 term, factor from the coefficient to the datasheet unit).
 _ALLAN = {
     "gyro.arw_dpsh": ("gyro", "arw", 1.0 / 60.0),
