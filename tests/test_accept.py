@@ -396,6 +396,8 @@ def test_options_that_would_be_ignored_are_refused(tmp_path):
     assert code == 2 and "--write-datasheet: writes the datasheet of --datasheet-from" in err
     code, _, err = run_cli("accept", "--datasheet", str(ds))
     assert code == 2 and "choose exactly one device" in err
+    code, _, err = run_cli("accept", "--datasheet", str(ds), "--sim", "--time-scale", "10")
+    assert code == 2 and "--time-scale: not with --sim" in err
 
 
 def test_a_datasheet_that_is_no_toml_is_refused(tmp_path):

@@ -104,6 +104,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"table orientations the runs take in turn, 360/K apart (default {ORIENTATIONS})",
     )
     g.add_argument("--resume", action="store_true", help="keep the stages already in DIR")
+    g.add_argument(
+        "--time-scale",
+        type=bounded_float(0.0, 10_000.0, open_lo=True),
+        default=1.0,
+        metavar="S",
+        help="the unit's seconds per wall second, for the conformance checks' timing (a "
+        "simulator's --speed; default 1)",
+    )
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML, a case per line")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     measure.add_device_arguments(p)
@@ -178,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.junit:
         check_output_path(args.junit, "--junit")
+    if args.sim and args.time_scale != 1.0:
+        raise HostConfigError("--time-scale: not with --sim (the unit runs in virtual time)")
     if args.sim and args.latitude is None:
         args.latitude = ds.latitude_deg  # the simulated site is the datasheet's
     measure.check_arguments(args)
@@ -281,7 +291,9 @@ class Stages:
             select_checks(only)
         except Exception as exc:  # SuiteConfigError: a pattern that names no check
             raise HostConfigError(f"{self.ds.source}: unit.conformance: {exc}") from exc
-        options = SuiteOptions(node_id=self.args.node_id, only=only)
+        options = SuiteOptions(
+            node_id=self.args.node_id, only=only, time_scale=self.args.time_scale
+        )
         _progress(self.args, f"conformance ({', '.join(self.ds.conformance)})")
         ns = copy.copy(self.args)
         report = (
