@@ -476,3 +476,36 @@ def test_the_default_static_length_decides_the_bias_instability_line_within_boun
     assert seconds == STATIC_DEFAULT_MAX_S and "6.12 h, capped at 2 h" in why
     assert length(arw_dpsh=0.02, bias_instability_dph=0.5)[0] == STATIC_S
     assert length(arw_dpsh=0.02) == (STATIC_S, length(rrw_dphpsh=1.0)[1])
+
+
+def test_a_unit_s_time_to_ready_is_counted_in_its_own_ticks_not_the_host_s_seconds():
+    """A unit ten times faster than the wall (a simulator at --speed 10): 120 s of its warm-up
+    pass in 12 wall seconds, and its sample counter (restarted by the RESET) says 120 s."""
+    from types import SimpleNamespace
+
+    from northfinder.cli.accept import _time_to_ready
+    from northfinder.driver.clock import VirtualClock
+    from northfinder.driver.protocol.constants import DeviceState
+
+    clock = VirtualClock()
+
+    class Unit:
+        sample_rate_hz = 200.0
+
+        def __init__(self):
+            self.clock, self.reset_at = clock, None
+
+        def reset(self, wait=False):
+            self.reset_at = clock.now()
+
+        def status(self):
+            if self.reset_at is None:
+                return SimpleNamespace(state=DeviceState.READY, sample_counter=10**6, faults=0)
+            unit_s = (clock.now() - self.reset_at) * 10.0
+            state = DeviceState.READY if unit_s >= 120.0 else DeviceState.WARMUP
+            return SimpleNamespace(state=state, sample_counter=int(unit_s * 200) - 1, faults=0)
+
+    ready = _time_to_ready(Unit(), simulated=False)
+    assert ready["from"] == "RESET"
+    assert ready["time_to_ready_s"] == pytest.approx(120.0, abs=0.6)
+    assert ready["wall_s"] == pytest.approx(12.0, abs=0.1)

@@ -247,7 +247,9 @@ def _progress(args: argparse.Namespace, text: str) -> None:
 
 def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:
     """Seconds to READY on the device's clock: for the embedded simulator from its power-on
-    (its clock starts there), for a unit from a RESET sent now (its BOOT seen first)."""
+    (its clock starts there), for a unit from a RESET sent now (its BOOT seen first), by its
+    sample counter, which restarts at the RESET and ticks at its sample rate whatever the
+    host's pace (a simulator at ``--speed S`` counts its own seconds, not the wall's)."""
     from northfinder.driver.protocol.constants import DeviceState
     from northfinder.host.procedure import wait_until_ready
 
@@ -263,7 +265,12 @@ def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:
             break  # back already (or BOOT missed): READY is timed from the RESET all the same
         clock.sleep(0.05)
     wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
-    return {"time_to_ready_s": clock.now() - t0, "from": "RESET"}
+    ticks = device.status().sample_counter + 1  # the first READY status: ticks since the RESET
+    return {
+        "time_to_ready_s": ticks / float(device.sample_rate_hz),
+        "from": "RESET",
+        "wall_s": clock.now() - t0,
+    }
 
 
 def _read_json(path: Path) -> Any:
