@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from northfinder.driver.protocol.units import readable_duration as _duration
+from northfinder.host.calibrate.core import _FLOOR  # one formula
 from northfinder.host.errors import HostConfigError
 
 __all__ = [
@@ -388,7 +389,6 @@ def overall(lines: Sequence[Line]) -> str:
     return PASS
 
 
-_FLOOR = 2.0 * math.log(2.0) / math.pi
 #: (section.key) -> (triad, IEEE 952 term, factor from the coefficient to the datasheet unit).
 _ALLAN = {
     "gyro.arw_dpsh": ("gyro", "arw", 1.0 / 60.0),
@@ -641,3 +641,24 @@ def conformance_lines(patterns: Sequence[str], checks: Sequence[Mapping[str, Any
             line = conformance_line(patterns, mine)
             out.append(replace(line, key=f"unit.conformance.{group}", title=title))
     return out
+
+
+def static_length_s(ds: Datasheet, shortest_s: float, longest_s: float) -> tuple[float, str]:
+    """The still record that can decide the datasheet's gyro bias instability line beside its
+    ARW line: ``30 N^2 / (0.441 B^2)`` (the white noise of the ARW limit N meets the flicker
+    floor of the limit B at N^2 / (0.441 B^2); the curve must reach three times that, its longest
+    cluster a ninth of the record), between ``shortest_s`` and ``longest_s``; and why."""
+    b = ds.limit("gyro.bias_instability_dph")
+    n = ds.limit("gyro.arw_dpsh")
+    if b is None or n is None:
+        return shortest_s, "the default (no gyro bias instability and ARW lines to size it)"
+    need = 30.0 * (n * 60.0) ** 2 / (_FLOOR * b * b)
+    how = (
+        f"to resolve gyro.bias_instability_dph <= {b:g} beside gyro.arw_dpsh <= {n:g}: "
+        f"30 N^2 / (0.441 B^2) = {_duration(need)}"
+    )
+    if need > longest_s:
+        return longest_s, how + f", capped at {_duration(longest_s)}"
+    if need < shortest_s:
+        return shortest_s, how + f", at least {_duration(shortest_s)}"
+    return need, how

@@ -329,7 +329,9 @@ def html_report(result: dict[str, Any]) -> str:
         body.append("<h2>Static recording: Allan deviation</h2>")
         seconds = result["stages"]["static"]["seconds"]
         body.append(
-            f"<p>{seconds:g} s still (<code>static.npz</code>); overlapping Allan deviation per "
+            f"<p>{seconds:g} s still (<code>static.npz</code>; its length "
+            f"{escape(str(result['stages']['static'].get('length_from', '--static-s')))}); "
+            "overlapping Allan deviation per "
             "axis; dashed red: the datasheet's limits as Allan deviation lines (IEEE 952).</p>"
         )
         body.append(_allan_svg(result, "gyro"))

@@ -13,6 +13,7 @@ import json
 import math
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 from types import ModuleType
 
@@ -510,3 +511,71 @@ def test_the_interrupt_step_fails_unless_every_run_left_the_unit_at_rest(
         assert [r["signal"] for r in res["rows"]] == [r["signal"] for r in rows]
         assert [r["mode"] for r in res["rows"]] == [r["mode"] for r in rows]
         assert res["runs"] == sum(r["runs"] for r in rows)
+
+
+def test_the_rehearsal_runs_accept_after_the_conformance_suite_and_no_step_is_long():
+    """The steps in order (accept's frames fall where the suite's deliberate bad input is counted
+    apart), and no function of the script over 120 lines."""
+    import ast
+    import inspect
+
+    source = inspect.getsource(rehearsal.main)
+    calls = [source.index(f"{step}(r)") for step in
+             ("find_steps", "spin_step", "conformance_step", "accept_step")]  # fmt: skip
+    assert calls == sorted(calls)
+    assert source.index("conformance_start = time.time()") < calls[2]
+    tree = ast.parse((HIL_D / "rehearsal.py").read_text())
+    long = {
+        f.name: f.end_lineno - f.lineno + 1
+        for f in ast.walk(tree)
+        if isinstance(f, ast.FunctionDef) and f.end_lineno - f.lineno + 1 > 120
+    }
+    assert long == {}
+
+
+class _Accept:
+    """``subprocess.run`` of the accept step: its command line kept, a canned answer given."""
+
+    def __init__(self, code: int, verdicts: dict[str, str]):
+        self.code, self.verdicts, self.argv = code, verdicts, None
+
+    def __call__(self, argv, **kwargs):
+        self.argv = argv
+        lines = [{"key": k, "verdict": v} for k, v in self.verdicts.items()]
+        verdict = "FAIL" if "FAIL" in self.verdicts.values() else "PASS"
+        out = json.dumps({"verdict": verdict, "lines": lines}) if self.verdicts else ""
+        return subprocess.CompletedProcess(argv, self.code, out, "" if out else "link lost")
+
+
+@pytest.mark.parametrize(
+    ("code", "verdicts", "counted"),
+    [
+        (0, {"gyro.arw_dpsh": "PASS"}, None),
+        (4, {"gyro.arw_dpsh": "PASS", "north_finding.sigma_deg": "NOT RESOLVED"}, None),
+        (1, {"gyro.arw_dpsh": "FAIL"}, "failures"),
+        (1, {}, "failures"),  # the link failed: what a starved VM can cause
+        (2, {}, "hard"),  # a bad option or datasheet: the script's own fault
+    ],
+)
+def test_the_rehearsal_s_accept_step_counts_a_failed_line_and_never_a_not_resolved_one(
+    tmp_path, monkeypatch, code, verdicts, counted
+):
+    from northfinder.cli import build_parser
+    from northfinder.host.acceptance import parse_datasheet
+
+    args = rehearsal.argparse.Namespace(out=tmp_path, channel="vcan0", mode="direct",
+                                        accept_timeout=60.0)  # fmt: skip
+    r = rehearsal.Rehearsal(args)
+    fake = _Accept(code, verdicts)
+    monkeypatch.setattr(rehearsal.subprocess, "run", fake)
+    rehearsal.accept_step(r)
+    assert r.result["accept_exit"] == code
+    assert {"hard": r.hard, "failures": r.failures}.get(counted, []) != [] or counted is None
+    assert (r.hard + r.failures == []) == (counted is None)
+    if verdicts:
+        assert r.result["accept"]["lines"] == verdicts
+    # The command line is one northfinder accepts, with the datasheet the step wrote.
+    parsed = build_parser().parse_args(fake.argv[1:])
+    assert parsed.static_s == rehearsal.ACCEPT_STATIC_S and parsed.runs == rehearsal.ACCEPT_RUNS
+    ds = parse_datasheet(tomllib.loads((tmp_path / "accept-datasheet.toml").read_text()))
+    assert ds.conformance == ("identify",) and ds.latitude_deg == rehearsal.TRUTH["latitude"]

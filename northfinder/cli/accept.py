@@ -33,8 +33,11 @@ from northfinder.cli.output import dumps, say
 from northfinder.cli.simulated import load_sensor, run_seed
 from northfinder.host.errors import HostConfigError
 
-#: Default length of the static recording, s (device time: seconds of virtual time with --sim).
+#: Shortest default length of the static recording, s (device time: virtual seconds with --sim);
+#: the default is the length that decides the datasheet's bias instability, within these bounds.
 STATIC_S = 1800.0
+#: Longest default length of the static recording, s.
+STATIC_DEFAULT_MAX_S = 2 * 3600.0
 #: Longest static recording, s: one still window held in memory (8 h at 200 Hz: 5.8 M samples).
 MAX_STATIC_S = 8 * 3600.0
 RUNS = 16
@@ -74,9 +77,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--static-s",
         type=bounded_float(10.0, MAX_STATIC_S, "s"),
-        default=STATIC_S,
+        default=None,
         metavar="SECONDS",
-        help=f"length of the static recording, device seconds (default {STATIC_S:g})",
+        help="length of the static recording, device seconds (default: the length that decides "
+        f"the datasheet's gyro bias instability beside its ARW, {STATIC_S:g} to "
+        f"{STATIC_DEFAULT_MAX_S:g})",
     )
     g.add_argument(
         "--runs",
@@ -93,6 +98,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"table orientations the runs take in turn, 360/K apart (default {ORIENTATIONS})",
     )
     g.add_argument("--resume", action="store_true", help="keep the stages already in DIR")
+    g.add_argument(
+        "--time-scale",
+        type=bounded_float(0.0, 10_000.0, open_lo=True),
+        default=1.0,
+        metavar="S",
+        help="the unit's seconds per wall second, for the conformance checks' timing (a "
+        "simulator's --speed; default 1)",
+    )
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML, a case per line")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     measure.add_device_arguments(p)
@@ -138,7 +151,7 @@ def _link_given(args: argparse.Namespace) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from northfinder.host.acceptance import datasheet_toml
+    from northfinder.host.acceptance import datasheet_toml, static_length_s
 
     ds = _datasheet(args)
     if args.write_datasheet:
@@ -167,6 +180,8 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.junit:
         check_output_path(args.junit, "--junit")
+    if args.sim and args.time_scale != 1.0:
+        raise HostConfigError("--time-scale: not with --sim (the unit runs in virtual time)")
     if args.sim and args.latitude is None:
         args.latitude = ds.latitude_deg  # the simulated site is the datasheet's
     measure.check_arguments(args)
@@ -176,6 +191,10 @@ def run(args: argparse.Namespace) -> int:
         seed = run_seed(args)
         if args.azimuth is None:  # one simulated mount for every run
             args.azimuth = float(default_rng(seed).uniform(0.0, 360.0))
+    if args.static_s is None:
+        args.static_s, args.static_from = static_length_s(ds, STATIC_S, STATIC_DEFAULT_MAX_S)
+    else:
+        args.static_from = "--static-s"
     out.mkdir(exist_ok=True)
     started = time.monotonic()
     stages = Stages(args, ds, out)
@@ -222,7 +241,9 @@ def _progress(args: argparse.Namespace, text: str) -> None:
 
 def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:
     """Seconds to READY on the device's clock: for the embedded simulator from its power-on
-    (its clock starts there), for a unit from a RESET sent now (its BOOT seen first)."""
+    (its clock starts there), for a unit from a RESET sent now (its BOOT seen first), by its
+    sample counter, which restarts at the RESET and ticks at its sample rate whatever the
+    host's pace (a simulator at ``--speed S`` counts its own seconds, not the wall's)."""
     from northfinder.driver.protocol.constants import DeviceState
     from northfinder.host.procedure import wait_until_ready
 
@@ -238,7 +259,12 @@ def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:
             break  # back already (or BOOT missed): READY is timed from the RESET all the same
         clock.sleep(0.05)
     wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
-    return {"time_to_ready_s": clock.now() - t0, "from": "RESET"}
+    ticks = device.status().sample_counter + 1  # the first READY status: ticks since the RESET
+    return {
+        "time_to_ready_s": ticks / float(device.sample_rate_hz),
+        "from": "RESET",
+        "wall_s": clock.now() - t0,
+    }
 
 
 def _read_json(path: Path) -> Any:
@@ -266,7 +292,9 @@ class Stages:
             select_checks(only)
         except Exception as exc:  # SuiteConfigError: a pattern that names no check
             raise HostConfigError(f"{self.ds.source}: unit.conformance: {exc}") from exc
-        options = SuiteOptions(node_id=self.args.node_id, only=only)
+        options = SuiteOptions(
+            node_id=self.args.node_id, only=only, time_scale=self.args.time_scale
+        )
         _progress(self.args, f"conformance ({', '.join(self.ds.conformance)})")
         ns = copy.copy(self.args)
         report = (
@@ -302,7 +330,7 @@ class Stages:
             else:
                 wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
             if need_static:
-                _progress(args, f"static recording of {args.static_s:g} s")
+                _progress(args, f"static recording of {args.static_s:g} s ({args.static_from})")
                 angle = float(device.status().angle_deg)
                 meta = {
                     "latitude_deg": float(args.latitude),
@@ -448,7 +476,11 @@ class Stages:
         cal = calibrate(read_runs([out / "static.npz"]))
         record_s = cal.hours * 3600.0
         lines += acc.allan_lines(self.ds, cal, record_s)
-        body["stages"]["static"] = {"file": "static.npz", "seconds": record_s}
+        body["stages"]["static"] = {
+            "file": "static.npz",
+            "seconds": record_s,
+            "length_from": getattr(self.args, "static_from", "--static-s"),
+        }
         body["allan"] = {
             axis: {"taus_s": c.taus_s.tolist(), "adev": c.adev.tolist()}
             for axis, c in cal.curves.items()

@@ -8,6 +8,9 @@
    (protocol 1.1, one whole turn): within 5 sigma and 0.5 deg of the truth, and a sigma no
    lower than the white-noise bound of the spin (``judge_spin``).
 4. ``northfinder conformance -i socketcan -c IF --junit ...`` checks the unit against protocol.md.
+4b. ``northfinder accept -i socketcan -c IF --datasheet ...`` tests the unit against a datasheet
+   (``ACCEPT_DATASHEET``: a minute still, two runs of 0,180): every stage over the bus; a line
+   that FAILs counts, NOT RESOLVED (exit 4: two runs decide little) does not.
 5. The candump log is decoded with cantools against protocol.dbc: every frame known, sample
    ticks contiguous within each stream burst, cycle times of samples and heartbeats measured.
 
@@ -530,7 +533,29 @@ def analyse_candump(path: Path, dbc: Path, find_end: float, bad_input_from: floa
     }
 
 
-def main() -> int:
+class Rehearsal:
+    """What the steps share: the options, the command, the bus, and what they find.
+
+    ``hard``: failures that no starved machine excuses (see judge()): a wrong heading, frames
+    the DBC does not know, a missing report, a hang, an internal error, a wrong answer, a dead
+    simulator; ``failures``: the others; ``reported``: report-only items that did not hold, with
+    what was measured; ``cpu``: CPU seconds per step.
+    """
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.out: Path = args.out
+        self.nf = str(Path(sys.executable).parent / "northfinder")
+        self.ch: str = args.channel
+        self.report_only: dict[str, str] = REPORT_ONLY[args.mode]
+        self.result: dict = {"channel": args.channel, "mode": args.mode}
+        self.hard: list[str] = []
+        self.failures: list[str] = []
+        self.reported: dict[str, str] = {}
+        self.cpu: dict[str, float] = {}
+
+
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--channel", default="vcan0")
@@ -544,52 +569,336 @@ def main() -> int:
     )
     ap.add_argument("--conformance-timeout", type=float, default=360.0, help="s (~140 s in a VM)")
     ap.add_argument(
+        "--accept-timeout",
+        type=float,
+        default=600.0,
+        help=f"s (a {ACCEPT_STATIC_S:g} s still record and {ACCEPT_RUNS} runs of 0,180: ~3 min)",
+    )
+    ap.add_argument(
         "--mode", choices=sorted(REPORT_ONLY), default=os.environ.get("HIL_MODE", "direct")
     )
-    args = ap.parse_args()
-    out: Path = args.out
-    bindir = Path(sys.executable).parent
-    nf = str(bindir / "northfinder")
-    ch = args.channel
-    report_only = REPORT_ONLY[args.mode]
-    result: dict = {"channel": ch, "mode": args.mode}
-    failures: list[str] = []
-    # Failures that no starved machine excuses (see judge()): a wrong heading, frames the DBC
-    # does not know, a missing report, a hang, an internal error, a wrong answer, a dead simulator.
-    hard: list[str] = []
-    reported: dict[str, str] = {}  # report-only items that did not hold, with what was measured
+    return ap.parse_args()
 
+
+def start_candump(r: Rehearsal) -> tuple[subprocess.Popen | None, Path, Path]:
+    """candump on the bus: the process (None without can-utils), its folder and its log."""
     candump = shutil.which("candump")
     # candump -l writes its log (candump-<date>.log in its working directory) through a stdio
     # buffer; -L would flush stdout after every frame: one system call a frame more, which a VM
     # makes dear (about a third of candump's CPU under user-mode Linux).
-    dump_dir = Path(tempfile.mkdtemp(prefix="candump-", dir=out))
-    dump_cmd = [candump, "-l", "-r", "8388608", ch]
-    if args.mode == "uml":
+    dump_dir = Path(tempfile.mkdtemp(prefix="candump-", dir=r.out))
+    dump_cmd = [candump, "-l", "-r", "8388608", r.ch]
+    if r.args.mode == "uml":
         # One guest CPU: candump gives way to the instrument and the host. It loses nothing by
         # waiting, as its timestamps are the kernel's; a 32 MiB receive buffer holds about 40 s
         # of the bus's traffic meanwhile. It writes to the guest's own memory (HIL_GUEST_TMP, a
         # tmpfs): a write to the host's filesystem holds the whole guest kernel until the host
         # is done. The log is moved out when the bus is quiet.
-        dump_cmd = ["nice", "-n", "19", candump, "-l", "-r", str(32 << 20), ch]
+        dump_cmd = ["nice", "-n", "19", candump, "-l", "-r", str(32 << 20), r.ch]
         if os.environ.get("HIL_GUEST_TMP"):
             dump_dir.rmdir()
             dump_dir = Path(tempfile.mkdtemp(prefix="candump-", dir=os.environ["HIL_GUEST_TMP"]))
     dump = start(dump_cmd, dump_dir / "candump.out", cwd=dump_dir) if candump else None
     dump_log = candump_log(dump_dir, dump)
     if dump is not None and dump_log is None:
-        hard.append(f"candump did not start: {(dump_dir / 'candump.out').read_text()[-300:]}")
+        r.hard.append(f"candump did not start: {(dump_dir / 'candump.out').read_text()[-300:]}")
         dump_log = dump_dir / "candump.log"
         dump_log.touch()
-    sim_cmd = [nf, "sim", "-i", "socketcan", "-c", ch, "--warmup", "0", "--sensor", SENSOR, "--seed", "7",
+    assert dump_log is not None or dump is None
+    return dump, dump_dir, dump_log if dump_log is not None else dump_dir / "candump.log"
+
+
+def sim_command(r: Rehearsal) -> list[str]:
+    sim_cmd = [r.nf, "sim", "-i", "socketcan", "-c", r.ch, "--warmup", "0", "--sensor", SENSOR, "--seed", "7",
                "--azimuth", str(TRUTH["azimuth"]), "--latitude", str(TRUTH["latitude"]),
                "--pitch", str(TRUTH["pitch"]), "--roll", str(TRUTH["roll"])]  # fmt: skip
-    if args.mode != "direct":
+    if r.args.mode != "direct":
         # One guest CPU carries the instrument, the host and candump; a real unit has a processor
         # of its own. The simulator is given precedence so that the unit keeps its pace and a
         # busy guest shows as a slow host (which reads late from its socket buffer), not as an
         # instrument that falls behind.
         sim_cmd = ["nice", "-n", "-10", *sim_cmd]
+    return sim_cmd
+
+
+def run_find(r: Rehearsal, label: str, stem: str, wall_key: str, options: list[str]) -> str | None:
+    """Run ``find`` on the bus with these options, its time and CPU in ``cpu[stem]`` and
+    ``result[wall_key]``, its output in <stem>.json and <stem>.err; its JSON when it
+    exited 0, else None with the failure counted."""
+    t0 = time.monotonic()
+    c0 = cpu_seconds_children()
+    run = subprocess.run(
+        [r.nf, "find", "-i", "socketcan", "-c", r.ch, "--json", "--latitude", str(TRUTH["latitude"]),
+         "--link-timeout", "3", "--reply-timeout", "2", "--timeout", "300", *options],
+        capture_output=True, text=True, timeout=r.args.find_timeout,
+    )  # fmt: skip
+    progress(f"{label} exited {run.returncode} after {time.monotonic() - t0:.1f} s")
+    r.cpu[stem.replace("-", "_")] = cpu_seconds_children() - c0
+    r.result[wall_key] = round(time.monotonic() - t0, 1)
+    (r.out / f"{stem}.json").write_text(run.stdout)
+    (r.out / f"{stem}.err").write_text(run.stderr)
+    if run.returncode == 0:
+        return run.stdout
+    # Exit 1 is a link or device error (a lost reply, a stalled stream), or an internal
+    # error (a bug, said so on stderr); any other code is a bad argument: only a link or
+    # device error is what a starved VM causes.
+    internal = "internal error" in run.stderr or "Traceback" in run.stderr
+    (r.failures if run.returncode == 1 and not internal else r.hard).append(
+        f"{label} exited {run.returncode}: {run.stderr.strip()[-300:]}"
+    )
+    return None
+
+
+def find_steps(r: Rehearsal) -> None:
+    """The find of the plan 0,180 against the truth, and the spin find."""
+    result, hard = r.result, r.hard
+    # the plan of the timings measured so far (find's default is now 0,180,180,0)
+    found = run_find(
+        r, "find", "find", "find_wall_s",
+        ["--positions", "0,180", "--record", str(r.out / "windows.npz")],
+    )  # fmt: skip
+    if found is not None:
+        res = json.loads(found)
+        err = (res["azimuth_deg"] - TRUTH["azimuth"] + 180.0) % 360.0 - 180.0
+        result.update(
+            azimuth_deg=res["azimuth_deg"], truth_deg=TRUTH["azimuth"], azimuth_error_deg=err,
+            sigma_deg=res["sigma_deg"], pitch_deg=res["pitch_deg"], roll_deg=res["roll_deg"],
+        )  # fmt: skip
+        if not abs(err) <= min(0.5, 5.0 * res["sigma_deg"]):
+            hard.append(f"azimuth error {err:+.4f} deg exceeds 5 sigma ({res['sigma_deg']:.4f})")
+
+
+def spin_step(r: Rehearsal) -> None:
+    """The spin find (protocol 1.1): the table turns at a constant rate for one whole turn, and
+    the heading is the phase of the Earth rate on the horizontal gyros."""
+    progress(f"running find --spin {SPIN_RATE_DPS:g}")
+    spun = run_find(
+        r, "find --spin", "find-spin", "spin_find_wall_s", ["--spin", f"{SPIN_RATE_DPS:g}"]
+    )
+    if spun is not None:
+        figures, problems = judge_spin(json.loads(spun))
+        r.result["spin"] = figures
+        r.hard.extend(problems)
+
+
+def conformance_step(r: Rehearsal) -> None:
+    """The conformance suite on the bus, its checks counted but for the mode's report-only ones."""
+    result, out, hard = r.result, r.out, r.hard
+    margins = CONFORMANCE_MARGINS.get(r.args.mode, [])
+    result["conformance_timing"] = " ".join(margins) if margins else "protocol defaults"
+    progress("running the conformance suite")
+    t0 = time.monotonic()
+    c0 = cpu_seconds_children()
+    conf = subprocess.run(
+        [r.nf, "conformance", "-i", "socketcan", "-c", r.ch, "--stream-seconds", str(r.args.stream_seconds),
+         "--junit", str(out / "conformance.xml"), *margins],
+        capture_output=True, text=True, timeout=r.args.conformance_timeout,
+    )  # fmt: skip
+    progress(f"conformance exited {conf.returncode} after {time.monotonic() - t0:.1f} s")
+    r.cpu["conformance"] = cpu_seconds_children() - c0
+    result["conformance_wall_s"] = round(time.monotonic() - t0, 1)
+    (out / "conformance.txt").write_text(conf.stdout + conf.stderr)
+    result["conformance_exit"] = conf.returncode
+    last = [line for line in conf.stdout.splitlines() if "passed" in line]
+    result["conformance"] = last[-1].strip() if last else conf.stderr.strip()[-300:]
+    cases = junit_cases(out / "conformance.xml")
+    counted = {n: c for n, c in cases.items() if n not in r.report_only and c[0] != "skip"}
+    failed = sorted(n for n, (status, _) in counted.items() if status == "fail")
+    result["conformance_counted"] = {
+        "checks": len(counted),
+        "passed": len(counted) - len(failed),
+        "failed": failed,
+        "skipped": sorted(n for n, c in cases.items() if c[0] == "skip"),
+    }
+    # The conformance checks of the spin command (protocol 1.1), by name in the summary.
+    result["spin_conformance"] = {
+        n: status for n, (status, _) in cases.items() if n.startswith("spin.")
+    }
+    for name, (status, message) in cases.items():
+        if name in r.report_only:
+            r.reported[name] = f"{status.upper()}: {message}" if status == "fail" else status
+    if not cases:
+        hard.append(f"conformance: no JUnit report ({result['conformance']})")
+    elif conf.returncode not in (0, 1, 3):  # 3: a check not judged (a skip in the JUnit)
+        hard.append(f"conformance exited {conf.returncode}: {result['conformance']}")
+    elif failed:
+        # A check that failed on a missing or late answer is what a starved VM causes; one
+        # that got a wrong answer (or hit an internal error) is the product's.
+        wrong = [n for n in failed if not starved_symptom(n, counted[n][1])]
+        if wrong:
+            hard.append(
+                "conformance (wrong answers, not missing ones): "
+                + "; ".join(f"{n}: {counted[n][1][:160]}" for n in wrong)
+            )
+        if len(wrong) < len(failed):
+            r.failures.append(f"conformance: {[n for n in failed if n not in wrong]}")
+
+
+#: The acceptance step's datasheet: the simulator's sensor at three times its ARW, the plan 0,180
+#: at a repeatability a few runs can bound, READY within a minute of a RESET (the simulator runs
+#: without warm-up), protocol 1.1 and the one conformance check that is not already run above.
+ACCEPT_DATASHEET = f"""name = "rehearsal: {SENSOR}"
+[gyro]
+arw_dpsh = {3 * SENSOR_ARW_DPSH!r}
+[north_finding]
+sigma_deg = 1.0
+positions_deg = [0.0, 180.0]
+latitude_deg = {TRUTH["latitude"]!r}
+[unit]
+time_to_ready_s = 60.0
+protocol_version = "1.1"
+conformance = ["identify"]
+"""
+ACCEPT_STATIC_S = 60.0
+ACCEPT_RUNS = 2
+#: accept's exit statuses: 0 every line passed, 4 no line failed but one is not resolved (two
+#: runs and a minute still decide little); 1 a line failed or the link did.
+ACCEPT_OK = (0, 4)
+
+
+def accept_step(r: Rehearsal) -> None:
+    """One acceptance of the unit on the bus (``northfinder accept``): every stage over
+    SocketCAN, its lines in result.json; a line that FAILs counts as a failure."""
+    datasheet = r.out / "accept-datasheet.toml"
+    datasheet.write_text(ACCEPT_DATASHEET)
+    progress("running accept")
+    t0 = time.monotonic()
+    c0 = cpu_seconds_children()
+    run = subprocess.run(
+        [r.nf, "accept", "--datasheet", str(datasheet), "-i", "socketcan", "-c", r.ch,
+         "--latitude", str(TRUTH["latitude"]), "--link-timeout", "3", "--reply-timeout", "2",
+         "--static-s", f"{ACCEPT_STATIC_S:g}", "--runs", str(ACCEPT_RUNS), "--orientations", "2",
+         "-o", str(r.out / "accept"), "--json"],
+        capture_output=True, text=True, timeout=r.args.accept_timeout,
+    )  # fmt: skip
+    progress(f"accept exited {run.returncode} after {time.monotonic() - t0:.1f} s")
+    r.cpu["accept"] = cpu_seconds_children() - c0
+    r.result["accept_wall_s"] = round(time.monotonic() - t0, 1)
+    (r.out / "accept.err").write_text(run.stderr)
+    r.result["accept_exit"] = run.returncode
+    try:
+        doc = json.loads(run.stdout)
+    except json.JSONDecodeError:
+        doc = None
+    if doc is not None:
+        r.result["accept"] = {
+            "verdict": doc["verdict"],
+            "lines": {line["key"]: line["verdict"] for line in doc["lines"]},
+        }
+    if run.returncode in ACCEPT_OK and doc is not None:
+        return
+    internal = "internal error" in run.stderr or "Traceback" in run.stderr
+    failed = [k for k, v in (r.result.get("accept") or {}).get("lines", {}).items() if v == "FAIL"]
+    (r.failures if run.returncode == 1 and not internal else r.hard).append(
+        f"accept exited {run.returncode}: "
+        + (f"lines failed: {failed}" if failed else run.stderr.strip()[-300:])
+    )
+
+
+def stop_instruments(r: Rehearsal, sim: subprocess.Popen, dump: subprocess.Popen | None,
+                     dump_dir: Path, dump_log: Path) -> float:  # fmt: skip
+    """Stop the simulator and drain candump (its log to ``out``); when the simulator stopped."""
+    progress("stopping the simulator, draining candump")
+    result = r.result
+    c0 = cpu_seconds_children()
+    sim_died = sim.poll()
+    result["sim_exit"] = stop(sim)
+    sim_stopped = time.time()
+    if sim_died is not None or result["sim_exit"] not in (0, None):
+        r.hard.append(
+            f"the simulator {'died' if sim_died is not None else 'exited'} with status "
+            f"{result['sim_exit']} (its log: sim.log)"
+        )
+    r.cpu["sim"] = cpu_seconds_children() - c0
+    if dump is not None:
+        c0 = cpu_seconds_children()
+        result["candump_drain_s"] = round(drain(dump, dump_log), 1)
+        stop(dump)
+        r.cpu["candump"] = cpu_seconds_children() - c0
+        shutil.move(dump_log, r.out / "candump.log")
+        if (dump_dir / "candump.out").stat().st_size:
+            shutil.move(dump_dir / "candump.out", r.out / "candump.stderr")
+    shutil.rmtree(dump_dir, ignore_errors=True)
+    return sim_stopped
+
+
+def machine_figures(r: Rehearsal, monitor: subprocess.Popen, t_step: float, cpu0: float,
+                    machine0: tuple[float, float] | None) -> None:  # fmt: skip
+    """The stall monitor's figures, the CPU of each step and of the guest."""
+    result = r.result
+    monitor.send_signal(signal.SIGTERM)
+    try:
+        mon_out, _ = monitor.communicate(timeout=20)
+        stalls = json.loads(mon_out.strip().splitlines()[-1])
+        stalls["stalls_ms"] = stalls["stalls_ms"][:100]
+        result["machine_stalls"] = stalls
+    except (subprocess.TimeoutExpired, json.JSONDecodeError, IndexError) as exc:
+        monitor.kill()
+        result["machine_stalls"] = f"stall monitor failed: {exc!r}"
+    wall = time.monotonic() - t_step
+    machine1 = machine_cpu()
+    result["cpu_seconds"] = {k: round(v, 1) for k, v in r.cpu.items()}
+    result["cpu_seconds"]["all_children"] = round(cpu_seconds_children() - cpu0, 1)
+    result["step_wall_s"] = round(wall, 1)
+    if machine0 and machine1 and machine1[1] > machine0[1]:
+        # How close the instrument, the host and candump together come to the guest's CPU.
+        result["machine_cpu_busy_percent"] = round(
+            100 * (machine1[0] - machine0[0]) / (machine1[1] - machine0[1]), 1
+        )
+
+
+def bus_figures(
+    r: Rehearsal, find_end: float, conformance_start: float, sim_stopped: float
+) -> None:
+    """The candump log against protocol.dbc: frames, lost ticks and the unit's cycle times."""
+    out, result = r.out, r.result
+    stats = analyse_candump(
+        out / "candump.log", r.args.repo / "protocol.dbc", find_end, conformance_start
+    )
+    result.update(stats)
+    # The log must reach the end of the traffic: the simulator's heartbeats run until it stops.
+    lines = (out / "candump.log").read_text(errors="replace").split("\n(")
+    last = float(lines[-1].split(")")[0].lstrip("(")) if len(lines) > 1 else math.nan
+    result["candump_log_ends_before_sim_stop_s"] = round(sim_stopped - last, 2)
+    if not sim_stopped - last <= 2.0:
+        r.failures.append(
+            f"candump's log ends {sim_stopped - last:.1f} s before the simulator stopped: "
+            "traffic not recorded"
+        )
+    if stats["unknown_frames"] or stats["undecodable_frames"]:
+        r.hard.append(
+            f"{stats['unknown_frames']} unknown and {stats['undecodable_frames']} undecodable frames"
+        )
+    if stats["ticks_lost"]:
+        r.failures.append(f"{stats['ticks_lost']} sample ticks lost on the bus")
+    # The cycle times on the bus are the unit's timing.
+    pace = {
+        "pace.sample_period": (
+            abs(stats["sample_period_ms_mean"] - 5.0) <= 0.05,
+            f"mean sample period {stats['sample_period_ms_mean']:.3f} ms, not 5 ms +- 1 %",
+        ),
+        "pace.heartbeat_period": (
+            abs(stats["heartbeat_period_ms_p50"] - 100.0) <= 10.0,
+            f"median heartbeat period {stats['heartbeat_period_ms_p50']:.1f} ms, not 100 ms +- 10 %",
+        ),
+    }
+    for name, (ok, message) in pace.items():
+        if name in r.report_only:
+            r.reported[name] = "pass" if ok else f"FAIL: {message}"
+        elif not ok:
+            r.failures.append(message)
+
+
+#: The steps on the bus, in order; the conformance suite's start marks where its deliberate bad
+#: input begins on the bus (everything after it is counted apart: accept runs after it).
+STEPS = ("find", "spin", "conformance", "accept")
+
+
+def main() -> int:
+    args = parse_args()
+    r = Rehearsal(args)
+    dump, dump_dir, dump_log = start_candump(r)
+    sim_cmd = sim_command(r)
     import cantools
 
     dbc = cantools.database.load_file(str(args.repo / "protocol.dbc"))
@@ -603,208 +912,39 @@ def main() -> int:
     cpu0, machine0 = cpu_seconds_children(), machine_cpu()
     t_step = time.monotonic()
     progress(f"starting the simulator: {' '.join(sim_cmd[1:])}")
-    sim = start(sim_cmd, out / "sim.log")
+    sim = start(sim_cmd, r.out / "sim.log")
     find_end = conformance_start = math.inf
-    cpu: dict[str, float] = {}
     try:
-        waited = wait_for_heartbeat(candump, ch, status_id, 120.0) if dump else None
+        candump = shutil.which("candump")
+        waited = wait_for_heartbeat(candump, r.ch, status_id, 120.0) if dump else None
         if dump is not None and waited is None:
-            hard.append("no heartbeat from the simulator on the bus within 120 s")
-        result["sim_first_heartbeat_s"] = None if waited is None else round(waited, 2)
+            r.hard.append("no heartbeat from the simulator on the bus within 120 s")
+        r.result["sim_first_heartbeat_s"] = None if waited is None else round(waited, 2)
         progress(f"first heartbeat after {waited} s; running find")
-
-        def run_find(label: str, stem: str, wall_key: str, options: list[str]) -> str | None:
-            """Run ``find`` on the bus with these options, its time and CPU in ``cpu[stem]`` and
-            ``result[wall_key]``, its output in <stem>.json and <stem>.err; its JSON when it
-            exited 0, else None with the failure counted."""
-            t0 = time.monotonic()
-            c0 = cpu_seconds_children()
-            run = subprocess.run(
-                [nf, "find", "-i", "socketcan", "-c", ch, "--json", "--latitude", str(TRUTH["latitude"]),
-                 "--link-timeout", "3", "--reply-timeout", "2", "--timeout", "300", *options],
-                capture_output=True, text=True, timeout=args.find_timeout,
-            )  # fmt: skip
-            progress(f"{label} exited {run.returncode} after {time.monotonic() - t0:.1f} s")
-            cpu[stem.replace("-", "_")] = cpu_seconds_children() - c0
-            result[wall_key] = round(time.monotonic() - t0, 1)
-            (out / f"{stem}.json").write_text(run.stdout)
-            (out / f"{stem}.err").write_text(run.stderr)
-            if run.returncode == 0:
-                return run.stdout
-            # Exit 1 is a link or device error (a lost reply, a stalled stream), or an internal
-            # error (a bug, said so on stderr); any other code is a bad argument: only a link or
-            # device error is what a starved VM causes.
-            internal = "internal error" in run.stderr or "Traceback" in run.stderr
-            (failures if run.returncode == 1 and not internal else hard).append(
-                f"{label} exited {run.returncode}: {run.stderr.strip()[-300:]}"
-            )
-            return None
-
-        # the plan of the timings measured so far (find's default is now 0,180,180,0)
-        found = run_find(
-            "find", "find", "find_wall_s",
-            ["--positions", "0,180", "--record", str(out / "windows.npz")],
-        )  # fmt: skip
+        find_steps(r)
         find_end = time.time()
-        if found is not None:
-            res = json.loads(found)
-            err = (res["azimuth_deg"] - TRUTH["azimuth"] + 180.0) % 360.0 - 180.0
-            result.update(
-                azimuth_deg=res["azimuth_deg"], truth_deg=TRUTH["azimuth"], azimuth_error_deg=err,
-                sigma_deg=res["sigma_deg"], pitch_deg=res["pitch_deg"], roll_deg=res["roll_deg"],
-            )  # fmt: skip
-            if not abs(err) <= min(0.5, 5.0 * res["sigma_deg"]):
-                hard.append(
-                    f"azimuth error {err:+.4f} deg exceeds 5 sigma ({res['sigma_deg']:.4f})"
-                )
-        # The spin find (protocol 1.1): the table turns at a constant rate for one whole turn,
-        # and the heading is the phase of the Earth rate on the horizontal gyros.
-        progress(f"running find --spin {SPIN_RATE_DPS:g}")
-        spun = run_find(
-            "find --spin", "find-spin", "spin_find_wall_s", ["--spin", f"{SPIN_RATE_DPS:g}"]
-        )
-        if spun is not None:
-            figures, problems = judge_spin(json.loads(spun))
-            result["spin"] = figures
-            hard.extend(problems)
+        spin_step(r)
         conformance_start = time.time()
-        margins = CONFORMANCE_MARGINS.get(args.mode, [])
-        result["conformance_timing"] = " ".join(margins) if margins else "protocol defaults"
-        progress("running the conformance suite")
-        t0 = time.monotonic()
-        c0 = cpu_seconds_children()
-        conf = subprocess.run(
-            [nf, "conformance", "-i", "socketcan", "-c", ch, "--stream-seconds", str(args.stream_seconds),
-             "--junit", str(out / "conformance.xml"), *margins],
-            capture_output=True, text=True, timeout=args.conformance_timeout,
-        )  # fmt: skip
-        progress(f"conformance exited {conf.returncode} after {time.monotonic() - t0:.1f} s")
-        cpu["conformance"] = cpu_seconds_children() - c0
-        result["conformance_wall_s"] = round(time.monotonic() - t0, 1)
-        (out / "conformance.txt").write_text(conf.stdout + conf.stderr)
-        result["conformance_exit"] = conf.returncode
-        last = [line for line in conf.stdout.splitlines() if "passed" in line]
-        result["conformance"] = last[-1].strip() if last else conf.stderr.strip()[-300:]
-        cases = junit_cases(out / "conformance.xml")
-        counted = {n: r for n, r in cases.items() if n not in report_only and r[0] != "skip"}
-        failed = sorted(n for n, (status, _) in counted.items() if status == "fail")
-        result["conformance_counted"] = {
-            "checks": len(counted),
-            "passed": len(counted) - len(failed),
-            "failed": failed,
-            "skipped": sorted(n for n, r in cases.items() if r[0] == "skip"),
-        }
-        # The conformance checks of the spin command (protocol 1.1), by name in the summary.
-        result["spin_conformance"] = {
-            n: status for n, (status, _) in cases.items() if n.startswith("spin.")
-        }
-        for name, (status, message) in cases.items():
-            if name in report_only:
-                reported[name] = f"{status.upper()}: {message}" if status == "fail" else status
-        if not cases:
-            hard.append(f"conformance: no JUnit report ({result['conformance']})")
-        elif conf.returncode not in (0, 1, 3):  # 3: a check not judged (a skip in the JUnit)
-            hard.append(f"conformance exited {conf.returncode}: {result['conformance']}")
-        elif failed:
-            # A check that failed on a missing or late answer is what a starved VM causes; one
-            # that got a wrong answer (or hit an internal error) is the product's.
-            wrong = [n for n in failed if not starved_symptom(n, counted[n][1])]
-            if wrong:
-                hard.append(
-                    "conformance (wrong answers, not missing ones): "
-                    + "; ".join(f"{n}: {counted[n][1][:160]}" for n in wrong)
-                )
-            if len(wrong) < len(failed):
-                failures.append(f"conformance: {[n for n in failed if n not in wrong]}")
+        conformance_step(r)
+        accept_step(r)
     except subprocess.TimeoutExpired as exc:
-        hard.append(f"{Path(exc.cmd[0]).name} {exc.cmd[1]} did not end within {exc.timeout:g} s")
-        progress(hard[-1])
+        r.hard.append(f"{Path(exc.cmd[0]).name} {exc.cmd[1]} did not end within {exc.timeout:g} s")
+        progress(r.hard[-1])
     finally:
-        progress("stopping the simulator, draining candump")
-        c0 = cpu_seconds_children()
-        sim_died = sim.poll()
-        result["sim_exit"] = stop(sim)
-        sim_stopped = time.time()
-        if sim_died is not None or result["sim_exit"] not in (0, None):
-            hard.append(
-                f"the simulator {'died' if sim_died is not None else 'exited'} with status "
-                f"{result['sim_exit']} (its log: sim.log)"
-            )
-        cpu["sim"] = cpu_seconds_children() - c0
-        if dump is not None:
-            c0 = cpu_seconds_children()
-            result["candump_drain_s"] = round(drain(dump, dump_log), 1)
-            stop(dump)
-            cpu["candump"] = cpu_seconds_children() - c0
-            shutil.move(dump_log, out / "candump.log")
-            if (dump_dir / "candump.out").stat().st_size:
-                shutil.move(dump_dir / "candump.out", out / "candump.stderr")
-        shutil.rmtree(dump_dir, ignore_errors=True)
-    monitor.send_signal(signal.SIGTERM)
-    try:
-        mon_out, _ = monitor.communicate(timeout=20)
-        stalls = json.loads(mon_out.strip().splitlines()[-1])
-        stalls["stalls_ms"] = stalls["stalls_ms"][:100]
-        result["machine_stalls"] = stalls
-    except (subprocess.TimeoutExpired, json.JSONDecodeError, IndexError) as exc:
-        monitor.kill()
-        result["machine_stalls"] = f"stall monitor failed: {exc!r}"
-    wall = time.monotonic() - t_step
-    machine1 = machine_cpu()
-    result["cpu_seconds"] = {k: round(v, 1) for k, v in cpu.items()}
-    result["cpu_seconds"]["all_children"] = round(cpu_seconds_children() - cpu0, 1)
-    result["step_wall_s"] = round(wall, 1)
-    if machine0 and machine1 and machine1[1] > machine0[1]:
-        # How close the instrument, the host and candump together come to the guest's CPU.
-        result["machine_cpu_busy_percent"] = round(
-            100 * (machine1[0] - machine0[0]) / (machine1[1] - machine0[1]), 1
-        )
+        sim_stopped = stop_instruments(r, sim, dump, dump_dir, dump_log)
+    machine_figures(r, monitor, t_step, cpu0, machine0)
     if dump is None:
-        hard.append("candump (can-utils) not found: traffic not recorded")
+        r.hard.append("candump (can-utils) not found: traffic not recorded")
     else:
-        stats = analyse_candump(
-            out / "candump.log", args.repo / "protocol.dbc", find_end, conformance_start
-        )
-        result.update(stats)
-        # The log must reach the end of the traffic: the simulator's heartbeats run until it stops.
-        lines = (out / "candump.log").read_text(errors="replace").split("\n(")
-        last = float(lines[-1].split(")")[0].lstrip("(")) if len(lines) > 1 else math.nan
-        result["candump_log_ends_before_sim_stop_s"] = round(sim_stopped - last, 2)
-        if not sim_stopped - last <= 2.0:
-            failures.append(
-                f"candump's log ends {sim_stopped - last:.1f} s before the simulator stopped: "
-                "traffic not recorded"
-            )
-        if stats["unknown_frames"] or stats["undecodable_frames"]:
-            hard.append(
-                f"{stats['unknown_frames']} unknown and {stats['undecodable_frames']} undecodable frames"
-            )
-        if stats["ticks_lost"]:
-            failures.append(f"{stats['ticks_lost']} sample ticks lost on the bus")
-        # The cycle times on the bus are the unit's timing.
-        pace = {
-            "pace.sample_period": (
-                abs(stats["sample_period_ms_mean"] - 5.0) <= 0.05,
-                f"mean sample period {stats['sample_period_ms_mean']:.3f} ms, not 5 ms +- 1 %",
-            ),
-            "pace.heartbeat_period": (
-                abs(stats["heartbeat_period_ms_p50"] - 100.0) <= 10.0,
-                f"median heartbeat period {stats['heartbeat_period_ms_p50']:.1f} ms, not 100 ms +- 10 %",
-            ),
-        }
-        for name, (ok, message) in pace.items():
-            if name in report_only:
-                reported[name] = "pass" if ok else f"FAIL: {message}"
-            elif not ok:
-                failures.append(message)
-    result["report_only"] = {
-        name: {"result": reported.get(name, "not run"), "why_not_counted": why}
-        for name, why in report_only.items()
+        bus_figures(r, find_end, conformance_start, sim_stopped)
+    r.result["report_only"] = {
+        name: {"result": r.reported.get(name, "not run"), "why_not_counted": why}
+        for name, why in r.report_only.items()
     }
-    result["failures"] = hard + failures
-    rc = judge(result, hard, failures, out / "sim.log", args.mode)
-    (out / "result.json").write_text(json.dumps(result, indent=2))
-    print(json.dumps(result, indent=2))
+    r.result["failures"] = r.hard + r.failures
+    rc = judge(r.result, r.hard, r.failures, r.out / "sim.log", args.mode)
+    (r.out / "result.json").write_text(json.dumps(r.result, indent=2))
+    print(json.dumps(r.result, indent=2))
     return rc
 
 
