@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from northfinder.cli import main
-from northfinder.cli.study import _best_of_budget
+from northfinder.cli.study_planner import _best_of_budget
 from northfinder.firmware_sim.sensors import load_spec
 from northfinder.host.accuracy import ErrorModel, budget_bound_deg, predict, spin_bound_deg
 from northfinder.host.errors import GeometryError, HostConfigError
