@@ -31,7 +31,7 @@ Time (``clock=``):
   (``sim.clock``). Time stands still while the host works and jumps to the next event (a
   message due, a deadline) whenever it waits, so a host waits with ``sim.clock.sleep(s)``, never
   ``time.sleep``. ``link="virtual"`` only (a pty is read by other processes on the wall clock);
-- any other :class:`~northfinder.firmware_sim.runner.Clock` (a lockstep clock, for instance).
+- any other :class:`~northfinder.firmware_sim.runner.SimClock` (a lockstep clock, for instance).
 
 This module is part of the application layer: it is the one place, with the CLI, that imports
 the simulator and the driver.
@@ -67,7 +67,7 @@ from northfinder.firmware_sim.control import ControlClient, Controller, ControlS
 from northfinder.firmware_sim.errors import SimError
 from northfinder.firmware_sim.firmware import Firmware, LinkInfo
 from northfinder.firmware_sim.imu import Truth
-from northfinder.firmware_sim.runner import BackgroundRunner, Clock, Link, RealTimeClock, Runner
+from northfinder.firmware_sim.runner import BackgroundRunner, Link, RealTimeClock, Runner, SimClock
 from northfinder.firmware_sim.sensors import DEFAULT_SENSOR, SensorSpec, load_spec
 from northfinder.host.errors import HostConfigError
 
@@ -177,7 +177,7 @@ class SimulatedInstrument:
         Where the simulator is reachable (see the module docstring).
     node_id : int
         CAN node id of the simulated device.
-    clock : Clock, VirtualClock or "virtual", optional
+    clock : SimClock, VirtualClock or "virtual", optional
         The clock that drives the firmware (default ``RealTimeClock(speed)``); ``"virtual"`` makes
         a new :class:`~northfinder.driver.clock.VirtualClock` (see the module docstring).
     control : str, optional
@@ -224,7 +224,7 @@ class SimulatedInstrument:
         warmup_s: float = DEFAULT_WARMUP_S,
         link: str = "virtual",
         node_id: int = 1,
-        clock: Clock | VirtualClock | str | None = None,
+        clock: SimClock | VirtualClock | str | None = None,
         control: str | None = None,
         bitrate: int | None = None,
         log: str | Path | None = None,
@@ -243,7 +243,7 @@ class SimulatedInstrument:
             if clock != "virtual":
                 raise HostConfigError(f"clock={clock!r}: give 'virtual' or a clock object")
             clock = VirtualClock()
-        self.clock: Clock | VirtualClock = (
+        self.clock: SimClock | VirtualClock = (
             RealTimeClock(1.0 if speed is None else speed) if clock is None else clock
         )
         if self.virtual and link != "virtual":
