@@ -68,7 +68,7 @@ class Link(Protocol):
     def send(self, outgoing: list[Outgoing]) -> None: ...
 
 
-class Clock(Protocol):
+class SimClock(Protocol):
     """What a :class:`Runner` needs from a clock: simulated time, and how long to wait for it.
 
     :class:`RealTimeClock` and :class:`LockstepClock` are clocks; so is any object with these
@@ -255,7 +255,7 @@ class Runner:
     (:meth:`attach`), and :meth:`step` and :meth:`run` are not used.
     """
 
-    def __init__(self, firmware: Firmware, link: Link, clock: Clock | VirtualTime) -> None:
+    def __init__(self, firmware: Firmware, link: Link, clock: SimClock | VirtualTime) -> None:
         self.firmware = firmware
         self.link = link
         self.clock = clock
@@ -288,7 +288,7 @@ class Runner:
         """Whether the runner is driven by a virtual clock."""
         return bool(getattr(self.clock, "virtual", False))
 
-    def _paced(self) -> Clock:
+    def _paced(self) -> SimClock:
         if self.virtual:
             raise SimConfigError("the runner is driven by a virtual clock: it has no loop")
         return self.clock  # type: ignore[return-value]
@@ -417,7 +417,7 @@ class Runner:
                 if self.firmware.now <= before:
                     break
 
-    def _slip(self, clock: Clock, behind: float) -> None:
+    def _slip(self, clock: SimClock, behind: float) -> None:
         """Fallen too far behind: the clock slips back to the oldest message due (no burst)."""
         clock.slip(behind)
         lag = self.lag
@@ -550,7 +550,7 @@ class Runner:
                     self.sent += len(items)
             self.firmware.prefetch()
 
-    def _take_reports(self, sender: ProcessSender, clock: Clock) -> None:
+    def _take_reports(self, sender: ProcessSender, clock: SimClock) -> None:
         """Apply what the sender process reported: its slips (the clock slips with it), the
         chunks the link did not take (counted as dropped), a link that failed (raised)."""
         for kind, value in sender.reports():

@@ -47,19 +47,19 @@ from northfinder.host.plan import HEADING_SOLVERS, Plan
 __all__ = [
     "BAD_BITS",
     "DEFAULT_ON_GAP",
+    "MAX_DEVICE_SETTLE_S",
     "MAX_ENCODER_SPAN_DEG",
     "MAX_REMEASURE",
-    "MAX_SETTLE_S",
     "METHOD_CHOICES",
     "ON_GAP_CHOICES",
     "READY_TIMEOUT_S",
     "WINDOW_RANGE_S",
     "DeviceClock",
     "DeviceLike",
+    "FindProgress",
     "FindResult",
     "Plan",
     "PositionWindow",
-    "Progress",
     "QualityError",
     "SpinFind",
     "SpinningDeviceLike",
@@ -99,7 +99,8 @@ MAX_REMEASURE = 3
 METHOD_CHOICES = HEADING_SOLVERS
 #: Window and settle-time limits of a run on a device, s.
 WINDOW_RANGE_S = (0.5, 3600.0)
-MAX_SETTLE_S = 600.0
+#: Longest settling a plan may ask of a device after a move, s (a study simulates longer ones).
+MAX_DEVICE_SETTLE_S = 600.0
 #: Longest wait for READY after the warm-up when none is given, device s.
 READY_TIMEOUT_S = 600.0
 #: What a window with missing sample ticks gets when nothing is said (see :func:`find_north`).
@@ -177,14 +178,16 @@ def check_plan_for_device(plan: Plan) -> None:
     Raises
     ------
     HostConfigError
-        Window outside :data:`WINDOW_RANGE_S`, settle beyond :data:`MAX_SETTLE_S`, or a method
+        Window outside :data:`WINDOW_RANGE_S`, settle beyond :data:`MAX_DEVICE_SETTLE_S`, or a method
         other than :data:`METHOD_CHOICES` (``pairwise`` gives no single heading).
     """
     lo, hi = WINDOW_RANGE_S
     if not lo <= plan.window_s <= hi:
         raise HostConfigError(f"window: must be {lo:g} to {hi:g} s, got {plan.window_s}")
-    if plan.settle_s is not None and plan.settle_s > MAX_SETTLE_S:
-        raise HostConfigError(f"settle: must be 0 to {MAX_SETTLE_S:g} s, got {plan.settle_s}")
+    if plan.settle_s is not None and plan.settle_s > MAX_DEVICE_SETTLE_S:
+        raise HostConfigError(
+            f"settle: must be 0 to {MAX_DEVICE_SETTLE_S:g} s, got {plan.settle_s}"
+        )
     _check_method(plan)
 
 
@@ -278,7 +281,7 @@ class FindResult:
 
 
 @dataclass(frozen=True)
-class Progress:
+class FindProgress:
     """Where the procedure is, for a progress display."""
 
     phase: str  # "warm-up", "rotate", "settle", "acquire", "solve", "done"
@@ -697,7 +700,7 @@ def find_north(
     latitude_deg: float,
     *,
     warmup_timeout_s: float = READY_TIMEOUT_S,
-    progress: Callable[[Progress], None] | None = None,
+    progress: Callable[[FindProgress], None] | None = None,
     sleep: Callable[[float], None] | None = None,
     clock: Callable[[], float] | None = None,
     latitude_source: str = "",
@@ -718,7 +721,7 @@ def find_north(
     warmup_timeout_s : float
         Longest wait for READY, s (by ``clock``).
     progress : callable, optional
-        Called with a :class:`Progress` at every phase.
+        Called with a :class:`FindProgress` at every phase.
     sleep, clock : callable
         How to wait and what time it is, s (default: the device's own clock, ``device.clock``,
         so that a device in virtual time is waited for in virtual time).
@@ -746,30 +749,30 @@ def find_north(
     timing = _PlanTiming.of(device, plan)
     n = len(plan.positions_deg)
     wait_until_ready(
-        device, warmup_timeout_s, lambda st: report(Progress("warm-up", 0, n, _angle(st), None)),
+        device, warmup_timeout_s, lambda st: report(FindProgress("warm-up", 0, n, _angle(st), None)),
         clock=clock,
     )  # fmt: skip
     windows: list[PositionWindow] = []
     raw: list[Any] = []
     here = _angle(device.status())
     for i, target in enumerate(plan.positions_deg):
-        report(Progress("rotate", i + 1, n, here, timing.seconds_left(i, here)))
+        report(FindProgress("rotate", i + 1, n, here, timing.seconds_left(i, here)))
         device.rotate_to(target % 360.0, wait=True)
         if timing.extra_s:
             left = timing.seconds_left(i, None) - plan.window_s
-            report(Progress("settle", i + 1, n, target % 360.0, left))
+            report(FindProgress("settle", i + 1, n, target % 360.0, left))
             pause(timing.extra_s)
         left = timing.seconds_left(i, None) - timing.extra_s
-        report(Progress("acquire", i + 1, n, target % 360.0, left))
+        report(FindProgress("acquire", i + 1, n, target % 360.0, left))
         window, summary = _measure_window(device, plan, target, on_gap)
         raw.append(window)
         if on_window is not None:
             on_window(i, window)
         windows.append(summary())
         here = windows[-1].encoder_deg
-    report(Progress("solve", n, n, here, 0.0))
+    report(FindProgress("solve", n, n, here, 0.0))
     result = result_from_windows(windows, latitude_deg, plan, latitude_source=latitude_source)
-    report(Progress("done", n, n, here, 0.0))
+    report(FindProgress("done", n, n, here, 0.0))
     return result, raw
 
 
@@ -875,7 +878,7 @@ def find_north_spin(
     drift: bool = False,
     warmup_timeout_s: float = READY_TIMEOUT_S,
     latitude_source: str = "",
-    progress: Callable[[Progress], None] | None = None,
+    progress: Callable[[FindProgress], None] | None = None,
 ) -> SpinFind:
     """Find north with ``device`` turning at a constant rate: wait for READY, SPIN, acquire
     ``spin_s`` seconds of steady-rate samples, STOP (and wait for READY), solve.
@@ -894,7 +897,7 @@ def find_north_spin(
     warmup_timeout_s : float
         Longest wait for READY, device seconds.
     progress : callable, optional
-        Called with a :class:`Progress` as each phase begins (``spin``: the table speeds up,
+        Called with a :class:`FindProgress` as each phase begins (``spin``: the table speeds up,
         ``acquire``, ``solve``).
 
     Raises
@@ -909,13 +912,13 @@ def find_north_spin(
     spin.latitude_rad(latitude_deg, "the spin solution")
     wait_until_ready(device, warmup_timeout_s)
     report = progress or (lambda p: None)
-    report(Progress("spin", 0, 0, None, spin_s))
+    report(FindProgress("spin", 0, 0, None, spin_s))
     device.spin(rate_dps, wait=True)
-    report(Progress("acquire", 0, 0, None, spin_s))
+    report(FindProgress("acquire", 0, 0, None, spin_s))
     window = device.acquire(spin_s, on_gap="report")
     device.stop(wait=True)
     device.stop_streaming()
-    report(Progress("solve", 0, 0, None, 0.0))
+    report(FindProgress("solve", 0, 0, None, 0.0))
     data = spin.spin_samples(
         window.gyro_dph, window.accel_mps2, window.table_deg, window.counter,
         window.sample_rate_hz, window.validity,

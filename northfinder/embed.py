@@ -31,7 +31,7 @@ Time (``clock=``):
   (``sim.clock``). Time stands still while the host works and jumps to the next event (a
   message due, a deadline) whenever it waits, so a host waits with ``sim.clock.sleep(s)``, never
   ``time.sleep``. ``link="virtual"`` only (a pty is read by other processes on the wall clock);
-- any other :class:`~northfinder.firmware_sim.runner.Clock` (a lockstep clock, for instance).
+- any other :class:`~northfinder.firmware_sim.runner.SimClock` (a lockstep clock, for instance).
 
 This module is part of the application layer: it is the one place, with the CLI, that imports
 the simulator and the driver.
@@ -64,10 +64,10 @@ from northfinder.firmware_sim.adapters import (
     SlcanAdapter,
 )
 from northfinder.firmware_sim.control import ControlClient, Controller, ControlServer
-from northfinder.firmware_sim.errors import SimError
+from northfinder.firmware_sim.errors import SimConfigError, SimError
 from northfinder.firmware_sim.firmware import Firmware, LinkInfo
 from northfinder.firmware_sim.imu import Truth
-from northfinder.firmware_sim.runner import BackgroundRunner, Clock, Link, RealTimeClock, Runner
+from northfinder.firmware_sim.runner import BackgroundRunner, Link, RealTimeClock, Runner, SimClock
 from northfinder.firmware_sim.sensors import DEFAULT_SENSOR, SensorSpec, load_spec
 from northfinder.host.errors import HostConfigError
 
@@ -75,8 +75,18 @@ __all__ = [
     "LINKS",
     "RELAXED_DEVICE_OPTIONS",
     "SimulatedInstrument",
+    "SimulatorSettingError",
     "Truth",
 ]
+
+
+class SimulatorSettingError(SimConfigError, HostConfigError):
+    """A setting of the embedded simulator it cannot take (an unknown link, both a speed and a
+    clock, virtual time on a pty) or a use out of turn (not started, started twice): the
+    simulator's configuration error (:class:`~northfinder.firmware_sim.errors.SimConfigError`,
+    exit status 2 on the command line), and a
+    :class:`~northfinder.host.errors.HostConfigError` as version 0.2 raised it."""
+
 
 LINKS = ("virtual", "serial-pty", "slcan-pty")
 """The links :class:`SimulatedInstrument` can put the simulator on."""
@@ -177,7 +187,7 @@ class SimulatedInstrument:
         Where the simulator is reachable (see the module docstring).
     node_id : int
         CAN node id of the simulated device.
-    clock : Clock, VirtualClock or "virtual", optional
+    clock : SimClock, VirtualClock or "virtual", optional
         The clock that drives the firmware (default ``RealTimeClock(speed)``); ``"virtual"`` makes
         a new :class:`~northfinder.driver.clock.VirtualClock` (see the module docstring).
     control : str, optional
@@ -208,7 +218,7 @@ class SimulatedInstrument:
 
     Raises
     ------
-    HostConfigError
+    SimulatorSettingError
         An unknown link, both ``speed`` and ``clock``, or a virtual clock on a pty link.
     SimConfigError
         An unknown sensor preset or an invalid value (from the simulator).
@@ -224,15 +234,15 @@ class SimulatedInstrument:
         warmup_s: float = DEFAULT_WARMUP_S,
         link: str = "virtual",
         node_id: int = 1,
-        clock: Clock | VirtualClock | str | None = None,
+        clock: SimClock | VirtualClock | str | None = None,
         control: str | None = None,
         bitrate: int | None = None,
         log: str | Path | None = None,
     ) -> None:
         if link not in LINKS:
-            raise HostConfigError(f"link={link!r}: choose one of {', '.join(LINKS)}")
+            raise SimulatorSettingError(f"link={link!r}: choose one of {', '.join(LINKS)}")
         if clock is not None and speed is not None:
-            raise HostConfigError("give speed or clock, not both (the speed is the clock's)")
+            raise SimulatorSettingError("give speed or clock, not both (the speed is the clock's)")
         self.spec = sensor if isinstance(sensor, SensorSpec) else load_spec(sensor)
         self.truth = Truth() if truth is None else truth
         self.rng = np.random.default_rng(seed)
@@ -241,13 +251,13 @@ class SimulatedInstrument:
         self.node_id = node_id
         if isinstance(clock, str):
             if clock != "virtual":
-                raise HostConfigError(f"clock={clock!r}: give 'virtual' or a clock object")
+                raise SimulatorSettingError(f"clock={clock!r}: give 'virtual' or a clock object")
             clock = VirtualClock()
-        self.clock: Clock | VirtualClock = (
+        self.clock: SimClock | VirtualClock = (
             RealTimeClock(1.0 if speed is None else speed) if clock is None else clock
         )
         if self.virtual and link != "virtual":
-            raise HostConfigError(
+            raise SimulatorSettingError(
                 f"link={link!r}: virtual time needs the in-process link 'virtual' (a pty is "
                 "read by other processes on the wall clock)"
             )
@@ -270,7 +280,7 @@ class SimulatedInstrument:
     def start(self) -> SimulatedInstrument:
         """Build the firmware, open the link, start the runner (and the control channel)."""
         if self._stack is not None:
-            raise HostConfigError("the simulated instrument is already started")
+            raise SimulatorSettingError("the simulated instrument is already started")
         kind = "serial" if self.link == "serial-pty" else "can"
         firmware = Firmware(
             self.spec,
@@ -333,14 +343,14 @@ class SimulatedInstrument:
     def firmware(self) -> Firmware:
         """The simulated firmware (lock :attr:`runner`'s ``lock`` to change it while it runs)."""
         if self._firmware is None:
-            raise HostConfigError("the simulated instrument is not started")
+            raise SimulatorSettingError("the simulated instrument is not started")
         return self._firmware
 
     @property
     def runner(self) -> Runner:
         """The loop that drives the firmware on its link."""
         if self._runner is None:
-            raise HostConfigError("the simulated instrument is not started")
+            raise SimulatorSettingError("the simulated instrument is not started")
         return self._runner
 
     @property
@@ -389,7 +399,7 @@ class SimulatedInstrument:
 
         Raises
         ------
-        HostConfigError
+        SimulatorSettingError
             The link is not CAN (``serial-pty``).
         """
         if self.link == "virtual":
@@ -399,7 +409,9 @@ class SimulatedInstrument:
             return can.Bus(
                 interface="slcan", channel=self._started(self.path), bitrate=self.bitrate, **options
             )
-        raise HostConfigError(f"the {self.link} link is not a CAN bus: use open_device() or path")
+        raise SimulatorSettingError(
+            f"the {self.link} link is not a CAN bus: use open_device() or path"
+        )
 
     def open_device(self, **options: Any) -> Device:
         """A :class:`~northfinder.driver.device.Device` on the simulator's link; closing it
@@ -419,5 +431,5 @@ class SimulatedInstrument:
 
     def _started(self, where: str | None) -> str:
         if where is None or self._stack is None:
-            raise HostConfigError("the simulated instrument is not started")
+            raise SimulatorSettingError("the simulated instrument is not started")
         return where

@@ -39,9 +39,9 @@ from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.procedure import (
+    FindProgress,
     FindResult,
     Plan,
-    Progress,
     SpinFind,
     find_north,
     find_north_spin,
@@ -368,7 +368,7 @@ def recording_meta(
 def find(
     config: FindConfig,
     *,
-    progress: Callable[[Progress], None] | None = None,
+    progress: Callable[[FindProgress], None] | None = None,
     record_to: str | None = None,
     on_link_statistics: Callable[[str], None] | None = None,
 ) -> Measured:
@@ -379,7 +379,7 @@ def find(
     config : FindConfig
         The run (its ``spin`` is not taken here).
     progress : callable, optional
-        Called with a :class:`~northfinder.host.procedure.Progress` at every phase.
+        Called with a :class:`~northfinder.host.procedure.FindProgress` at every phase.
     record_to : str, optional
         Write each window to this recording (.csv, .npz) as soon as it is measured
         (:class:`~northfinder.host.recording.RecordingWriter`); an interrupted or failed run
@@ -429,7 +429,7 @@ def find(
 def find_spin(
     config: FindConfig,
     *,
-    progress: Callable[[Progress], None] | None = None,
+    progress: Callable[[FindProgress], None] | None = None,
     on_ending: Callable[[BaseException, SpinMeasured], str] | None = None,
 ) -> SpinMeasured:
     """Open the unit, spin (``config.spin``), solve, and leave the unit at rest.

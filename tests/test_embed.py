@@ -87,8 +87,9 @@ def test_the_seed_or_generator_feeds_the_sensor_noise():
 
 
 def test_bad_arguments_are_named():
-    with pytest.raises(HostConfigError, match="virtual, serial-pty, slcan-pty"):
+    with pytest.raises(HostConfigError, match="virtual, serial-pty, slcan-pty") as raised:
         SimulatedInstrument(link="socketcan")
+    assert isinstance(raised.value, SimConfigError)  # the simulator's setting, not the host's
     with pytest.raises(HostConfigError, match="speed or clock"):
         SimulatedInstrument(speed=2.0, clock=RealTimeClock())
     with pytest.raises(SimConfigError):

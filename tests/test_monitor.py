@@ -1045,7 +1045,7 @@ async def test_the_find_panel_counts_the_time_left_down():
 
 
 def test_the_time_left_of_a_paced_unit_is_its_device_time_over_its_pace():
-    from northfinder.host.procedure import Progress
+    from northfinder.host.procedure import FindProgress
     from northfinder.monitor.session import FindRun
 
     class Clock:
@@ -1058,7 +1058,7 @@ def test_the_time_left_of_a_paced_unit_is_its_device_time_over_its_pace():
         clock = Clock()
 
     run = FindRun(Plan((0.0, 180.0), 30.0), 34.0, _session=Session())
-    run._progress(Progress("acquire", 1, 2, 0.0, 99.0))
+    run._progress(FindProgress("acquire", 1, 2, 0.0, 99.0))
     assert run.seconds_left(100.0, 3.0) == pytest.approx(33.0)  # a simulator at 3x
     assert run.seconds_left(111.0, 3.0) == pytest.approx(22.0)
     assert run.seconds_left(140.0, 3.0) == 0.0

@@ -209,3 +209,27 @@ def test_one_set_of_plan_defaults():
         args = build_parser(only=command).parse_args(argv)
         assert plan_from_args(args) == DEFAULT_PLAN == FindConfig(None).plan  # type: ignore[arg-type]
         assert {name: getattr(args, name) for name in find.PLAN_DEFAULTS} == find.PLAN_DEFAULTS
+
+
+def test_one_name_one_thing():
+    """No two public classes of the packages share a name (two ``Clock``s, two ``Progress``es,
+    two ``Session``s were three pairs of different things), and the plan's settle bound of a
+    device has a name of its own."""
+    import ast
+    from collections import defaultdict
+    from pathlib import Path
+
+    import northfinder
+    from northfinder.host import procedure
+
+    root = Path(northfinder.__file__).resolve().parent.parent
+    where: dict[str, list[str]] = defaultdict(list)
+    for package in ("driver", "firmware_sim", "host", "northfinder"):
+        for path in sorted((root / package).rglob("*.py")):
+            for node in ast.parse(path.read_text()).body:
+                if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+                    where[node.name].append(str(path.relative_to(root)))
+    assert len(where) > 100  # the packages were read
+    twice = {name: paths for name, paths in where.items() if len(paths) > 1}
+    assert not twice, twice
+    assert not hasattr(procedure, "MAX_SETTLE_S") and procedure.MAX_DEVICE_SETTLE_S == 600.0

@@ -44,13 +44,13 @@ from northfinder.host.denoise import METHODS
 from northfinder.host.errors import HostConfigError
 from northfinder.host.procedure import (
     DEFAULT_ON_GAP,
-    MAX_SETTLE_S,
+    MAX_DEVICE_SETTLE_S,
     METHOD_CHOICES,
     ON_GAP_CHOICES,
     READY_TIMEOUT_S,
     WINDOW_RANGE_S,
+    FindProgress,
     Plan,
-    Progress,
 )
 from northfinder.session import Measured, check_config, check_link
 
@@ -142,9 +142,9 @@ def add_plan_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--settle",
-        type=bounded_float(0.0, MAX_SETTLE_S, "s"),
+        type=bounded_float(0.0, MAX_DEVICE_SETTLE_S, "s"),
         default=DEFAULT_PLAN.settle_s,
-        help=f"seconds after a move, up to {MAX_SETTLE_S:g} (default {DEFAULT_PLAN.settle_s:g})",
+        help=f"seconds after a move, up to {MAX_DEVICE_SETTLE_S:g} (default {DEFAULT_PLAN.settle_s:g})",
     )
     g.add_argument(
         "--denoise",
@@ -231,7 +231,7 @@ class ProgressBar:
         self._bar: Any = None
         self._last: tuple[str, int] | None = None
 
-    def __call__(self, p: Progress) -> None:
+    def __call__(self, p: FindProgress) -> None:
         if self.mode == "lines":
             if (p.phase, p.position) != self._last:
                 self._last = (p.phase, p.position)

@@ -11,6 +11,6 @@
 from __future__ import annotations
 
 from northfinder.monitor.observer import LinkObserver, View
-from northfinder.monitor.session import ActiveSession, FindRun, PassiveSession, Session
+from northfinder.monitor.session import ActiveSession, FindRun, MonitorSession, PassiveSession
 
-__all__ = ["ActiveSession", "FindRun", "LinkObserver", "PassiveSession", "Session", "View"]
+__all__ = ["ActiveSession", "FindRun", "LinkObserver", "MonitorSession", "PassiveSession", "View"]

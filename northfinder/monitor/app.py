@@ -1,4 +1,4 @@
-"""The monitor's screen: a Textual application on a :class:`~northfinder.monitor.session.Session`.
+"""The monitor's screen: a Textual application on a :class:`~northfinder.monitor.session.MonitorSession`.
 
 The screen is redrawn from the session a few times a second (``refresh_hz``, default 10; the
 traces at most ``plot_hz``), never from the link's thread: the link's reader only queues frames,
@@ -32,7 +32,7 @@ from northfinder.host.canlog import decode_signals
 from northfinder.host.errors import HostError
 from northfinder.host.plan import Plan
 from northfinder.monitor.observer import FrameRow, LogEntry, Traces, View
-from northfinder.monitor.session import ActiveSession, FindRun, Session
+from northfinder.monitor.session import ActiveSession, FindRun, MonitorSession
 
 __all__ = ["MIN_SIZE", "FramesScreen", "MonitorApp"]
 
@@ -97,7 +97,7 @@ class MonitorApp(App[int]):
 
     Parameters
     ----------
-    session : Session
+    session : MonitorSession
         The link (active or passive), opened; closed when the app ends.
     plan : Plan
         What a find started with ``f`` measures.
@@ -154,7 +154,7 @@ class MonitorApp(App[int]):
 
     def __init__(
         self,
-        session: Session,
+        session: MonitorSession,
         *,
         plan: Plan | None = None,
         refresh_hz: float = 10.0,

@@ -29,14 +29,14 @@ from northfinder.host.errors import HostError
 from northfinder.host.plan import Plan
 from northfinder.host.procedure import (
     MAX_REMEASURE,
+    FindProgress,
     FindResult,
     PositionWindow,
-    Progress,
     find_north,
 )
 from northfinder.monitor.observer import LinkObserver
 
-__all__ = ["ActiveSession", "FindRun", "PassiveSession", "Session"]
+__all__ = ["ActiveSession", "FindRun", "MonitorSession", "PassiveSession"]
 
 #: Seconds between two attempts to reopen a lost link.
 REOPEN_EVERY_S = 2.0
@@ -46,7 +46,7 @@ Tap = Callable[[can.Message], None]
 DeviceOpener = Callable[[Tap], AbstractContextManager[tuple[Device, dict[str, Any] | None]]]
 
 
-class Session:
+class MonitorSession:
     """What the screen needs of a link. See :class:`ActiveSession` and :class:`PassiveSession`."""
 
     passive = False
@@ -119,7 +119,7 @@ class Session:
         self.stop_recording()
 
 
-class ActiveSession(Session):
+class ActiveSession(MonitorSession):
     """A unit driven by this monitor through the driver.
 
     Parameters
@@ -291,7 +291,7 @@ class ActiveSession(Session):
             stack.close()
 
 
-class PassiveSession(Session):
+class PassiveSession(MonitorSession):
     """A CAN bus listened to: nothing is sent. The frames of another host's session with the
     unit (its commands, the unit's replies, statuses and samples) are decoded as they pass.
 
@@ -410,7 +410,7 @@ class FindRun:
     latitude_deg: float
     truth_deg: float | None = None
     on_gap: str = "remeasure"
-    progress: Progress | None = None
+    progress: FindProgress | None = None
     progress_at: float = 0.0
     """The session clock's time of :attr:`progress`."""
     gaps: tuple[str, ...] = ()
@@ -460,7 +460,7 @@ class FindRun:
         sigma = "" if result.sigma_deg is None else f" +- {result.sigma_deg:.3f}"
         session.observer.note(f"find: azimuth {result.azimuth_deg:.3f}{sigma} deg", "ok")
 
-    def _progress(self, p: Progress) -> None:
+    def _progress(self, p: FindProgress) -> None:
         self.progress_at = self._session.clock.now()
         self.progress = p
 

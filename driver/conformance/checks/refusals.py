@@ -172,7 +172,7 @@ class Before:
 
 
 @dataclass(frozen=True)
-class AtRest:
+class FromReady:
     """A refusal check run from READY: its rows and what must hold afterwards."""
 
     name: str
@@ -185,8 +185,8 @@ class AtRest:
     """Run only if the unit is in FAULT (the protocol gives the host no way to cause one)."""
 
 
-def run_at_rest(spec: AtRest, c: Ctx) -> None:
-    """The routine of every :class:`AtRest` check."""
+def run_at_rest(spec: FromReady, c: Ctx) -> None:
+    """The routine of every :class:`FromReady` check."""
     s = c.s
     if spec.in_fault:
         if s.get_status().state != DeviceState.FAULT:
@@ -349,49 +349,49 @@ IN_FAULT = (
 )
 
 AT_REST = (
-    AtRest(
+    FromReady(
         "refusal.unknown_command",
         "undefined opcodes answered UNKNOWN_COMMAND, echoing seq and opcode, before the length check (4.3)",
         UNKNOWN_COMMAND,
     ),
-    AtRest(
+    FromReady(
         "bad_input.wrong_length",
         "every opcode with one argument byte too few or too many: BAD_ARGUMENT, counted in rx malformed, stream undisturbed (4.3, 9)",
         WRONG_LENGTH,
         then=(_each_counted_malformed, _stream_undisturbed),
         stream=True,
     ),
-    AtRest(
+    FromReady(
         "refusal.bad_argument",
         "ROTATE_TO with an undefined direction: BAD_ARGUMENT, also before the range check (4.3)",
         BAD_ARGUMENT,
         then=(_still_at_rest,),
     ),
-    AtRest(
+    FromReady(
         "refusal.out_of_range",
         "arguments outside their range answered OUT_OF_RANGE and nothing changes (4.3, 4.4)",
         OUT_OF_RANGE,
         then=(_config_unchanged, _still_at_rest),
     ),
-    AtRest(
+    FromReady(
         "refusal.unknown_key",
         "GET_CONFIG and SET_CONFIG of undefined keys below 0x10 answered UNKNOWN_KEY (4.3)",
         UNKNOWN_KEY,
         then=(_config_unchanged,),
     ),
-    AtRest(
+    FromReady(
         "refusal.read_only",
         "SET_CONFIG of keys 0x10..0x12 answered READ_ONLY; values unchanged (4.3, 4.4)",
         READ_ONLY,
         then=(_read_only_unchanged,),
     ),
-    AtRest(
+    FromReady(
         "refusal.rate_exceeds_link",
         "a sample rate or heartbeat that does not fit the link: RATE_EXCEEDS_LINK, nothing changed (4.3, 7)",
         rate_exceeds_link,
         then=(_config_unchanged,),
     ),
-    AtRest(
+    FromReady(
         "refusal.fault",
         "in FAULT moves and SET_CONFIG are refused with FAULT (4.3) — only if the unit is in FAULT",
         IN_FAULT,
