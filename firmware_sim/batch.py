@@ -446,6 +446,9 @@ def simulate_windows(
         return np.stack([x, y, np.broadcast_to(v[:, 2, None], x.shape)], axis=-1)  # (R, P, 3)
 
     true = np.concatenate([_rotate(omega_b), _rotate(f_b)], axis=-1)  # (R, P, 6)
+    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
+    if wob is not None:  # the table top's tilt, as the instrument's
+        true = np.concatenate([true[..., :3] @ wob.T, true[..., 3:] @ wob.T], axis=-1)
     draws = draw_turn_on(turn_on, (n_runs,))
     mats = terms.matrices(draws) if terms.has_matrix else None
     if mats is not None:
