@@ -638,6 +638,32 @@ class PredictOptions(Conditions, total=False):
     bias_step_dph: float
 
 
+def _deterministic_error(
+    lin: _Linearisation, tl: _Timeline, model: ErrorModel, plan: Plan, angles: str
+) -> NDArray[np.float64] | None:
+    """The deterministic heading error per (azimuth, solution): the drifts over the timeline, the
+    encoder's periodic error at each stop and the solver's own error on noise-free data; None
+    when there is none."""
+    det = lin.offset.copy()
+    has_drift = False
+    for drift, cols in ((model.drift_rps, (0, 1)), (model.accel_drift_mps2, (2, 3))):
+        if drift is not None:
+            d = _window_drift(tl, drift)  # (P, 2)
+            det += np.einsum("aspc,pc->as", lin.grad[..., cols[0] : cols[1] + 1], d)
+            has_drift = True
+    tab = model.table
+    if angles == "encoder" and tab.encoder_error_deg:
+        # The encoder's periodic error at each stop (the continuous commanded angle: the
+        # indexing error moves it by a second-order amount).
+        angle = plan.positions_deg[0] + np.concatenate([[0.0], np.cumsum(moves_deg(plan))])
+        read = encoder_angle_deg(
+            angle, tab.encoder_error_deg, tab.encoder_error_harmonic, tab.encoder_error_phase_deg
+        )
+        det += np.einsum("asp,p->as", lin.grad[..., 4], np.radians(read - angle))
+        has_drift = True
+    return det if has_drift or np.any(np.abs(lin.offset) > 1e-9) else None
+
+
 def predict_solutions(
     model: ErrorModel,
     plan: Plan | SpinPlan,
@@ -701,25 +727,8 @@ def predict_solutions(
                 name = "tilt"
             for c in channels:
                 add(name, quad(grad[..., c], cov))
-    # Deterministic: the drifts over the timeline and the solver's own error on noise-free data.
-    det = lin.offset.copy()
-    has_drift = False
-    for drift, cols in ((model.drift_rps, (0, 1)), (model.accel_drift_mps2, (2, 3))):
-        if drift is not None:
-            d = _window_drift(tl, drift)  # (P, 2)
-            det += np.einsum("aspc,pc->as", grad[..., cols[0] : cols[1] + 1], d)
-            has_drift = True
-    tab = model.table
-    if angles == "encoder" and tab.encoder_error_deg:
-        # The encoder's periodic error at each stop (the continuous commanded angle: the
-        # indexing error moves it by a second-order amount).
-        angle = plan.positions_deg[0] + np.concatenate([[0.0], np.cumsum(moves_deg(plan))])
-        read = encoder_angle_deg(
-            angle, tab.encoder_error_deg, tab.encoder_error_harmonic, tab.encoder_error_phase_deg
-        )
-        det += np.einsum("asp,p->as", grad[..., 4], np.radians(read - angle))
-        has_drift = True
-    if has_drift or np.any(np.abs(lin.offset) > 1e-9):
+    det = _deterministic_error(lin, tl, model, plan, angles)
+    if det is not None:
         add("drift", det * det)
     # Table angles: a stop error is shared by the windows of one stop (no move between them).
     stops = np.concatenate([[0], np.cumsum(np.array(moves_deg(plan)) != 0.0)])
