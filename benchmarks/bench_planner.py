@@ -22,6 +22,7 @@ import argparse
 import math
 import time
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
@@ -126,7 +127,7 @@ def compare_table(
             model = error_model(spec)
         for budget in BUDGETS:
             bound = budget_bound_deg(budget, model.arw_dpsh, LATITUDE)
-            kinds = {}
+            kinds: dict[str, tuple[Any, list[np.ndarray]]] = {}
             for kind, cands in (
                 ("stop-and-go", search_plans(model, LATITUDE, budget, warmup_s=WARMUP,
                                              sample_rate_hz=settings.sample_rate_hz)),
