@@ -303,3 +303,17 @@ def test_the_command_list_summaries_are_the_commands_own():
 
     assert summaries(cli.build_parser()) == summaries(cli.build_parser(only="find"))
     assert summaries(cli.build_parser()) == cli.SUMMARIES
+
+
+def test_the_configuration_is_below_every_other_application_module():
+    """``northfinder.config`` is what the command line, the session layer and a script build:
+    it reads the lower layers' defaults and imports nothing of the application layer (the
+    session, the command line, the simulator's embedding), so any of them can take it."""
+    edges = {(a, b) for a, b, _ in imports_of("northfinder")}
+    assert ("northfinder.cli.measure", "northfinder.config") in edges  # the edges were read
+    above = [
+        (a, b)
+        for a, b in edges
+        if a == "northfinder.config" and not under(b, *LIBRARY) and b != "northfinder.config"
+    ]
+    assert not above, above
