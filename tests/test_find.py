@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from northfinder.cli import main
-from northfinder.cli.measure import ProgressBar
+from northfinder.cli.progress import PlanProgress
 from northfinder.driver.protocol.constants import Validity
 from northfinder.host.errors import HostConfigError
-from northfinder.host.procedure import Plan, Progress, QualityError, summarise_window
+from northfinder.host.procedure import FindProgress, Plan, QualityError, summarise_window
 from northfinder.host.recording import Recording
 
 BIASED_IDEAL = """
@@ -226,27 +226,27 @@ def test_plan_validation_and_progress_line(monkeypatch):
 
     monkeypatch.setattr(os, "get_terminal_size", lambda fd: os.terminal_size((100, 30)))
     out = Tty()
-    bar = ProgressBar(stream=out)
-    bar(Progress("acquire", 1, 2, 12.5, 40.0))
-    bar(Progress("solve", 2, 2, 180.0, 10.0))
+    bar = PlanProgress(stream=out)
+    bar(FindProgress("acquire", 1, 2, 12.5, 40.0))
+    bar(FindProgress("solve", 2, 2, 180.0, 10.0))
     assert bar._bar.n == pytest.approx(30.0) and bar._bar.total == pytest.approx(40.0)
-    bar(Progress("done", 2, 2, 180.0, 0.0))
+    bar(FindProgress("done", 2, 2, 180.0, 0.0))
     text = out.getvalue()
     # tqdm draws it: the phase, position and table angle, and wall-clock elapsed and remaining.
     assert "acquire  position 1/2 table 12.500 deg" in text
     assert "solve    position 2/2 table 180.000 deg  75%" in text
     assert " elapsed, ~" in text and " left" in text
     plain = io.StringIO()  # not a terminal: one line per step
-    bar = ProgressBar(stream=plain)
+    bar = PlanProgress(stream=plain)
     for p in (("rotate", 1), ("rotate", 1), ("acquire", 1), ("rotate", 2)):
-        bar(Progress(*p, 2, None, None))
+        bar(FindProgress(*p, 2, None, None))
     assert plain.getvalue().splitlines() == [
         "find: rotate position 1/2",
         "find: acquire position 1/2",
         "find: rotate position 2/2",
     ]
     off = Tty()
-    ProgressBar(stream=off, enabled=False)(Progress("rotate", 1, 2, None, None))
+    PlanProgress(stream=off, enabled=False)(FindProgress("rotate", 1, 2, None, None))
     assert off.getvalue() == ""
 
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import math
 import sys
 from collections.abc import Iterator
 from typing import Any
@@ -23,7 +22,7 @@ from northfinder.cli.options import (
     add_truth_arguments,
 )
 from northfinder.cli.parsers import common_group
-from northfinder.cli.progress import progress_mode
+from northfinder.cli.progress import PlanProgress
 from northfinder.config import (
     BUS_KEYS,
     DEFAULT_PLAN,
@@ -49,14 +48,12 @@ from northfinder.host.procedure import (
     ON_GAP_CHOICES,
     READY_TIMEOUT_S,
     WINDOW_RANGE_S,
-    FindProgress,
     Plan,
 )
 from northfinder.session import Measured, check_config, check_link
 
 __all__ = [
     "Measured",
-    "ProgressBar",
     "add_arguments",
     "find_config",
     "link_config",
@@ -213,59 +210,6 @@ def open_device(
         yield unit.device, unit.truth
 
 
-class ProgressBar:
-    """Progress of a plan on stderr. On a terminal that reports its width, a tqdm bar in
-    wall-clock seconds: it counts the plan's device seconds done, so elapsed and remaining are
-    what the user waits (an embedded simulator at ``--speed 100`` finishes 100 times sooner than
-    the plan's device time). Elsewhere (a pipe, a log, a terminal of no width) one plain line
-    per step (:mod:`northfinder.cli.progress`): ``find: rotate position 2/4``.
-
-    Off when ``enabled`` is False (``--json``, ``--nmea -``).
-    """
-
-    def __init__(self, *, enabled: bool = True, stream: Any = None, label: str = "find") -> None:
-        self.stream = sys.stderr if stream is None else stream
-        self.mode = progress_mode(self.stream, enabled)
-        self.enabled = self.mode != "off"
-        self.label = label
-        self._bar: Any = None
-        self._last: tuple[str, int] | None = None
-
-    def __call__(self, p: FindProgress) -> None:
-        if self.mode == "lines":
-            if (p.phase, p.position) != self._last:
-                self._last = (p.phase, p.position)
-                where = f" position {p.position}/{p.positions}" if p.position else ""
-                print(f"{self.label}: {p.phase}{where}", file=self.stream, flush=True)
-            return
-        if self.mode != "bar":
-            return
-        if self._bar is None:
-            from tqdm import tqdm
-
-            self._bar = tqdm(
-                total=None, file=self.stream, leave=False, dynamic_ncols=True,
-                bar_format="{desc} {percentage:3.0f}%|{bar}| {elapsed} elapsed, ~{remaining} left",
-            )  # fmt: skip
-        bar = self._bar
-        angle = "---" if p.table_deg is None else f"{p.table_deg:.3f}"
-        bar.set_description_str(
-            f"{p.phase:<8} position {p.position}/{p.positions} table {angle} deg"
-        )
-        if p.seconds_left is not None and math.isfinite(p.seconds_left):
-            if bar.total is None:
-                bar.total = max(p.seconds_left, 1e-9)
-            bar.n = max(0.0, min(bar.total, bar.total - p.seconds_left))
-        bar.refresh()
-        if p.phase == "done":
-            self.close()
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
-            self._bar = None
-
-
 def link_config(args: argparse.Namespace) -> LinkConfig:
     """The link of the device options: ``-i/-c/-b`` (python-can), ``--serial``, or ``--sim``
     with the simulator's options (refused without ``--sim``: they would be ignored)."""
@@ -330,7 +274,7 @@ def run_config(
     config: FindConfig, *, progress: bool = True, record_to: str | None = None, label: str = "find"
 ) -> Measured:
     """:func:`northfinder.session.find` with the progress bar on stderr and ``-v``'s link line."""
-    bar = ProgressBar(enabled=progress, label=label)
+    bar = PlanProgress(enabled=progress, label=label)
     statistics = None
     if config.output.verbose:
 

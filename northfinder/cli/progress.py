@@ -9,9 +9,13 @@ chunks of a ``study``) a line at each tenth. ``--json`` turns it off.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
-from typing import Any, Literal, TextIO
+from typing import TYPE_CHECKING, Any, Literal, TextIO
+
+if TYPE_CHECKING:
+    from northfinder.host.procedure import FindProgress
 
 Mode = Literal["bar", "lines", "off"]
 
@@ -58,13 +62,16 @@ class Progress:
         self._tenth = -1
         self._step = ""
 
+    #: tqdm's layout of the bar; None for tqdm's own.
+    bar_format: str | None = None
+
     def _ensure_bar(self) -> Any:
         if self._bar is None:
             from tqdm import tqdm
 
             self._bar = tqdm(
                 total=self.total, desc=self.label, unit=self.unit or "it", file=self.stream,
-                leave=False, dynamic_ncols=True,
+                leave=False, dynamic_ncols=True, bar_format=self.bar_format,
             )  # fmt: skip
         return self._bar
 
@@ -112,3 +119,41 @@ class Progress:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class PlanProgress(Progress):
+    """Progress of a plan (``find``, ``record``), fed the procedure's
+    :class:`~northfinder.host.procedure.FindProgress` reports. On a terminal the bar counts the
+    plan's device seconds done in wall-clock time, so elapsed and remaining are what the user
+    waits (an embedded simulator at ``--speed 100`` finishes 100 times sooner than the plan's
+    device time); elsewhere one line per step: ``find: rotate position 2/4``. Off when
+    ``enabled`` is False (``--json``, ``--nmea -``).
+    """
+
+    bar_format = "{desc} {percentage:3.0f}%|{bar}| {elapsed} elapsed, ~{remaining} left"
+
+    def __init__(
+        self, *, enabled: bool = True, stream: TextIO | None = None, label: str = "find"
+    ) -> None:
+        super().__init__(label, None, enabled=enabled, stream=stream)
+        self.enabled = self.mode != "off"
+
+    def __call__(self, p: FindProgress) -> None:
+        if self.mode == "lines":
+            where = f" position {p.position}/{p.positions}" if p.position else ""
+            self.step(f"{p.phase}{where}")
+            return
+        if self.mode != "bar":
+            return
+        bar = self._ensure_bar()
+        angle = "---" if p.table_deg is None else f"{p.table_deg:.3f}"
+        bar.set_description_str(
+            f"{p.phase:<8} position {p.position}/{p.positions} table {angle} deg"
+        )
+        if p.seconds_left is not None and math.isfinite(p.seconds_left):
+            if bar.total is None:
+                bar.total = max(p.seconds_left, 1e-9)
+            bar.n = max(0.0, min(bar.total, bar.total - p.seconds_left))
+        bar.refresh()
+        if p.phase == "done":
+            self.close()

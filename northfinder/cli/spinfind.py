@@ -75,10 +75,11 @@ def run(
     received to that recording, marked ``interrupted`` (:func:`save`), and the line that
     reports the ending says where."""
     from northfinder import session
-    from northfinder.cli.measure import ProgressBar, find_config
+    from northfinder.cli.measure import find_config
+    from northfinder.cli.progress import PlanProgress
 
     config = find_config(args)
-    bar = ProgressBar(enabled=record_to is not None, label=args.command or "record")
+    bar = PlanProgress(enabled=record_to is not None, label=args.command or "record")
 
     def keep_partial(exc: BaseException, spun: session.SpinMeasured) -> str:
         assert record_to is not None
