@@ -25,9 +25,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from northfinder.driver.errors import ArgumentError
 from northfinder.driver.protocol.constants import NODE_ID_DEFAULT, SERIAL_BAUD_DEFAULT
 from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
 from northfinder.firmware_sim.sensors import DEFAULT_SENSOR
+from northfinder.host.errors import HostConfigError
 from northfinder.host.nmea import NMEA_BAUD
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG, Plan
 from northfinder.host.procedure import DEFAULT_ON_GAP, READY_TIMEOUT_S
@@ -229,3 +231,26 @@ class FindConfig:
     on_gap: str = DEFAULT_ON_GAP
     ready_timeout_s: float = READY_TIMEOUT_S
     output: OutputConfig = OutputConfig()
+
+
+def check_log_rotation(path: str | None, limits: tuple[int, float], option: str) -> None:
+    """Refuse, before any work, a rotation the log cannot have: no log, a format python-can
+    does not rotate, parts of an earlier rotated log in the way (they would be mixed with the
+    new ones)."""
+    from northfinder.driver.framelog import check_rotation, log_parts
+
+    max_bytes, max_seconds = limits
+    if not (max_bytes or max_seconds):
+        return
+    if path is None:
+        raise HostConfigError(f"{option}-rotate: rotates a log; give {option} FILE")
+    try:
+        check_rotation(path, max_bytes, max_seconds)
+    except ArgumentError as exc:
+        raise HostConfigError(f"{option} {exc}") from None
+    old = log_parts(path)
+    if old:
+        raise HostConfigError(
+            f"{option} {path}: {len(old)} part(s) of an earlier rotated log are in the way "
+            f"({old[0].name} ...); move them or choose another name"
+        )

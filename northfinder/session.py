@@ -31,12 +31,14 @@ from northfinder.config import (
     FindConfig,
     LinkConfig,
     SimConfig,
+    check_log_rotation,
 )
 from northfinder.driver.device import Device
 from northfinder.driver.device_link import REPLY_TIMEOUT_S
 from northfinder.driver.errors import DriverError, LinkError
 from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
+from northfinder.endings import note_at_rest, note_ending
 from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.procedure import (
     FindProgress,
@@ -133,8 +135,6 @@ def check_link(link: LinkConfig) -> None:
         raise HostConfigError(
             "choose exactly one device: -i/-c (python-can), --serial PORT, or --sim"
         )
-    from northfinder.cli.files import check_log_rotation
-
     check_log_rotation(link.can_log, link.can_log_rotate, "--can-log")
 
 
@@ -272,7 +272,6 @@ def open_bus(link: LinkConfig) -> Any:
 def leaving_at_rest(device: Device) -> Iterator[None]:
     """On any exception, Ctrl-C or an ending signal: leave the device at rest now (STOP, STREAM_STOP
     for what this host started) and note on the exception what was done, for its one line."""
-    from northfinder.cli.exits import note_at_rest
 
     try:
         yield
@@ -411,8 +410,6 @@ def find(
             )  # fmt: skip
         except BaseException as exc:
             if writer is not None:
-                from northfinder.cli.exits import note_ending
-
                 note_ending(exc, _close_interrupted(writer))
             raise
         finally:
@@ -458,8 +455,6 @@ def find_spin(
             )  # fmt: skip
         except BaseException as exc:
             if on_ending is not None:
-                from northfinder.cli.exits import note_ending
-
                 known = SpinMeasured(None, latitude, source, truth, identity)  # type: ignore[arg-type]
                 note_ending(exc, on_ending(exc, known))
             raise

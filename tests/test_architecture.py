@@ -317,3 +317,14 @@ def test_the_configuration_is_below_every_other_application_module():
         if a == "northfinder.config" and not under(b, *LIBRARY) and b != "northfinder.config"
     ]
     assert not above, above
+
+
+def test_the_session_layer_is_below_the_command_line():
+    """``northfinder.session`` opens and runs a unit for the command line, the monitor, the
+    pytest plugin and scripts alike: it never imports the command line (what it notes as a run
+    ends is in ``northfinder.endings``, the checks of a link's log in ``northfinder.config``)."""
+    edges = {(a, b) for a, b, _ in imports_of("northfinder")}
+    assert ("northfinder.cli.measure", "northfinder.session") in edges  # the edges were read
+    for low in ("northfinder.session", "northfinder.endings", "northfinder.config"):
+        up = [(a, b) for a, b in edges if a == low and under(b, "northfinder.cli")]
+        assert not up, up

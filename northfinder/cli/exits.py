@@ -25,12 +25,12 @@ that names its type, and ``--debug`` shows its traceback.
 
 from __future__ import annotations
 
-import contextlib
 import sys
 from collections.abc import Mapping
-from typing import Any, TextIO
+from typing import TextIO
 
 from northfinder.driver.errors import ArgumentError, DriverError
+from northfinder.endings import ending_of
 from northfinder.firmware_sim.errors import ControlRefused, SimConfigError, SimError
 from northfinder.host.errors import (
     DenoiseError,
@@ -56,34 +56,6 @@ class SignalInterrupt(KeyboardInterrupt):
     def __init__(self, signum: int) -> None:
         super().__init__(signum)
         self.signum = int(signum)
-
-
-def note_ending(exc: BaseException, clause: str) -> None:
-    """Remember on ``exc`` a clause of what was done as the command ended (the device left at
-    rest, the windows kept), for the one line that reports ``exc``."""
-    with contextlib.suppress(AttributeError, TypeError):
-        clauses = exc.__dict__.setdefault("northfinder_ending", [])
-        clauses.append(clause)
-
-
-def note_at_rest(exc: BaseException, rest: Any) -> None:
-    """:func:`note_ending` with what was done to leave the device at rest (an
-    :class:`~northfinder.driver.device_link.AtRest`), if there was anything to undo."""
-    if rest.needed:
-        note_ending(exc, rest.summary())
-
-
-def ending_of(exc: BaseException) -> str | None:
-    """The clauses :func:`note_ending` remembered on ``exc`` and the errors in its chain, joined
-    (``sent STOP; the unit reads SETTLING; kept 3 of 4 windows in run.csv``); None if none."""
-    clauses: list[str] = []
-    seen: set[int] = set()
-    current: BaseException | None = exc
-    while current is not None and id(current) not in seen:
-        clauses += getattr(current, "northfinder_ending", [])
-        seen.add(id(current))
-        current = current.__cause__ or current.__context__
-    return "; ".join(clauses) if clauses else None
 
 
 #: Exception class -> exit status. The first class of an error's MRO found here decides, so a

@@ -34,7 +34,6 @@ def check_output_path(path: str, option: str, suffixes: tuple[str, ...] = ()) ->
 
 def can_log_path(text: str) -> str:
     """argparse type: a CAN log file name whose ending names one of python-can's formats."""
-    from northfinder.driver.errors import ArgumentError
     from northfinder.driver.framelog import log_suffix
 
     try:
@@ -86,26 +85,3 @@ def add_log_rotation(group: Any, option: str) -> None:
         f"{option}-rotate", type=rotation_limits, default=(0, 0.0), metavar="AT",
         help="new part at a size or an age: 10M, 1h or 10M,1h",
     )  # fmt: skip
-
-
-def check_log_rotation(path: str | None, limits: tuple[int, float], option: str) -> None:
-    """Refuse, before any work, a rotation the log cannot have: no log, a format python-can
-    does not rotate, parts of an earlier rotated log in the way (they would be mixed with the
-    new ones)."""
-    from northfinder.driver.framelog import check_rotation, log_parts
-
-    max_bytes, max_seconds = limits
-    if not (max_bytes or max_seconds):
-        return
-    if path is None:
-        raise HostConfigError(f"{option}-rotate: rotates a log; give {option} FILE")
-    try:
-        check_rotation(path, max_bytes, max_seconds)
-    except ArgumentError as exc:
-        raise HostConfigError(f"{option} {exc}") from None
-    old = log_parts(path)
-    if old:
-        raise HostConfigError(
-            f"{option} {path}: {len(old)} part(s) of an earlier rotated log are in the way "
-            f"({old[0].name} ...); move them or choose another name"
-        )

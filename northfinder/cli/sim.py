@@ -18,10 +18,11 @@ from typing import Any
 import numpy as np
 
 from northfinder.cli.argtypes import bounded_float, bounded_int
-from northfinder.cli.files import add_log_rotation, can_log_path, check_log_rotation
+from northfinder.cli.files import add_log_rotation, can_log_path
 from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus, open_serial_option
 from northfinder.cli.options import add_sensor_argument, add_truth_arguments
 from northfinder.cli.simulated import load_sensor, run_seed, sim_truth
+from northfinder.config import check_log_rotation
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT
 from northfinder.firmware_sim.adapters import (
