@@ -982,9 +982,17 @@ def _split(
             f"{p}: {len(numbers)} windows; a recording holds at most {MAX_WINDOWS} (split the "
             "session)"
         )
+    # A recording's windows are stored one after the other: each is then a slice of the arrays
+    # read (no copy of a recording of hours); rows of windows mixed are picked out.
+    stored_in_order = bool(np.all(window_index[1:] >= window_index[:-1]))
+    bounds = np.searchsorted(
+        window_index, np.append(numbers, numbers[-1] + 1) if len(numbers) else numbers
+    )
     windows = []
-    for w in numbers:
-        sel = window_index == w
+    for k, w in enumerate(numbers):
+        sel: Any = (
+            slice(int(bounds[k]), int(bounds[k + 1])) if stored_in_order else window_index == w
+        )
         commanded = arrays["commanded_deg"][sel]
         if not math.isfinite(float(commanded[0])) or np.ptp(commanded) != 0:
             raise RecordingError(f"{p}: window {int(w)} has more than one commanded angle")
