@@ -52,6 +52,7 @@ from northfinder.firmware_sim.error_terms import (
     FLICKER_STD,
     FLICKER_TAUS_S,
     ErrorTerms,
+    TurnOnDraws,
     check_sample_rate,
     draw_move,
     draw_turn_on,
@@ -346,6 +347,227 @@ def _check_channels(channels: Sequence[int] | None) -> tuple[int, ...]:
     return chans
 
 
+def _table_angles(
+    tab: TableSpec,
+    pos_deg: NDArray[np.float64],
+    delta: NDArray[np.float64],
+    table_rng: np.random.Generator,
+    n_runs: int,
+) -> NDArray[np.float64]:
+    """True continuous table angle of every window (R, P), deg: the commanded angle as reached
+    the shorter way, plus the last stop's indexing error."""
+    pc = delta.size
+    idx_err = np.zeros((n_runs, pc))
+    moved = delta != 0.0
+    if tab.indexing_error_deg and moved.any():
+        idx_err[:, moved] = table_rng.normal(0.0, tab.indexing_error_deg, (n_runs, moved.sum()))
+        # A repeated position needs no move: the table keeps the error of its last stop.
+        last_stop = np.maximum.accumulate(np.where(moved, np.arange(pc), 0))
+        idx_err = idx_err[:, last_stop]
+    angle = pos_deg[0] + np.cumsum(delta)
+    return angle[None, :] + idx_err  # (R, P)
+
+
+def _window_signal(
+    tab: TableSpec,
+    terms: ErrorTerms,
+    truths: tuple[NDArray[np.float64], ...],
+    true_angle: NDArray[np.float64],
+    draws: TurnOnDraws,
+) -> tuple[NDArray[np.float64], _Matrices | None]:
+    """The noise-free signal of every window (R, P, 6): the Earth rate and gravity through the
+    table (its angle ``true_angle`` and tilt) and the sensor error matrices; with the matrices."""
+    az, lat, pitch, roll = truths
+    c_nb = mat_nb(alpha_from_azimuth(az), np.radians(pitch), np.radians(roll))  # (R, 3, 3)
+    lat_r = np.radians(lat)
+    omega_b = np.einsum("rij,rj->ri", c_nb, earth_rate_n(lat_r))
+    grav = np.asarray(normal_gravity(lat_r), dtype=float).reshape(-1)
+    f_b = c_nb[:, :, 2] * grav[:, None]
+    mu = np.radians(true_angle)
+    cm, sm = np.cos(mu), np.sin(mu)
+
+    def _rotate(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        x = cm * v[:, 0, None] + sm * v[:, 1, None]
+        y = -sm * v[:, 0, None] + cm * v[:, 1, None]
+        return np.stack([x, y, np.broadcast_to(v[:, 2, None], x.shape)], axis=-1)  # (R, P, 3)
+
+    true = np.concatenate([_rotate(omega_b), _rotate(f_b)], axis=-1)  # (R, P, 6)
+    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
+    if wob is not None:  # the table top's tilt, as the instrument's
+        true = np.concatenate([true[..., :3] @ wob.T, true[..., 3:] @ wob.T], axis=-1)
+    mats = terms.matrices(draws) if terms.has_matrix else None
+    if mats is not None:
+        # Instrument: out = true @ M.T, i.e. out_i = sum_j M_ij true_j.
+        true = np.concatenate(
+            [
+                np.einsum("rij,rpj->rpi", mats[0], true[..., :3]),
+                np.einsum("rij,rpj->rpi", mats[1], true[..., 3:]),
+            ],
+            axis=-1,
+        )
+    return true, mats
+
+
+def _add_slow_terms(
+    data: NDArray[np.float64],
+    chans: tuple[int, ...],
+    tl: _Timeline,
+    terms: ErrorTerms,
+    true: NDArray[np.float64],
+    base: NDArray[np.float64],
+    mats: _Matrices | None,
+    slow: np.random.Generator,
+) -> None:
+    """Write into ``data`` (6, R, P, n) the terms that are slow in time, one low-rank product per
+    channel and window: turn-on signal and bias ``base`` (per run), drift of time (per sample),
+    the post-stop ring-down (linearised in the angle: per run times per sample) and slow noise
+    on its coarse grid."""
+    _, n_runs, pc, n = data.shape
+    ring_deriv, ring_rate = _ring_coefficients(true, mats, tl.ringing)
+    slow_chans = [ch for ch in chans if terms.flicker_b[ch] + terms.walk_k[ch]]
+    coarse = (
+        _slow_grid(slow, tl.grid, n_runs, terms.flicker_b[slow_chans], terms.walk_k[slow_chans])
+        if slow_chans
+        else []
+    )
+    ones = np.ones(max(n, n_runs))
+    for ch in chans:
+        for p in range(pc):
+            cols, rows = [base[:, p, ch]], [ones[:n]]
+            if tl.ringing[p]:
+                cols.append(ring_deriv[:, p, ch])
+                rows.append(tl.ring_dmu[p])
+                if ring_rate is not None and ch < 3:
+                    cols.append(ring_rate[:, ch])
+                    rows.append(tl.ring_rate[p])
+            if tl.drift is not None and tl.drift[ch, p].any():
+                cols.append(ones[:n_runs])
+                rows.append(tl.drift[ch, p])
+            a, b = np.stack(cols, axis=1), np.stack(rows)  # (R, k), (k, n)
+            dst = data[ch, :, p]  # (R, n)
+            if ch in slow_chans:
+                c = coarse[p][slow_chans.index(ch)]  # (R, m)
+                for s0, s1, j0, j1, w in tl.grid[p].blocks:
+                    np.matmul(
+                        np.concatenate([a, c[:, j0:j1]], axis=1),
+                        np.concatenate([b[:, s0:s1], w]),
+                        out=dst[:, s0:s1],
+                    )
+            else:
+                np.matmul(a, b, out=dst)
+
+
+def _add_white_noise(
+    data: NDArray[np.float64],
+    chans: tuple[int, ...],
+    terms: ErrorTerms,
+    fs: float,
+    white: np.random.Generator,
+) -> None:
+    """Add white noise (ARW, VRW) to ``data`` (6, R, P, n), channel by channel."""
+    _, n_runs, pc, n = data.shape
+    white_sigma = terms.white_sigma(fs)
+    scratch = np.empty((n_runs, pc, n))
+    for ch in chans:
+        if white_sigma[ch]:
+            white.standard_normal(out=scratch)
+            # y += a x in one pass over memory.
+            daxpy(scratch.reshape(-1), data[ch].reshape(-1), a=white_sigma[ch])
+
+
+def _add_move_terms(
+    data: NDArray[np.float64],
+    chans: tuple[int, ...],
+    tl: _Timeline,
+    terms: ErrorTerms,
+    fs: float,
+    moves_rng: np.random.Generator,
+) -> None:
+    """Add to ``data`` (6, R, P, n) the bias steps and transients that moves start."""
+    moved = tl.delta != 0.0
+    if not (terms.has_move_terms and moved.any()):
+        return
+    n_runs, pc, n, starts = data.shape[1], data.shape[2], tl.n, tl.starts
+    # Each move starts at the end of the window before it (plan_timeline).
+    move_start = (starts[moved.nonzero()[0] - 1] + n) / fs
+    z = draw_move(moves_rng, (n_runs, int(moved.sum())))
+    size = move_heat(move_start, tl.delta[moved], terms.move_heat_tau_s)
+    done = np.cumsum(moved)  # moves made before each window
+    for p in range(pc):
+        if done[p]:
+            m = done[p]
+            bias = move_bias(terms, tl.t[p], move_start[:m], size[:m], z[:, :m])  # (R, n, 6)
+            for ch in chans:
+                data[ch, :, p] += bias[..., ch]
+
+
+def _add_disturbances(
+    data: NDArray[np.float64],
+    chans: tuple[int, ...],
+    t: NDArray[np.float64],
+    fs: float,
+    spec: SensorSpec,
+    terms: ErrorTerms,
+    vib_phase: NDArray[np.float64],
+    impulses: np.random.Generator,
+    bias_step_dph: float,
+) -> None:
+    """Add to ``data`` (6, R, P, n) the impulses, the vibration line and the optional bias step
+    (sample end times ``t``, (P, n))."""
+    n_runs, d = data.shape[1], spec.disturbance
+    if d.impulse_rate_hz > 0 and terms.impulse_amp.any():
+        _add_impulses(
+            data,
+            chans,
+            impulses,
+            t,
+            fs,
+            d.impulse_rate_hz,
+            d.impulse_duration_s,
+            terms.impulse_amp,
+        )
+    if d.vibration_hz > 0 and terms.vibration_amp.any():
+        for ch in map(int, np.flatnonzero(terms.vibration_amp)):
+            if ch in chans:
+                data[ch] += vibration(
+                    t[None],
+                    d.vibration_hz,
+                    terms.vibration_amp[ch],
+                    vib_phase[:, ch, None, None],
+                )
+    if bias_step_dph:
+        t_step = impulses.uniform(t[0, 0] - 1.0 / fs, t[-1, -1], n_runs)
+        v = impulses.standard_normal((n_runs, 3))
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        # The step applies from the first sample whose interval starts after it.
+        on = (t[None] - 1.0 / fs) >= t_step[:, None, None]  # (R, P, n)
+        for ch in chans:
+            if ch < 3:
+                data[ch] += (bias_step_dph * DPH * v[:, ch])[:, None, None] * on
+
+
+def _range_and_quantise(
+    data: NDArray[np.float64],
+    chans: tuple[int, ...],
+    terms: ErrorTerms,
+    turn_on: np.random.Generator,
+) -> None:
+    """Clip ``data`` (6, R, P, n) to the sensors' range and quantise it, in place."""
+    _, n_runs, pc, _ = data.shape
+    for ch in chans:
+        chan, limit = data[ch], terms.range[ch]
+        if chan.max() > limit or chan.min() < -limit:
+            np.clip(chan, -limit, limit, out=chan)
+    lsb = terms.lsb
+    if lsb.any():
+        # What the samples before each window left over.
+        remainder = turn_on.uniform(-0.5, 0.5, (n_runs, pc, 6))
+        for ch in map(int, np.flatnonzero(lsb)):
+            if ch in chans:
+                counts, _ = quantise_carry(data[ch] / lsb[ch], remainder[:, :, ch])
+                data[ch] = counts * lsb[ch]
+
+
 def simulate_windows(
     spec: SensorSpec,
     truth: Truth | Sequence[Truth],
@@ -412,174 +634,36 @@ def simulate_windows(
     if settle_s is not None:
         settle_s = _check_positive("settle_s", settle_s, allow_zero=True)
     tl = _timeline(spec, tuple(pos_deg.tolist()), window_s, settle_s, warmup_s, fs)
-    starts, n, delta, t = tl.starts, tl.n, tl.delta, tl.t
+    starts, n = tl.starts, tl.n
     bias_step_dph = _check_positive("bias_step_dph", bias_step_dph, allow_zero=True)
-    pc = starts.size
-    commanded = np.mod(pos_deg, 360.0)
-    tab, d = spec.table, spec.disturbance
     terms = _error_terms(spec)
-    az, lat, pitch, roll = _truth_arrays(truth, n_runs)
+    truths = _truth_arrays(truth, n_runs)
     turn_on, white, slow, impulses, table_rng, moves_rng = rng.spawn(6)
 
-    # -- noise-free signal through the table and the sensor error matrices --------------------
-    c_nb = mat_nb(alpha_from_azimuth(az), np.radians(pitch), np.radians(roll))  # (R, 3, 3)
-    lat_r = np.radians(lat)
-    omega_b = np.einsum("rij,rj->ri", c_nb, earth_rate_n(lat_r))
-    grav = np.asarray(normal_gravity(lat_r), dtype=float).reshape(-1)
-    f_b = c_nb[:, :, 2] * grav[:, None]
-    idx_err = np.zeros((n_runs, pc))
-    moved = delta != 0.0
-    if tab.indexing_error_deg and moved.any():
-        idx_err[:, moved] = table_rng.normal(0.0, tab.indexing_error_deg, (n_runs, moved.sum()))
-        # A repeated position needs no move: the table keeps the error of its last stop.
-        last_stop = np.maximum.accumulate(np.where(moved, np.arange(pc), 0))
-        idx_err = idx_err[:, last_stop]
-    # Continuous angle: the commanded angle as reached the shorter way, plus the last stop's error.
-    angle = pos_deg[0] + np.cumsum(delta)
-    true_angle = angle[None, :] + idx_err  # (R, P)
-    mu = np.radians(true_angle)
-    cm, sm = np.cos(mu), np.sin(mu)
-
-    def _rotate(v: NDArray[np.float64]) -> NDArray[np.float64]:
-        x = cm * v[:, 0, None] + sm * v[:, 1, None]
-        y = -sm * v[:, 0, None] + cm * v[:, 1, None]
-        return np.stack([x, y, np.broadcast_to(v[:, 2, None], x.shape)], axis=-1)  # (R, P, 3)
-
-    true = np.concatenate([_rotate(omega_b), _rotate(f_b)], axis=-1)  # (R, P, 6)
-    wob = wobble_matrix(tab.wobble_urad, tab.wobble_phase_deg)
-    if wob is not None:  # the table top's tilt, as the instrument's
-        true = np.concatenate([true[..., :3] @ wob.T, true[..., 3:] @ wob.T], axis=-1)
+    true_angle = _table_angles(spec.table, pos_deg, tl.delta, table_rng, n_runs)  # (R, P)
     draws = draw_turn_on(turn_on, (n_runs,))
-    mats = terms.matrices(draws) if terms.has_matrix else None
-    if mats is not None:
-        # Instrument: out = true @ M.T, i.e. out_i = sum_j M_ij true_j.
-        true = np.concatenate(
-            [
-                np.einsum("rij,rpj->rpi", mats[0], true[..., :3]),
-                np.einsum("rij,rpj->rpi", mats[1], true[..., 3:]),
-            ],
-            axis=-1,
-        )
+    true, mats = _window_signal(spec.table, terms, truths, true_angle, draws)
     base = true + terms.turn_on(draws.z_bias)[:, None, :]  # (R, P, 6)
-
     # Channel-major memory: every (runs, positions, samples) block of one channel is contiguous.
-    data = np.empty((6, n_runs, pc, n))
+    data = np.empty((6, n_runs, starts.size, n))
     for ch in set(ALL_CHANNELS) - set(chans):
         data[ch] = np.nan
-    # -- the terms that are slow in time: one low-rank product per channel and window ---------
-    # Turn-on signal and bias (per run), drift of time (per sample), the post-stop ring-down
-    # (linearised in the angle: per run times per sample) and slow noise on its coarse grid.
-    ring_deriv, ring_rate = _ring_coefficients(true, mats, tl.ringing)
-    slow_chans = [ch for ch in chans if terms.flicker_b[ch] + terms.walk_k[ch]]
-    coarse = (
-        _slow_grid(slow, tl.grid, n_runs, terms.flicker_b[slow_chans], terms.walk_k[slow_chans])
-        if slow_chans
-        else []
-    )
-    ones = np.ones(max(n, n_runs))
-    for ch in chans:
-        for p in range(pc):
-            cols, rows = [base[:, p, ch]], [ones[:n]]
-            if tl.ringing[p]:
-                cols.append(ring_deriv[:, p, ch])
-                rows.append(tl.ring_dmu[p])
-                if ring_rate is not None and ch < 3:
-                    cols.append(ring_rate[:, ch])
-                    rows.append(tl.ring_rate[p])
-            if tl.drift is not None and tl.drift[ch, p].any():
-                cols.append(ones[:n_runs])
-                rows.append(tl.drift[ch, p])
-            a, b = np.stack(cols, axis=1), np.stack(rows)  # (R, k), (k, n)
-            dst = data[ch, :, p]  # (R, n)
-            if ch in slow_chans:
-                c = coarse[p][slow_chans.index(ch)]  # (R, m)
-                for s0, s1, j0, j1, w in tl.grid[p].blocks:
-                    np.matmul(
-                        np.concatenate([a, c[:, j0:j1]], axis=1),
-                        np.concatenate([b[:, s0:s1], w]),
-                        out=dst[:, s0:s1],
-                    )
-            else:
-                np.matmul(a, b, out=dst)
-    # -- white noise (ARW, VRW), channel by channel --------------------------------------------
-    white_sigma = terms.white_sigma(fs)
-    scratch = np.empty((n_runs, pc, n))
-    for ch in chans:
-        if white_sigma[ch]:
-            white.standard_normal(out=scratch)
-            # y += a x in one pass over memory.
-            daxpy(scratch.reshape(-1), data[ch].reshape(-1), a=white_sigma[ch])
-    del scratch
-
-    # -- disturbances that moves start --------------------------------------------------------
-    if terms.has_move_terms and moved.any():
-        # Each move starts at the end of the window before it (plan_timeline).
-        move_start = (starts[moved.nonzero()[0] - 1] + n) / fs
-        z = draw_move(moves_rng, (n_runs, int(moved.sum())))
-        size = move_heat(move_start, delta[moved], terms.move_heat_tau_s)
-        done = np.cumsum(moved)  # moves made before each window
-        for p in range(pc):
-            if done[p]:
-                m = done[p]
-                bias = move_bias(terms, t[p], move_start[:m], size[:m], z[:, :m])  # (R, n, 6)
-                for ch in chans:
-                    data[ch, :, p] += bias[..., ch]
-
-    # -- impulses, vibration, bias step -------------------------------------------------------
-    if d.impulse_rate_hz > 0 and terms.impulse_amp.any():
-        _add_impulses(
-            data,
-            chans,
-            impulses,
-            t,
-            fs,
-            d.impulse_rate_hz,
-            d.impulse_duration_s,
-            terms.impulse_amp,
-        )
-    if d.vibration_hz > 0 and terms.vibration_amp.any():
-        for ch in map(int, np.flatnonzero(terms.vibration_amp)):
-            if ch in chans:
-                data[ch] += vibration(
-                    t[None],
-                    d.vibration_hz,
-                    terms.vibration_amp[ch],
-                    draws.vib_phase[:, ch, None, None],
-                )
-    if bias_step_dph:
-        t_step = impulses.uniform(t[0, 0] - 1.0 / fs, t[-1, -1], n_runs)
-        v = impulses.standard_normal((n_runs, 3))
-        v /= np.linalg.norm(v, axis=1, keepdims=True)
-        # The step applies from the first sample whose interval starts after it.
-        on = (t[None] - 1.0 / fs) >= t_step[:, None, None]  # (R, P, n)
-        for ch in chans:
-            if ch < 3:
-                data[ch] += (bias_step_dph * DPH * v[:, ch])[:, None, None] * on
-
-    # -- range and quantisation ---------------------------------------------------------------
-    for ch in chans:
-        chan, limit = data[ch], terms.range[ch]
-        if chan.max() > limit or chan.min() < -limit:
-            np.clip(chan, -limit, limit, out=chan)
-    lsb = terms.lsb
-    if lsb.any():
-        # What the samples before each window left over.
-        remainder = turn_on.uniform(-0.5, 0.5, (n_runs, pc, 6))
-        for ch in map(int, np.flatnonzero(lsb)):
-            if ch in chans:
-                counts, _ = quantise_carry(data[ch] / lsb[ch], remainder[:, :, ch])
-                data[ch] = counts * lsb[ch]
+    _add_slow_terms(data, chans, tl, terms, true, base, mats, slow)
+    _add_white_noise(data, chans, terms, fs, white)
+    _add_move_terms(data, chans, tl, terms, fs, moves_rng)
+    _add_disturbances(data, chans, tl.t, fs, spec, terms, draws.vib_phase, impulses, bias_step_dph)
+    _range_and_quantise(data, chans, terms, turn_on)
 
     # The encoder's periodic error and resolution (the table's own reading).
-    enc = encoder_reading_deg(tab, true_angle + tl.ring_offset_deg[None, :])
+    enc = encoder_reading_deg(spec.table, true_angle + tl.ring_offset_deg[None, :])
     view = np.moveaxis(data, 0, -1)  # (R, P, n, 6), channel-minor view of channel-major memory
     plan_time = (starts[-1] + n - starts[0]) / fs
     return BatchWindows(
         gyro_rps=view[..., :3],
         accel_mps2=view[..., 3:],
         table_deg=np.mod(enc, 360.0),
-        commanded_deg=commanded,
-        azimuth_deg=np.mod(az, 360.0),
+        commanded_deg=np.mod(pos_deg, 360.0),
+        azimuth_deg=np.mod(truths[0], 360.0),
         window_start_s=starts / fs,
         sample_rate_hz=fs,
         plan_time_s=float(plan_time),
