@@ -499,7 +499,8 @@ class Instrument:
             u[on] = self._heat_rng.standard_normal((int(on.sum()), 2, 6)) * std[on]
         from scipy.signal import lfilter  # imported when first needed: it takes a second
 
-        walks = walk + np.cumsum(u[:, 0, :], axis=0)
+        # The walk summed from its last value, as sample-by-sample steps would sum it.
+        walks = np.cumsum(np.concatenate([walk[None, :], u[:, 0, :]]), axis=0)[1:]
         transients = np.empty((t.size, 6))
         for ch in range(6):
             if trans[ch] or u[:, 1, ch].any():
