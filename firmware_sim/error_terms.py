@@ -82,6 +82,7 @@ __all__ = [
     "slow_noise_steps",
     "slow_noise_window",
     "spin_heat_bias",
+    "spin_heat_decay",
     "spin_heat_innovations",
     "temperature_c",
     "triad_matrices",
@@ -444,7 +445,7 @@ def spin_heat_innovations(
     Returns
     -------
     phi : (6,) float
-        The transient's decay over one sample (0 on channels without move terms).
+        The transient's decay over one sample (1 on a channel without a time constant).
     std : (n, 2, 6) float
         Standard deviations (SI) of each sample's innovation of the walk (row 0) and of the
         transient (row 1), decayed to the sample's end; zero where the table does not turn
@@ -455,8 +456,8 @@ def spin_heat_innovations(
     spins = [sp for sp in spins if sp[0] < t[-1] and sp[1] > lo[0] and sp[1] > sp[0]]
     if spin_heat <= 0.0 or not spins or not terms.has_move_terms:
         return None
+    phi = spin_heat_decay(terms, fs)
     tau = np.where(terms.move_tau_s > 0, terms.move_tau_s, np.inf)
-    phi = np.exp(-step / tau)
     chans = np.flatnonzero(terms.move_transient + terms.move_walk)
     var = np.zeros((t.size, 2, 6))
     for start, end, rate in spins:
@@ -477,6 +478,11 @@ def spin_heat_innovations(
     std[:, 0, :] *= terms.move_walk
     std[:, 1, :] *= terms.move_transient
     return phi, std
+
+
+def spin_heat_decay(terms: ErrorTerms, fs: float) -> NDArray[np.float64]:
+    """The decay of the spin heat's transient over one sample of ``fs`` Hz, (6,)."""
+    return np.exp(-1.0 / (fs * np.where(terms.move_tau_s > 0, terms.move_tau_s, np.inf)))
 
 
 def _heat_step(

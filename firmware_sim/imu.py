@@ -36,6 +36,7 @@ from northfinder.firmware_sim.error_terms import (
     quantise_carry,
     random_directions,
     slow_noise_steps,
+    spin_heat_decay,
     spin_heat_innovations,
     temperature_c,
     vibration,
@@ -491,7 +492,7 @@ class Instrument:
             if not (walk.any() or trans.any()):
                 return
             u = np.zeros((t.size, 2, 6))
-            phi = np.exp(-1.0 / (self.sample_rate_hz * terms.move_tau_s))
+            phi = spin_heat_decay(terms, self.sample_rate_hz)
         else:
             phi, std = steps
             on = std.any(axis=(1, 2))

@@ -275,7 +275,9 @@ class Turntable:
         encoder disagree with the command.
         """
         if stalled:
+            ramps = len(self._ramps)
             self.stop(t)
+            del self._ramps[ramps:]  # a jammed table does not brake: no braking ramp
             # A jammed table stops at once, not on a deceleration ramp.
             angle = float(self.state(t)[0])
             self._segments = [_Segment(-math.inf, angle, 0.0, 0.0)]
