@@ -1,7 +1,7 @@
 """North finding on a turning table: RMSE against the spin bound, spin against stop-and-go for the
 same time, and the time of ``find --sim --spin``.
 
-Run: ``.venv/bin/python benchmarks/bench_spin.py [--runs 10000] [--only ratio|budget|find]``.
+Run: ``.venv/bin/python benchmarks/bench_spin.py [--runs 10000] [--only ratio|budget|find|sigma|heat]``.
 Prints markdown tables:
 
 1. RMSE / bound for white gyro (ARW 0.0015 deg/sqrt(h)) and accelerometer (20 ug/sqrt(Hz)) noise,
@@ -17,6 +17,10 @@ Prints markdown tables:
 4. Sigma: for every preset, the planner's best spin of a 160 s budget solved run by run
    (:func:`~northfinder.host.spin.solve_spin`, 120 s after power-on, 50 Hz): the RMSE with its
    95 % chi-square interval, the mean reported sigma and their ratio (target 0.95 to 1.05).
+5. The drive's heat in the step-by-step instrument: ``paper-prototype`` (``spin_heat`` 1) and
+   the same with ``spin_heat`` 0, one turn at 6 deg/s 30 s after power-on, 20 Hz: the RMSE of
+   the instrument's spins (``tests/test_spin_heat.py``, run by run as ``find --spin`` solves),
+   that of the batch generator's (``simulate_spin``) and the prediction, with 95 % intervals.
 """
 
 from __future__ import annotations
@@ -157,10 +161,48 @@ def sigma_rows(runs: int) -> None:
               flush=True)  # fmt: skip
 
 
+def heat_rows(runs: int) -> None:
+    from scipy.stats import chi2
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from test_spin_heat import instrument_spin_errors
+
+    from northfinder.host.accuracy import predict
+    from northfinder.host.plan import SpinPlan
+    from northfinder.simwindows import error_model
+
+    rate, spin_s, warmup_s, fs = 6.0, 60.0, 30.0, 20.0
+
+    def cell(e: np.ndarray) -> str:
+        rmse = math.sqrt(float(np.mean(e**2)))
+        lo, hi = (rmse * math.sqrt(e.size / chi2.ppf(q, e.size)) for q in (0.975, 0.025))
+        return f"{rmse:.4f} [{lo:.4f}, {hi:.4f}]"
+
+    print("| preset | spin_heat | runs | instrument RMSE deg [95 %] | batch RMSE deg [95 %] | "
+          "predicted deg |")  # fmt: skip
+    print("|---|---:|---:|---|---|---:|")
+    for spin_heat in (1.0, 0.0):
+        spec = load_spec("paper-prototype").with_values({"table.spin_heat": spin_heat})
+        ins = instrument_spin_errors(spec, runs, rate=rate, spin_s=spin_s, warmup_s=warmup_s,
+                                     fs=fs)  # fmt: skip
+        rng = np.random.default_rng(23)
+        truths = [Truth(azimuth_deg=a, latitude_deg=LAT) for a in rng.uniform(0, 360, runs)]
+        b = simulate_spin(spec, truths, rate, spin_s, n_runs=runs, rng=rng, sample_rate_hz=fs,
+                          start_s=warmup_s + rate / spec.table.max_accel_dps2)  # fmt: skip
+        enc = (b.mu0_rad, b.mu1_rad) if b.encoder_rad is None else (
+            b.encoder_rad[:, :-1], b.encoder_rad[:, 1:])  # fmt: skip
+        az = solve_spin_batch(b.gyro_rps, b.accel_mps2, *enc, latitude_deg=LAT)
+        batch = (az - b.azimuth_deg + 180.0) % 360.0 - 180.0
+        pred = predict(error_model(spec), SpinPlan(rate, spin_s), LAT, warmup_s=warmup_s,
+                       sample_rate_hz=fs).sigma_deg  # fmt: skip
+        print(f"| paper-prototype | {spin_heat:g} | {runs} | {cell(ins)} | {cell(batch)} | "
+              f"{pred:.4f} |", flush=True)  # fmt: skip
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=10_000)
-    p.add_argument("--only", choices=("ratio", "budget", "find", "sigma"))
+    p.add_argument("--only", choices=("ratio", "budget", "find", "sigma", "heat"))
     a = p.parse_args()
     if a.only in (None, "ratio"):
         ratio_rows(a.runs)
@@ -170,6 +212,8 @@ def main() -> None:
         find_rows()
     if a.only in (None, "sigma"):
         sigma_rows(min(a.runs, 400))
+    if a.only in (None, "heat"):
+        heat_rows(min(a.runs, 400))
 
 
 if __name__ == "__main__":

@@ -82,6 +82,8 @@ __all__ = [
     "slow_noise_steps",
     "slow_noise_window",
     "spin_heat_bias",
+    "spin_heat_decay",
+    "spin_heat_innovations",
     "temperature_c",
     "triad_matrices",
     "vibration",
@@ -416,6 +418,82 @@ def spin_heat_bias(
             z[:, 1:] *= math.sqrt(q)
             out[..., ch] += amp * lfilter([1.0], [1.0, -a], z, axis=-1)[:, 1:]
     return out
+
+
+def spin_heat_innovations(
+    terms: ErrorTerms,
+    spin_heat: float,
+    spins: list[tuple[float, float, float]],
+    t: NDArray[np.float64],
+    fs: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The steady turning's part of the drive's heat over samples at times ``t`` (the instrument's
+    step-by-step form of :func:`spin_heat_bias`; the ramps are moves of their own).
+
+    Parameters
+    ----------
+    terms : ErrorTerms
+    spin_heat : float
+        The table's ``spin_heat``.
+    spins : list of (start s, end s, rate deg/s)
+        Intervals of steady turning (:attr:`~northfinder.firmware_sim.turntable.Turntable.spins`).
+    t : (n,) float
+        Sample times, s; sample ``k`` covers ``(t_k - 1/fs, t_k]``.
+    fs : float
+        Sample rate, Hz.
+
+    Returns
+    -------
+    phi : (6,) float
+        The transient's decay over one sample (1 on a channel without a time constant).
+    std : (n, 2, 6) float
+        Standard deviations (SI) of each sample's innovation of the walk (row 0) and of the
+        transient (row 1), decayed to the sample's end; zero where the table does not turn
+        steadily. None when nothing turns steadily within ``t`` or ``spin_heat`` is 0.
+    """
+    step = 1.0 / fs
+    lo = t - step
+    spins = [sp for sp in spins if sp[0] < t[-1] and sp[1] > lo[0] and sp[1] > sp[0]]
+    if spin_heat <= 0.0 or not spins or not terms.has_move_terms:
+        return None
+    phi = spin_heat_decay(terms, fs)
+    tau = np.where(terms.move_tau_s > 0, terms.move_tau_s, np.inf)
+    chans = np.flatnonzero(terms.move_transient + terms.move_walk)
+    var = np.zeros((t.size, 2, 6))
+    for start, end, rate in spins:
+        a, b = np.maximum(lo, start), np.minimum(t, end)
+        full = (a == lo) & (b == t)
+        for ch in chans:
+            _, q_t, q_w = _heat_step(rate, float(tau[ch]), spin_heat, step, 0.0)
+            var[full, 0, ch] += q_w
+            var[full, 1, ch] += q_t
+            # Samples partly in the steady turning (where it starts and ends): their part,
+            # decayed to the sample's end.
+            for k in np.flatnonzero((b > a) & ~full):
+                _, q_t, q_w = _heat_step(rate, float(tau[ch]), spin_heat, float(b[k] - a[k]),
+                                         float(t[k] - b[k]))  # fmt: skip
+                var[k, 0, ch] += q_w
+                var[k, 1, ch] += q_t
+    std = np.sqrt(var)
+    std[:, 0, :] *= terms.move_walk
+    std[:, 1, :] *= terms.move_transient
+    return phi, std
+
+
+def spin_heat_decay(terms: ErrorTerms, fs: float) -> NDArray[np.float64]:
+    """The decay of the spin heat's transient over one sample of ``fs`` Hz, (6,)."""
+    return np.exp(-1.0 / (fs * np.where(terms.move_tau_s > 0, terms.move_tau_s, np.inf)))
+
+
+def _heat_step(
+    rate_dps: float, tau_s: float, spin_heat: float, step_s: float, after_s: float
+) -> tuple[float, float, float]:
+    """:func:`spin_heat_steps` over ``step_s`` of turning, the transient's innovation decayed
+    over ``after_s`` more; no transient without a time constant."""
+    if not math.isfinite(tau_s):
+        return 1.0, 0.0, max(spin_heat, 0.0) * abs(rate_dps) * step_s
+    phi, q_t, q_w = spin_heat_steps(rate_dps, tau_s, spin_heat, step_s)
+    return phi, q_t * math.exp(-2.0 * after_s / tau_s), q_w
 
 
 def triad_matrices(sf: NDArray[np.float64], mis: NDArray[np.float64]) -> NDArray[np.float64]:

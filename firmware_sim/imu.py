@@ -36,6 +36,8 @@ from northfinder.firmware_sim.error_terms import (
     quantise_carry,
     random_directions,
     slow_noise_steps,
+    spin_heat_decay,
+    spin_heat_innovations,
     temperature_c,
     vibration,
 )
@@ -204,6 +206,11 @@ class Instrument:
         self._move_size = np.empty(0)  # commanded angle deg,
         self._move_z = np.empty((0, 2, 6))  # z-scores
         self._move_steps = np.zeros(6)  # sum of sqrt(|size|) z_walk of the moves dropped from those
+        # The drive's heat while spinning (table.spin_heat) draws from a stream of its own, so
+        # that instruments which never spin with it keep every draw.
+        self._heat_rng = moves.spawn(1)[0]
+        self._ramps_seen = 0  # spins' ramps registered so far (as moves)
+        self._heat = np.zeros((2, 6))  # the steady turning's walk and transient at the last sample
         self._white = white
         self._slow = _SlowNoise(slow, 6)
         self._imp_rng = impulses
@@ -250,7 +257,7 @@ class Instrument:
         A snapshot of the instrument (the firmware's rewind) shares these and records their
         states instead of copying them: a generator's state is a small dict, its copy a pickle.
         """
-        return (self._white, self._slow.rng, self._imp_rng, self._move_rng,
+        return (self._white, self._slow.rng, self._imp_rng, self._move_rng, self._heat_rng,
                 *self.table.generators())  # fmt: skip
 
     @property
@@ -440,6 +447,7 @@ class Instrument:
             self._move_start = np.append(self._move_start, start[-new:])
             self._move_size = np.append(self._move_size, size)
             self._move_z = np.concatenate([self._move_z, draw_move(self._move_rng, (new,))])
+        self._register_ramps()
         if not terms.has_move_terms:
             return
         # A transient 60 time constants old is below 1e-26 of its size: keep only its step.
@@ -454,6 +462,60 @@ class Instrument:
         out += self._move_steps * terms.move_walk
         if self._move_start.size:
             out += move_bias(terms, t, self._move_start, self._move_size, self._move_z)
+        self._add_spin_heat(out, t)
+
+    def _register_ramps(self) -> None:
+        """Register the ramps of spins (up to the rate and braking) as moves of the drive's heat:
+        each one move of ``spin_heat`` times its angle (:mod:`northfinder.driver.protocol.heat`)."""
+        ramps = self.table.ramps
+        new = len(ramps) - self._ramps_seen
+        spin_heat = self.spec.table.spin_heat
+        if not new or spin_heat <= 0.0 or not self._terms.has_move_terms:
+            self._ramps_seen = len(ramps)  # no heat: the ramps start nothing, now or later
+            return
+        start, angle = np.array(ramps[-new:]).T
+        self._ramps_seen = len(ramps)
+        self._move_start = np.append(self._move_start, start)
+        self._move_size = np.append(self._move_size, spin_heat * angle)
+        self._move_z = np.concatenate([self._move_z, draw_move(self._heat_rng, (new,))])
+
+    def _add_spin_heat(self, out: NDArray[np.float64], t: NDArray[np.float64]) -> None:
+        """Add the drive's heat while the table turns steadily: per channel a Gauss-Markov
+        transient and a random walk in the angle turned, drawn sample by sample in time order
+        (:func:`~northfinder.firmware_sim.error_terms.spin_heat_innovations`)."""
+        terms = self._terms
+        steps = spin_heat_innovations(
+            terms, self.spec.table.spin_heat, self.table.spins, t, self.sample_rate_hz
+        )
+        walk, trans = self._heat
+        if steps is None:
+            if not (walk.any() or trans.any()):
+                return
+            u = np.zeros((t.size, 2, 6))
+            phi = spin_heat_decay(terms, self.sample_rate_hz)
+        else:
+            phi, std = steps
+            on = std.any(axis=(1, 2))
+            u = np.zeros_like(std)
+            u[on] = self._heat_rng.standard_normal((int(on.sum()), 2, 6)) * std[on]
+        from scipy.signal import lfilter  # imported when first needed: it takes a second
+
+        # The walk summed from its last value, as sample-by-sample steps would sum it.
+        walks = np.cumsum(np.concatenate([walk[None, :], u[:, 0, :]]), axis=0)[1:]
+        transients = np.empty((t.size, 6))
+        for ch in range(6):
+            if trans[ch] or u[:, 1, ch].any():
+                transients[:, ch] = lfilter(
+                    [1.0], [1.0, -phi[ch]], u[:, 1, ch], zi=[phi[ch] * trans[ch]]
+                )[0]
+            else:
+                transients[:, ch] = 0.0
+        # A transient 60 time constants old is below 1e-26 of its size: drop it.
+        spins = self.table.spins
+        if steps is None and spins and t[-1] - spins[-1][1] > 60.0 * terms.move_tau_s.max():
+            transients[-1] = 0.0
+        self._heat = np.stack([walks[-1], transients[-1]])
+        out += walks + transients
 
     def _add_impulses(self, out: NDArray[np.float64], t: NDArray[np.float64]) -> None:
         rate = self.spec.disturbance.impulse_rate_hz

@@ -103,6 +103,8 @@ class Turntable:
         self._stalled = False
         self._moves: list[tuple[float, float]] = []
         self._steady = (math.inf, math.inf)  # the present spin's steady interval [start, end)
+        self._ramps: list[tuple[float, float]] = []  # spins' ramps: (start s, angle deg)
+        self._spins: list[tuple[float, float, float]] = []  # steady spins: (start s, end s, deg/s)
 
     def generators(self) -> tuple[np.random.Generator, ...]:
         """The random generators the table draws from (for a snapshot of its state)."""
@@ -198,11 +200,13 @@ class Turntable:
             self._segments = [_Segment(-math.inf, start, 0.0, 0.0)]
             self._motion_end = t
             return t
-        # A spin logs no move (the move log stays as it is). The drive's heat while turning
-        # (spec.spin_heat) is the batch generator's and the prediction's
-        # (northfinder.driver.protocol.heat); this step-by-step table does not start it yet.
+        # A spin logs no move (the move log, which sizes the moves by the motor's heat, stays as
+        # it is): its ramp and its steady turning go to logs of their own, which the drive's
+        # heat while turning reads (spec.spin_heat, northfinder.driver.protocol.heat).
         a = self.spec.max_accel_dps2
         ta = abs(rate_dps) / a
+        self._ramps.append((float(t), 0.5 * abs(rate_dps) * ta))
+        self._spins.append((t + ta, math.inf, float(rate_dps)))
         a1 = start + 0.5 * rate_dps * ta
         self._segments = [
             _Segment(-math.inf, start, 0.0, 0.0),
@@ -237,6 +241,10 @@ class Turntable:
             self._steady = (self._steady[0], t)
         elif t < self._steady[0] < math.inf:
             self._steady = (math.inf, math.inf)  # stopped while still accelerating
+        braking = bool(self._spins) and self._spins[-1][0] <= t < self._spins[-1][1]
+        if self._spins and self._spins[-1][1] > t:
+            t0, _, r = self._spins[-1]
+            self._spins[-1] = (t0, max(t, t0), r)  # ends here (empty: stopped on the ramp)
         angle, rate = (float(x) for x in self.state(t))
         if rate == 0.0:
             self._motion_end = min(self._motion_end, t)
@@ -246,6 +254,8 @@ class Turntable:
         a = self.spec.max_accel_dps2
         tb = abs(rate) / a
         acc = -math.copysign(a, rate)
+        if braking:
+            self._ramps.append((float(t), 0.5 * abs(rate) * tb))  # a spin's braking ramp
         end_angle = angle + rate * tb + 0.5 * acc * tb * tb
         keep = [s for s in self._segments if s.t0 <= t]
         self._segments = [
@@ -265,7 +275,9 @@ class Turntable:
         encoder disagree with the command.
         """
         if stalled:
+            ramps = len(self._ramps)
             self.stop(t)
+            del self._ramps[ramps:]  # a jammed table does not brake: no braking ramp
             # A jammed table stops at once, not on a deceleration ramp.
             angle = float(self.state(t)[0])
             self._segments = [_Segment(-math.inf, angle, 0.0, 0.0)]
@@ -284,6 +296,18 @@ class Turntable:
     def moves(self) -> list[tuple[float, float]]:
         """Every move started so far: (start time s, commanded angle turned deg), in order."""
         return self._moves
+
+    @property
+    def ramps(self) -> list[tuple[float, float]]:
+        """The ramps of every spin so far, up to the rate and braking: (start time s, angle
+        turned deg), in order (not in :attr:`moves`)."""
+        return self._ramps
+
+    @property
+    def spins(self) -> list[tuple[float, float, float]]:
+        """The steady turning of every spin so far: (start s, end s, rate deg/s), in order; the
+        end is inf while the table spins, the start where a spin stopped on its ramp."""
+        return self._spins
 
     @property
     def stalled(self) -> bool:
