@@ -247,20 +247,28 @@ def _headings(result: dict[str, Any]) -> str:
     mean = math.degrees(math.atan2(sum(map(math.sin, a)), sum(map(math.cos, a)))) % 360.0
     line = next((x for x in result["lines"] if x["key"] == "north_finding.sigma_deg"), None)
     limit = line["limit"] if line else None
+    plan = result.get("plan") or result["datasheet"]
+    how = f", {escape(plan['from'])}" if "from" in plan else ""
     parts = [
         "<h2>North finding</h2>",
         f"<p>{len(runs)} runs of the plan "
-        f"{escape(', '.join(f'{p:g}' for p in result['datasheet']['positions_deg']))} deg "
-        f"({result['datasheet']['window_s']:g} s windows) at {runs[0]['latitude_deg']:g} deg; "
+        f"{escape(', '.join(f'{p:g}' for p in plan['positions_deg']))} deg "
+        f"({plan['window_s']:g} s windows{how}) at {runs[0]['latitude_deg']:g} deg; "
         f"mean heading {mean:.4f} deg. Blue band: ±1σ of the runs at that orientation; green "
         "dashed: the datasheet's ±1σ limit.</p>",
     ]
+    measured = _num(line["measured"] if line else None)
+    if "predicted_sigma_deg" in plan:
+        parts.append(
+            f"<p>Repeatability, 1σ: predicted {plan['predicted_sigma_deg']:.4g} deg by the "
+            f"planner for this plan from {escape(plan['predicted_from'])}; measured "
+            f"{measured} deg.</p>"
+        )
     pred = result.get("prediction")
     if pred:
         parts.append(
             f"<p>The planner predicts σ {pred['sigma_deg']:.4g} deg for this plan from "
-            f"{escape(pred['from'])} (measured: {_num(line['measured'] if line else None)} "
-            "deg).</p>"
+            f"{escape(pred['from'])} (measured: {measured} deg).</p>"
         )
     by: dict[float, list[dict[str, Any]]] = {}
     for r in runs:
