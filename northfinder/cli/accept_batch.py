@@ -28,7 +28,9 @@ from northfinder.cli.argtypes import MAX_SEED
 from northfinder.cli.exits import exit_status
 from northfinder.cli.links import bus_given
 from northfinder.cli.output import dumps, say
+from northfinder.cli.simulated import load_sensor
 from northfinder.firmware_sim.errors import SimConfigError
+from northfinder.firmware_sim.sensors import DEFAULT_SENSOR
 from northfinder.host.errors import HostConfigError
 
 __all__ = ["UNIT_KEYS", "load_units", "run_batch"]
@@ -141,6 +143,8 @@ def run_batch(args: argparse.Namespace, ds: Any, out: Path) -> int:
         if Path(a.output).is_file():
             raise HostConfigError(f"-o {a.output}: is a file; give a folder")
         try:
+            if a.sim:  # the sensor read now, not when the unit's turn comes
+                load_sensor(a.sensor or DEFAULT_SENSOR)
             check_unit_arguments(copy.copy(a), ds)
         except (HostConfigError, SimConfigError) as exc:
             raise _bad(Path(args.batch), f"unit {unit['name']!r}: {exc}") from exc
@@ -213,7 +217,7 @@ def _write_summary(out: Path, summary: dict[str, Any]) -> None:
 def _summary_text(summary: dict[str, Any], out: Path) -> str:
     rows = [
         f"northfinder accept --batch: {summary['verdict']} ({summary['datasheet']['name']}, "
-        f"{summary['total']} units)"
+        f"{summary['total']} unit{'' if summary['total'] == 1 else 's'})"
     ]
     for r in summary["units"]:
         what = r.get("error") or r["report"]
