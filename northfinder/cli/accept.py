@@ -8,7 +8,10 @@ Each line is PASS, FAIL or NOT RESOLVED (the data cannot decide it: the line say
 record would). ``DIR/report.html`` is the report (one self-contained page); ``--junit`` and
 ``--json`` for machines. Exit status: 0 every line passed, 1 a line failed, 4 no line failed
 but one is not resolved. ``--datasheet-from PRESET --margin X`` makes a datasheet of a sensor
-preset (``--write-datasheet FILE`` writes it; without a link that is all).
+preset (``--write-datasheet FILE`` writes it; without a link that is all). The runs follow the
+datasheet's plan, ``--plan ANGLES:SECONDS`` or the planner's best within ``--budget SECONDS``
+(:func:`choose_plan`), stated with its predicted repeatability; ``--batch UNITS.TOML`` accepts
+several units (:mod:`northfinder.cli.accept_batch`).
 """
 
 from __future__ import annotations
@@ -99,20 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="K",
         help=f"table orientations the runs take in turn, 360/K apart (default {ORIENTATIONS})",
     )
-    g.add_argument(
-        "--plan",
-        metavar="ANGLES:SECONDS",
-        help="the runs' plan: table angles and seconds per position, as find's --positions "
-        "and --window, e.g. 0,90,180,270:20 (default: the datasheet's plan)",
-    )
-    g.add_argument(
-        "--budget",
-        type=bounded_float(1.0, MAX_BUDGET_S, "s"),
-        default=None,
-        metavar="SECONDS",
-        help="the runs' plan: the planner's best stop-and-go plan within SECONDS of plan time "
-        "for the unit's sensor at the datasheet's latitude",
-    )
+    _add_plan_arguments(g)
     g.add_argument("--resume", action="store_true", help="keep the stages already in DIR")
     g.add_argument(
         "--time-scale",
@@ -131,6 +121,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML, a case per line")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     measure.add_device_arguments(p)
+
+
+def _add_plan_arguments(g: Any) -> None:
+    """``--plan`` and ``--budget``: the plan of the north-finding runs."""
+    g.add_argument(
+        "--plan",
+        metavar="ANGLES:SECONDS",
+        help="the runs' plan: table angles and seconds per position, as find's --positions "
+        "and --window, e.g. 0,90,180,270:20 (default: the datasheet's plan)",
+    )
+    g.add_argument(
+        "--budget",
+        type=bounded_float(1.0, MAX_BUDGET_S, "s"),
+        default=None,
+        metavar="SECONDS",
+        help="the runs' plan: the planner's best stop-and-go plan within SECONDS of plan time "
+        "for the unit's sensor at the datasheet's latitude",
+    )
 
 
 def _datasheet(args: argparse.Namespace) -> Any:
