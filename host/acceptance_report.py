@@ -13,9 +13,11 @@ from html import escape
 from typing import Any
 from xml.etree import ElementTree as ET
 
-__all__ = ["html_report", "junit_xml"]
+__all__ = ["html_report", "junit_xml", "summary_html"]
 
 _COLOURS = {"PASS": "#1b7f3b", "FAIL": "#b3261e", "NOT RESOLVED": "#a15c00"}
+#: A batch's unit that could not be tested (``accept --batch``).
+_ERROR_COLOUR = "#5b2a86"
 _CSS = """
 body{font:14px/1.45 system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;
 max-width:72em;color:#1d1d1f;padding:0 1em}
@@ -247,20 +249,28 @@ def _headings(result: dict[str, Any]) -> str:
     mean = math.degrees(math.atan2(sum(map(math.sin, a)), sum(map(math.cos, a)))) % 360.0
     line = next((x for x in result["lines"] if x["key"] == "north_finding.sigma_deg"), None)
     limit = line["limit"] if line else None
+    plan = result.get("plan") or result["datasheet"]
+    how = f", {escape(plan['from'])}" if "from" in plan else ""
     parts = [
         "<h2>North finding</h2>",
         f"<p>{len(runs)} runs of the plan "
-        f"{escape(', '.join(f'{p:g}' for p in result['datasheet']['positions_deg']))} deg "
-        f"({result['datasheet']['window_s']:g} s windows) at {runs[0]['latitude_deg']:g} deg; "
+        f"{escape(', '.join(f'{p:g}' for p in plan['positions_deg']))} deg "
+        f"({plan['window_s']:g} s windows{how}) at {runs[0]['latitude_deg']:g} deg; "
         f"mean heading {mean:.4f} deg. Blue band: ±1σ of the runs at that orientation; green "
         "dashed: the datasheet's ±1σ limit.</p>",
     ]
+    measured = _num(line["measured"] if line else None)
+    if "predicted_sigma_deg" in plan:
+        parts.append(
+            f"<p>Repeatability, 1σ: predicted {plan['predicted_sigma_deg']:.4g} deg by the "
+            f"planner for this plan from {escape(plan['predicted_from'])}; measured "
+            f"{measured} deg.</p>"
+        )
     pred = result.get("prediction")
     if pred:
         parts.append(
             f"<p>The planner predicts σ {pred['sigma_deg']:.4g} deg for this plan from "
-            f"{escape(pred['from'])} (measured: {_num(line['measured'] if line else None)} "
-            "deg).</p>"
+            f"{escape(pred['from'])} (measured: {measured} deg).</p>"
         )
     by: dict[float, list[dict[str, Any]]] = {}
     for r in runs:
@@ -379,3 +389,54 @@ def junit_xml(result: dict[str, Any]) -> str:
             ET.SubElement(case, "system-out").text = text
     ET.indent(suite)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(suite, "unicode") + "\n"
+
+
+def summary_html(summary: dict[str, Any]) -> str:
+    """The summary page of ``accept --batch``: the worst verdict, and a row per unit with its
+    verdict, its counts and a link to its report (one self-contained page, as the report)."""
+    colours = {**_COLOURS, "ERROR": _ERROR_COLOUR}
+    verdict = summary["verdict"]
+    rows = []
+    for r in summary["units"]:
+        tag = (
+            f'<span class="tag" style="color:{colours[r["verdict"]]}">{escape(r["verdict"])}</span>'
+        )
+        if r["verdict"] == "ERROR":
+            what = f"<td colspan=3 class=small>{escape(r['error'])}</td>"
+            name = escape(r["name"])
+        else:
+            counts = ", ".join(f"{n} {escape(v)}" for v, n in r["counts"].items() if n)
+            what = (
+                f"<td class=small>{counts}</td><td class=num>{_num(r['sigma_deg'])}</td>"
+                f"<td class=num>{_num(r['predicted_sigma_deg'])}</td>"
+            )
+            name = f'<a href="{escape(r["report"])}">{escape(r["name"])}</a>'
+        rows.append(
+            f"<tr><td>{name}</td><td><code>{escape(r['link'])}</code></td><td>{tag}</td>{what}</tr>"
+        )
+    done = (
+        ""
+        if summary["done"] == summary["total"]
+        else (f" ({summary['done']} of {summary['total']} units done)")
+    )
+    counts = ", ".join(f"{n} {escape(v)}" for v, n in summary["counts"].items() if n)
+    return "\n".join(
+        [
+            "<!DOCTYPE html>",
+            '<html lang="en"><head><meta charset="utf-8">',
+            f"<title>Acceptance of a batch {escape(verdict)}: "
+            f"{escape(summary['datasheet']['name'])}</title>",
+            f"<style>{_CSS}</style></head><body>",
+            f"<h1>Acceptance of {summary['total']} units: "
+            f"{escape(summary['datasheet']['name'])}</h1>",
+            f'<p><span class="verdict" style="background:{colours[verdict]}">{escape(verdict)}'
+            f"</span> the worst verdict{done}; units: {counts}</p>",
+            f"<p class=small>Datasheet <code>{escape(summary['datasheet']['source'])}</code>, "
+            f"units <code>{escape(summary['units_file'])}</code>.</p>",
+            "<table><tr><th>unit</th><th>link</th><th>verdict</th><th>lines</th>"
+            "<th>repeatability, deg</th><th>predicted, deg</th></tr>",
+            *rows,
+            "</table></body></html>",
+            "",
+        ]
+    )

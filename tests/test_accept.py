@@ -509,3 +509,231 @@ def test_a_unit_s_time_to_ready_is_counted_in_its_own_ticks_not_the_host_s_secon
     assert ready["from"] == "RESET"
     assert ready["time_to_ready_s"] == pytest.approx(120.0, abs=0.6)
     assert ready["wall_s"] == pytest.approx(12.0, abs=0.1)
+
+
+#: A datasheet of the repeatability line alone: no static record, quick runs.
+RUNS_ONLY = {"name": "runs", "north_finding": {"sigma_deg": 2.1, "positions_deg": [0.0, 180.0, 180.0, 0.0]}}  # fmt: skip
+
+
+def _run_plan(out: Path, run: int = 1) -> dict:
+    from northfinder.host.recording import Recording
+
+    return Recording.load(out / f"run_{run:02d}.npz").meta["plan"]
+
+
+def test_budget_runs_the_planner_s_best_plan_and_the_report_states_its_prediction(tmp_path):
+    """``--budget 60``: the runs follow the plan ``search_plans`` ranks first for the simulated
+    sensor at the datasheet's latitude; the result, the text and the report state the planner's
+    repeatability beside the measured one, and the two agree within the runs' spread."""
+    from northfinder.cli.simulated import load_sensor
+    from northfinder.driver.protocol.units import DEFAULT_WARMUP_S
+    from northfinder.host.plan_search import search_plans
+    from northfinder.simwindows import error_model
+
+    ds = write(tmp_path, RUNS_ONLY)
+    out = tmp_path / "acc"
+    code, result, err = accept(
+        "--datasheet", str(ds), "--sim", "--sensor", str(UNIT), "--seed", "5", "-o", str(out),
+        "--runs", "6", "--orientations", "2", "--budget", "60",
+    )  # fmt: skip
+    assert code == 0, err
+    best = search_plans(error_model(load_sensor(str(UNIT))), 34.0, 60.0, settle_s=0.0,
+                        warmup_s=DEFAULT_WARMUP_S)[0]  # fmt: skip
+    plan = result["plan"]
+    assert plan["positions_deg"] == list(best.plan.positions_deg)
+    assert plan["window_s"] == pytest.approx(best.plan.window_s)
+    assert plan["predicted_sigma_deg"] == pytest.approx(best.sigma_deg)
+    assert plan["plan_time_s"] <= 60.0 and "--budget 60" in plan["from"]
+    assert best.plan.positions_deg != (0.0, 180.0, 180.0, 0.0)  # not the datasheet's plan
+    recorded = _run_plan(out, 2)  # the second run: at the second orientation, 180 deg
+    assert recorded["positions_deg"] == [a + 180.0 for a in best.plan.positions_deg]
+    assert recorded["window_s"] == pytest.approx(best.plan.window_s)
+    measured = verdicts_line(result, "north_finding.sigma_deg")["measured"]
+    assert 0.5 < plan["predicted_sigma_deg"] / measured < 2.0
+    html = (out / "report.html").read_text()
+    assert f"predicted {plan['predicted_sigma_deg']:.4g} deg" in html
+    assert f"measured {measured:.4g} deg" in html
+    # The datasheet as used is the one given: the plan chosen is the runs', not the datasheet's.
+    assert load_datasheet(out / "datasheet.toml").positions_deg == (0.0, 180.0, 180.0, 0.0)
+    assert json.loads((out / "plan.json").read_text()) == plan
+    code, text, err = run_cli("accept", "--datasheet", str(ds), "--sim", "--sensor", str(UNIT),
+                              "--seed", "5", "-o", str(out), "--runs", "6", "--orientations",
+                              "2", "--budget", "60", "--resume")  # fmt: skip
+    assert code == 0, err
+    assert "north finding" not in err  # every run kept
+    assert f"repeatability predicted {plan['predicted_sigma_deg']:.4g} deg" in text
+
+
+def verdicts_line(result: dict, key: str) -> dict:
+    return next(line for line in result["lines"] if line["key"] == key)
+
+
+def test_plan_runs_the_plan_named_and_the_default_runs_state_a_prediction(tmp_path):
+    ds = write(tmp_path, RUNS_ONLY)
+    predicted = {}
+    for name, extra in (("named", ["--plan", "0,90,180,270:5"]), ("default", [])):
+        out = tmp_path / name
+        code, result, err = accept(
+            "--datasheet", str(ds), "--sim", "--sensor", str(UNIT), "--seed", "5", "-o",
+            str(out), "--runs", "4", "--orientations", "1", *extra,
+        )  # fmt: skip
+        assert code in (0, 4), err
+        plan = result["plan"]
+        recorded = _run_plan(out, 3)
+        assert recorded["positions_deg"] == plan["positions_deg"]
+        assert recorded["window_s"] == plan["window_s"]
+        predicted[name] = plan["predicted_sigma_deg"]
+        if extra:
+            assert plan["positions_deg"] == [0.0, 90.0, 180.0, 270.0] and plan["window_s"] == 5
+            assert plan["from"] == "--plan 0,90,180,270:5"
+        else:
+            assert plan["positions_deg"] == [0.0, 180.0, 180.0, 0.0] and plan["window_s"] == 10
+            assert plan["from"] == "the datasheet's plan"
+    # Four 5 s windows predict a wider spread than four 10 s windows.
+    assert predicted["named"] > predicted["default"] > 0
+
+
+#: Datasheet, options, and the one line each is refused with (exit 2).
+BAD_PLANS = [
+    (RUNS_ONLY, ["--plan", "0,180:10", "--budget", "60"], "--plan, --budget: give one"),
+    ({"gyro": {"arw_dpsh": 0.02}}, ["--budget", "60"], "--budget: "),
+    ({"gyro": {"arw_dpsh": 0.02}}, ["--plan", "0,180:10"], "has no north-finding line"),
+    (RUNS_ONLY, ["--plan", "0,180"], "--plan '0,180': give two or more table angles and the seconds"),
+    (RUNS_ONLY, ["--plan", "0:10"], "--plan '0:10': give two or more"),
+    (RUNS_ONLY, ["--plan", "0,180:0.1"], "(0.5 to 3600)"),
+    (RUNS_ONLY, ["--plan", "0,x:10"], "--plan '0,x:10'"),
+    (RUNS_ONLY, ["--plan", "0,1:10"], "--plan 0,1:10: positions"),
+    (GOOD_DATASHEET, ["--plan", "0,90,180,270:10"], "needs a plan that comes back to an angle"),
+    (RUNS_ONLY, ["--budget", "2"], "--budget 2: no plan fits in 2 s"),
+    (RUNS_ONLY, ["--budget", "0"], "--budget"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("sections", "options", "message"), BAD_PLANS)
+def test_a_plan_that_conflicts_is_refused_in_one_line(tmp_path, sections, options, message):
+    ds = write(tmp_path, sections)
+    out = tmp_path / "a"
+    code, _, err = run_cli("accept", "--datasheet", str(ds), "--sim", "-o", str(out), *options)
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith("northfinder accept: error: "), err
+    assert message in err
+    assert not out.exists()  # refused before any work
+
+
+def test_resume_with_another_plan_is_refused(tmp_path):
+    ds = write(tmp_path, RUNS_ONLY)
+    out = tmp_path / "acc"
+    argv = ["--datasheet", str(ds), "--sim", "--seed", "5", "-o", str(out), "--runs", "2"]
+    code, _, err = run_cli("accept", *argv, "--plan", "0,180:2")
+    assert code in (0, 4), err
+    code, _, err = run_cli("accept", *argv, "--plan", "0,90:2", "--resume")
+    assert code == 2 and err.count("\n") == 1, err
+    assert "--resume: the runs in" in err and "[0.0, 180.0] deg, 2 s windows" in err
+
+
+def test_budget_keeps_a_plan_that_comes_back_to_an_angle_when_the_bias_repeatability_is_judged():
+    from types import SimpleNamespace
+
+    from northfinder.cli.accept import choose_plan
+    from northfinder.host.acceptance import parse_datasheet, same_angle_pairs
+
+    args = SimpleNamespace(plan=None, budget=120.0, sim=True, sensor=str(UNIT), warmup=None)
+    with_repeat = parse_datasheet(GOOD_DATASHEET)
+    without = parse_datasheet({"north_finding": GOOD_DATASHEET["north_finding"]})
+    runs, plan = choose_plan(args, with_repeat)
+    assert same_angle_pairs(runs.positions_deg) and runs.limits == with_repeat.limits
+    other, _ = choose_plan(args, without)
+    assert not same_angle_pairs(other.positions_deg)  # free to pick the better plan
+    assert plan["predicted_sigma_deg"] > 0 and plan["plan_time_s"] <= 120.0
+
+
+def _units(tmp: Path, text: str) -> Path:
+    path = tmp / "units.toml"
+    path.write_text(text)
+    return path
+
+
+def test_batch_accepts_each_unit_in_its_folder_and_exits_with_the_worst_verdict(tmp_path):
+    """Two units against one datasheet (1.5 times the good unit's figures): the good unit PASSES,
+    one with twice its ARW FAILS (seed 7: as in the test of one term); a folder and a report each,
+    and one summary page linking them; exit 1, the worst. Resumed, nothing is measured again."""
+    ds = write(tmp_path, {"name": "x 1.5", **ALLAN_1_5})
+    shutil.copy(sensor(tmp_path, "gyro", "arw_dpsh", 0.02), tmp_path / "noisy.toml")
+    units = _units(tmp_path, f'[[unit]]\nname = "sn1"\nsensor = "{UNIT}"\nseed = 7\n\n'
+                   '[[unit]]\nname = "sn2"\nsensor = "noisy.toml"\nseed = 7\n')  # fmt: skip
+    out = tmp_path / "lot"
+    argv = ["--datasheet", str(ds), "--batch", str(units), "-o", str(out), *STAGES]
+    code, summary, err = accept(*argv)
+    assert code == 1, err
+    assert summary["verdict"] == FAIL and summary["counts"]["FAIL"] == 1
+    assert [(u["name"], u["verdict"]) for u in summary["units"]] == [("sn1", PASS), ("sn2", FAIL)]
+    for u in summary["units"]:
+        result = json.loads((out / u["name"] / "result.json").read_text())
+        assert result["verdict"] == u["verdict"] and result["seed"] == 7
+        assert (out / u["report"]).is_file()
+    sn2 = json.loads((out / "sn2" / "result.json").read_text())
+    assert {k for k, v in verdicts(sn2).items() if v == FAIL} == {"gyro.arw_dpsh"}
+    html = (out / "index.html").read_text()
+    parser = _Balance()
+    parser.feed(html)
+    parser.close()
+    assert not parser.errors and not parser.stack, (parser.errors, parser.stack)
+    assert not re.search(r"https?://|<(script|link|img|iframe)\b", html)
+    assert (
+        html.index(">FAIL<")
+        < html.index('href="sn1/report.html"')
+        < html.index('href="sn2/report.html"')
+    )
+    assert json.loads((out / "summary.json").read_text()) == summary
+    code, text, err = run_cli("accept", *argv, "--resume")
+    assert code == 1 and "static recording of" not in err, err
+    assert re.search(r"PASS +sn1 .*\n +FAIL +sn2 ", text), text
+
+
+def test_the_batch_verdict_is_the_worst_and_an_error_is_worse_than_a_fail():
+    from types import SimpleNamespace
+
+    from northfinder.cli.accept_batch import _summary
+    from northfinder.host.acceptance import Datasheet
+
+    args = SimpleNamespace(batch="units.toml")
+
+    def worst(*rows):
+        s = _summary(args, Datasheet(), [{"verdict": v, "status": st} for v, st in rows], 9)
+        return s["verdict"], s["status"]
+
+    assert worst((PASS, 0), (PASS, 0)) == (PASS, 0)
+    assert worst((PASS, 0), (NOT_RESOLVED, 4)) == (NOT_RESOLVED, 4)
+    assert worst((NOT_RESOLVED, 4), (FAIL, 1), (PASS, 0)) == (FAIL, 1)
+    assert worst((FAIL, 1), ("ERROR", 2)) == ("ERROR", 2)
+
+
+BAD_BATCHES = [
+    ("[[unit]]\nname = 'a'\nseed = 1\n", ["--sim"], "--sim: not with --batch"),
+    ("[[unit]]\nname = 'a'\nseed = 1\n", ["--seed", "3"], "--seed: not with --batch"),
+    ("[[unit]]\nname = 'a'\nseed = 1\n", ["--junit", "j.xml"], "--junit: not with --batch"),
+    ("[[unit\n", [], "not a TOML file"),
+    ("name = 'a'\n", [], "give the units as [[unit]] tables"),
+    ("[[unit]]\nname = 'a'\nseed = 1\nspeed = 2\n", [], "unit 'a': unknown key 'speed'"),
+    ("[[unit]]\nname = '../a'\nseed = 1\n", [], "name must be a folder name"),
+    ("[[unit]]\nseed = 1\n", [], "unit 1: name must be"),
+    ("[[unit]]\nname = 'a'\nseed = 1\n[[unit]]\nname = 'a'\nseed = 2\n", [], "named twice"),
+    ("[[unit]]\nname = 'a'\n", [], "unit 'a': give its link"),
+    ("[[unit]]\nname = 'a'\nseed = 1\nserial = '/dev/x'\n", [], "not both"),
+    ("[[unit]]\nname = 'a'\nseed = -1\n", [], "seed = -1 must be a whole number"),
+    ("[[unit]]\nname = 'a'\nsensor = 'nosuch.toml'\n", [], "unit 'a': sensor file"),
+    ("[[unit]]\nname = 'a'\nserial = '/dev/x'\n", [], "unit 'a': "),  # no --latitude
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("units", "options", "message"), BAD_BATCHES)
+def test_a_bad_batch_is_refused_in_one_line_before_any_unit(tmp_path, units, options, message):
+    ds = write(tmp_path, RUNS_ONLY)
+    path = _units(tmp_path, units)
+    out = tmp_path / "lot"
+    code, _, err = run_cli("accept", "--datasheet", str(ds), "--batch", str(path), "-o", str(out),
+                           *options)  # fmt: skip
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith("northfinder accept: error: "), err
+    assert message in err
+    assert not out.exists()

@@ -49,6 +49,9 @@ NOT_RUN: dict[str, str] = {
     "needs a Dask scheduler and its workers",
     r"northfinder sim (--pty|--slcan-pty|-i socketcan) .*": "a simulator that serves until it is "
     "stopped (a process of its own; BESIDE_A_SIMULATOR runs the pages' that a command uses)",
+    r"northfinder accept --datasheet rlg\.toml --batch units\.toml .*": "reads units.toml, the "
+    "page's example of a units file, whose first unit is on a serial port (/dev/ttyUSB0); "
+    "tests/test_accept.py runs batches of simulated units",
     r"northfinder monitor( .*)?": "the terminal UI runs until q: tests/test_monitor.py runs the "
     "page's monitor commands headless and presses every key, tests/test_monitor_tmux.py in tmux",
 }

@@ -8,7 +8,10 @@ Each line is PASS, FAIL or NOT RESOLVED (the data cannot decide it: the line say
 record would). ``DIR/report.html`` is the report (one self-contained page); ``--junit`` and
 ``--json`` for machines. Exit status: 0 every line passed, 1 a line failed, 4 no line failed
 but one is not resolved. ``--datasheet-from PRESET --margin X`` makes a datasheet of a sensor
-preset (``--write-datasheet FILE`` writes it; without a link that is all).
+preset (``--write-datasheet FILE`` writes it; without a link that is all). The runs follow the
+datasheet's plan, ``--plan ANGLES:SECONDS`` or the planner's best within ``--budget SECONDS``
+(:func:`choose_plan`), stated with its predicted repeatability; ``--batch UNITS.TOML`` accepts
+several units (:mod:`northfinder.cli.accept_batch`).
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ MAX_STATIC_S = 8 * 3600.0
 RUNS = 16
 ORIENTATIONS = 4
 MARGIN = 2.0
+#: Longest plan time ``--budget`` takes, s (the planner's longest search).
+MAX_BUDGET_S = 4 * 3600.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -97,6 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="K",
         help=f"table orientations the runs take in turn, 360/K apart (default {ORIENTATIONS})",
     )
+    _add_plan_arguments(g)
     g.add_argument("--resume", action="store_true", help="keep the stages already in DIR")
     g.add_argument(
         "--time-scale",
@@ -106,9 +112,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the unit's seconds per wall second, for the conformance checks' timing (a "
         "simulator's --speed; default 1)",
     )
+    p.add_argument(
+        "--batch",
+        metavar="UNITS.TOML",
+        help="accept several units, each named with its link in the file (docs/accept.md): a "
+        "folder each in -o DIR, and DIR/index.html the summary; exit status the worst verdict",
+    )
     p.add_argument("--junit", metavar="FILE", help="also write JUnit XML, a case per line")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     measure.add_device_arguments(p)
+
+
+def _add_plan_arguments(g: Any) -> None:
+    """``--plan`` and ``--budget``: the plan of the north-finding runs."""
+    g.add_argument(
+        "--plan",
+        metavar="ANGLES:SECONDS",
+        help="the runs' plan: table angles and seconds per position, as find's --positions "
+        "and --window, e.g. 0,90,180,270:20 (default: the datasheet's plan)",
+    )
+    g.add_argument(
+        "--budget",
+        type=bounded_float(1.0, MAX_BUDGET_S, "s"),
+        default=None,
+        metavar="SECONDS",
+        help="the runs' plan: the planner's best stop-and-go plan within SECONDS of plan time "
+        "for the unit's sensor at the datasheet's latitude",
+    )
 
 
 def _datasheet(args: argparse.Namespace) -> Any:
@@ -147,11 +177,12 @@ def _datasheet(args: argparse.Namespace) -> Any:
 
 
 def _link_given(args: argparse.Namespace) -> bool:
+    """Whether a unit's link is given on the command line."""
     return bool(args.sim or args.serial or bus_given(args))
 
 
 def run(args: argparse.Namespace) -> int:
-    from northfinder.host.acceptance import datasheet_toml, static_length_s
+    from northfinder.host.acceptance import datasheet_toml
 
     ds = _datasheet(args)
     if args.write_datasheet:
@@ -165,9 +196,31 @@ def run(args: argparse.Namespace) -> int:
                 f"{args.datasheet_from} --margin {args.margin:g}",
             )
         )
-        if not _link_given(args):
+        if not (_link_given(args) or args.batch):
             say(f"wrote {args.write_datasheet}")
             return 0
+    out = _output_folder(args)
+    if args.batch:
+        from northfinder.cli.accept_batch import run_batch
+
+        return run_batch(args, ds, out)
+    result = accept_unit(args, ds, out)
+    if args.json:
+        say(dumps(result))
+    else:
+        say(_text(result, out))
+    return verdict_status(result["verdict"])
+
+
+def verdict_status(verdict: str) -> int:
+    """The exit status of a verdict: 0 PASS, 1 FAIL, 4 NOT RESOLVED."""
+    if verdict == "FAIL":
+        return EXIT_RUNTIME
+    return EXIT_NOT_RESOLVED if verdict == "NOT RESOLVED" else 0
+
+
+def _output_folder(args: argparse.Namespace) -> Path:
+    """``-o DIR``, checked: a folder (or none yet) in a folder that exists, empty or resumed."""
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise HostConfigError(f"-o {out}: is a file; give a folder")
@@ -178,6 +231,12 @@ def run(args: argparse.Namespace) -> int:
             f"-o {out}: holds an earlier acceptance; give --resume to keep its stages, or "
             "another folder"
         )
+    return out
+
+
+def check_unit_arguments(args: argparse.Namespace, ds: Any) -> tuple[Any, dict[str, Any] | None]:
+    """Everything about one unit's arguments checked before a device is opened; the datasheet
+    the runs follow (the plan of ``--plan`` or ``--budget``) and that plan's description."""
     if args.junit:
         check_output_path(args.junit, "--junit")
     if args.sim and args.time_scale != 1.0:
@@ -185,6 +244,14 @@ def run(args: argparse.Namespace) -> int:
     if args.sim and args.latitude is None:
         args.latitude = ds.latitude_deg  # the simulated site is the datasheet's
     measure.check_arguments(args)
+    return choose_plan(args, ds)
+
+
+def accept_unit(args: argparse.Namespace, ds: Any, out: Path) -> dict[str, Any]:
+    """One unit's acceptance into ``out`` (checked by :func:`_output_folder`): its result."""
+    from northfinder.host.acceptance import datasheet_toml, static_length_s
+
+    runs_ds, plan = check_unit_arguments(args, ds)
     if args.sim:
         from numpy.random import default_rng
 
@@ -196,8 +263,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         args.static_from = "--static-s"
     out.mkdir(exist_ok=True)
+    _keep_plan(args, out, plan)
     started = time.monotonic()
-    stages = Stages(args, ds, out)
+    stages = Stages(args, runs_ds, out, sheet=ds, plan=plan)
     stages.conformance()
     stages.static()
     stages.runs()
@@ -209,14 +277,138 @@ def run(args: argparse.Namespace) -> int:
     (out / "report.html").write_text(html_report(result))
     if args.junit:
         Path(args.junit).write_text(junit_xml(result))
-    if args.json:
-        say(dumps(result))
-    else:
-        say(_text(result, out))
-    verdict = result["verdict"]
-    if verdict == "FAIL":
-        return EXIT_RUNTIME
-    return EXIT_NOT_RESOLVED if verdict == "NOT RESOLVED" else 0
+    return result
+
+
+def _keep_plan(args: argparse.Namespace, out: Path, plan: dict[str, Any] | None) -> None:
+    """The runs' plan in ``out/plan.json``; a resumed folder whose runs followed another plan
+    is refused (its runs and the new ones would not be one sample)."""
+    path = out / "plan.json"
+    if plan is None:
+        return
+    keys = ("positions_deg", "window_s", "settle_s", "solver")
+    if args.resume and path.exists():
+        kept = _read_json(path)
+        if any(kept.get(k) != plan[k] for k in keys):
+            raise HostConfigError(
+                f"--resume: the runs in {out} followed the plan {kept['positions_deg']} deg, "
+                f"{kept['window_s']:g} s windows ({kept.get('from')}), not this one; give the "
+                "same plan, or another folder"
+            )
+    path.write_text(dumps(plan) + "\n")
+
+
+def _planning_sensor(args: argparse.Namespace, ds: Any) -> tuple[Any, str]:
+    """The sensor the planner predicts for: the simulated one (``--sim``), else the
+    datasheet's noise limits on paper-rlg's other figures; and what it is."""
+    from northfinder.firmware_sim.sensors import DEFAULT_SENSOR
+    from northfinder.host.acceptance import ALLAN_KEYS
+
+    if args.sim:
+        name = args.sensor or DEFAULT_SENSOR
+        return load_sensor(name), f"the simulated sensor {name}"
+    values = {k: v for k, v in ds.limits.items() if k in ALLAN_KEYS}
+    if not values:
+        return load_sensor("paper-rlg"), "paper-rlg's figures (the datasheet states no noise)"
+    return load_sensor("paper-rlg", values), "the datasheet's noise limits on paper-rlg's figures"
+
+
+def choose_plan(args: argparse.Namespace, ds: Any) -> tuple[Any, dict[str, Any] | None]:
+    """The datasheet the runs follow: the datasheet's plan, ``--plan``'s or the planner's best
+    within ``--budget``; and that plan with the planner's prediction of its repeatability at
+    the datasheet's latitude (None: the datasheet has no runs)."""
+    import dataclasses
+
+    from northfinder.host.accuracy import predict
+    from northfinder.host.plan import Plan
+    from northfinder.simwindows import error_model
+
+    given = [f for f, v in (("--plan", args.plan), ("--budget", args.budget)) if v is not None]
+    if len(given) == 2:
+        raise HostConfigError("--plan, --budget: give one (a plan, or the time a plan may take)")
+    if given and not ds.positions_deg:
+        raise HostConfigError(
+            f"{given[0]}: {ds.source} has no north-finding line (north_finding.sigma_deg or "
+            "gyro.bias_repeatability_dph) for runs to judge"
+        )
+    if not ds.positions_deg:
+        return ds, None
+    spec, sensor_from = _planning_sensor(args, ds)
+    model = error_model(spec)
+    warmup = measure.SIM_WARMUP_S if args.warmup is None else args.warmup
+    how = "the datasheet's plan"
+    if args.plan is not None:
+        positions, window = _parse_plan(args.plan, ds)
+        ds = dataclasses.replace(ds, positions_deg=positions, window_s=window, solver="auto")
+        how = f"--plan {args.plan}"
+    elif args.budget is not None:
+        ds = _budget_plan(args.budget, ds, model, warmup)
+        how = f"the planner's best stop-and-go plan within --budget {args.budget:g} s"
+    plan = Plan(tuple(ds.positions_deg), ds.window_s, ds.settle_s, "none", ds.solver)
+    pred = predict(model, plan, ds.latitude_deg, warmup_s=warmup)
+    return ds, {
+        "positions_deg": list(ds.positions_deg),
+        "window_s": ds.window_s,
+        "settle_s": ds.settle_s,
+        "solver": ds.solver,
+        "from": how,
+        "plan_time_s": pred.plan_time_s,
+        "predicted_sigma_deg": pred.sigma_deg,
+        "predicted_from": f"{sensor_from} at {ds.latitude_deg:g} deg",
+    }
+
+
+def _parse_plan(text: str, ds: Any) -> tuple[tuple[float, ...], float]:
+    """``--plan ANGLES:SECONDS``: the table angles and the window, checked as a datasheet's."""
+    from northfinder.cli.argtypes import angle_list
+    from northfinder.host.acceptance import REPEAT_KEY, same_angle_pairs
+    from northfinder.host.errors import GeometryError
+    from northfinder.host.plan import Plan
+    from northfinder.host.procedure import check_plan_for_device
+
+    angles, sep, seconds = text.rpartition(":")
+    try:
+        positions = tuple(angle_list(angles)) if sep else ()
+        window = float(seconds)
+    except (argparse.ArgumentTypeError, ValueError):
+        positions, window = (), math.nan
+    if len(positions) < 2 or not 0.5 <= window <= 3600.0:
+        raise HostConfigError(
+            f"--plan {text!r}: give two or more table angles and the seconds per position "
+            "(0.5 to 3600), e.g. 0,90,180,270:20"
+        )
+    try:
+        check_plan_for_device(Plan(positions, window, ds.settle_s, "none", "auto"))
+    except (HostConfigError, GeometryError) as exc:
+        raise HostConfigError(f"--plan {text}: {exc}") from exc
+    if REPEAT_KEY in ds.limits and not same_angle_pairs(positions):
+        raise HostConfigError(
+            f"--plan {text}: visits each angle once; {ds.source}'s {REPEAT_KEY} needs a plan "
+            "that comes back to an angle"
+        )
+    return positions, window
+
+
+def _budget_plan(budget_s: float, ds: Any, model: Any, warmup_s: float) -> Any:
+    """The datasheet with the planner's best stop-and-go plan within ``budget_s`` (one that
+    comes back to an angle when the datasheet judges the bias repeatability)."""
+    import dataclasses
+
+    from northfinder.host.acceptance import REPEAT_KEY, same_angle_pairs
+    from northfinder.host.plan_search import GEOMETRIES, search_plans
+
+    shapes = [g for g in GEOMETRIES if REPEAT_KEY not in ds.limits or same_angle_pairs(g)]
+    cands = search_plans(model, ds.latitude_deg, budget_s, settle_s=ds.settle_s,
+                         geometries=shapes, warmup_s=warmup_s)  # fmt: skip
+    if not cands:
+        raise HostConfigError(
+            f"--budget {budget_s:g}: no plan fits in {budget_s:g} s (the moves alone take "
+            "longer); give more seconds"
+        )
+    best = cands[0].plan
+    return dataclasses.replace(
+        ds, positions_deg=tuple(best.positions_deg), window_s=float(best.window_s), solver="auto"
+    )
 
 
 def _text(result: dict[str, Any], out: Path) -> str:
@@ -229,6 +421,16 @@ def _text(result: dict[str, Any], out: Path) -> str:
         rows.append(
             f"  {line['verdict']:<12} {line['key']:<31} {lim_s:>12} {line['unit']:<14} "
             f"measured {shown}  {line['note']}"
+        )
+    plan = result.get("plan")
+    if plan is not None:
+        line = next((x for x in result["lines"] if x["key"] == "north_finding.sigma_deg"), None)
+        measured = line["measured"] if line else None
+        shown = "-" if measured is None else f"{measured:.4g}"
+        rows.append(
+            f"runs: {','.join(f'{a:g}' for a in plan['positions_deg'])} deg, "
+            f"{plan['window_s']:.4g} s windows ({plan['from']}); repeatability predicted "
+            f"{plan['predicted_sigma_deg']:.4g} deg, measured {shown} deg"
         )
     rows.append(f"report: {out / 'report.html'}")
     return "\n".join(rows)
@@ -274,8 +476,13 @@ def _read_json(path: Path) -> Any:
 class Stages:
     """The stages of one acceptance, each written to the output folder as it ends."""
 
-    def __init__(self, args: argparse.Namespace, ds: Any, out: Path) -> None:
+    def __init__(self, args: argparse.Namespace, ds: Any, out: Path, *, sheet: Any = None,
+                 plan: dict[str, Any] | None = None) -> None:  # fmt: skip
+        """``ds``: the datasheet the runs follow; ``sheet``: the one given (default ``ds``);
+        ``plan``: the runs' plan and its prediction (:func:`choose_plan`)."""
         self.args, self.ds, self.out = args, ds, out
+        self.sheet = ds if sheet is None else sheet
+        self.plan = plan
         self.device: dict[str, Any] | None = None
 
     def _done(self, name: str) -> bool:
@@ -397,11 +604,13 @@ class Stages:
         from northfinder.host import acceptance as acc
         from northfinder.host.results import envelope
 
-        ds, args = self.ds, self.args
+        ds, args = self.sheet, self.args
         body: dict[str, Any] = {"stages": {}}
+        if self.plan is not None:
+            body["plan"] = self.plan
         lines, identity = self._unit_lines(body)
         cal = self._allan(body, lines)
-        if ds.positions_deg:
+        if self.ds.positions_deg:
             lines += self._run_lines(body, cal)
         ordered = sorted(lines, key=lambda line: _ORDER.index(line.key.split(".")[0]))
         return envelope(
