@@ -640,14 +640,12 @@ def wait_until_ready(
     warmup_timeout_s: float,
     on_wait: Callable[[Any], None] | None = None,
     *,
-    sleep: Callable[[float], None] | None = None,
     clock: Callable[[], float] | None = None,
 ) -> None:
     """Wait until ``device`` is READY (its warm-up over), calling ``on_wait`` with the status at
     every poll; raise :class:`HostError` on FAULT or after ``warmup_timeout_s`` (by ``clock``,
     default the device's own). The device's heartbeats are waited for on its own clock
-    (:meth:`~northfinder.driver.device.Device.wait_ready`); ``sleep`` is taken for callers of
-    0.2 and not needed."""
+    (:meth:`~northfinder.driver.device.Device.wait_ready`)."""
     report = on_wait or (lambda status: None)
     now: Callable[[], float] = clock or device.clock.now
     deadline = now() + warmup_timeout_s

@@ -505,6 +505,12 @@ def test_a_unit_s_time_to_ready_is_counted_in_its_own_ticks_not_the_host_s_secon
             state = DeviceState.READY if unit_s >= 120.0 else DeviceState.WARMUP
             return SimpleNamespace(state=state, sample_counter=int(unit_s * 200) - 1, faults=0)
 
+        last_status = None
+
+        def wait_ready(self, timeout):  # heartbeats: the next status after a poll's wait
+            clock.sleep(timeout)
+            return self.status()
+
     ready = _time_to_ready(Unit(), simulated=False)
     assert ready["from"] == "RESET"
     assert ready["time_to_ready_s"] == pytest.approx(120.0, abs=0.6)

@@ -451,7 +451,7 @@ def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:
 
     clock = device.clock
     if simulated:
-        wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
+        wait_until_ready(device, 86_400.0, clock=clock.now)
         return {"time_to_ready_s": clock.now(), "from": "power-on"}
     device.status()
     t0 = clock.now()
@@ -460,7 +460,7 @@ def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:
         if clock.now() - t0 > 3.0:
             break  # back already (or BOOT missed): READY is timed from the RESET all the same
         clock.sleep(0.05)
-    wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
+    wait_until_ready(device, 86_400.0, clock=clock.now)
     ticks = device.status().sample_counter + 1  # the first READY status: ticks since the RESET
     return {
         "time_to_ready_s": ticks / float(device.sample_rate_hz),
@@ -535,7 +535,7 @@ class Stages:
                 _progress(args, f"READY {ready['time_to_ready_s']:.1f} s after {ready['from']}")
                 (self.out / "ready.json").write_text(dumps(ready) + "\n")
             else:
-                wait_until_ready(device, 86_400.0, sleep=clock.sleep, clock=clock.now)
+                wait_until_ready(device, 86_400.0, clock=clock.now)
             if need_static:
                 _progress(args, f"static recording of {args.static_s:g} s ({args.static_from})")
                 angle = float(device.status().angle_deg)
