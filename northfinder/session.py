@@ -8,7 +8,7 @@ here, and so can a script, with the same configuration objects::
 
     config = northfinder.FindConfig(northfinder.LinkConfig(sim=northfinder.SimConfig(seed=1)))
     measured = northfinder.find(config)
-    print(measured.result.azimuth_deg, measured.truth)
+    print(measured.result.azimuth_deg, measured.truth.azimuth_deg)
 
 This module is part of the application layer (it opens the simulator and the driver alike).
 """
@@ -39,6 +39,7 @@ from northfinder.driver.errors import DriverError, LinkError
 from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.endings import note_at_rest, note_ending
+from northfinder.firmware_sim.imu import Truth
 from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.procedure import (
     FindProgress,
@@ -53,6 +54,7 @@ from northfinder.host.results import device_identity, utc_now
 
 __all__ = [
     "Measured",
+    "SimTruth",
     "SpinMeasured",
     "Unit",
     "check_config",
@@ -74,12 +76,53 @@ FRESH_SEED_BELOW = 2**32
 
 
 @dataclass(frozen=True)
+class SimTruth:
+    """What the embedded simulator simulates: where the instrument really stands (the
+    simulator's :class:`~northfinder.firmware_sim.imu.Truth`), the sensor's name, the pace
+    (simulated s per wall s; None: virtual time) and the run's seed (``--seed`` repeats it)."""
+
+    truth: Truth
+    sensor: str
+    speed: float | None
+    seed: int
+
+    @property
+    def azimuth_deg(self) -> float:
+        return self.truth.azimuth_deg
+
+    @property
+    def latitude_deg(self) -> float:
+        return self.truth.latitude_deg
+
+    @property
+    def pitch_deg(self) -> float:
+        return self.truth.pitch_deg
+
+    @property
+    def roll_deg(self) -> float:
+        return self.truth.roll_deg
+
+    def as_dict(self) -> dict[str, Any]:
+        """As the JSON states it (``find --json``'s ``truth``, a recording's metadata): the
+        truth's fields, then ``sensor``, ``speed`` and ``seed``."""
+        fields = dataclasses.asdict(self.truth)
+        return {**fields, "sensor": self.sensor, "speed": self.speed, "seed": self.seed}
+
+    def __getitem__(self, key: str) -> Any:
+        """``truth["azimuth_deg"]``: read as the mapping of version 0.2 (:meth:`as_dict`)."""
+        return self.as_dict()[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """``truth.get("sensor")``, as the mapping of version 0.2 (:meth:`as_dict`)."""
+        return self.as_dict().get(key, default)
+
+
+@dataclass(frozen=True)
 class Unit:
-    """An open unit: the device, and for the embedded simulator what it simulates (the truth
-    with the sensor's name, the speed and the seed), else None."""
+    """An open unit: the device, and for the embedded simulator what it simulates, else None."""
 
     device: Device
-    truth: dict[str, Any] | None = None
+    truth: SimTruth | None = None
 
     @property
     def simulated(self) -> bool:
@@ -96,7 +139,7 @@ class Measured:
     plan: Plan
     latitude_deg: float
     sample_rate_hz: float
-    truth: dict[str, Any] | None
+    truth: SimTruth | None
     device: dict[str, Any] | None = None
     created_utc: str = ""
     #: Files that could not be written (the recording, the CAN log), after a result was found:
@@ -115,7 +158,7 @@ class SpinMeasured:
     found: SpinFind
     latitude_deg: float
     latitude_source: str
-    truth: dict[str, Any] | None
+    truth: SimTruth | None
     device: dict[str, Any]
 
 
@@ -280,10 +323,8 @@ def leaving_at_rest(device: Device) -> Iterator[None]:
         raise
 
 
-def _sim_truth(sim: SimConfig, latitude_deg: float, rng: np.random.Generator) -> Any:
+def _sim_truth(sim: SimConfig, latitude_deg: float, rng: np.random.Generator) -> Truth:
     """The simulated truth (the azimuth drawn from ``rng`` when not given)."""
-    from northfinder.firmware_sim.imu import Truth
-
     azimuth = float(rng.uniform(0.0, 360.0)) if sim.azimuth_deg is None else sim.azimuth_deg
     return Truth(azimuth, latitude_deg, sim.pitch_deg, sim.roll_deg)
 
@@ -320,7 +361,7 @@ def simulated_unit(
         leaving_at_rest(device),
     ):
         try:
-            yield Unit(device, {**instrument.describe(), "seed": seed})
+            yield Unit(device, SimTruth(truth, instrument.spec.name, instrument.speed, seed))
         except DriverError:
             instrument.check()  # a simulator that failed is the cause, not the link: say so
             raise
@@ -347,7 +388,7 @@ def recording_meta(
     sample_rate_hz: float,
     created_utc: str,
     device: dict[str, Any] | None,
-    truth: dict[str, Any] | None,
+    truth: SimTruth | None,
 ) -> dict[str, Any]:
     """The metadata of a recording: what is needed to solve it again, the device's identity
     and the UTC time the run began."""
@@ -360,7 +401,7 @@ def recording_meta(
         "device": device,
     }
     if truth is not None:
-        meta["truth"] = truth
+        meta["truth"] = truth.as_dict()
     return meta
 
 
@@ -395,7 +436,7 @@ def find(
         identity = device_identity(
             device.identity,
             simulated=unit.simulated,
-            sensor=None if truth is None else truth.get("sensor"),
+            sensor=None if truth is None else truth.sensor,
         )
         rate = device.sample_rate_hz
         writer = None
@@ -445,7 +486,7 @@ def find_spin(
         identity = device_identity(
             device.identity,
             simulated=unit.simulated,
-            sensor=None if truth is None else truth.get("sensor"),
+            sensor=None if truth is None else truth.sensor,
         )
         try:
             found = find_north_spin(

@@ -179,7 +179,7 @@ config = nf.FindConfig(
     plan=nf.Plan((0.0, 180.0), 1.0),
 )
 m = nf.find(config)
-print(json.dumps([repr(m.result.azimuth_deg), repr(m.result.sigma_deg), m.truth["seed"]]))
+print(json.dumps([repr(m.result.azimuth_deg), repr(m.result.sigma_deg), m.truth.seed]))
 """
 
 

@@ -202,12 +202,12 @@ def _unit_config(args: argparse.Namespace) -> FindConfig:
 def open_device(
     args: argparse.Namespace, deferred: list[Exception] | None = None
 ) -> Iterator[tuple[Device, dict[str, Any] | None]]:
-    """The device named by the arguments, and the simulated truth when it is simulated
-    (:func:`northfinder.session.open_unit`)."""
+    """The device named by the arguments, and the simulated truth when it is simulated, as the
+    JSON states it (:func:`northfinder.session.open_unit`, :meth:`SimTruth.as_dict`)."""
     config = _unit_config(args)
     latitude = session.site_latitude(config)
     with session.open_unit(config.link, latitude_deg=latitude, deferred=deferred) as unit:
-        yield unit.device, unit.truth
+        yield unit.device, None if unit.truth is None else unit.truth.as_dict()
 
 
 def link_config(args: argparse.Namespace) -> LinkConfig:
