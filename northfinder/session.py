@@ -59,6 +59,7 @@ __all__ = [
     "Unit",
     "check_config",
     "check_link",
+    "draw_truth",
     "find",
     "find_spin",
     "latitude_source",
@@ -67,6 +68,8 @@ __all__ = [
     "real_unit",
     "recording_meta",
     "relaxed_device",
+    "sensor_spec",
+    "simulated_instrument",
     "simulated_unit",
     "site_latitude",
 ]
@@ -323,10 +326,51 @@ def leaving_at_rest(device: Device) -> Iterator[None]:
         raise
 
 
-def _sim_truth(sim: SimConfig, latitude_deg: float, rng: np.random.Generator) -> Truth:
-    """The simulated truth (the azimuth drawn from ``rng`` when not given)."""
+def draw_truth(sim: SimConfig, latitude_deg: float) -> tuple[Truth, int, np.random.Generator]:
+    """The truth of a simulated run, its seed (``sim.seed``, or a fresh one drawn now) and the
+    generator of that seed, which drew the azimuth when none is given and then drives the
+    sensor noise.
+
+    Raises
+    ------
+    SimConfigError
+        A field the simulated base cannot take.
+    """
+    seed = secrets.randbelow(FRESH_SEED_BELOW) if sim.seed is None else sim.seed
+    rng = np.random.default_rng(seed)
     azimuth = float(rng.uniform(0.0, 360.0)) if sim.azimuth_deg is None else sim.azimuth_deg
-    return Truth(azimuth, latitude_deg, sim.pitch_deg, sim.roll_deg)
+    return Truth(azimuth, latitude_deg, sim.pitch_deg, sim.roll_deg), seed, rng
+
+
+def sensor_spec(sim: SimConfig) -> Any:
+    """The sensor of ``sim`` (a preset or a TOML file) that the simulated device can run
+    (:func:`~northfinder.firmware_sim.firmware.check_device_spec`).
+
+    Raises
+    ------
+    SimConfigError
+        An unknown preset, or a field, its value and the bound it exceeds.
+    """
+    from northfinder.firmware_sim.firmware import check_device_spec
+    from northfinder.firmware_sim.sensors import load_spec
+
+    return check_device_spec(load_spec(sim.sensor))
+
+
+def simulated_instrument(
+    link: LinkConfig, sim: SimConfig, latitude_deg: float = DEFAULT_LATITUDE_DEG
+) -> tuple[Any, SimTruth]:
+    """The embedded simulator of ``sim`` (not started: enter it), on virtual CAN as node
+    ``link.node_id``, in virtual time or paced at ``sim.speed``; and its truth."""
+    from northfinder.embed import SimulatedInstrument
+
+    truth, seed, rng = draw_truth(sim, latitude_deg)
+    paced = sim.speed is not None
+    instrument = SimulatedInstrument(
+        sensor_spec(sim), truth, seed=rng, speed=sim.speed,
+        clock=None if paced else "virtual", warmup_s=sim.warmup_s, node_id=link.node_id,
+    )  # fmt: skip
+    return instrument, SimTruth(truth, instrument.spec.name, instrument.speed, seed)
 
 
 @contextlib.contextmanager
@@ -338,18 +382,8 @@ def simulated_unit(
     Virtual time by default; paced (``speed``) on a thread, with the driver's relaxed
     deadlines since the simulator shares this interpreter.
     """
-    from northfinder.embed import SimulatedInstrument
-    from northfinder.firmware_sim.firmware import check_device_spec
-    from northfinder.firmware_sim.sensors import load_spec
-
-    seed = secrets.randbelow(FRESH_SEED_BELOW) if sim.seed is None else sim.seed
-    rng = np.random.default_rng(seed)
-    truth = _sim_truth(sim, latitude_deg, rng)
+    instrument, facts = simulated_instrument(link, sim, latitude_deg)
     paced = sim.speed is not None
-    instrument = SimulatedInstrument(
-        check_device_spec(load_spec(sim.sensor)), truth, seed=rng, speed=sim.speed,
-        clock=None if paced else "virtual", warmup_s=sim.warmup_s, node_id=link.node_id,
-    )  # fmt: skip
     reply, supervision = _deadlines(link, relaxed=paced)
     if tap is not None and not paced:
         tap.use_clock(instrument.clock)  # the log's times are the instrument's, not the CPU's
@@ -361,7 +395,7 @@ def simulated_unit(
         leaving_at_rest(device),
     ):
         try:
-            yield Unit(device, SimTruth(truth, instrument.spec.name, instrument.speed, seed))
+            yield Unit(device, facts)
         except DriverError:
             instrument.check()  # a simulator that failed is the cause, not the link: say so
             raise

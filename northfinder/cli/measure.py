@@ -232,12 +232,13 @@ def link_config(args: argparse.Namespace) -> LinkConfig:
 
 
 def sim_config(args: argparse.Namespace) -> SimConfig:
-    """The embedded simulator's options; an option not given keeps :class:`SimConfig`'s
-    default."""
-    given = {
-        "sensor": args.sensor, "seed": args.seed, "speed": args.speed, "warmup_s": args.warmup,
-        "azimuth_deg": args.azimuth, "pitch_deg": args.pitch, "roll_deg": args.roll,
+    """The embedded simulator's options; an option not given (or that the command does not
+    take) keeps :class:`SimConfig`'s default."""
+    options = {
+        "sensor": "sensor", "seed": "seed", "speed": "speed", "warmup_s": "warmup",
+        "azimuth_deg": "azimuth", "pitch_deg": "pitch", "roll_deg": "roll",
     }  # fmt: skip
+    given = {k: getattr(args, name, None) for k, name in options.items()}
     return SimConfig(**{k: v for k, v in given.items() if v is not None})
 
 
