@@ -19,6 +19,7 @@ import contextlib
 import dataclasses
 import functools
 import secrets
+import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -167,6 +168,16 @@ class SpinMeasured:
 
 # -- checks, once, before a unit is opened ---------------------------------------------------
 
+#: The configurations checked, while they live (by identity: a frozen configuration checked
+#: once, as the command line parses it, is not checked again when it is run).
+_checked: weakref.WeakValueDictionary[int, Any] = weakref.WeakValueDictionary()
+
+
+def _check_once(config: Any, check: Callable[[Any], None]) -> None:
+    """``check(config)`` unless this very object was checked already."""
+    if _checked.get(id(config)) is not config:
+        check(config)
+
 
 def check_link(link: LinkConfig) -> None:
     """Refuse a link configuration that names no unit or more than one.
@@ -182,6 +193,7 @@ def check_link(link: LinkConfig) -> None:
             "choose exactly one device: -i/-c (python-can), --serial PORT, or --sim"
         )
     check_log_rotation(link.can_log, link.can_log_rotate, "--can-log")
+    _checked[id(link)] = link
 
 
 def check_config(config: FindConfig) -> None:
@@ -193,12 +205,13 @@ def check_config(config: FindConfig) -> None:
         As :func:`check_link`; no latitude for a real unit (never assumed: a wrong latitude
         gives a wrong heading without a word).
     """
-    check_link(config.link)
+    _check_once(config.link, check_link)
     if config.link.sim is None and config.latitude_deg is None:
         raise HostConfigError(
             "--latitude: give the site's latitude in degrees (north positive); a real "
             "device's latitude is never assumed"
         )
+    _checked[id(config)] = config
 
 
 def site_latitude(config: FindConfig) -> float:
@@ -234,7 +247,7 @@ def open_unit(
     With ``deferred``, a CAN log that cannot be completed after a successful run is added to it
     instead of raised: the caller reports its result first, then the error.
     """
-    check_link(link)
+    _check_once(link, check_link)
     with contextlib.ExitStack() as stack:
         tap = None
         if link.can_log:
@@ -446,7 +459,9 @@ def find(
     record_to: str | None = None,
     on_link_statistics: Callable[[str], None] | None = None,
 ) -> Measured:
-    """Open the unit, run the plan, solve, and leave the unit at rest.
+    """Check the run (:func:`check_config`, unless this very configuration was checked, as the
+    command line checks it as it parses), open the unit, run the plan, solve, and leave the
+    unit at rest.
 
     Parameters
     ----------
@@ -462,7 +477,7 @@ def find(
     on_link_statistics : callable, optional
         Called with the link's statistics (:func:`link_statistics`) as the run ends.
     """
-    check_config(config)
+    _check_once(config, check_config)
     latitude, source, created = site_latitude(config), latitude_source(config), utc_now()
     deferred: list[Exception] = []
     with open_unit(config.link, latitude_deg=latitude, deferred=deferred) as unit:
@@ -513,7 +528,7 @@ def find_spin(
     spin = config.spin
     if spin is None:
         raise HostConfigError("find_spin needs a spin (FindConfig.spin)")
-    check_config(config)
+    _check_once(config, check_config)
     latitude, source = site_latitude(config), latitude_source(config)
     with open_unit(config.link, latitude_deg=latitude) as unit:
         device, truth = unit.device, unit.truth

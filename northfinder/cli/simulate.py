@@ -20,7 +20,7 @@ from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, body_rates
 from northfinder.host.results import envelope
-from northfinder.simwindows import simulator_identity
+from northfinder.simwindows import MAX_RATE_HZ, MAX_WINDOW_S, simulator_identity
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -40,12 +40,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"sample rate, Hz, up to {MAX_RATE_HZ:g} (default: 200)",
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-
-
-#: Longest window, s, and highest sample rate, Hz: a window holds at most 3.6 million samples
-#: (about 200 MB with its temporaries).
-MAX_WINDOW_S = 3600.0
-MAX_RATE_HZ = 1000.0
 
 
 def run(args: argparse.Namespace) -> int:
