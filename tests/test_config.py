@@ -216,6 +216,8 @@ def test_the_simulated_truth_is_typed_and_written_as_the_json_states_it(capsys, 
     assert list(truth.as_dict()) == [
         "azimuth_deg", "latitude_deg", "pitch_deg", "roll_deg", "sensor", "speed", "seed",
     ]  # fmt: skip
+    # read as the mapping of version 0.2 too
+    assert (truth["azimuth_deg"], truth.get("sensor")) == (truth.azimuth_deg, "paper-rlg")
     assert main(["find", *argv, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["truth"] == truth.as_dict()
     path = tmp_path / "run.npz"
