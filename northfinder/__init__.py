@@ -91,6 +91,7 @@ _PUBLIC: dict[str, str] = {
     "open_unit": "northfinder.session",
     "Unit": "northfinder.session",
     "Measured": "northfinder.session",
+    "SimTruth": "northfinder.session",
     "SpinMeasured": "northfinder.session",
     # the errors: one root per package, and what a host handles by kind
     "DriverError": "northfinder.driver.errors",
@@ -170,6 +171,7 @@ if _TYPE_CHECKING:  # what static tools see: the names of _PUBLIC, re-exported
     from northfinder.host.recording import Recording as Recording
     from northfinder.host.spin import SpinSolution as SpinSolution
     from northfinder.session import Measured as Measured
+    from northfinder.session import SimTruth as SimTruth
     from northfinder.session import SpinMeasured as SpinMeasured
     from northfinder.session import Unit as Unit
     from northfinder.session import find as find

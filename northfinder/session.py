@@ -8,7 +8,7 @@ here, and so can a script, with the same configuration objects::
 
     config = northfinder.FindConfig(northfinder.LinkConfig(sim=northfinder.SimConfig(seed=1)))
     measured = northfinder.find(config)
-    print(measured.result.azimuth_deg, measured.truth)
+    print(measured.result.azimuth_deg, measured.truth.azimuth_deg)
 
 This module is part of the application layer (it opens the simulator and the driver alike).
 """
@@ -19,6 +19,7 @@ import contextlib
 import dataclasses
 import functools
 import secrets
+import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -39,6 +40,7 @@ from northfinder.driver.errors import DriverError, LinkError
 from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 from northfinder.endings import note_at_rest, note_ending
+from northfinder.firmware_sim.imu import Truth
 from northfinder.host.errors import HostConfigError, HostError
 from northfinder.host.procedure import (
     FindProgress,
@@ -53,10 +55,12 @@ from northfinder.host.results import device_identity, utc_now
 
 __all__ = [
     "Measured",
+    "SimTruth",
     "SpinMeasured",
     "Unit",
     "check_config",
     "check_link",
+    "draw_truth",
     "find",
     "find_spin",
     "latitude_source",
@@ -65,6 +69,8 @@ __all__ = [
     "real_unit",
     "recording_meta",
     "relaxed_device",
+    "sensor_spec",
+    "simulated_instrument",
     "simulated_unit",
     "site_latitude",
 ]
@@ -74,12 +80,53 @@ FRESH_SEED_BELOW = 2**32
 
 
 @dataclass(frozen=True)
+class SimTruth:
+    """What the embedded simulator simulates: where the instrument really stands (the
+    simulator's :class:`~northfinder.firmware_sim.imu.Truth`), the sensor's name, the pace
+    (simulated s per wall s; None: virtual time) and the run's seed (``--seed`` repeats it)."""
+
+    truth: Truth
+    sensor: str
+    speed: float | None
+    seed: int
+
+    @property
+    def azimuth_deg(self) -> float:
+        return self.truth.azimuth_deg
+
+    @property
+    def latitude_deg(self) -> float:
+        return self.truth.latitude_deg
+
+    @property
+    def pitch_deg(self) -> float:
+        return self.truth.pitch_deg
+
+    @property
+    def roll_deg(self) -> float:
+        return self.truth.roll_deg
+
+    def as_dict(self) -> dict[str, Any]:
+        """As the JSON states it (``find --json``'s ``truth``, a recording's metadata): the
+        truth's fields, then ``sensor``, ``speed`` and ``seed``."""
+        fields = dataclasses.asdict(self.truth)
+        return {**fields, "sensor": self.sensor, "speed": self.speed, "seed": self.seed}
+
+    def __getitem__(self, key: str) -> Any:
+        """``truth["azimuth_deg"]``: read as the mapping of version 0.2 (:meth:`as_dict`)."""
+        return self.as_dict()[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """``truth.get("sensor")``, as the mapping of version 0.2 (:meth:`as_dict`)."""
+        return self.as_dict().get(key, default)
+
+
+@dataclass(frozen=True)
 class Unit:
-    """An open unit: the device, and for the embedded simulator what it simulates (the truth
-    with the sensor's name, the speed and the seed), else None."""
+    """An open unit: the device, and for the embedded simulator what it simulates, else None."""
 
     device: Device
-    truth: dict[str, Any] | None = None
+    truth: SimTruth | None = None
 
     @property
     def simulated(self) -> bool:
@@ -96,7 +143,7 @@ class Measured:
     plan: Plan
     latitude_deg: float
     sample_rate_hz: float
-    truth: dict[str, Any] | None
+    truth: SimTruth | None
     device: dict[str, Any] | None = None
     created_utc: str = ""
     #: Files that could not be written (the recording, the CAN log), after a result was found:
@@ -115,11 +162,21 @@ class SpinMeasured:
     found: SpinFind
     latitude_deg: float
     latitude_source: str
-    truth: dict[str, Any] | None
+    truth: SimTruth | None
     device: dict[str, Any]
 
 
 # -- checks, once, before a unit is opened ---------------------------------------------------
+
+#: The configurations checked, while they live (by identity: a frozen configuration checked
+#: once, as the command line parses it, is not checked again when it is run).
+_checked: weakref.WeakValueDictionary[int, Any] = weakref.WeakValueDictionary()
+
+
+def _check_once(config: Any, check: Callable[[Any], None]) -> None:
+    """``check(config)`` unless this very object was checked already."""
+    if _checked.get(id(config)) is not config:
+        check(config)
 
 
 def check_link(link: LinkConfig) -> None:
@@ -136,6 +193,7 @@ def check_link(link: LinkConfig) -> None:
             "choose exactly one device: -i/-c (python-can), --serial PORT, or --sim"
         )
     check_log_rotation(link.can_log, link.can_log_rotate, "--can-log")
+    _checked[id(link)] = link
 
 
 def check_config(config: FindConfig) -> None:
@@ -147,12 +205,13 @@ def check_config(config: FindConfig) -> None:
         As :func:`check_link`; no latitude for a real unit (never assumed: a wrong latitude
         gives a wrong heading without a word).
     """
-    check_link(config.link)
+    _check_once(config.link, check_link)
     if config.link.sim is None and config.latitude_deg is None:
         raise HostConfigError(
             "--latitude: give the site's latitude in degrees (north positive); a real "
             "device's latitude is never assumed"
         )
+    _checked[id(config)] = config
 
 
 def site_latitude(config: FindConfig) -> float:
@@ -188,7 +247,7 @@ def open_unit(
     With ``deferred``, a CAN log that cannot be completed after a successful run is added to it
     instead of raised: the caller reports its result first, then the error.
     """
-    check_link(link)
+    _check_once(link, check_link)
     with contextlib.ExitStack() as stack:
         tap = None
         if link.can_log:
@@ -280,12 +339,51 @@ def leaving_at_rest(device: Device) -> Iterator[None]:
         raise
 
 
-def _sim_truth(sim: SimConfig, latitude_deg: float, rng: np.random.Generator) -> Any:
-    """The simulated truth (the azimuth drawn from ``rng`` when not given)."""
-    from northfinder.firmware_sim.imu import Truth
+def draw_truth(sim: SimConfig, latitude_deg: float) -> tuple[Truth, int, np.random.Generator]:
+    """The truth of a simulated run, its seed (``sim.seed``, or a fresh one drawn now) and the
+    generator of that seed, which drew the azimuth when none is given and then drives the
+    sensor noise.
 
+    Raises
+    ------
+    SimConfigError
+        A field the simulated base cannot take.
+    """
+    seed = secrets.randbelow(FRESH_SEED_BELOW) if sim.seed is None else sim.seed
+    rng = np.random.default_rng(seed)
     azimuth = float(rng.uniform(0.0, 360.0)) if sim.azimuth_deg is None else sim.azimuth_deg
-    return Truth(azimuth, latitude_deg, sim.pitch_deg, sim.roll_deg)
+    return Truth(azimuth, latitude_deg, sim.pitch_deg, sim.roll_deg), seed, rng
+
+
+def sensor_spec(sim: SimConfig) -> Any:
+    """The sensor of ``sim`` (a preset or a TOML file) that the simulated device can run
+    (:func:`~northfinder.firmware_sim.firmware.check_device_spec`).
+
+    Raises
+    ------
+    SimConfigError
+        An unknown preset, or a field, its value and the bound it exceeds.
+    """
+    from northfinder.firmware_sim.firmware import check_device_spec
+    from northfinder.firmware_sim.sensors import load_spec
+
+    return check_device_spec(load_spec(sim.sensor))
+
+
+def simulated_instrument(
+    link: LinkConfig, sim: SimConfig, latitude_deg: float = DEFAULT_LATITUDE_DEG
+) -> tuple[Any, SimTruth]:
+    """The embedded simulator of ``sim`` (not started: enter it), on virtual CAN as node
+    ``link.node_id``, in virtual time or paced at ``sim.speed``; and its truth."""
+    from northfinder.embed import SimulatedInstrument
+
+    truth, seed, rng = draw_truth(sim, latitude_deg)
+    paced = sim.speed is not None
+    instrument = SimulatedInstrument(
+        sensor_spec(sim), truth, seed=rng, speed=sim.speed,
+        clock=None if paced else "virtual", warmup_s=sim.warmup_s, node_id=link.node_id,
+    )  # fmt: skip
+    return instrument, SimTruth(truth, instrument.spec.name, instrument.speed, seed)
 
 
 @contextlib.contextmanager
@@ -297,18 +395,8 @@ def simulated_unit(
     Virtual time by default; paced (``speed``) on a thread, with the driver's relaxed
     deadlines since the simulator shares this interpreter.
     """
-    from northfinder.embed import SimulatedInstrument
-    from northfinder.firmware_sim.firmware import check_device_spec
-    from northfinder.firmware_sim.sensors import load_spec
-
-    seed = secrets.randbelow(FRESH_SEED_BELOW) if sim.seed is None else sim.seed
-    rng = np.random.default_rng(seed)
-    truth = _sim_truth(sim, latitude_deg, rng)
+    instrument, facts = simulated_instrument(link, sim, latitude_deg)
     paced = sim.speed is not None
-    instrument = SimulatedInstrument(
-        check_device_spec(load_spec(sim.sensor)), truth, seed=rng, speed=sim.speed,
-        clock=None if paced else "virtual", warmup_s=sim.warmup_s, node_id=link.node_id,
-    )  # fmt: skip
     reply, supervision = _deadlines(link, relaxed=paced)
     if tap is not None and not paced:
         tap.use_clock(instrument.clock)  # the log's times are the instrument's, not the CPU's
@@ -320,7 +408,7 @@ def simulated_unit(
         leaving_at_rest(device),
     ):
         try:
-            yield Unit(device, {**instrument.describe(), "seed": seed})
+            yield Unit(device, facts)
         except DriverError:
             instrument.check()  # a simulator that failed is the cause, not the link: say so
             raise
@@ -347,7 +435,7 @@ def recording_meta(
     sample_rate_hz: float,
     created_utc: str,
     device: dict[str, Any] | None,
-    truth: dict[str, Any] | None,
+    truth: SimTruth | None,
 ) -> dict[str, Any]:
     """The metadata of a recording: what is needed to solve it again, the device's identity
     and the UTC time the run began."""
@@ -360,7 +448,7 @@ def recording_meta(
         "device": device,
     }
     if truth is not None:
-        meta["truth"] = truth
+        meta["truth"] = truth.as_dict()
     return meta
 
 
@@ -371,7 +459,9 @@ def find(
     record_to: str | None = None,
     on_link_statistics: Callable[[str], None] | None = None,
 ) -> Measured:
-    """Open the unit, run the plan, solve, and leave the unit at rest.
+    """Check the run (:func:`check_config`, unless this very configuration was checked, as the
+    command line checks it as it parses), open the unit, run the plan, solve, and leave the
+    unit at rest.
 
     Parameters
     ----------
@@ -387,7 +477,7 @@ def find(
     on_link_statistics : callable, optional
         Called with the link's statistics (:func:`link_statistics`) as the run ends.
     """
-    check_config(config)
+    _check_once(config, check_config)
     latitude, source, created = site_latitude(config), latitude_source(config), utc_now()
     deferred: list[Exception] = []
     with open_unit(config.link, latitude_deg=latitude, deferred=deferred) as unit:
@@ -395,7 +485,7 @@ def find(
         identity = device_identity(
             device.identity,
             simulated=unit.simulated,
-            sensor=None if truth is None else truth.get("sensor"),
+            sensor=None if truth is None else truth.sensor,
         )
         rate = device.sample_rate_hz
         writer = None
@@ -438,14 +528,14 @@ def find_spin(
     spin = config.spin
     if spin is None:
         raise HostConfigError("find_spin needs a spin (FindConfig.spin)")
-    check_config(config)
+    _check_once(config, check_config)
     latitude, source = site_latitude(config), latitude_source(config)
     with open_unit(config.link, latitude_deg=latitude) as unit:
         device, truth = unit.device, unit.truth
         identity = device_identity(
             device.identity,
             simulated=unit.simulated,
-            sensor=None if truth is None else truth.get("sensor"),
+            sensor=None if truth is None else truth.sensor,
         )
         try:
             found = find_north_spin(

@@ -33,6 +33,8 @@ from northfinder.host.montecarlo import RunRequest
 from northfinder.host.plan import SpinPlan, TableModel, spin_ramp_s, spin_start_deg
 
 __all__ = [
+    "MAX_RATE_HZ",
+    "MAX_WINDOW_S",
     "SimulatedWindows",
     "SpecDrift",
     "error_model",
@@ -40,6 +42,12 @@ __all__ = [
     "table_model",
     "write_recordings",
 ]
+
+#: Longest window, s, and highest sample rate, Hz, of the windows simulated in this process
+#: (``simulate``, the studies): a window holds at most 3.6 million samples (about 200 MB with
+#: its temporaries).
+MAX_WINDOW_S = 3600.0
+MAX_RATE_HZ = 1000.0
 
 
 def simulator_identity(sensor: str | None = None) -> dict[str, Any]:

@@ -179,7 +179,7 @@ config = nf.FindConfig(
     plan=nf.Plan((0.0, 180.0), 1.0),
 )
 m = nf.find(config)
-print(json.dumps([repr(m.result.azimuth_deg), repr(m.result.sigma_deg), m.truth["seed"]]))
+print(json.dumps([repr(m.result.azimuth_deg), repr(m.result.sigma_deg), m.truth.seed]))
 """
 
 
@@ -202,3 +202,104 @@ def test_a_script_runs_what_the_command_line_runs(capsys):
     assert seed == 5
     assert float(azimuth) == out["azimuth_deg"]
     assert float(sigma) == out["sigma_deg"]
+
+
+def test_the_simulated_truth_is_typed_and_written_as_the_json_states_it(capsys, tmp_path):
+    """``Measured.truth`` is a :class:`SimTruth`; ``find --json`` and a recording's metadata
+    write its ``as_dict()``, in that order of keys."""
+    argv = ["--sim", "--seed", "3", "--warmup", "0", "--pitch", "1", "--positions", "0,180",
+            "--window", "1"]  # fmt: skip
+    measured = nf.find(parsed(*argv))
+    truth = measured.truth
+    assert isinstance(truth, nf.SimTruth) and isinstance(truth.truth, nf.Truth)
+    assert (truth.seed, truth.sensor, truth.speed, truth.pitch_deg) == (3, "paper-rlg", None, 1.0)
+    assert list(truth.as_dict()) == [
+        "azimuth_deg", "latitude_deg", "pitch_deg", "roll_deg", "sensor", "speed", "seed",
+    ]  # fmt: skip
+    # read as the mapping of version 0.2 too
+    assert (truth["azimuth_deg"], truth.get("sensor")) == (truth.azimuth_deg, "paper-rlg")
+    assert main(["find", *argv, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["truth"] == truth.as_dict()
+    path = tmp_path / "run.npz"
+    assert main(["record", str(path), *argv]) == 0
+    from northfinder.host.recording import Recording
+
+    assert Recording.load(path).meta["truth"] == truth.as_dict()
+
+
+def sim_parsed(command: str, *argv: str) -> tuple[nf.SimConfig, float]:
+    """The simulated instrument and latitude ``northfinder sim|simulate ARGV`` runs."""
+    from northfinder.cli.simulated import simulated
+
+    return simulated(build_parser(only=command).parse_args([command, *argv]))
+
+
+SIM_CASES = [
+    (
+        ("sim", "--pty"),
+        (nf.SimConfig(speed=1.0, warmup_s=120.0), 34.0),
+    ),
+    (
+        ("sim", "--pty", "--seed", "3", "--azimuth", "10", "--pitch", "1", "--roll", "-0.5",
+         "--sensor", "nav-fog", "--warmup", "0", "--speed", "20", "--latitude", "-12"),
+        (nf.SimConfig("nav-fog", 3, 20.0, 0.0, 10.0, 1.0, -0.5), -12.0),
+    ),
+    (
+        ("simulate", "--seed", "2", "--latitude", "50", "--azimuth", "42"),
+        (nf.SimConfig(seed=2, azimuth_deg=42.0), 50.0),
+    ),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("argv", "config"), SIM_CASES, ids=[" ".join(a) for a, _ in SIM_CASES])
+def test_the_simulator_commands_build_the_same_configuration(argv, config):
+    assert sim_parsed(*argv) == config
+
+
+def test_conformance_sim_builds_the_same_link():
+    from northfinder.cli import conformance
+
+    def link(*argv: str) -> nf.LinkConfig:
+        return conformance.sim_link(build_parser(only="conformance").parse_args(argv))
+
+    level = nf.SimConfig(seed=4, warmup_s=0.0, azimuth_deg=0.0)
+    assert link("conformance", "--sim", "--seed", "4") == nf.LinkConfig(sim=level)
+    assert link("conformance", "--sim", "--seed", "4", "--sensor", "nav-fog", "--node-id", "3") == (
+        nf.LinkConfig(node_id=3, sim=dataclasses.replace(level, sensor="nav-fog"))
+    )
+    assert link("conformance", "--sim", "--seed", "5") != nf.LinkConfig(sim=level)
+
+
+def test_a_seed_gives_the_same_truth_in_every_simulator_command(capsys):
+    """``sim``, ``simulate`` and ``find --sim`` draw the truth of a seed the same way."""
+    from northfinder import session
+
+    sim, latitude = sim_parsed("simulate", "--seed", "11")
+    truth, seed, _ = session.draw_truth(sim, latitude)
+    _, facts = session.simulated_instrument(nf.LinkConfig(sim=sim), sim, latitude)
+    assert (facts.truth, facts.seed) == (truth, seed) == (truth, 11)
+    assert main(["simulate", "--seed", "11", "--json", "--window", "0.1"]) == 0
+    assert json.loads(capsys.readouterr().out)["truth"] == dataclasses.asdict(truth)
+    assert session.draw_truth(dataclasses.replace(sim, seed=12), latitude)[0] != truth
+
+
+def test_the_command_line_checks_a_run_once_and_a_script_s_run_is_checked(monkeypatch, capsys):
+    from northfinder import session
+
+    calls: list[object] = []
+    real = session.check_log_rotation
+
+    def counted(*a: object) -> None:
+        calls.append(a)
+        real(*a)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(session, "check_log_rotation", counted)
+    argv = ["find", "--sim", "--seed", "1", "--warmup", "0", "--positions", "0,180", "--window",
+            "1", "--json"]  # fmt: skip
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert len(calls) == 1
+    with pytest.raises(HostConfigError, match="--latitude: give the site's latitude"):
+        nf.find(nf.FindConfig(nf.LinkConfig(serial="/dev/null")))
+    with pytest.raises(HostConfigError, match="choose exactly one device"):
+        nf.find(nf.FindConfig(nf.LinkConfig()))

@@ -233,3 +233,23 @@ def test_one_name_one_thing():
     twice = {name: paths for name, paths in where.items() if len(paths) > 1}
     assert not twice, twice
     assert not hasattr(procedure, "MAX_SETTLE_S") and procedure.MAX_DEVICE_SETTLE_S == 600.0
+
+
+@pytest.mark.parametrize("name", ["MAX_RATE_HZ", "MAX_WINDOW_S"])
+def test_the_simulated_window_limits_are_defined_once(name):
+    """The longest simulated window and the highest simulated sample rate are the simulator
+    windows' (northfinder.simwindows), and every command that takes them reads them there."""
+    import re
+    from pathlib import Path
+
+    import northfinder
+    from northfinder import simwindows
+    from northfinder.cli import simulate, study, sweep
+
+    root = Path(northfinder.__file__).parent
+    assignment = re.compile(rf"^{name}\s*[:=]", re.MULTILINE)
+    defined = [p.relative_to(root).as_posix() for p in sorted(root.rglob("*.py"))
+               if assignment.search(p.read_text(encoding="utf-8"))]  # fmt: skip
+    assert defined == ["simwindows.py"]
+    for module in (simulate, study, sweep):
+        assert getattr(module, name) is getattr(simwindows, name), module.__name__

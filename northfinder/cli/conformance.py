@@ -24,6 +24,7 @@ from northfinder.cli.argtypes import angle_list, bounded_float
 from northfinder.cli.files import check_output_path
 from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus, open_serial_option
 from northfinder.cli.options import add_sensor_argument
+from northfinder.config import LinkConfig, SimConfig, default_of
 from northfinder.driver.conformance import (
     CHECKS,
     CanRawLink,
@@ -214,6 +215,14 @@ def _run_simulated(args: argparse.Namespace, options: SuiteOptions) -> int:
     )
 
 
+def sim_link(args: argparse.Namespace) -> LinkConfig:
+    """The unit of ``--sim``: the simulated instrument of ``--sensor`` and ``--seed``, level at
+    azimuth 0 at the simulation's latitude, ready at once (no warm-up), in virtual time."""
+    sensor = args.sensor or default_of(SimConfig, "sensor")
+    sim = SimConfig(sensor=sensor, seed=args.seed, warmup_s=0.0, azimuth_deg=0.0)
+    return LinkConfig(node_id=args.node_id, sim=sim)
+
+
 def simulated_report(
     args: argparse.Namespace,
     options: SuiteOptions,
@@ -222,14 +231,12 @@ def simulated_report(
     """The suite's report on the simulated instrument of ``--sensor`` and ``--seed``, on virtual
     CAN in this process, in virtual time (``run(link, clock=...)`` runs it; default
     :func:`~northfinder.driver.conformance.run_suite` without progress)."""
+    from northfinder import session
     from northfinder.driver.clock import VirtualClock
-    from northfinder.embed import SimulatedInstrument
-    from northfinder.firmware_sim.imu import Truth
 
-    sim = SimulatedInstrument(
-        args.sensor or "paper-rlg", Truth(), seed=args.seed, clock="virtual", warmup_s=0.0,
-        node_id=args.node_id,
-    )  # fmt: skip
+    link_config = sim_link(args)
+    assert link_config.sim is not None
+    sim, _ = session.simulated_instrument(link_config, link_config.sim)
     with sim, sim.open_bus() as bus:
         assert isinstance(sim.clock, VirtualClock)
         link = CanRawLink(bus, args.node_id)

@@ -141,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _find_spin(config: FindConfig, out: NmeaOutput | None, to_stdout: bool) -> int:
     spun = session.find_spin(config)
-    found, truth, identity = spun.found, spun.truth, spun.device
+    found, identity = spun.found, spun.device
+    truth = None if spun.truth is None else spun.truth.as_dict()  # as the JSON states it
     sol = found.solution
     output = config.output
     if output.plot:
@@ -160,12 +161,13 @@ def _find_spin(config: FindConfig, out: NmeaOutput | None, to_stdout: bool) -> i
 def _find(config: FindConfig, out: NmeaOutput | None, to_stdout: bool) -> int:
     output = config.output
     m = run_config(config, progress=not (output.json or to_stdout), record_to=output.record)
+    truth = None if m.truth is None else m.truth.as_dict()  # as the JSON states it
     if output.plot:
-        report.plot(output.plot, m.result, m.windows, m.plan.denoise, m.truth)
+        report.plot(output.plot, m.result, m.windows, m.plan.denoise, truth)
     text = (
-        report.as_json("find", m.result, m.truth, m.device)
+        report.as_json("find", m.result, truth, m.device)
         if output.json
-        else report.text(m.result, m.truth)
+        else report.text(m.result, truth)
     )
     print(text, file=sys.stderr if to_stdout else sys.stdout, flush=True)
     if m.errors:  # the heading is out; now what could not be written (exit 1)

@@ -202,12 +202,12 @@ def _unit_config(args: argparse.Namespace) -> FindConfig:
 def open_device(
     args: argparse.Namespace, deferred: list[Exception] | None = None
 ) -> Iterator[tuple[Device, dict[str, Any] | None]]:
-    """The device named by the arguments, and the simulated truth when it is simulated
-    (:func:`northfinder.session.open_unit`)."""
+    """The device named by the arguments, and the simulated truth when it is simulated, as the
+    JSON states it (:func:`northfinder.session.open_unit`, :meth:`SimTruth.as_dict`)."""
     config = _unit_config(args)
     latitude = session.site_latitude(config)
     with session.open_unit(config.link, latitude_deg=latitude, deferred=deferred) as unit:
-        yield unit.device, unit.truth
+        yield unit.device, None if unit.truth is None else unit.truth.as_dict()
 
 
 def link_config(args: argparse.Namespace) -> LinkConfig:
@@ -232,12 +232,13 @@ def link_config(args: argparse.Namespace) -> LinkConfig:
 
 
 def sim_config(args: argparse.Namespace) -> SimConfig:
-    """The embedded simulator's options; an option not given keeps :class:`SimConfig`'s
-    default."""
-    given = {
-        "sensor": args.sensor, "seed": args.seed, "speed": args.speed, "warmup_s": args.warmup,
-        "azimuth_deg": args.azimuth, "pitch_deg": args.pitch, "roll_deg": args.roll,
+    """The embedded simulator's options; an option not given (or that the command does not
+    take) keeps :class:`SimConfig`'s default."""
+    options = {
+        "sensor": "sensor", "seed": "seed", "speed": "speed", "warmup_s": "warmup",
+        "azimuth_deg": "azimuth", "pitch_deg": "pitch", "roll_deg": "roll",
     }  # fmt: skip
+    given = {k: getattr(args, name, None) for k, name in options.items()}
     return SimConfig(**{k: v for k, v in given.items() if v is not None})
 
 

@@ -160,7 +160,8 @@ def open_session(args: argparse.Namespace) -> Any:
         if sim is not None:
             with units.simulated_unit(link, sim, latitude, tap) as unit:
                 # how long it warms up: the screen counts the warm-up down
-                yield unit.device, {**(unit.truth or {}), "warmup_s": sim.warmup_s}
+                truth = {} if unit.truth is None else unit.truth.as_dict()
+                yield unit.device, {**truth, "warmup_s": sim.warmup_s}
         else:
             with units.real_unit(link, tap) as device:
                 yield device, None

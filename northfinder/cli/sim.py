@@ -15,13 +15,12 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
+from northfinder import session
 from northfinder.cli.argtypes import bounded_float, bounded_int
 from northfinder.cli.files import add_log_rotation, can_log_path
 from northfinder.cli.links import add_link_arguments, bus_given, open_can_bus, open_serial_option
 from northfinder.cli.options import add_sensor_argument, add_truth_arguments
-from northfinder.cli.simulated import load_sensor, run_seed, sim_truth
+from northfinder.cli.simulated import simulated
 from northfinder.config import check_log_rotation
 from northfinder.driver.framelog import LOG_SUFFIXES, FrameLog
 from northfinder.driver.protocol.constants import CAN_BITRATE_DEFAULT
@@ -133,10 +132,9 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr
     )
-    seed = run_seed(args)
-    rng = np.random.default_rng(seed)
-    truth = sim_truth(args, rng)
-    spec = load_sensor(args.sensor)
+    sim, latitude = simulated(args)
+    truth, seed, rng = session.draw_truth(sim, latitude)
+    spec = session.sensor_spec(sim)
     closers: list[Callable[[], None]] = []
     frame_log = None
     if args.log:
@@ -155,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
         info = LinkInfo("serial", args.baud)
     else:
         info = LinkInfo("can", getattr(args, "bitrate", None) or CAN_BITRATE_DEFAULT)
-    firmware = Firmware(spec, truth, rng, warmup_s=args.warmup, node_id=args.node_id, link=info)
+    firmware = Firmware(spec, truth, rng, warmup_s=sim.warmup_s, node_id=args.node_id, link=info)
     # With --paced-sender, a link on a file descriptor is written by a process of its own (the
     # simulator encodes into a capture); any other python-can bus by a thread of its own.
     paced = args.paced_sender
@@ -212,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"control {server.address}", flush=True)
     print(
         f"truth azimuth {truth.azimuth_deg:.6f} latitude {truth.latitude_deg:g} pitch {truth.pitch_deg:g} "
-        f"roll {truth.roll_deg:g} sensor {spec.name} warmup {args.warmup:g} speed {args.speed:g} "
+        f"roll {truth.roll_deg:g} sensor {spec.name} warmup {sim.warmup_s:g} speed {args.speed:g} "
         f"seed {seed}",
         flush=True,
     )

@@ -11,15 +11,16 @@ import math
 
 import numpy as np
 
+from northfinder import session
 from northfinder.cli.argtypes import bounded_float
 from northfinder.cli.options import add_positions_argument, add_sensor_argument, add_truth_arguments
 from northfinder.cli.output import dumps, say
-from northfinder.cli.simulated import load_sensor, run_seed, sim_truth
+from northfinder.cli.simulated import simulated
 from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, body_rates
 from northfinder.host.results import envelope
-from northfinder.simwindows import simulator_identity
+from northfinder.simwindows import MAX_RATE_HZ, MAX_WINDOW_S, simulator_identity
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,17 +42,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
-#: Longest window, s, and highest sample rate, Hz: a window holds at most 3.6 million samples
-#: (about 200 MB with its temporaries).
-MAX_WINDOW_S = 3600.0
-MAX_RATE_HZ = 1000.0
-
-
 def run(args: argparse.Namespace) -> int:
-    seed = run_seed(args)
-    rng = np.random.default_rng(seed)
-    truth = sim_truth(args, rng)
-    spec = load_sensor(args.sensor)
+    sim, latitude = simulated(args)
+    truth, seed, rng = session.draw_truth(sim, latitude)
+    spec = session.sensor_spec(sim)
     ins = Instrument(spec, truth, rng, sample_rate_hz=args.rate)
     omega_b, f_b = body_rates(
         truth.azimuth_deg, truth.pitch_deg, truth.roll_deg, truth.latitude_deg

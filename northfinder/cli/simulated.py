@@ -1,10 +1,13 @@
-"""Defaults of a simulated run: its seed, latitude, truth and sensor."""
+"""The simulated instrument of a command's options: its configuration, seed and sensor."""
 
 from __future__ import annotations
 
 import argparse
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from northfinder.config import SimConfig
 
 
 def run_seed(args: argparse.Namespace) -> int:
@@ -18,28 +21,14 @@ def run_seed(args: argparse.Namespace) -> int:
     return seed
 
 
-def sim_latitude(args: argparse.Namespace) -> float:
-    from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG  # numpy: not for --help
-
-    return DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
-
-
-def sim_truth(args: argparse.Namespace, rng: Any) -> Any:
-    """The simulated truth of :func:`add_truth_arguments` (azimuth drawn from ``rng`` when not
-    given); SimConfigError names a field the simulated base cannot take."""
-    from northfinder.firmware_sim.imu import Truth
-
-    azimuth = float(rng.uniform(0.0, 360.0)) if args.azimuth is None else args.azimuth
-    return Truth(azimuth, sim_latitude(args), args.pitch or 0.0, args.roll or 0.0)
-
-
-def latitude_source(args: argparse.Namespace, simulated: bool) -> str:
-    """Where the latitude of a run comes from, as the result states it."""
-    if args.latitude is not None:
-        return "--latitude"
+def simulated(args: argparse.Namespace) -> tuple[SimConfig, float]:
+    """The simulated instrument of the sensor and truth options
+    (:class:`~northfinder.config.SimConfig`) and its truth's latitude, deg (``--latitude``, or
+    the simulation's default)."""
+    from northfinder.cli.measure import sim_config  # numpy: not for --help
     from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
 
-    return f"the simulated truth (default, {DEFAULT_LATITUDE_DEG:g} deg)" if simulated else ""
+    return sim_config(args), DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
 
 
 def load_sensor(name_or_path: str, overrides: Mapping[str, Any] | None = None) -> Any:

@@ -84,8 +84,8 @@ def run(
     def keep_partial(exc: BaseException, spun: session.SpinMeasured) -> str:
         assert record_to is not None
         return _save_partial(
-            record_to, args, exc, spun.latitude_deg, spun.latitude_source, spun.truth,
-            spun.device,
+            record_to, args, exc, spun.latitude_deg, spun.latitude_source,
+            None if spun.truth is None else spun.truth.as_dict(), spun.device,
         )  # fmt: skip
 
     try:
@@ -95,7 +95,7 @@ def run(
         )  # fmt: skip
     finally:
         bar.close()
-    return spun.found, spun.truth, spun.device
+    return spun.found, None if spun.truth is None else spun.truth.as_dict(), spun.device
 
 
 def _spin_progress(bar: Any) -> Any:

@@ -20,13 +20,12 @@ from northfinder.host.montecarlo import StudySettings, monte_carlo
 from northfinder.host.plan import Plan, SpinPlan, plan_time_s, settle_time_s, spin_ramp_s
 from northfinder.simwindows import SimulatedWindows
 
-#: Bounds of what a study may ask for: runs, seconds (window, settle, warm-up, budget), Hz, deg/h.
+#: Bounds of what a study may ask for: runs, seconds (settle, warm-up, budget), deg/h (the window
+#: and the sample rate: :data:`~northfinder.simwindows.MAX_WINDOW_S`, ``MAX_RATE_HZ``).
 MAX_RUNS = 1_000_000
-MAX_WINDOW_S = 3600.0
 MAX_SETTLE_S = 3600.0
 MAX_WARMUP_S = 86_400.0
 MAX_BUDGET_S = 86_400.0
-MAX_RATE_HZ = 1000.0
 MAX_BIAS_STEP_DPH = 1e6
 MAX_TOP = 1000
 

@@ -28,12 +28,10 @@ from northfinder.cli.plots import check_plot_path
 from northfinder.cli.studies import (
     MAX_BIAS_STEP_DPH,
     MAX_BUDGET_S,
-    MAX_RATE_HZ,
     MAX_RUNS,
     MAX_SETTLE_S,
     MAX_TOP,
     MAX_WARMUP_S,
-    MAX_WINDOW_S,
     describe_plan,
     load_study_sensor,
     print_rows,
@@ -53,7 +51,7 @@ from northfinder.host.kernels import MAX_SOLVER_TILT_DEG
 from northfinder.host.montecarlo import study_rows
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG, PLANS, SOLVERS, Plan
 from northfinder.host.results import envelope
-from northfinder.simwindows import error_model, simulator_identity
+from northfinder.simwindows import MAX_RATE_HZ, MAX_WINDOW_S, error_model, simulator_identity
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

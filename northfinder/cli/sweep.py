@@ -25,11 +25,9 @@ from northfinder.cli.output import dumps, say
 from northfinder.cli.progress import Progress
 from northfinder.cli.studies import (
     MAX_BIAS_STEP_DPH,
-    MAX_RATE_HZ,
     MAX_RUNS,
     MAX_SETTLE_S,
     MAX_WARMUP_S,
-    MAX_WINDOW_S,
     describe_plan,
     study_settings,
 )
@@ -41,7 +39,13 @@ from northfinder.host.kernels import MAX_SOLVER_TILT_DEG
 from northfinder.host.montecarlo import monte_carlo_many, study_rows
 from northfinder.host.plan import DEFAULT_POSITIONS_DEG, PLANS, SOLVERS, Plan
 from northfinder.host.results import envelope
-from northfinder.simwindows import SimulatedWindows, error_model, simulator_identity
+from northfinder.simwindows import (
+    MAX_RATE_HZ,
+    MAX_WINDOW_S,
+    SimulatedWindows,
+    error_model,
+    simulator_identity,
+)
 
 
 def _names(text: str) -> list[str]:

@@ -61,7 +61,7 @@ __all__ = [
 #: Seconds of samples the traces hold.
 TRACE_SECONDS = 10.0
 #: Highest sample rate the trace buffer is sized for, Hz (the protocol's rates stay below it).
-MAX_RATE_HZ = 1000
+TRACE_MAX_RATE_HZ = 1000
 #: A sample counts as late when it is read this much later than its tick's time, s (the tick's
 #: time: its counter over the rate, placed by the earliest arrival of the stream). A link that
 #: carries samples in batches (an SLCAN adapter, a busy host) delays them by up to a batch.
@@ -238,7 +238,7 @@ class LinkObserver:
         self._angles: deque[tuple[float, float]] = deque(maxlen=64)
         self.streaming = False
         # The trace ring: counter, arrival time, gyro x/y/z, accel x/y/z (in counts).
-        cap = int(MAX_RATE_HZ * self.trace_seconds)
+        cap = int(TRACE_MAX_RATE_HZ * self.trace_seconds)
         self._ring = np.zeros((cap, 8), dtype=np.float64)
         self._ring_n = 0  # samples written in all
         self.samples = 0
