@@ -595,8 +595,8 @@ class Stages:
                 "device": m.device,
             }
             if m.truth is not None:
-                body["truth_azimuth_deg"] = m.truth["azimuth_deg"]
-                body["error_deg"] = angle_error(res.azimuth_deg, m.truth["azimuth_deg"])
+                body["truth_azimuth_deg"] = m.truth.azimuth_deg
+                body["error_deg"] = angle_error(res.azimuth_deg, m.truth.azimuth_deg)
             (self.out / f"{name}.json").write_text(dumps(body) + "\n")
 
     def judge(self, wall_s: float) -> dict[str, Any]:
