@@ -46,7 +46,7 @@ import zlib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import can
 import numpy as np
@@ -866,18 +866,19 @@ class _Run:
         self, receiver: CanReceiver, collector: WindowCollector, start: int, end: int
     ) -> Sample | TickLoss | None:
         """Frames ``start .. end`` of the run one by one; the last item they gave."""
-        item: Sample | TickLoss | None = None
+        last: Sample | TickLoss | None = None
         node = receiver.node_id or 0
         for i in range(start, end):
             arbitration_id = _SLOT_FUNCTIONS[self.slots[i]] + node
             for item in receiver.feed(arbitration_id, self.data[8 * i : 8 * i + 8]):
+                last = item if isinstance(item, Sample | TickLoss) else None
                 if collector.done:
                     continue
                 if isinstance(item, Sample):
                     collector.add_sample(item, 0.0)
                 elif isinstance(item, TickLoss):
                     collector.add_loss(item)
-        return item
+        return last
 
 
 class _Scan:
@@ -945,10 +946,10 @@ class _Scan:
                     and len(msg.data) == 8
                 ):
                     if run.add(slot, msg.data):
-                        run.feed(self.receiver, current.collector)
+                        run.feed(cast(CanReceiver, self.receiver), current.collector)
                     continue
                 if run.slots:
-                    run.feed(self.receiver, current.collector)
+                    run.feed(cast(CanReceiver, self.receiver), current.collector)
             assert self.receiver is not None
             data = bytes(msg.data)
             for item in self.receiver.feed(arbitration_id, data, is_extended_id=msg.is_extended_id):

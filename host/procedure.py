@@ -124,8 +124,6 @@ class WindowLike(Protocol):
     def time_s(self) -> NDArray[np.float64]: ...
     @property
     def missing(self) -> int: ...
-    @property
-    def sample_rate_hz(self) -> float: ...
 
 
 class DeviceClock(Protocol):
@@ -159,9 +157,19 @@ class DeviceLike(Protocol):
     def leave_at_rest(self) -> Any: ...
 
 
+class StreamedWindowLike(WindowLike, Protocol):
+    """A window a device streamed, with the rate it streamed at (a spin solves against it)."""
+
+    @property
+    def sample_rate_hz(self) -> float: ...
+
+
 class SpinningDeviceLike(DeviceLike, Protocol):
     """A device that can spin its table (protocol 1.1), as :func:`find_north_spin` uses it."""
 
+    def acquire(
+        self, seconds: float, *, on_gap: Literal["raise", "report"] = "raise"
+    ) -> StreamedWindowLike: ...
     def spin(self, rate_dps: float, *, wait: bool = False, timeout: float | None = None) -> Any: ...
     def stop(self, *, wait: bool = False, timeout: float | None = None) -> Any: ...
 

@@ -638,19 +638,19 @@ def test_resume_with_another_plan_is_refused(tmp_path):
 
 
 def test_budget_keeps_a_plan_that_comes_back_to_an_angle_when_the_bias_repeatability_is_judged():
-    from types import SimpleNamespace
+    from argparse import Namespace
 
     from northfinder.cli.accept import choose_plan
     from northfinder.host.acceptance import parse_datasheet, same_angle_pairs
 
-    args = SimpleNamespace(plan=None, budget=120.0, sim=True, sensor=str(UNIT), warmup=None)
+    args = Namespace(plan=None, budget=120.0, sim=True, sensor=str(UNIT), warmup=None)
     with_repeat = parse_datasheet(GOOD_DATASHEET)
     without = parse_datasheet({"north_finding": GOOD_DATASHEET["north_finding"]})
     runs, plan = choose_plan(args, with_repeat)
     assert same_angle_pairs(runs.positions_deg) and runs.limits == with_repeat.limits
     other, _ = choose_plan(args, without)
     assert not same_angle_pairs(other.positions_deg)  # free to pick the better plan
-    assert plan["predicted_sigma_deg"] > 0 and plan["plan_time_s"] <= 120.0
+    assert plan is not None and plan["predicted_sigma_deg"] > 0 and plan["plan_time_s"] <= 120.0
 
 
 def _units(tmp: Path, text: str) -> Path:
@@ -697,12 +697,12 @@ def test_batch_accepts_each_unit_in_its_folder_and_exits_with_the_worst_verdict(
 
 
 def test_the_batch_verdict_is_the_worst_and_an_error_is_worse_than_a_fail():
-    from types import SimpleNamespace
+    from argparse import Namespace
 
     from northfinder.cli.accept_batch import _summary
     from northfinder.host.acceptance import Datasheet
 
-    args = SimpleNamespace(batch="units.toml")
+    args = Namespace(batch="units.toml")
 
     def worst(*rows):
         s = _summary(args, Datasheet(), [{"verdict": v, "status": st} for v, st in rows], 9)

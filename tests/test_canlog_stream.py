@@ -142,9 +142,9 @@ def _irregular_log(path: Path, rng: np.random.Generator) -> list[can.Message]:
         msgs += send(RotateTo(2 * seq, angle))
         msgs += send(StreamStart(2 * seq + 1))
         for k in range(6000):
+            g, a = rng.integers(-(2**31), 2**31, 3), rng.integers(-(2**23), 2**23, 3)
             s = Sample(
-                counter, tuple(int(v) for v in rng.integers(-2**31, 2**31, 3)),
-                tuple(int(v) for v in rng.integers(-2**23, 2**23, 3)), angle,
+                counter, (int(g[0]), int(g[1]), int(g[2])), (int(a[0]), int(a[1]), int(a[2])), angle,
                 int(rng.integers(-32768, 32768)), Validity(int(rng.integers(0, 256))),
             )  # fmt: skip
             frames = send(s)
@@ -190,7 +190,7 @@ def _one_by_one(msgs: list[can.Message], requested: int) -> list[tuple[np.ndarra
                 windows.append(current)
             elif isinstance(item, RotateTo | StreamStop):
                 current = None if isinstance(item, RotateTo) else current
-    out = []
+    out: list[tuple[np.ndarray, ...]] = []
     for c in windows:
         w = c.window(RATE_HZ, CountScales())
         out.append((w.counter, w.gyro_dph, w.accel_mps2, w.table_deg, w.temperature_c,
