@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import Any
 
 from northfinder.cli import measure
+from northfinder.cli.accept_batch import _progress, run_batch, verdict_status
 from northfinder.cli.argtypes import bounded_float, bounded_int
-from northfinder.cli.exits import EXIT_NOT_RESOLVED, EXIT_RUNTIME
 from northfinder.cli.files import check_output_path
 from northfinder.cli.links import bus_given
 from northfinder.cli.output import dumps, say
@@ -201,22 +201,15 @@ def run(args: argparse.Namespace) -> int:
             return 0
     out = _output_folder(args)
     if args.batch:
-        from northfinder.cli.accept_batch import run_batch
-
-        return run_batch(args, ds, out)
+        return run_batch(
+            args, ds, out, accept_unit=accept_unit, check_unit_arguments=check_unit_arguments
+        )
     result = accept_unit(args, ds, out)
     if args.json:
         say(dumps(result))
     else:
         say(_text(result, out))
     return verdict_status(result["verdict"])
-
-
-def verdict_status(verdict: str) -> int:
-    """The exit status of a verdict: 0 PASS, 1 FAIL, 4 NOT RESOLVED."""
-    if verdict == "FAIL":
-        return EXIT_RUNTIME
-    return EXIT_NOT_RESOLVED if verdict == "NOT RESOLVED" else 0
 
 
 def _output_folder(args: argparse.Namespace) -> Path:
@@ -434,11 +427,6 @@ def _text(result: dict[str, Any], out: Path) -> str:
         )
     rows.append(f"report: {out / 'report.html'}")
     return "\n".join(rows)
-
-
-def _progress(args: argparse.Namespace, text: str) -> None:
-    """One line per stage on stderr (stdout holds the result alone)."""
-    print(f"accept: {text}", file=sys.stderr, flush=True)
 
 
 def _time_to_ready(device: Any, simulated: bool) -> dict[str, Any]:

@@ -14,18 +14,14 @@ from __future__ import annotations
 import argparse
 import copy
 import re
+import sys
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from northfinder.cli.accept import (
-    _progress,
-    accept_unit,
-    check_unit_arguments,
-    verdict_status,
-)
 from northfinder.cli.argtypes import MAX_SEED
-from northfinder.cli.exits import exit_status
+from northfinder.cli.exits import EXIT_NOT_RESOLVED, EXIT_RUNTIME, exit_status
 from northfinder.cli.links import bus_given
 from northfinder.cli.output import dumps, say
 from northfinder.cli.simulated import load_sensor
@@ -40,6 +36,24 @@ UNIT_KEYS = ("name", "sensor", "seed", "serial")
 #: Worst first: the verdict of the batch is the first of these any unit has.
 WORST_FIRST = ("ERROR", "FAIL", "NOT RESOLVED", "PASS")
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+
+
+#: One unit's acceptance (``accept.accept_unit``) and the check of its arguments
+#: (``accept.check_unit_arguments``), handed in by the command (it imports this module).
+AcceptUnit = Callable[[argparse.Namespace, Any, Path], dict[str, Any]]
+CheckUnit = Callable[[argparse.Namespace, Any], Any]
+
+
+def verdict_status(verdict: str) -> int:
+    """The exit status of a verdict: 0 PASS, 1 FAIL, 4 NOT RESOLVED."""
+    if verdict == "FAIL":
+        return EXIT_RUNTIME
+    return EXIT_NOT_RESOLVED if verdict == "NOT RESOLVED" else 0
+
+
+def _progress(args: argparse.Namespace, text: str) -> None:
+    """One line per stage on stderr (stdout holds the result alone)."""
+    print(f"accept: {text}", file=sys.stderr, flush=True)
 
 
 def _bad(path: Path, text: str) -> HostConfigError:
@@ -132,7 +146,14 @@ def _link_text(unit: dict[str, Any]) -> str:
     return ", ".join(f"{k} {unit[k]}" for k in ("sensor", "seed") if k in unit)
 
 
-def run_batch(args: argparse.Namespace, ds: Any, out: Path) -> int:
+def run_batch(
+    args: argparse.Namespace,
+    ds: Any,
+    out: Path,
+    *,
+    accept_unit: AcceptUnit,
+    check_unit_arguments: CheckUnit,
+) -> int:
     """Every unit of ``--batch`` checked first, then accepted in turn; the summary written
     after each (a stopped batch keeps the summary so far)."""
     _refuse_links(args)
@@ -153,14 +174,16 @@ def run_batch(args: argparse.Namespace, ds: Any, out: Path) -> int:
     rows: list[dict[str, Any]] = []
     for i, (unit, a) in enumerate(prepared, 1):
         _progress(args, f"unit {unit['name']} ({i}/{len(prepared)}): {_link_text(unit)}")
-        rows.append(_accept_one(a, ds, unit))
+        rows.append(_accept_one(a, ds, unit, accept_unit))
         summary = _summary(args, ds, rows, len(prepared))
         _write_summary(out, summary)
     say(dumps(summary) if args.json else _summary_text(summary, out))
     return summary["status"]
 
 
-def _accept_one(a: argparse.Namespace, ds: Any, unit: dict[str, Any]) -> dict[str, Any]:
+def _accept_one(
+    a: argparse.Namespace, ds: Any, unit: dict[str, Any], accept_unit: AcceptUnit
+) -> dict[str, Any]:
     """One unit's row of the summary; a unit whose link or run failed is an ERROR row."""
     row: dict[str, Any] = {"name": unit["name"], "link": _link_text(unit)}
     try:
