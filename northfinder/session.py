@@ -314,17 +314,26 @@ def open_bus(link: LinkConfig) -> Any:
     """
     import can
 
-    from northfinder.driver.transport import bus_open_hint
-
     try:
         return can.Bus(single_handle=True, **link.bus)
     except (can.CanError, OSError, ValueError, TypeError) as exc:
-        now = isinstance(exc, can.CanError | OSError) and not isinstance(
-            exc, can.CanInterfaceNotImplementedError
-        )
-        raise (LinkError if now else HostConfigError)(
-            f"cannot open the CAN bus: {exc}{bus_open_hint(exc)}"
-        ) from exc
+        raise bus_error(exc) from exc
+
+
+def bus_error(cause: BaseException) -> Exception:
+    """The error a bus that python-can could not open raises: :class:`LinkError` for a bus that
+    exists but cannot be opened now (exit status 1), :class:`HostConfigError` for an interface
+    python-can does not know or options it refuses (exit status 2)."""
+    import can
+
+    from northfinder.driver.transport import bus_open_hint
+
+    now = isinstance(cause, can.CanError | OSError) and not isinstance(
+        cause, can.CanInterfaceNotImplementedError
+    )
+    return (LinkError if now else HostConfigError)(
+        f"cannot open the CAN bus: {cause}{bus_open_hint(cause)}"
+    )
 
 
 @contextlib.contextmanager

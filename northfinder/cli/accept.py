@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from northfinder.cli import measure
-from northfinder.cli.accept_batch import _progress, run_batch, verdict_status
+from northfinder.cli.accept_batch import run_batch, stage_line, verdict_status
 from northfinder.cli.argtypes import bounded_float, bounded_int
 from northfinder.cli.files import check_output_path
 from northfinder.cli.links import bus_given
@@ -490,7 +490,7 @@ class Stages:
         options = SuiteOptions(
             node_id=self.args.node_id, only=only, time_scale=self.args.time_scale
         )
-        _progress(self.args, f"conformance ({', '.join(self.ds.conformance)})")
+        stage_line(self.args, f"conformance ({', '.join(self.ds.conformance)})")
         ns = copy.copy(self.args)
         report = (
             conf.simulated_report(ns, options) if self.args.sim else conf.link_report(ns, options)
@@ -520,12 +520,12 @@ class Stages:
             clock = device.clock
             if need_ready:
                 ready = {"device": identity, **_time_to_ready(device, bool(args.sim))}
-                _progress(args, f"READY {ready['time_to_ready_s']:.1f} s after {ready['from']}")
+                stage_line(args, f"READY {ready['time_to_ready_s']:.1f} s after {ready['from']}")
                 (self.out / "ready.json").write_text(dumps(ready) + "\n")
             else:
                 wait_until_ready(device, 86_400.0, clock=clock.now)
             if need_static:
-                _progress(args, f"static recording of {args.static_s:g} s ({args.static_from})")
+                stage_line(args, f"static recording of {args.static_s:g} s ({args.static_from})")
                 angle = float(device.status().angle_deg)
                 meta = {
                     "latitude_deg": float(args.latitude),
@@ -567,7 +567,7 @@ class Stages:
             if args.sim:
                 a.seed = args.seed + 1 + r  # a power-on of its own
             a.command = "accept"
-            _progress(args, f"north finding {r + 1}/{args.runs}, orientation {offset:g} deg")
+            stage_line(args, f"north finding {r + 1}/{args.runs}, orientation {offset:g} deg")
             m = measure.run_plan(a, progress=False, record_to=str(self.out / f"{name}.npz"))
             if m.errors:
                 raise m.errors[0]
@@ -669,7 +669,7 @@ class Stages:
             return None
         from northfinder.host.calibrate import calibrate, read_runs
 
-        _progress(self.args, "Allan deviation and IEEE 952 fit of the static recording")
+        stage_line(self.args, "Allan deviation and IEEE 952 fit of the static recording")
         cal = calibrate(read_runs([out / "static.npz"]))
         record_s = cal.hours * 3600.0
         lines += acc.allan_lines(self.ds, cal, record_s)

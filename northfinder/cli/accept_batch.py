@@ -51,7 +51,7 @@ def verdict_status(verdict: str) -> int:
     return EXIT_NOT_RESOLVED if verdict == "NOT RESOLVED" else 0
 
 
-def _progress(args: argparse.Namespace, text: str) -> None:
+def stage_line(args: argparse.Namespace, text: str) -> None:
     """One line per stage on stderr (stdout holds the result alone)."""
     print(f"accept: {text}", file=sys.stderr, flush=True)
 
@@ -173,7 +173,7 @@ def run_batch(
     out.mkdir(exist_ok=True)
     rows: list[dict[str, Any]] = []
     for i, (unit, a) in enumerate(prepared, 1):
-        _progress(args, f"unit {unit['name']} ({i}/{len(prepared)}): {_link_text(unit)}")
+        stage_line(args, f"unit {unit['name']} ({i}/{len(prepared)}): {_link_text(unit)}")
         rows.append(_accept_one(a, ds, unit, accept_unit))
         summary = _summary(args, ds, rows, len(prepared))
         _write_summary(out, summary)
@@ -193,7 +193,7 @@ def _accept_one(
         if status is None:
             raise  # a bug of the program: not a unit's verdict
         text = "; ".join(s.strip() for s in str(exc).splitlines() if s.strip())
-        _progress(a, f"unit {unit['name']}: error: {text}")
+        stage_line(a, f"unit {unit['name']}: error: {text}")
         return {**row, "verdict": "ERROR", "status": status, "error": text or type(exc).__name__}
     counts = {v: sum(x["verdict"] == v for x in result["lines"]) for v in WORST_FIRST[1:]}
     plan = result.get("plan") or {}

@@ -117,14 +117,9 @@ def open_can_bus(args: argparse.Namespace) -> Any:
         # python-can wraps every failure in an argparse.ArgumentError: its cause says which
         # it is, a bus that cannot be opened now (1) or options it refuses (2).
         cause = exc.__cause__ if isinstance(exc, argparse.ArgumentError) and exc.__cause__ else exc
-        now = isinstance(cause, can.CanError | OSError) and not isinstance(
-            cause, can.CanInterfaceNotImplementedError
-        )
-        from northfinder.driver.transport import bus_open_hint
+        from northfinder.session import bus_error
 
-        raise (LinkError if now else HostConfigError)(
-            f"cannot open the CAN bus: {cause}{bus_open_hint(cause)}"
-        ) from exc
+        raise bus_error(cause) from exc
 
 
 def open_serial_option(path: str, baud: int) -> Any:
