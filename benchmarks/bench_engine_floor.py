@@ -140,7 +140,9 @@ def main() -> None:
     extra_ticks = 2 * (w2 - w1) * RATE_HZ
     engine = (statistics.median(cpu[w2]) - statistics.median(cpu[w1])) / extra_ticks * 1e6
     floor = us["virtual bus, batch"]
-    print(f"{'per 200 Hz tick, CPU (median)':40} {'us':>8} {'x floor':>8} {'x real at this cost':>20}")
+    print(
+        f"{'per 200 Hz tick, CPU (median)':40} {'us':>8} {'x floor':>8} {'x real at this cost':>20}"
+    )
     for name, cost in [*us.items(), (f"engine: find --window {w1:g} -> {w2:g}", engine)]:
         print(f"{name:40} {cost:8.2f} {cost / floor:8.2f} {1e6 / RATE_HZ / cost:20.0f}")
 
