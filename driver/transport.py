@@ -36,10 +36,15 @@ except ImportError:  # pragma: no cover - not Linux
 
 from northfinder.driver.errors import LinkError, LinkLost, ProtocolError
 from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
-from northfinder.driver.protocol.constants import UINT32_MAX
+from northfinder.driver.protocol.constants import UINT32_MAX, CanFunction
 from northfinder.driver.protocol.counters import counter_diff
 from northfinder.driver.protocol.messages import Command, Identify, Reply, Sample, Status
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
+
+#: The functions of a tick's four sample frames, in the order the device sends them.
+_SAMPLE_FUNCTIONS = (
+    CanFunction.SAMPLE_X, CanFunction.SAMPLE_Y, CanFunction.SAMPLE_Z, CanFunction.SAMPLE_AUX,
+)  # fmt: skip
 
 log = logging.getLogger("northfinder.driver")
 
@@ -275,19 +280,19 @@ def _slcan_batch(
 
 
 def _virtual_batch(bus: VirtualBus) -> Callable[[int], list[can.Message]]:
-    """:func:`frame_batch` of a python-can ``virtual`` bus: the first frame by ``recv(0.0)``
-    (which refuses a closed bus, as on every bus), the rest from the bus's receive queue
-    (``bus.queue``, a :class:`queue.Queue`) by ``get_nowait``, without ``recv``'s clock reads
-    and logging for each frame."""
-    q = bus.queue
+    """:func:`frame_batch` of a python-can ``virtual`` bus: the frames from the bus's receive
+    queue (``bus.queue``, a :class:`queue.Queue`) by ``get_nowait``, without ``recv``'s clock
+    reads and logging for each frame. A closed bus is refused as python-can's ``recv`` refuses
+    it: python-can takes the queue off the bus's channel (``bus.channel``, the receivers'
+    queues) when it shuts the bus down."""
+    q, channel = bus.queue, bus.channel
 
     def take(n: int) -> list[can.Message]:
         if n < 1 or q.empty():
             return []
-        first = bus.recv(0.0)
-        if first is None:
-            return []
-        out = [first]
+        if q not in channel:
+            raise can.CanOperationError("Cannot operate on a closed bus")
+        out: list[can.Message] = []
         try:
             while len(out) < n:
                 out.append(q.get_nowait())
@@ -357,6 +362,7 @@ class CanTransport(_TransportBase):
         self.rcvbuf = enlarge_receive_buffer(bus)
         self.garbled = 0  # SLCAN lines that did not parse (frame errors)
         self._take = frame_batch(bus, self._garbled)
+        self._tick_ids = tuple(f | node_id for f in _SAMPLE_FUNCTIONS)
 
     def send(self, command: Command) -> None:
         """Send one command (one frame).
@@ -409,22 +415,51 @@ class CanTransport(_TransportBase):
             raise LinkLost(f"cannot receive from the CAN bus {self._name()}: {exc}") from exc
         if not frames:
             return []
-        out: list[Any] = []
         if self.tap is not None:
             for msg in frames:
                 self.tap(msg)
         with self._rx_lock:
-            for msg in frames:
-                if not (msg.is_error_frame or msg.is_remote_frame):
-                    got = self.receiver.feed(
-                        msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id
-                    )
-                    if not msg.is_rx:  # this host's own frame, echoed by the interface
-                        got = [m for m in got if not isinstance(m, Command)]
-                    out += got
+            return self._decode(frames)
+
+    def _decode(self, frames: list[can.Message]) -> list[Received]:
+        """The messages and tick losses ``frames`` complete (the receive lock held). A tick's
+        four sample frames in sending order go to the receiver together
+        (:meth:`~northfinder.driver.protocol.can.CanReceiver.feed_tick`), any other frame one at
+        a time."""
+        out: list[Any] = []
+        receiver = self.receiver
+        x_id = self._tick_ids[0]
+        i, n = 0, len(frames)
+        while i < n:
+            msg = frames[i]
+            if msg.arbitration_id == x_id and i + 4 <= n and self._whole_tick(frames, i):
+                out += receiver.feed_tick(msg.data, frames[i + 1].data, frames[i + 2].data,
+                                          frames[i + 3].data)  # fmt: skip
+                i += 4
+                continue
+            i += 1
+            if not (msg.is_error_frame or msg.is_remote_frame):
+                got = receiver.feed(msg.arbitration_id, msg.data, is_extended_id=msg.is_extended_id)
+                if not msg.is_rx:  # this host's own frame, echoed by the interface
+                    got = [m for m in got if not isinstance(m, Command)]
+                out += got
         # Commands on the bus are another host's (this host's own echoes were dropped above):
         # the link notes them.
         return out
+
+    def _whole_tick(self, frames: list[can.Message], i: int) -> bool:
+        """Whether ``frames[i:i + 4]`` are the four sample frames of one tick of this node, in
+        sending order: standard data frames of 8 bytes."""
+        for msg, arbitration_id in zip(frames[i : i + 4], self._tick_ids, strict=True):
+            if (
+                msg.arbitration_id != arbitration_id
+                or len(msg.data) != 8
+                or msg.is_extended_id
+                or msg.is_error_frame
+                or msg.is_remote_frame
+            ):
+                return False
+        return True
 
     def restart_stream(self) -> list[TickLoss]:
         """The stream was off: the next tick does not continue the previous one (any thread)."""

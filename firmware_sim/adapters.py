@@ -15,11 +15,12 @@ frame and is not given), so a serial session logs like a CAN one. Frames are han
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import select
 import socket
 import tty
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any, Protocol
 
 import can
@@ -29,7 +30,7 @@ from can import Message
 from northfinder.driver.protocol.can import encode_can, split_can_id
 from northfinder.driver.protocol.constants import CanFunction
 from northfinder.driver.protocol.errors import BadCommandError, ProtocolError
-from northfinder.driver.protocol.messages import Command
+from northfinder.driver.protocol.messages import Command, Sample
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
 from northfinder.firmware_sim.firmware import Firmware, Outgoing
 
@@ -247,6 +248,22 @@ class CanLink:
             self.firmware.handle(command)
 
     def send(self, outgoing: list[Outgoing]) -> None:
+        faults = self.firmware.faults
+        if faults.drop_frames or faults.corrupt_frames or faults.garble:
+            msgs = self._frames_with_faults(outgoing)
+        else:
+            node = self.node_id
+            msgs = [
+                Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
+                for item in outgoing
+                for arbitration_id, data in _frame_data(item.message, node)
+            ]
+        if msgs:
+            self._put(msgs)
+
+    def _frames_with_faults(self, outgoing: list[Outgoing]) -> list[can.Message]:
+        """The frames of ``outgoing`` as the firmware's fault injection leaves them (dropped,
+        corrupted, junk before them); junk on an SLCAN adapter goes out at once."""
         msgs = []
         faults = self.firmware.faults
         node = self.node_id
@@ -269,8 +286,10 @@ class CanLink:
                             Message(arbitration_id=arbitration_id, data=bad, is_extended_id=False)
                         )
                 msgs.append(Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
-        if not msgs:
-            return
+        return msgs
+
+    def _put(self, msgs: list[can.Message]) -> None:
+        """Send the frames on the bus (those it refuses counted as dropped), then to the tap."""
         send_many = getattr(self.bus, "send_many", None)
         if send_many is not None:
             # A bus that takes frames in batches (the embedded simulator's virtual bus): one
@@ -293,6 +312,21 @@ class CanLink:
                     arbitration_id=msg.arbitration_id, data=msg.data, is_extended_id=False,
                     is_rx=False,
                 ))  # fmt: skip
+
+
+def _frame_data(message: Any, node: int) -> Iterable[tuple[int, bytes]]:
+    """``(arbitration_id, data)`` of each CAN frame of ``message`` from ``node``, in sending
+    order: a sample's four packed straight from its fields (as :func:`encode_can` does, without
+    a frame object each)."""
+    if type(message) is Sample:
+        return zip(_sample_ids(node), message.can_payloads(), strict=True)
+    return encode_can(message, node)
+
+
+@functools.cache
+def _sample_ids(node: int) -> tuple[int, ...]:
+    return tuple(f | node for f in (CanFunction.SAMPLE_X, CanFunction.SAMPLE_Y,
+                                    CanFunction.SAMPLE_Z, CanFunction.SAMPLE_AUX))  # fmt: skip
 
 
 def _drop_last_byte(data: bytes) -> bytes:

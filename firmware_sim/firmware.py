@@ -367,9 +367,10 @@ class Firmware:
             return DeviceState.BOOT
         if t < self.warmup_s:
             return DeviceState.WARMUP
-        if self.instrument.table.is_steady(t):
+        table = self.instrument.table
+        if table.steady_start_s <= t < table.steady_end_s:  # is_steady, for one time
             return DeviceState.SPINNING
-        if self.instrument.table.is_moving(t):
+        if table.is_moving(t):
             return DeviceState.ROTATING
         if t < self._settle_end:
             return DeviceState.SETTLING

@@ -308,6 +308,40 @@ class TickAssembler:
             tick, *fields = sample_axis_fields(data)
         return self._add(tick, slot, tuple(fields))
 
+    def add_tick(
+        self,
+        x: bytes | bytearray,
+        y: bytes | bytearray,
+        z: bytes | bytearray,
+        aux: bytes | bytearray,
+    ) -> list[Sample | TickLoss]:
+        """:meth:`add_frame` for the 8-byte data of the four frames of one tick in the order the
+        device sends them (SAMPLE_X, _Y, _Z, _AUX): the same result, without the steps of each
+        frame when the four carry the same tick and no other tick waits for frames (the stream
+        as it comes, four frames a tick)."""
+        tx, gx, ax = sample_axis_fields(x)
+        ty, gy, ay = sample_axis_fields(y)
+        tz, gz, az = sample_axis_fields(z)
+        ta, angle, temperature, bits = sample_aux_fields(aux)
+        if self._tick is not None or not tx == ty == tz == ta:
+            return [
+                *self._add(tx, 0, (gx, ax)), *self._add(ty, 1, (gy, ay)),
+                *self._add(tz, 2, (gz, az)), *self._add(ta, 3, (angle, temperature, bits)),
+            ]  # fmt: skip
+        counter, step = self.counter.place(tx)
+        if step == 0:  # the previous tick again: each frame a part already held
+            self.duplicates += 4
+            return []
+        out: list[Sample | TickLoss] = []
+        if step is not None and step > 1:
+            self.lost += step - 1
+            out.append(TickLoss((counter - step + 1) & UINT32_MAX, step - 1, False))
+        out.append(
+            Sample.fast(counter, (gx, gy, gz), (ax, ay, az), angle, temperature, validity_of(bits))
+        )
+        self.complete += 1
+        return out
+
     def _add(self, t: int, slot: int, fields: tuple[int, ...]) -> list[Sample | TickLoss]:
         out: list[Sample | TickLoss] = []
         if self._tick is not None and t != self._tick:
@@ -443,6 +477,19 @@ class CanReceiver:
         self.malformed = 0
         self.other_node = 0
         self.last_error: ProtocolError | None = None
+
+    def feed_tick(
+        self,
+        x: bytes | bytearray,
+        y: bytes | bytearray,
+        z: bytes | bytearray,
+        aux: bytes | bytearray,
+    ) -> list[Sample | TickLoss]:
+        """:meth:`feed` for the four 8-byte sample frames of one tick of this receiver's node,
+        in sending order (X, Y, Z, AUX): the caller has checked their ids, standard, and
+        lengths (:meth:`TickAssembler.add_tick`)."""
+        self.frames += 4
+        return self.ticks.add_tick(x, y, z, aux)
 
     def feed(
         self, arbitration_id: int, data: bytes | bytearray, *, is_extended_id: bool = False
