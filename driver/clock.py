@@ -280,7 +280,7 @@ class VirtualClock:
                         continue
                     self._driving = True
                     try:
-                        moved = self._drive(me)
+                        moved = self._drive_while(me)
                     finally:
                         self._driving = False
                         self._cv.notify_all()
@@ -291,6 +291,24 @@ class VirtualClock:
                 self._cv.notify_all()
 
     # -- driving (the clock's lock held) -----------------------------------------------------------
+    def _drive_while(self, me: _Waiter) -> bool:
+        """Steps (:meth:`_drive`) while ``me`` is the only waiter, its predicate does not hold
+        and its deadline is not reached: nobody else waits on the clock's condition (every
+        thread that does is a waiter), so nobody is notified between the steps (the lock is
+        held throughout, as between the turns of :meth:`wait_until`'s loop). False when the
+        first step could not do anything."""
+        if not self._drive(me):
+            return False
+        deadline_ns = me.deadline_ns
+        while (
+            len(self._waiters) == 1
+            and not me.predicate()
+            and (deadline_ns is None or self._ns < deadline_ns)
+            and self._drive(me)
+        ):
+            pass
+        return True
+
     def _drive(self, me: _Waiter) -> bool:
         """One step: act at the present, or move time on. False when nothing could happen."""
         if self._dirty and self._act_now():
@@ -345,6 +363,8 @@ class VirtualClock:
 
     def _may_jump(self, me: _Waiter) -> bool:
         """Every participant waits and no other waiter has something to do at the present."""
+        if len(self._waiters) == 1:  # me alone: the participants are me or none
+            return all(thread == me.thread for thread in self._depth)
         waiting = {w.thread for w in self._waiters}
         if any(thread not in waiting for thread in self._depth):
             return False

@@ -288,15 +288,16 @@ def _virtual_batch(bus: VirtualBus) -> Callable[[int], list[can.Message]]:
     q, channel = bus.queue, bus.channel
 
     def take(n: int) -> list[can.Message]:
-        if n < 1 or q.empty():
+        waiting = min(n, q.qsize())
+        if waiting < 1:
             return []
         if q not in channel:
             raise can.CanOperationError("Cannot operate on a closed bus")
         out: list[can.Message] = []
         try:
-            while len(out) < n:
+            for _ in range(waiting):
                 out.append(q.get_nowait())
-        except queue.Empty:
+        except queue.Empty:  # taken by another reader meanwhile
             pass
         return out
 

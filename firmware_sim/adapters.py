@@ -256,7 +256,7 @@ class CanLink:
             msgs = [
                 Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
                 for item in outgoing
-                for arbitration_id, data in _frame_data(item.message, node)
+                for arbitration_id, data in _frame_data(item, node)
             ]
         if msgs:
             self._put(msgs)
@@ -314,13 +314,16 @@ class CanLink:
                 ))  # fmt: skip
 
 
-def _frame_data(message: Any, node: int) -> Iterable[tuple[int, bytes]]:
-    """``(arbitration_id, data)`` of each CAN frame of ``message`` from ``node``, in sending
-    order: a sample's four packed straight from its fields (as :func:`encode_can` does, without
-    a frame object each)."""
-    if type(message) is Sample:
-        return zip(_sample_ids(node), message.can_payloads(), strict=True)
-    return encode_can(message, node)
+def _frame_data(item: Outgoing, node: int) -> Iterable[tuple[int, bytes]]:
+    """``(arbitration_id, data)`` of each CAN frame of ``item`` from ``node``, in sending
+    order: a sample's four as the firmware packed them with its chunk, or packed straight from
+    its fields (as :func:`encode_can` does, without a frame object each)."""
+    data = item.frames
+    if data is not None:
+        return zip(_sample_ids(node), (data[:8], data[8:16], data[16:24], data[24:]), strict=True)
+    if type(item.message) is Sample:
+        return zip(_sample_ids(node), item.message.can_payloads(), strict=True)
+    return encode_can(item.message, node)
 
 
 @functools.cache

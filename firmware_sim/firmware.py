@@ -61,6 +61,7 @@ from northfinder.driver.protocol.messages import (
     SetConfig,
     Spin,
     Status,
+    sample_frames_block,
     validity_of,
 )
 from northfinder.driver.protocol.units import DEFAULT_WARMUP_S, DPH, G0
@@ -182,10 +183,13 @@ class FaultInjection:
 
 
 class Outgoing(NamedTuple):
-    """A message the firmware sends at simulated time ``time_s``."""
+    """A message the firmware sends at simulated time ``time_s``; a sample of the stream also
+    with the data of its four CAN frames, packed with its chunk (``frames``: 32 bytes, what
+    :meth:`~northfinder.driver.protocol.messages.Sample.can_payloads` gives, or None)."""
 
     time_s: float
     message: Reply | Status | Sample | Identify
+    frames: bytes | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -677,7 +681,10 @@ class Firmware:
             self._last_state = state
         if self.faults.silent:
             return []
-        if not any(isinstance(o.message, Status) for o in out):
+        for o in out:
+            if isinstance(o.message, Status):
+                break
+        else:
             return out
         # Counters are the link's, not the computation's: a status carries their values when sent.
         rx, tx, rejected = self._wrapped_counters()
@@ -917,11 +924,13 @@ class Firmware:
         bits = validity.tolist()
         flag_of = {b: validity_of(b) for b in set(bits)}
         make, new = Sample.fast, tuple.__new__
+        frames = sample_frames_block(counters, gc, ac, angle, temperature, validity)
         out = [
-            new(Outgoing, (t, make(c, (g0, g1, g2), (a0, a1, a2), ang, temp, flag_of[v])))
-            for t, c, (g0, g1, g2), (a0, a1, a2), ang, temp, v in zip(
+            new(Outgoing, (t, make(c, (g0, g1, g2), (a0, a1, a2), ang, temp, flag_of[v]),
+                           frames[k : k + 32]))
+            for t, c, (g0, g1, g2), (a0, a1, a2), ang, temp, v, k in zip(
                 t_end.tolist(), counters.tolist(), gc.tolist(), ac.tolist(), angle.tolist(),
-                temperature.tolist(), bits, strict=True,
+                temperature.tolist(), bits, range(0, 32 * n_ticks, 32), strict=True,
             )
         ]  # fmt: skip
         return out, t_end, counters

@@ -357,3 +357,21 @@ def test_a_command_at_the_instant_of_power_on_is_answered(lookahead_s):
     reply, out = ask(fw, GetStatus(1))
     assert reply.result == Result.OK
     assert any(isinstance(m, Status) for m in out)
+
+
+def test_the_samples_frames_packed_with_their_chunk_are_what_each_sample_encodes_to():
+    """The stream's CAN data packed for a chunk at once (``Outgoing.frames``) equals each
+    sample's own frames, through warm-up, a move, settling, saturation and a counter skip."""
+    spec = IDEAL.with_values({"table.settle_s": 0.5, "table.max_rate_dps": 30.0})
+    fw = make(warmup_s=0.6, spec=spec, boot_s=0.0)
+    fw.handle(StreamStart(1))
+    out = [o for _ in range(300) for o in fw.process(0.01)]
+    fw.handle(RotateTo(2, 90_000_000))
+    fw.faults.skip_counter = 3
+    out += [o for _ in range(500) for o in fw.process(0.013)]
+    samples = [o for o in out if isinstance(o.message, Sample)]
+    assert len(samples) > 1000
+    assert all(o.frames == b"".join(o.message.can_payloads()) for o in samples)
+    assert {o.frames is None for o in out if not isinstance(o.message, Sample)} == {True}
+    kinds = {int(o.message.validity) for o in samples}
+    assert len(kinds) >= 3, kinds  # warming up, moving, settling, good

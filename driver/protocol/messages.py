@@ -14,9 +14,13 @@ and nothing else for any input.
 
 from __future__ import annotations
 
+import functools
 import struct
 from dataclasses import dataclass
-from typing import ClassVar, Self
+from typing import TYPE_CHECKING, ClassVar, Self
+
+if TYPE_CHECKING:
+    import numpy as np
 
 from northfinder.driver.protocol.constants import (
     INT24_MAX,
@@ -519,6 +523,58 @@ def validity_of(bits: int) -> Validity:
     if v is None:
         v = _VALIDITY[bits] = Validity(bits)
     return v
+
+
+@functools.cache
+def _tick_frames() -> np.dtype:
+    """One tick's four CAN sample frames as one numpy record: SAMPLE_X, _Y, _Z (``<BiHb``:
+    tick, gyro, the accelerometer's low 16 bits and its high byte) and SAMPLE_AUX (``<BIhB``:
+    tick, angle, temperature, validity bits). numpy is imported here, not with the codec (a
+    command's help needs no numpy)."""
+    import numpy as np
+
+    return np.dtype(
+        [(f"{axis}{field}", code) for axis in "xyz" for field, code in
+         (("tick", "u1"), ("gyro", "<i4"), ("accel_lo", "<u2"), ("accel_hi", "i1"))]
+        + [("tick", "u1"), ("angle", "<u4"), ("temperature", "<i2"), ("validity", "u1")]
+    )  # fmt: skip
+
+
+def sample_frames_block(
+    counter: np.ndarray,
+    gyro: np.ndarray,
+    accel: np.ndarray,
+    angle: np.ndarray,
+    temperature: np.ndarray,
+    validity: np.ndarray,
+) -> bytes:
+    """The data of the four CAN frames of each of ``n`` ticks (what :meth:`Sample.can_payloads`
+    packs for one), 32 bytes a tick in sending order: X, Y, Z, AUX, 8 bytes each.
+
+    Parameters
+    ----------
+    counter, angle, temperature, validity : ndarray, shape (n,), integer
+        The fields of each tick, each in its range (:class:`Sample`; not checked).
+    gyro : ndarray, shape (n, 3), integer
+        Rate counts (int32).
+    accel : ndarray, shape (n, 3), integer
+        Acceleration counts (int24).
+    """
+    import numpy as np
+
+    rec = np.empty(len(counter), _tick_frames())
+    tick = np.asarray(counter) & 0xFF
+    accel = np.asarray(accel, np.int64)
+    for k, axis in enumerate("xyz"):
+        rec[f"{axis}tick"] = tick
+        rec[f"{axis}gyro"] = gyro[:, k]
+        rec[f"{axis}accel_lo"] = accel[:, k] & 0xFFFF
+        rec[f"{axis}accel_hi"] = accel[:, k] >> 16
+    rec["tick"] = tick
+    rec["angle"] = angle
+    rec["temperature"] = temperature
+    rec["validity"] = validity
+    return rec.tobytes()
 
 
 def sample_axis_fields(payload: bytes | bytearray) -> tuple[int, int, int]:
