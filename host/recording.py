@@ -21,12 +21,18 @@ CSV (``.csv``)
 
 NPZ (``.npz``)
     Arrays named after the columns (``gyro_dph`` and ``accel_mps2`` as (n, 3)), concatenated over
-    windows, and ``meta_json``: the same metadata as a JSON string.
+    windows, and ``meta_json``: the same metadata as a JSON string (the column layout). An NPZ
+    still being written, or cut off while it was, holds each window's arrays instead, as
+    ``w0/commanded_deg`` (one number), ``w0/counter``, ``w0/time_s``, ... ``w0/validity``, then
+    ``w1/...`` (the window layout); the reader joins them. Both layouts are ``version = 1``.
 
 Written as they arrive
     :class:`RecordingWriter` writes each window as soon as it is measured: a CSV's rows are
-    appended and flushed to disk window by window; an NPZ is rewritten to a temporary file after
-    each window, which then replaces the file being written. An existing file of the name (an
+    appended and flushed to disk window by window; an NPZ's window is appended to the archive
+    (its arrays, then the archive's directory again), so the file is a whole NPZ after every
+    window and nothing is written twice, and as the run ends (complete or interrupted) the
+    windows are written once more in the column layout, to a temporary file that replaces it:
+    time linear in the samples. An existing file of the name (an
     earlier recording) is never touched until the new recording is complete: the windows go to
     ``run.partial.csv`` beside ``run.csv``, which replaces it at the end; a run that ends early
     (an interruption, an error, a full disk) leaves the earlier file as it was and its windows in
@@ -49,6 +55,7 @@ import math
 import os
 import tempfile
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeGuard
@@ -503,11 +510,35 @@ def _read_npz(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
         raise RecordingError(f"{p}: not a readable NPZ file ({exc})") from exc
     if "meta_json" not in arrays:
         raise RecordingError(f"{p}: no meta_json array; not a northfinder recording")
+    if _member(0, "counter") in arrays:
+        arrays = _joined(arrays, p)
     try:
         meta = json.loads(str(arrays.pop("meta_json")))
     except json.JSONDecodeError as exc:
         raise RecordingError(f"{p}: meta_json is not JSON ({exc})") from exc
     return arrays, meta
+
+
+def _joined(arrays: dict[str, NDArray[Any]], p: Path) -> dict[str, NDArray[Any]]:
+    """The column arrays of an NPZ written window by window (a recording cut off while it was
+    written: :class:`_NpzAppender`), its windows' arrays joined."""
+    count = sum(1 for k in arrays if k.endswith("/counter"))
+    parts: dict[str, list[NDArray[Any]]] = {name: [] for name in ("window", *_WINDOW_MEMBERS)}
+    for i in range(count):
+        for name in _WINDOW_MEMBERS:
+            if _member(i, name) not in arrays:
+                raise RecordingError(f"{p}: missing array {_member(i, name)!r}")
+            parts[name].append(arrays.pop(_member(i, name)))
+        n = len(parts["counter"][-1])
+        if parts["commanded_deg"][-1].shape != ():
+            raise RecordingError(f"{p}: array {_member(i, 'commanded_deg')!r} must be one number")
+        parts["commanded_deg"][-1] = np.full(n, parts["commanded_deg"][-1])
+        parts["window"].append(np.full(n, i, dtype=np.int64))
+    try:
+        joined = {name: np.concatenate(a) for name, a in parts.items()}
+    except ValueError as exc:  # windows whose arrays differ in shape
+        raise RecordingError(f"{p}: the windows' arrays do not fit together ({exc})") from exc
+    return {**arrays, **joined}
 
 
 #: Largest recording read, bytes (a day of 200 Hz samples in CSV is about 2 GB; beyond this the
@@ -575,30 +606,41 @@ def _atomic(p: Path, mode: str = "w") -> Any:
 def _replace_npz(p: Path, meta: dict[str, Any], windows: tuple[RecordedWindow, ...]) -> None:
     # The arrays of np.savez_compressed, written column by column and window by window: the
     # windows are never joined in memory (a copy of the whole run at every window).
+    def piece(i: int, name: str) -> NDArray[Any]:
+        w = windows[i]
+        if name == "window":
+            return np.full(len(w.counter), i, dtype=np.int64)
+        if name == "commanded_deg":
+            return np.full(len(w.counter), w.commanded_deg)
+        return np.asarray(getattr(w, name))
+
+    _write_columns(p, meta, [len(w.counter) for w in windows], piece)
+
+
+def _write_columns(
+    p: Path, meta: dict[str, Any], sizes: list[int], piece: Callable[[int, str], NDArray[Any]]
+) -> None:
+    """Write the NPZ of the column layout (one array a column, every window in turn) to a
+    temporary file that then replaces ``p``; ``piece(i, name)`` gives window ``i``'s part of
+    column ``name`` (``sizes[i]`` rows), asked for one at a time."""
     with _atomic(p, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as zf:
         with zf.open("meta_json.npy", "w", force_zip64=True) as out:
             np.lib.format.write_array(out, np.array(json.dumps(meta)), allow_pickle=False)
-        n = sum(len(w.counter) for w in windows)
-        pieces: dict[str, Any] = {
-            "window": lambda i, w: np.full(len(w.counter), i, dtype=np.int64),
-            "commanded_deg": lambda i, w: np.full(len(w.counter), w.commanded_deg),
-            **{name: (lambda i, w, name=name: getattr(w, name)) for name in SAMPLE_ARRAYS},
-        }
-        for name, piece in pieces.items():
-            first = [piece(i, w) for i, w in enumerate(windows[:1])]
-            like = first[0] if first else np.empty(0)
+        for name in ("window", "commanded_deg", *SAMPLE_ARRAYS):
+            like = piece(0, name) if sizes else np.empty(0)
             header = {
                 "descr": np.lib.format.dtype_to_descr(like.dtype),
                 "fortran_order": False,
-                "shape": (n, *like.shape[1:]),
+                "shape": (sum(sizes), *like.shape[1:]),
             }
             with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
                 np.lib.format.write_array_header_1_0(out, header)
-                for i, w in enumerate(windows):
-                    a = np.ascontiguousarray(piece(i, w), dtype=like.dtype)
-                    flat = a.reshape(-1).view(np.uint8)
+                for i in range(len(sizes)):
+                    a = like if i == 0 else piece(i, name)
+                    flat = np.ascontiguousarray(a, dtype=like.dtype).reshape(-1).view(np.uint8)
                     for k in range(0, len(flat), _NPZ_CHUNK_BYTES):
                         out.write(flat[k : k + _NPZ_CHUNK_BYTES].data)
+                    del a, flat
 
 
 #: Bytes handed to the compressor at a time while an NPZ is written.
@@ -668,6 +710,83 @@ def _create(p: Path, mode: int | None) -> int:
     return fd
 
 
+#: Member names of a window in an NPZ being written (``w3/gyro_dph.npy``, ...): its commanded
+#: angle (a 0-d array) and its sample arrays.
+_WINDOW_MEMBERS = ("commanded_deg", *SAMPLE_ARRAYS)
+
+
+def _member(i: int, name: str) -> str:
+    return f"w{i}/{name}"
+
+
+class _NpzAppender:
+    """An NPZ that grows by whole windows, as :class:`RecordingWriter` writes one.
+
+    Each window's arrays go in as members of their own (:func:`_member`) after those already
+    written, and the zip archive's central directory (the list of its members, which ends every
+    zip file) is written after them: the file on disk is a whole archive of every window added,
+    and no window is written twice. The directories of earlier windows stay in the file,
+    unlisted (a few hundred bytes a window). A window whose writing fails is cut off the file
+    (:meth:`cut`), which then ends with the last whole archive again.
+    """
+
+    def __init__(self, fd: int, meta: dict[str, Any]) -> None:
+        self._fh = os.fdopen(fd, "w+b")
+        self._zf = zipfile.ZipFile(self._fh, "w", zipfile.ZIP_DEFLATED)
+        self.good = 0  # bytes of the file up to the end of its last whole archive
+        self.sizes: list[int] = []  # samples of each window written
+        self._put("meta_json", np.array(json.dumps(meta)))
+
+    def _put(self, name: str, a: NDArray[Any]) -> None:
+        with self._zf.open(f"{name}.npy", "w", force_zip64=True) as out:
+            np.lib.format.write_array(out, np.asarray(a), allow_pickle=False)
+
+    def add(self, window: RecordedWindow) -> None:
+        i = len(self.sizes)
+        self._put(_member(i, "commanded_deg"), np.array(window.commanded_deg))
+        for name in SAMPLE_ARRAYS:
+            self._put(_member(i, name), np.asarray(getattr(window, name)))
+        # zipfile writes the central directory only as it closes the archive; written here
+        # after the members (where the next window's members then begin), the file is a
+        # whole archive after every window.
+        self._zf._write_end_record()
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+        self.good = self._fh.tell()
+        self._zf.start_dir = self.good
+        self.sizes.append(len(window.counter))
+
+    def cut(self) -> None:
+        """Cut what follows the last whole archive off the file."""
+        with contextlib.suppress(OSError, ValueError):
+            self._fh.truncate(self.good)
+
+    def close(self) -> None:
+        """Close the file as it is (its last whole archive: nothing more is written)."""
+        self._zf._didModify = False  # every window's archive is on disk already
+        self._zf._writing = False
+        with contextlib.suppress(OSError, ValueError):
+            self._zf.close()
+        with contextlib.suppress(OSError, ValueError):
+            self._fh.close()
+
+
+def _consolidate(work: Path, meta: dict[str, Any], sizes: list[int]) -> None:
+    """Write the windows of an NPZ written window by window (:class:`_NpzAppender`) again in
+    the column layout, with ``meta``, in place of it: one pass, one window's column at a time
+    in memory."""
+    with zipfile.ZipFile(work) as src:
+
+        def piece(i: int, name: str) -> NDArray[Any]:
+            if name == "window":
+                return np.full(sizes[i], i, dtype=np.int64)
+            with src.open(_member(i, name) + ".npy") as fh:
+                a = np.lib.format.read_array(fh, allow_pickle=False)
+            return np.full(sizes[i], float(a)) if name == "commanded_deg" else a
+
+        _write_columns(work, meta, sizes, piece)
+
+
 class RecordingWriter:
     """Writes a recording window by window, as the windows are measured (module docstring).
 
@@ -708,6 +827,7 @@ class RecordingWriter:
         #: The file the windows are written to (:attr:`path` itself when nothing is replaced).
         self.work = partial_name(self.path) if self.replaces else self.path
         self._fh: Any = None
+        self._npz: _NpzAppender | None = None
         self._created = False
         self._good = 0  # bytes of the CSV up to the end of its last complete window
         self._status_at = -1  # byte offset of the CSV's status value
@@ -720,18 +840,23 @@ class RecordingWriter:
             return
         try:
             if self.path.suffix == ".npz":
-                self._write_npz(tuple(self.windows))
+                self._write_npz(window)
             else:
                 self._append_csv(len(self.windows) - 1, window)
             self.written = len(self.windows)
         except OSError as exc:
             self._failed(exc)
 
-    def _write_npz(self, windows: tuple[RecordedWindow, ...]) -> None:
-        if not self._created:
-            os.close(_create(self.work, self._mode))  # the name is this run's from now on
+    def _write_npz(self, window: RecordedWindow) -> None:
+        if self._npz is None:
+            fd = _create(self.work, self._mode)  # the name is this run's from now on
             self._created = True
-        _replace_npz(self.work, self.meta, windows)
+            self._npz = _NpzAppender(fd, self.meta)
+        try:
+            self._npz.add(window)
+        except BaseException:
+            self._npz.cut()  # the file ends with the windows written whole
+            raise
 
     def _append_csv(self, i: int, window: RecordedWindow) -> None:
         if self._fh is None:
@@ -776,6 +901,9 @@ class RecordingWriter:
             with contextlib.suppress(OSError, ValueError):
                 self._fh.truncate(self._good)
         if not self.written and self._created:
+            if self._npz is not None:
+                self._npz.close()
+                self._npz = None
             if self._fh is not None:
                 with contextlib.suppress(OSError, ValueError):
                     self._fh.close()
@@ -802,8 +930,11 @@ class RecordingWriter:
         self.meta["status"] = status
         try:
             if self.error is None and self.written:
-                if self.path.suffix == ".npz":
-                    self._write_npz(tuple(self.windows[: self.written]))
+                if self._npz is not None:
+                    # The windows in the column layout every reader of an NPZ knows, with the
+                    # final status: written once, as the run ends.
+                    self._npz.close()
+                    _consolidate(self.work, self.meta, self._npz.sizes[: self.written])
                 else:
                     # A window cut off by an interruption (an exception raised while it was
                     # being written) is cut off the file: it ends with complete windows.
@@ -823,6 +954,8 @@ class RecordingWriter:
             if self._fh is not None:
                 with contextlib.suppress(OSError, ValueError):
                     self._fh.close()
+            if self._npz is not None:
+                self._npz.close()
         if self.error is not None:
             raise self.error
 
