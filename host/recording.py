@@ -76,6 +76,7 @@ __all__ = [
     "Recording",
     "RecordingError",
     "RecordingWriter",
+    "summarise_npz",
 ]
 
 FORMAT = "northfinder-recording"
@@ -1145,3 +1146,185 @@ def _split(
         )
         raise RecordingError(f"{p}: {len(windows)} window(s); {need}")
     return tuple(windows)
+
+
+class _Doubt(Exception):
+    """A recording the window-by-window reader leaves to :meth:`Recording.load` (another
+    layout, or anything it would refuse or cannot vouch for: the whole reader says what)."""
+
+
+def summarise_npz(path: str | Path, summarise: Callable[[RecordedWindow], Any]) -> Any:
+    """Read an NPZ recording of the column layout window by window, each window handed to
+    ``summarise`` as it is read and then dropped: memory is one window's arrays and what
+    ``summarise`` returns, whatever the number of windows.
+
+    Returns ``(summaries, meta, partial)`` (:attr:`Recording.partial`), or None where
+    :meth:`Recording.load` must read the file whole: a recording it would refuse (so that its
+    one message names what is wrong), a spin recording, fewer than two windows, windows not
+    stored one after the other, the window layout, a sample rate the samples might not bear
+    out (the check then needs every step). Where it returns, the windows are those
+    :meth:`Recording.load` gives, checked as it checks them.
+    """
+    p = Path(path)
+    try:
+        if p.suffix != ".npz":
+            raise _Doubt
+        _check_readable(p)
+        if _npz_size(p) > _MAX_ARRAY_BYTES:
+            raise _Doubt
+        with zipfile.ZipFile(p) as zf:
+            return _summarise_columns(p, zf, summarise)
+    except (_Doubt, RecordingError, OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError):
+        return None
+
+
+def _npy_stream(zf: zipfile.ZipFile, name: str) -> tuple[Any, tuple[int, ...], np.dtype[Any]]:
+    """An open member ``name`` of ``zf`` positioned at its data, its shape and dtype."""
+    fh = zf.open(f"{name}.npy")
+    version = np.lib.format.read_magic(fh)
+    read = (
+        np.lib.format.read_array_header_1_0
+        if version == (1, 0)
+        else np.lib.format.read_array_header_2_0
+    )
+    shape, fortran, dtype = read(fh)
+    if fortran or dtype.hasobject:
+        raise _Doubt
+    return fh, shape, dtype
+
+
+def _summarise_columns(
+    p: Path, zf: zipfile.ZipFile, summarise: Callable[[RecordedWindow], Any]
+) -> Any:
+    names = zf.namelist()
+    if "meta_json.npy" not in names or "window.npy" not in names:
+        raise _Doubt  # no recording, or the window layout
+    with zf.open("meta_json.npy") as fh:
+        meta = json.loads(str(np.lib.format.read_array(fh, allow_pickle=False)))
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT or "spin" in meta:
+        raise _Doubt
+    if meta.get("version") != VERSION:
+        raise _Doubt
+    check_meta(meta, p)
+    bounds = _window_bounds(zf)
+    streams = {}
+    for name in ("commanded_deg", *SAMPLE_ARRAYS):
+        fh, shape, dtype = _npy_stream(zf, name)
+        width = 3 if name in ("gyro_dph", "accel_mps2") else 1
+        if shape != ((bounds[-1], 3) if width == 3 else (bounds[-1],)):
+            raise _Doubt
+        if dtype.kind not in "iuf" or (dtype.kind == "f" and dtype.itemsize < 4):
+            raise _Doubt
+        if name in ("counter", "validity") and dtype.kind == "f":
+            raise _Doubt
+        streams[name] = (fh, dtype, width)
+    summaries, stubs, rate = [], [], _RateCount(float(meta["sample_rate_hz"]))
+    for k in range(len(bounds) - 1):
+        w = _read_window(streams, bounds[k + 1] - bounds[k])
+        rate.add(w)
+        # What the plan check reads of a window: its first and last counters (ticks spanned).
+        stubs.append(RecordedWindow(w.commanded_deg, **_stub(w)))
+        summaries.append(summarise(w))
+        del w
+    for fh, _, _ in streams.values():
+        if fh.read(1):  # at the end: zipfile checks the member's CRC there, as a load does
+            raise _Doubt
+    rate.check()
+    stub = Recording(tuple(stubs), meta)
+    check_against_plan(stub, p)
+    return summaries, meta, stub.partial
+
+
+def _window_bounds(zf: zipfile.ZipFile) -> list[int]:
+    """Row bounds of the windows from the ``window`` column, read in blocks: whole numbers
+    0, 1, 2, ... one after the other (anything else is left to the whole reader)."""
+    fh, shape, dtype = _npy_stream(zf, "window")
+    if len(shape) != 1 or dtype.kind not in "iu" or shape[0] > MAX_SAMPLES:
+        raise _Doubt
+    bounds, done, prev = [0], 0, -1
+    with fh:
+        while done < shape[0]:
+            rows = min(_STREAM_ROWS, shape[0] - done)
+            block = np.frombuffer(_exactly(fh, rows * dtype.itemsize), dtype=dtype)
+            for j in np.concatenate(([0], np.flatnonzero(np.diff(block)) + 1)):
+                v = int(block[j])
+                if v == prev + 1 and prev >= 0:
+                    bounds.append(done + int(j))  # the next window begins
+                elif not ((v == prev and j == 0) or (v == 0 and prev < 0)):
+                    raise _Doubt  # windows not 0, 1, 2, ... one after the other
+                prev = v
+            done += rows
+    bounds.append(shape[0])
+    if len(bounds) - 1 < 2 or len(bounds) - 1 > MAX_WINDOWS:
+        raise _Doubt
+    return bounds
+
+
+#: Rows of the window column read at a time by :func:`summarise_npz`.
+_STREAM_ROWS = 1 << 20
+
+
+def _exactly(fh: Any, n: int) -> bytes:
+    data = fh.read(n)
+    if len(data) != n:
+        raise _Doubt  # cut short
+    return bytes(data)
+
+
+def _read_window(streams: dict[str, Any], rows: int) -> RecordedWindow:
+    """The next ``rows`` rows of every column, checked as :func:`_split` checks them."""
+    fields: dict[str, Any] = {}
+    for name, (fh, dtype, width) in streams.items():
+        a = np.frombuffer(_exactly(fh, rows * width * dtype.itemsize), dtype=dtype)
+        a = a.reshape(rows, 3) if width == 3 else a
+        if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+            raise _Doubt
+        limit = SAMPLE_LIMITS.get(name)
+        if limit is not None and np.any(np.abs(a) > limit):
+            raise _Doubt
+        fields[name] = a
+    counter, validity, commanded = (
+        fields["counter"],
+        fields["validity"],
+        fields.pop("commanded_deg"),
+    )
+    if rows == 0 or np.ptp(commanded) != 0:
+        raise _Doubt
+    if np.any(counter < 0) or np.any(counter > 2.0**53) or np.any(np.diff(counter) <= 0):
+        raise _Doubt
+    if np.any(validity < 0) or np.any(validity > 255):
+        raise _Doubt
+    fields["counter"] = counter.astype(np.int64)
+    fields["validity"] = validity.astype(np.uint8)
+    return RecordedWindow(float(commanded[0]), **fields)
+
+
+def _stub(w: RecordedWindow) -> dict[str, Any]:
+    ends = [0, len(w.counter) - 1] if len(w.counter) > 1 else [0]
+    return {name: getattr(w, name)[ends] for name in SAMPLE_ARRAYS}
+
+
+class _RateCount:
+    """:func:`check_rate` from counts, window by window: the median step lies surely inside
+    the 1 % band when fewer than half the steps fall outside a band a little narrower on each
+    side; else the whole reader decides (and names the step)."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = rate_hz
+        self.n = self.low = self.high = 0
+
+    def add(self, w: RecordedWindow) -> None:
+        if len(w.counter) < 2:
+            return
+        dt = np.diff(w.time_s)[np.diff(w.counter) == 1]
+        off = dt * self.rate_hz - 1.0
+        self.n += len(dt)
+        self.low += int(np.count_nonzero(off < -0.0099))
+        self.high += int(np.count_nonzero(off > 0.0099))
+
+    def check(self) -> None:
+        if self.n < 2:
+            return
+        lower, upper = (self.n - 1) // 2, self.n // 2  # the middle steps once sorted
+        if self.low > lower or self.high > self.n - 1 - upper:
+            raise _Doubt

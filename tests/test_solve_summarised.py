@@ -1,4 +1,4 @@
-"""`solve` of a CAN log reduces each window as it ends and drops its samples: memory is one
+"""`solve` of a CAN log or an NPZ recording reduces each window as it ends and drops its samples: memory is one
 window's samples and small summaries whatever the number of windows, and the result is the one
 solved from every window held, to the last digit (measured with tracemalloc, numpy's buffers
 traced too)."""
@@ -6,12 +6,15 @@ traced too)."""
 from __future__ import annotations
 
 import gc
+import json
 import tracemalloc
 from pathlib import Path
+from typing import Any
 
 import can
+import numpy as np
 import pytest
-from clirun import run_json
+from clirun import run_cli, run_json
 
 import northfinder.cli.solve as solve
 import northfinder.host.canlog as canlog
@@ -19,6 +22,7 @@ from northfinder.driver.protocol import Sample, Validity
 from northfinder.driver.protocol.can import encode_can
 from northfinder.driver.protocol.messages import RotateTo, StreamStart, StreamStop
 from northfinder.host.canlog import read_can_log
+from northfinder.host.recording import RecordedWindow, Recording, summarise_npz
 
 NODE = 1
 RATE_HZ = 200.0
@@ -129,3 +133,101 @@ def test_a_rate_known_only_after_a_window_ended_reads_the_log_again(seeded_logs,
     again = read_can_log(path, summarise=summarise)
     assert reads == [True, False]  # summarised as read, then read again whole
     assert [s.window for s in again.summaries] == [s.window for s in whole.summaries]
+
+
+# NPZ recordings: read window by window from the column layout.
+
+OLD = Path(__file__).parent / "data" / "recording-v1-seed1.npz"
+
+
+def _npz(tmp_path: Path, windows: int, n: int = 2000, **changes: Any) -> Path:
+    rng = np.random.default_rng(windows)
+    made = []
+    for k in range(windows):
+        counter = np.arange(n) + k * 10 * n
+        made.append(
+            RecordedWindow(
+                90.0 * (k % 4), counter, (counter + 1) / RATE_HZ * changes.get("dt", 1.0),
+                rng.normal([10.0 * (k % 4 - 1.5), 5.0, -8.0], 3.0, (n, 3)),
+                rng.normal([0.01, -0.02, 9.8], 1e-3, (n, 3)), np.full(n, 90.0 * (k % 4)),
+                np.full(n, 20.0), np.full(n, 3, dtype=np.uint8),
+            )
+        )  # fmt: skip
+    meta = {"latitude_deg": 34.0, "sample_rate_hz": RATE_HZ, **changes.get("meta", {})}
+    path = tmp_path / f"rec{windows}.npz"
+    Recording(tuple(made), meta).save(path)
+    return path
+
+
+def _solved_both_ways(path: Path, monkeypatch: pytest.MonkeyPatch, *options: str) -> list[Any]:
+    """``solve --json`` read window by window and read whole (every window held)."""
+    out = []
+    for streamed in (True, False):
+        with monkeypatch.context() as m:
+            if not streamed:
+                m.setattr(solve, "summarise_npz", lambda *_: None)
+            code, text, err = run_cli("solve", str(path), "--json", *options)
+        doc = json.loads(text) if text else {}
+        doc.pop("created_utc", None)
+        out.append((code, doc, err))
+    return out
+
+
+@pytest.mark.parametrize(
+    "options", [[], ["--denoise", "hampel"], ["--latitude", "40"], ["--solver", "least-squares"]]
+)
+def test_an_npz_solved_window_by_window_gives_the_result_of_every_window_held(
+    tmp_path, monkeypatch, options
+):
+    streamed, held = _solved_both_ways(OLD, monkeypatch, *options)
+    assert streamed == held and streamed[0] in (0, 3)  # 3: inconsistent at a wrong latitude
+    path = _npz(tmp_path, 8)
+    streamed, held = _solved_both_ways(path, monkeypatch, *options)
+    assert streamed == held and "azimuth_deg" in streamed[1]
+
+
+def test_an_npz_of_four_times_the_windows_holds_one_window_at_a_time(tmp_path):
+    n = 20_000
+    few, many = _npz(tmp_path, 2, n), _npz(tmp_path, 8, n)
+    summarise = solve.summariser("none", False)
+
+    def peak(path: Path) -> int:
+        gc.collect()
+        tracemalloc.start()
+        try:
+            got = summarise_npz(path, summarise)
+            _, top = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+        assert got is not None  # read window by window, not left to the whole reader
+        return top
+
+    peak(few)
+    growth = peak(many) - peak(few)
+    one_window = 8 * (1 + 1 + 3 + 3 + 1 + 1) * n  # its arrays in float64/int64, bytes
+    assert growth < one_window / 2, (growth, one_window)
+
+
+@pytest.mark.parametrize("dt", [1.00995, 0.99005, 1.02])
+def test_a_rate_near_the_limit_is_left_to_the_whole_reader_and_judged_as_before(
+    tmp_path, monkeypatch, dt
+):
+    path = _npz(tmp_path, 4, dt=dt)
+    assert summarise_npz(path, solve.summariser("none", False)) is None
+    streamed, held = _solved_both_ways(path, monkeypatch)
+    assert streamed == held
+    assert (streamed[0] == 2) == (dt == 1.02), streamed[2]
+
+
+def test_a_partial_and_a_damaged_npz_say_what_they_did(tmp_path, monkeypatch):
+    path = _npz(tmp_path, 3, meta={"plan": {"positions_deg": [0, 90, 180, 270], "window_s": 10.0},
+                                    "status": "interrupted"})  # fmt: skip
+    streamed, held = _solved_both_ways(path, monkeypatch)
+    assert streamed == held and "interrupted: 3 of 4 windows" in streamed[1]["source"]["partial"]
+    data = bytearray(path.read_bytes())
+    at = data.index(b"gyro_dph.npy") + 2000  # inside the gyro's compressed samples
+    data[at : at + 8] = b"\0" * 8
+    path.write_bytes(bytes(data))
+    assert summarise_npz(path, solve.summariser("none", False)) is None
+    streamed, held = _solved_both_ways(path, monkeypatch)
+    assert streamed == held and streamed[0] == 2 and streamed[2].count("\n") == 1

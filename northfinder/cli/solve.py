@@ -37,7 +37,7 @@ from northfinder.host.procedure import (
     result_from_windows,
     summarise_window,
 )
-from northfinder.host.recording import RecordedWindow, Recording
+from northfinder.host.recording import RecordedWindow, Recording, summarise_npz
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -204,7 +204,6 @@ def load(args: argparse.Namespace) -> tuple[Recording | Summarised, dict[str, An
     if several) and where it came from."""
     names = expand_log_names(args.file)
     path = Path(names[0])
-    source: dict[str, Any]
     if len(names) > 1 and not all(is_can_log(n) for n in names):
         other = next(n for n in names if not is_can_log(n))
         raise HostConfigError(
@@ -222,15 +221,25 @@ def load(args: argparse.Namespace) -> tuple[Recording | Summarised, dict[str, An
     if given or args.strict:
         option = "--" + (given[0] if given else "strict").replace("_", "-")
         raise HostConfigError(f"{option} applies to CAN logs only")
+    if not args.plot:
+        summaries = summarise_npz(path, summariser(args.denoise, report_gaps))
+        if summaries is not None:
+            windows, meta, partial = summaries
+            return Summarised(tuple(windows), meta), _recording_source(path, partial, False)
     rec = Recording.load(path, min_windows=1)
     if "spin" not in rec.meta and len(rec.windows) < 2:
         rec = Recording.load(path)  # the stop-and-go reader's own error: a heading needs two
-    source = {"file": str(path), "format": f"recording{path.suffix}"}
-    if rec.partial is not None:
-        held = "samples" if "spin" in rec.meta else "windows"
-        source["partial"] = rec.partial
-        source["notes"] = [f"partial recording ({rec.partial}): solved from the {held} it holds"]
-    return rec, source
+    return rec, _recording_source(path, rec.partial, "spin" in rec.meta)
+
+
+def _recording_source(path: Path, partial: str | None, spin: bool) -> dict[str, Any]:
+    """Where a recording's windows came from, and what a partial one holds."""
+    source: dict[str, Any] = {"file": str(path), "format": f"recording{path.suffix}"}
+    if partial is not None:
+        held = "samples" if spin else "windows"
+        source["partial"] = partial
+        source["notes"] = [f"partial recording ({partial}): solved from the {held} it holds"]
+    return source
 
 
 def _load_can_log(
