@@ -301,11 +301,11 @@ class _Segment:
         self.summary: tuple[Any, float, CountScales] | None = None
 
     def summarise(
-        self, summarise: Callable[[RecordedWindow], Any], rate_hz: float, scales: CountScales
+        self, summarise: Callable[[RecordedWindow, float], Any], rate_hz: float, scales: CountScales
     ) -> None:
         """Reduce the window (ended) with ``summarise`` and drop its samples: the collector is
         replaced by what :meth:`_Scan.window_flaws` and :meth:`_Scan.choose` read of it."""
-        self.summary = (summarise(self.recorded(rate_hz, scales)), rate_hz, scales)
+        self.summary = (summarise(self.recorded(rate_hz, scales), rate_hz), rate_hz, scales)
         c = self.collector
         self.collector = _Collected(c.gaps, c.received, c.missing, c.done)  # type: ignore[assignment]
 
@@ -920,7 +920,7 @@ class _Scan:
         logs: LogSet,
         node_id: int | None,
         window_s: float | None,
-        summarise: Callable[[RecordedWindow], Any] | None = None,
+        summarise: Callable[[RecordedWindow, float], Any] | None = None,
     ) -> None:
         self.logs = logs
         self.summarise = summarise
@@ -1176,7 +1176,7 @@ def read_can_log(
     session: int | None = None,
     windows: Sequence[int] | None = None,
     progress: ReadProgress | None = None,
-    summarise: Callable[[RecordedWindow], Any] | None = None,
+    summarise: Callable[[RecordedWindow, float], Any] | None = None,
 ) -> CanLogSession:
     """Rebuild a session's windows from a CAN log (see the module docstring), reading it once.
 
@@ -1208,9 +1208,9 @@ def read_can_log(
         Called as ``progress(done, total)`` with the bytes of the log's files read so far (of a
         compressed file its compressed bytes) and in all, every 65536 frames and at the end.
     summarise : callable, optional
-        Reduce each window as it ends (``summarise(window)``, which should not raise: keep an
-        error in what it returns) and drop its samples: memory is then one window's samples
-        and the summaries, whatever the log's length. The results go to
+        Reduce each window as it ends (``summarise(window, sample_rate_hz)``, which should
+        not raise: keep an error in what it returns) and drop its samples: memory is then one
+        window's samples and the summaries, whatever the log's length. The results go to
         :attr:`CanLogSession.summaries`, :attr:`~CanLogSession.windows` is empty. A window is
         converted with the rate and scales known when it ends; should they change later in the
         log (never in a log of one session), the log is read a second time.
@@ -1244,7 +1244,7 @@ def _session(
     session: int | None,
     windows: Sequence[int] | None,
     min_windows: int,
-    summarise: Callable[[RecordedWindow], Any] | None = None,
+    summarise: Callable[[RecordedWindow, float], Any] | None = None,
 ) -> CanLogSession:
     """The session a scan read: the windows asked for in physical units (or their summaries),
     and the notes.

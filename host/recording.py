@@ -1153,10 +1153,10 @@ class _Doubt(Exception):
     layout, or anything it would refuse or cannot vouch for: the whole reader says what)."""
 
 
-def summarise_npz(path: str | Path, summarise: Callable[[RecordedWindow], Any]) -> Any:
+def summarise_npz(path: str | Path, summarise: Callable[[RecordedWindow, float], Any]) -> Any:
     """Read an NPZ recording of the column layout window by window, each window handed to
-    ``summarise`` as it is read and then dropped: memory is one window's arrays and what
-    ``summarise`` returns, whatever the number of windows.
+    ``summarise(window, sample_rate_hz)`` as it is read and then dropped: memory is one
+    window's arrays and what ``summarise`` returns, whatever the number of windows.
 
     Returns ``(summaries, meta, partial)`` (:attr:`Recording.partial`), or None where
     :meth:`Recording.load` must read the file whole: a recording it would refuse (so that its
@@ -1194,7 +1194,7 @@ def _npy_stream(zf: zipfile.ZipFile, name: str) -> tuple[Any, tuple[int, ...], n
 
 
 def _summarise_columns(
-    p: Path, zf: zipfile.ZipFile, summarise: Callable[[RecordedWindow], Any]
+    p: Path, zf: zipfile.ZipFile, summarise: Callable[[RecordedWindow, float], Any]
 ) -> Any:
     names = zf.namelist()
     if "meta_json.npy" not in names or "window.npy" not in names:
@@ -1224,7 +1224,7 @@ def _summarise_columns(
         rate.add(w)
         # What the plan check reads of a window: its first and last counters (ticks spanned).
         stubs.append(RecordedWindow(w.commanded_deg, **_stub(w)))
-        summaries.append(summarise(w))
+        summaries.append(summarise(w, float(meta["sample_rate_hz"])))
         del w
     for fh, _, _ in streams.values():
         if fh.read(1):  # at the end: zipfile checks the member's CRC there, as a load does

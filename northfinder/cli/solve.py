@@ -156,11 +156,11 @@ class WindowSummary:
     error: HostError | None = None
 
 
-def summariser(denoise: str, allow_gaps: bool) -> Callable[[RecordedWindow], WindowSummary]:
+def summariser(denoise: str, allow_gaps: bool) -> Callable[[RecordedWindow, float], WindowSummary]:
     """The function that reduces each window as it is read (for ``read_can_log``'s
     ``summarise``), as :func:`solve_recording` reduces it."""
 
-    def summarise(w: RecordedWindow) -> WindowSummary:
+    def summarise(w: RecordedWindow, sample_rate_hz: float) -> WindowSummary:
         try:
             window = summarise_window(w, w.commanded_deg, denoise, allow_gaps=allow_gaps)
         except HostError as exc:
