@@ -19,8 +19,15 @@ of its own) and CPU time as a multiple of the floor's (the steadier figure on a 
 Files are kept in ``--dir`` and reused when present (with the record's figures, in a
 ``.json`` beside them).
 
+``--formats`` picks the files measured (default all: ``npz blf asc log``; the text formats
+only for the lengths in ``--text-hours``), so that a day runs as NPZ and BLF alone:
+``--hours 24 --text-hours --formats npz blf`` (about 1.1 GB of records, 24 h has no limit of
+its own). The disk space free in ``--dir`` and what the records of each length take (measured,
+or estimated before they are made from 16 MB of NPZ and 29 MB of BLF an hour, 191 MB of ASC and
+142 MB of ``.log``) are printed first, and a length whose records would not fit is refused.
+
 Run: ``.venv/bin/python benchmarks/bench_size_guide.py [--hours 1 6] [--text-hours 1]
-[--dir DIR] [--skip dump]``.
+[--dir DIR] [--skip dump] [--formats npz blf]``.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -109,6 +117,28 @@ def as_text(blf: Path, suffix: str) -> Path:
     return out
 
 
+#: Bytes a record takes per hour of 200 Hz data, by format (the size guide, measured at 1 h).
+MB_PER_HOUR = {"npz": 16, "blf": 29, "asc": 191, "log": 142}
+
+
+def disk_check(d: Path, hours: list[int], text_hours: list[int], formats: list[str]) -> None:
+    """Print the space free in ``d`` and what the records will take; refuse what cannot fit."""
+    free = shutil.disk_usage(d).free / 1e6
+    need = 0.0
+    for h in hours:
+        for fmt in ("npz", "blf", "asc", "log"):
+            text = fmt in ("asc", "log")
+            wanted = fmt in formats and (not text or h in text_hours)
+            path = d / f"rec{h}h.{fmt}"
+            if (wanted or fmt in ("npz", "blf")) and not path.exists():
+                need += MB_PER_HOUR[fmt] * h  # the NPZ and BLF are always made
+    used = sum(p.stat().st_size for p in d.glob("rec*h.*")) / 1e6
+    print(f"disk: {free:.0f} MB free in {d}; records there {used:.0f} MB; to be made about "
+          f"{need:.0f} MB", flush=True)  # fmt: skip
+    if need > 0.9 * free:
+        raise SystemExit(f"not enough disk in {d} for the records ({need:.0f} MB of {free:.0f})")
+
+
 def commands(path: Path, skip: set[str]) -> list[tuple[str, list[str]]]:
     """The floor and the commands measured on ``path``."""
     log = path.suffix != ".npz"
@@ -128,9 +158,14 @@ def main() -> None:
     ap.add_argument("--text-hours", type=int, nargs="*", default=[1], help="also ASC and .log")
     ap.add_argument("--dir", type=Path, default=None, help="where records are made and kept")
     ap.add_argument("--skip", nargs="*", default=[], choices=("solve", "calibrate", "dump"))
+    ap.add_argument(
+        "--formats", nargs="+", default=["npz", "blf", "asc", "log"],
+        choices=("npz", "blf", "asc", "log"), help="the files measured",
+    )  # fmt: skip
     args = ap.parse_args()
     d = args.dir or Path(tempfile.gettempdir()) / "northfinder-size-guide"
     d.mkdir(parents=True, exist_ok=True)
+    disk_check(d, args.hours, args.text_hours, args.formats)
     print("| record | MB | command | wall s | CPU s | peak MB | x floor (CPU) |")
     print("|---|---|---|---|---|---|---|")
     for hours in args.hours:
@@ -138,9 +173,9 @@ def main() -> None:
         size = (npz.stat().st_size + blf.stat().st_size) / 1e6
         print(f"| {hours} h: NPZ + BLF | {size:.0f} | record | {wall:.0f} | {cpu:.0f} | "
               f"{peak:.0f} | |", flush=True)  # fmt: skip
-        files = [npz, blf]
+        files = [f for f in (npz, blf) if f.suffix[1:] in args.formats]
         if hours in args.text_hours:
-            files += [as_text(blf, ".asc"), as_text(blf, ".log")]
+            files += [as_text(blf, f".{f}") for f in ("asc", "log") if f in args.formats]
         for path in files:
             size = path.stat().st_size / 1e6
             floor = None

@@ -231,17 +231,21 @@ class CanLogSession:
     gap_windows: tuple[int, ...] = ()
     #: The first damaged line skipped, ``run.log:801: garbage here (ValueError: ...)``.
     first_damaged: str | None = None
+    #: With ``read_can_log(..., summarise=f)``: ``f`` of each window, in the order of
+    #: :attr:`window_numbers`; :attr:`windows` is then empty (the samples were dropped).
+    summaries: tuple[Any, ...] = ()
 
     def complete(self, *, keep_gaps: bool = False) -> CanLogSession:
         """The session without its windows that have samples missing (a gap, a cut);
         ``keep_gaps`` keeps those whose only flaw is ticks missing (:attr:`gap_windows`)."""
         keep = [
-            i for i in range(len(self.windows))
+            i for i in range(len(self.windows) or len(self.summaries))
             if i not in self.incomplete_windows or (keep_gaps and i in self.gap_windows)
         ]  # fmt: skip
         return dataclasses.replace(
             self,
-            windows=tuple(self.windows[i] for i in keep),
+            windows=tuple(self.windows[i] for i in keep) if self.windows else (),
+            summaries=tuple(self.summaries[i] for i in keep) if self.summaries else (),
             window_numbers=tuple(self.window_numbers[i] for i in keep)
             if self.window_numbers
             else (),
@@ -292,12 +296,38 @@ class _Segment:
         self.stopped = False
         #: Frames missing between two parts of the log in or just before this window.
         self.suspect: str | None = None
+        #: What ``summarise`` made of the window as it ended, and the rate and scales its
+        #: samples were converted with (:meth:`summarise`).
+        self.summary: tuple[Any, float, CountScales] | None = None
+
+    def summarise(
+        self, summarise: Callable[[RecordedWindow, float], Any], rate_hz: float, scales: CountScales
+    ) -> None:
+        """Reduce the window (ended) with ``summarise`` and drop its samples: the collector is
+        replaced by what :meth:`_Scan.window_flaws` and :meth:`_Scan.choose` read of it."""
+        self.summary = (summarise(self.recorded(rate_hz, scales), rate_hz), rate_hz, scales)
+        c = self.collector
+        self.collector = _Collected(c.gaps, c.received, c.missing, c.done)  # type: ignore[assignment]
 
     def recorded(self, sample_rate_hz: float, scales: CountScales) -> RecordedWindow:
         """The window's samples in physical units; the collector's raw counts are released as
         they are converted (call once)."""
         window = self.collector.take_window(sample_rate_hz, scales)
         return RecordedWindow.from_window(window, self.commanded_deg)
+
+
+@dataclass(frozen=True)
+class _Collected:
+    """What is known of a window's collector once its samples are summarised and dropped."""
+
+    gaps: list[tuple[int, int]]
+    received: int
+    missing: int
+    done: bool
+
+
+class _Restart(Exception):
+    """The rate or scales changed after windows were summarised: read the log again whole."""
 
 
 #: python-can's readers of text logs whose lines each hold one frame after a header: a damaged
@@ -885,8 +915,15 @@ class _Scan:
     """One pass over a log's frames: the windows of one node, its identity, scales and rate,
     the commands and the host sessions (see the module docstring)."""
 
-    def __init__(self, logs: LogSet, node_id: int | None, window_s: float | None) -> None:
+    def __init__(
+        self,
+        logs: LogSet,
+        node_id: int | None,
+        window_s: float | None,
+        summarise: Callable[[RecordedWindow, float], Any] | None = None,
+    ) -> None:
         self.logs = logs
+        self.summarise = summarise
         self.node_id = node_id
         self.window_s = window_s
         # Without node_id the first node with a protocol frame is decoded and every node seen
@@ -1002,6 +1039,7 @@ class _Scan:
             if at_rest and self.free is None:
                 angle = item.angle * self.scales.angle_deg
                 self.free = _Segment(angle, self.requested(), t)
+                self._ended(self.free_segments)
                 self.free_segments.append(self.free)
             elif not at_rest:
                 self.free = None
@@ -1031,8 +1069,20 @@ class _Scan:
             self.receiver.ticks.restart()  # as the driver does: a new stream
             current = _Segment(self.commanded, self.requested(), t, self.sessions.number)
             current.suspect, self.after_gap = self.after_gap, None
+            self._ended(self.segments)
             self.segments.append(current)
             self.current = current
+
+    def _ended(self, segments: list[_Segment]) -> None:
+        """Summarise the windows of ``segments`` (all ended: a new one begins) not yet
+        summarised, so that only the window being read holds its samples."""
+        if self.summarise is None:
+            return
+        for seg in reversed(segments):
+            if seg.summary is not None:
+                break
+            if seg.collector.received > 0 and seg is not self.current:
+                seg.summarise(self.summarise, self.rate, self.scales)
 
     def check_nodes(self) -> int:
         """The node read.
@@ -1126,6 +1176,7 @@ def read_can_log(
     session: int | None = None,
     windows: Sequence[int] | None = None,
     progress: ReadProgress | None = None,
+    summarise: Callable[[RecordedWindow, float], Any] | None = None,
 ) -> CanLogSession:
     """Rebuild a session's windows from a CAN log (see the module docstring), reading it once.
 
@@ -1156,6 +1207,13 @@ def read_can_log(
     progress : callable, optional
         Called as ``progress(done, total)`` with the bytes of the log's files read so far (of a
         compressed file its compressed bytes) and in all, every 65536 frames and at the end.
+    summarise : callable, optional
+        Reduce each window as it ends (``summarise(window, sample_rate_hz)``, which should
+        not raise: keep an error in what it returns) and drop its samples: memory is then one
+        window's samples and the summaries, whatever the log's length. The results go to
+        :attr:`CanLogSession.summaries`, :attr:`~CanLogSession.windows` is empty. A window is
+        converted with the rate and scales known when it ends; should they change later in the
+        log (never in a log of one session), the log is read a second time.
 
     Raises
     ------
@@ -1167,11 +1225,16 @@ def read_can_log(
     logs = LogSet(path)
     if window_s is not None and not (math.isfinite(window_s) and window_s > 0):
         raise RecordingError(f"window: must be a positive number of seconds, got {window_s!r}")
-    scan = _Scan(logs, node_id, window_s)
-    cut: list[str] = []
-    skipped: list[tuple[int, str]] = []
-    scan.read(logs.messages(cut, skipped if skip_damaged else None), progress)
-    return _session(scan, cut, skipped, session, windows, min_windows)
+    for streamed in (True, False) if summarise is not None else (False,):
+        scan = _Scan(logs, node_id, window_s, summarise if streamed else None)
+        cut: list[str] = []
+        skipped: list[tuple[int, str]] = []
+        scan.read(logs.messages(cut, skipped if skip_damaged else None), progress)
+        try:
+            return _session(scan, cut, skipped, session, windows, min_windows, summarise)
+        except _Restart:
+            logs = LogSet(path)
+    raise AssertionError("unreachable: the second reading summarises at the end")
 
 
 def _session(
@@ -1181,8 +1244,16 @@ def _session(
     session: int | None,
     windows: Sequence[int] | None,
     min_windows: int,
+    summarise: Callable[[RecordedWindow, float], Any] | None = None,
 ) -> CanLogSession:
-    """The session a scan read: the windows asked for in physical units, and the notes."""
+    """The session a scan read: the windows asked for in physical units (or their summaries),
+    and the notes.
+
+    Raises
+    ------
+    _Restart
+        A window was summarised with a rate or scales the log changed afterwards.
+    """
     logs = scan.logs
     node = scan.check_nodes()
     numbered, counts, chosen = scan.choose(session, windows)
@@ -1201,7 +1272,7 @@ def _session(
             f"{receiver.malformed} frame(s) of node {node} did not decode "
             f"(last: {receiver.last_error})"
         )
-    out: list[RecordedWindow] = []
+    out: list[Any] = []
     short: list[int] = []
     gap_only: list[int] = []
     for i, seg in numbered:
@@ -1211,7 +1282,15 @@ def _session(
             short.append(len(out))
             if len(flaws) == gap_notes:
                 gap_only.append(len(out))
-        out.append(seg.recorded(scan.rate, scan.scales))
+        if summarise is None:
+            out.append(seg.recorded(scan.rate, scan.scales))
+            continue
+        if seg.summary is None:
+            seg.summarise(summarise, scan.rate, scan.scales)
+        elif seg.summary[1:] != (scan.rate, scan.scales):
+            raise _Restart
+        assert seg.summary is not None
+        out.append(seg.summary[0])
     damaged = None
     if logs.damaged:
         file, line, error = logs.damaged[0]
@@ -1223,11 +1302,13 @@ def _session(
             + (f"; the first damaged line: {damaged}" if damaged else "")
         )
     return CanLogSession(
-        str(logs.name), node, scan.rate, tuple(out), scan.identity, tuple(scan.commands),
+        str(logs.name), node, scan.rate, () if summarise else tuple(out), scan.identity,
+        tuple(scan.commands),
         tuple(incomplete + notes), scan.frames, scan.t0, incomplete=tuple(incomplete),
         incomplete_windows=tuple(short), skipped_lines=len(skipped),
         sessions=tuple(sorted(counts.items())), session=session,
         window_numbers=tuple(i for i, _ in numbered),
         parts=tuple(str(f) for f in logs.files), part_gaps=tuple(logs.gaps),
         gap_windows=tuple(gap_only), first_damaged=damaged,
+        summaries=tuple(out) if summarise else (),
     )  # fmt: skip

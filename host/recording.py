@@ -21,12 +21,18 @@ CSV (``.csv``)
 
 NPZ (``.npz``)
     Arrays named after the columns (``gyro_dph`` and ``accel_mps2`` as (n, 3)), concatenated over
-    windows, and ``meta_json``: the same metadata as a JSON string.
+    windows, and ``meta_json``: the same metadata as a JSON string (the column layout). An NPZ
+    still being written, or cut off while it was, holds each window's arrays instead, as
+    ``w0/commanded_deg`` (one number), ``w0/counter``, ``w0/time_s``, ... ``w0/validity``, then
+    ``w1/...`` (the window layout); the reader joins them. Both layouts are ``version = 1``.
 
 Written as they arrive
     :class:`RecordingWriter` writes each window as soon as it is measured: a CSV's rows are
-    appended and flushed to disk window by window; an NPZ is rewritten to a temporary file after
-    each window, which then replaces the file being written. An existing file of the name (an
+    appended and flushed to disk window by window; an NPZ's window is appended to the archive
+    (its arrays, then the archive's directory again), so the file is a whole NPZ after every
+    window and nothing is written twice, and as the run ends (complete or interrupted) the
+    windows are written once more in the column layout, to a temporary file that replaces it:
+    time linear in the samples. An existing file of the name (an
     earlier recording) is never touched until the new recording is complete: the windows go to
     ``run.partial.csv`` beside ``run.csv``, which replaces it at the end; a run that ends early
     (an interruption, an error, a full disk) leaves the earlier file as it was and its windows in
@@ -49,6 +55,7 @@ import math
 import os
 import tempfile
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeGuard
@@ -69,6 +76,7 @@ __all__ = [
     "Recording",
     "RecordingError",
     "RecordingWriter",
+    "summarise_npz",
 ]
 
 FORMAT = "northfinder-recording"
@@ -503,11 +511,35 @@ def _read_npz(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
         raise RecordingError(f"{p}: not a readable NPZ file ({exc})") from exc
     if "meta_json" not in arrays:
         raise RecordingError(f"{p}: no meta_json array; not a northfinder recording")
+    if _member(0, "counter") in arrays:
+        arrays = _joined(arrays, p)
     try:
         meta = json.loads(str(arrays.pop("meta_json")))
     except json.JSONDecodeError as exc:
         raise RecordingError(f"{p}: meta_json is not JSON ({exc})") from exc
     return arrays, meta
+
+
+def _joined(arrays: dict[str, NDArray[Any]], p: Path) -> dict[str, NDArray[Any]]:
+    """The column arrays of an NPZ written window by window (a recording cut off while it was
+    written: :class:`_NpzAppender`), its windows' arrays joined."""
+    count = sum(1 for k in arrays if k.endswith("/counter"))
+    parts: dict[str, list[NDArray[Any]]] = {name: [] for name in ("window", *_WINDOW_MEMBERS)}
+    for i in range(count):
+        for name in _WINDOW_MEMBERS:
+            if _member(i, name) not in arrays:
+                raise RecordingError(f"{p}: missing array {_member(i, name)!r}")
+            parts[name].append(arrays.pop(_member(i, name)))
+        n = len(parts["counter"][-1])
+        if parts["commanded_deg"][-1].shape != ():
+            raise RecordingError(f"{p}: array {_member(i, 'commanded_deg')!r} must be one number")
+        parts["commanded_deg"][-1] = np.full(n, parts["commanded_deg"][-1])
+        parts["window"].append(np.full(n, i, dtype=np.int64))
+    try:
+        joined = {name: np.concatenate(a) for name, a in parts.items()}
+    except ValueError as exc:  # windows whose arrays differ in shape
+        raise RecordingError(f"{p}: the windows' arrays do not fit together ({exc})") from exc
+    return {**arrays, **joined}
 
 
 #: Largest recording read, bytes (a day of 200 Hz samples in CSV is about 2 GB; beyond this the
@@ -575,30 +607,41 @@ def _atomic(p: Path, mode: str = "w") -> Any:
 def _replace_npz(p: Path, meta: dict[str, Any], windows: tuple[RecordedWindow, ...]) -> None:
     # The arrays of np.savez_compressed, written column by column and window by window: the
     # windows are never joined in memory (a copy of the whole run at every window).
+    def piece(i: int, name: str) -> NDArray[Any]:
+        w = windows[i]
+        if name == "window":
+            return np.full(len(w.counter), i, dtype=np.int64)
+        if name == "commanded_deg":
+            return np.full(len(w.counter), w.commanded_deg)
+        return np.asarray(getattr(w, name))
+
+    _write_columns(p, meta, [len(w.counter) for w in windows], piece)
+
+
+def _write_columns(
+    p: Path, meta: dict[str, Any], sizes: list[int], piece: Callable[[int, str], NDArray[Any]]
+) -> None:
+    """Write the NPZ of the column layout (one array a column, every window in turn) to a
+    temporary file that then replaces ``p``; ``piece(i, name)`` gives window ``i``'s part of
+    column ``name`` (``sizes[i]`` rows), asked for one at a time."""
     with _atomic(p, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as zf:
         with zf.open("meta_json.npy", "w", force_zip64=True) as out:
             np.lib.format.write_array(out, np.array(json.dumps(meta)), allow_pickle=False)
-        n = sum(len(w.counter) for w in windows)
-        pieces: dict[str, Any] = {
-            "window": lambda i, w: np.full(len(w.counter), i, dtype=np.int64),
-            "commanded_deg": lambda i, w: np.full(len(w.counter), w.commanded_deg),
-            **{name: (lambda i, w, name=name: getattr(w, name)) for name in SAMPLE_ARRAYS},
-        }
-        for name, piece in pieces.items():
-            first = [piece(i, w) for i, w in enumerate(windows[:1])]
-            like = first[0] if first else np.empty(0)
+        for name in ("window", "commanded_deg", *SAMPLE_ARRAYS):
+            like = piece(0, name) if sizes else np.empty(0)
             header = {
                 "descr": np.lib.format.dtype_to_descr(like.dtype),
                 "fortran_order": False,
-                "shape": (n, *like.shape[1:]),
+                "shape": (sum(sizes), *like.shape[1:]),
             }
             with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
                 np.lib.format.write_array_header_1_0(out, header)
-                for i, w in enumerate(windows):
-                    a = np.ascontiguousarray(piece(i, w), dtype=like.dtype)
-                    flat = a.reshape(-1).view(np.uint8)
+                for i in range(len(sizes)):
+                    a = like if i == 0 else piece(i, name)
+                    flat = np.ascontiguousarray(a, dtype=like.dtype).reshape(-1).view(np.uint8)
                     for k in range(0, len(flat), _NPZ_CHUNK_BYTES):
                         out.write(flat[k : k + _NPZ_CHUNK_BYTES].data)
+                    del a, flat
 
 
 #: Bytes handed to the compressor at a time while an NPZ is written.
@@ -668,6 +711,83 @@ def _create(p: Path, mode: int | None) -> int:
     return fd
 
 
+#: Member names of a window in an NPZ being written (``w3/gyro_dph.npy``, ...): its commanded
+#: angle (a 0-d array) and its sample arrays.
+_WINDOW_MEMBERS = ("commanded_deg", *SAMPLE_ARRAYS)
+
+
+def _member(i: int, name: str) -> str:
+    return f"w{i}/{name}"
+
+
+class _NpzAppender:
+    """An NPZ that grows by whole windows, as :class:`RecordingWriter` writes one.
+
+    Each window's arrays go in as members of their own (:func:`_member`) after those already
+    written, and the zip archive's central directory (the list of its members, which ends every
+    zip file) is written after them: the file on disk is a whole archive of every window added,
+    and no window is written twice. The directories of earlier windows stay in the file,
+    unlisted (a few hundred bytes a window). A window whose writing fails is cut off the file
+    (:meth:`cut`), which then ends with the last whole archive again.
+    """
+
+    def __init__(self, fd: int, meta: dict[str, Any]) -> None:
+        self._fh = os.fdopen(fd, "w+b")
+        self._zf = zipfile.ZipFile(self._fh, "w", zipfile.ZIP_DEFLATED)
+        self.good = 0  # bytes of the file up to the end of its last whole archive
+        self.sizes: list[int] = []  # samples of each window written
+        self._put("meta_json", np.array(json.dumps(meta)))
+
+    def _put(self, name: str, a: NDArray[Any]) -> None:
+        with self._zf.open(f"{name}.npy", "w", force_zip64=True) as out:
+            np.lib.format.write_array(out, np.asarray(a), allow_pickle=False)
+
+    def add(self, window: RecordedWindow) -> None:
+        i = len(self.sizes)
+        self._put(_member(i, "commanded_deg"), np.array(window.commanded_deg))
+        for name in SAMPLE_ARRAYS:
+            self._put(_member(i, name), np.asarray(getattr(window, name)))
+        # zipfile writes the central directory only as it closes the archive; written here
+        # after the members (where the next window's members then begin), the file is a
+        # whole archive after every window.
+        self._zf._write_end_record()
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+        self.good = self._fh.tell()
+        self._zf.start_dir = self.good
+        self.sizes.append(len(window.counter))
+
+    def cut(self) -> None:
+        """Cut what follows the last whole archive off the file."""
+        with contextlib.suppress(OSError, ValueError):
+            self._fh.truncate(self.good)
+
+    def close(self) -> None:
+        """Close the file as it is (its last whole archive: nothing more is written)."""
+        self._zf._didModify = False  # every window's archive is on disk already
+        self._zf._writing = False
+        with contextlib.suppress(OSError, ValueError):
+            self._zf.close()
+        with contextlib.suppress(OSError, ValueError):
+            self._fh.close()
+
+
+def _consolidate(work: Path, meta: dict[str, Any], sizes: list[int]) -> None:
+    """Write the windows of an NPZ written window by window (:class:`_NpzAppender`) again in
+    the column layout, with ``meta``, in place of it: one pass, one window's column at a time
+    in memory."""
+    with zipfile.ZipFile(work) as src:
+
+        def piece(i: int, name: str) -> NDArray[Any]:
+            if name == "window":
+                return np.full(sizes[i], i, dtype=np.int64)
+            with src.open(_member(i, name) + ".npy") as fh:
+                a = np.lib.format.read_array(fh, allow_pickle=False)
+            return np.full(sizes[i], float(a)) if name == "commanded_deg" else a
+
+        _write_columns(work, meta, sizes, piece)
+
+
 class RecordingWriter:
     """Writes a recording window by window, as the windows are measured (module docstring).
 
@@ -708,6 +828,7 @@ class RecordingWriter:
         #: The file the windows are written to (:attr:`path` itself when nothing is replaced).
         self.work = partial_name(self.path) if self.replaces else self.path
         self._fh: Any = None
+        self._npz: _NpzAppender | None = None
         self._created = False
         self._good = 0  # bytes of the CSV up to the end of its last complete window
         self._status_at = -1  # byte offset of the CSV's status value
@@ -720,18 +841,23 @@ class RecordingWriter:
             return
         try:
             if self.path.suffix == ".npz":
-                self._write_npz(tuple(self.windows))
+                self._write_npz(window)
             else:
                 self._append_csv(len(self.windows) - 1, window)
             self.written = len(self.windows)
         except OSError as exc:
             self._failed(exc)
 
-    def _write_npz(self, windows: tuple[RecordedWindow, ...]) -> None:
-        if not self._created:
-            os.close(_create(self.work, self._mode))  # the name is this run's from now on
+    def _write_npz(self, window: RecordedWindow) -> None:
+        if self._npz is None:
+            fd = _create(self.work, self._mode)  # the name is this run's from now on
             self._created = True
-        _replace_npz(self.work, self.meta, windows)
+            self._npz = _NpzAppender(fd, self.meta)
+        try:
+            self._npz.add(window)
+        except BaseException:
+            self._npz.cut()  # the file ends with the windows written whole
+            raise
 
     def _append_csv(self, i: int, window: RecordedWindow) -> None:
         if self._fh is None:
@@ -776,6 +902,9 @@ class RecordingWriter:
             with contextlib.suppress(OSError, ValueError):
                 self._fh.truncate(self._good)
         if not self.written and self._created:
+            if self._npz is not None:
+                self._npz.close()
+                self._npz = None
             if self._fh is not None:
                 with contextlib.suppress(OSError, ValueError):
                     self._fh.close()
@@ -802,8 +931,11 @@ class RecordingWriter:
         self.meta["status"] = status
         try:
             if self.error is None and self.written:
-                if self.path.suffix == ".npz":
-                    self._write_npz(tuple(self.windows[: self.written]))
+                if self._npz is not None:
+                    # The windows in the column layout every reader of an NPZ knows, with the
+                    # final status: written once, as the run ends.
+                    self._npz.close()
+                    _consolidate(self.work, self.meta, self._npz.sizes[: self.written])
                 else:
                     # A window cut off by an interruption (an exception raised while it was
                     # being written) is cut off the file: it ends with complete windows.
@@ -823,6 +955,8 @@ class RecordingWriter:
             if self._fh is not None:
                 with contextlib.suppress(OSError, ValueError):
                     self._fh.close()
+            if self._npz is not None:
+                self._npz.close()
         if self.error is not None:
             raise self.error
 
@@ -1012,3 +1146,185 @@ def _split(
         )
         raise RecordingError(f"{p}: {len(windows)} window(s); {need}")
     return tuple(windows)
+
+
+class _Doubt(Exception):
+    """A recording the window-by-window reader leaves to :meth:`Recording.load` (another
+    layout, or anything it would refuse or cannot vouch for: the whole reader says what)."""
+
+
+def summarise_npz(path: str | Path, summarise: Callable[[RecordedWindow, float], Any]) -> Any:
+    """Read an NPZ recording of the column layout window by window, each window handed to
+    ``summarise(window, sample_rate_hz)`` as it is read and then dropped: memory is one
+    window's arrays and what ``summarise`` returns, whatever the number of windows.
+
+    Returns ``(summaries, meta, partial)`` (:attr:`Recording.partial`), or None where
+    :meth:`Recording.load` must read the file whole: a recording it would refuse (so that its
+    one message names what is wrong), a spin recording, fewer than two windows, windows not
+    stored one after the other, the window layout, a sample rate the samples might not bear
+    out (the check then needs every step). Where it returns, the windows are those
+    :meth:`Recording.load` gives, checked as it checks them.
+    """
+    p = Path(path)
+    try:
+        if p.suffix != ".npz":
+            raise _Doubt
+        _check_readable(p)
+        if _npz_size(p) > _MAX_ARRAY_BYTES:
+            raise _Doubt
+        with zipfile.ZipFile(p) as zf:
+            return _summarise_columns(p, zf, summarise)
+    except (_Doubt, RecordingError, OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError):
+        return None
+
+
+def _npy_stream(zf: zipfile.ZipFile, name: str) -> tuple[Any, tuple[int, ...], np.dtype[Any]]:
+    """An open member ``name`` of ``zf`` positioned at its data, its shape and dtype."""
+    fh = zf.open(f"{name}.npy")
+    version = np.lib.format.read_magic(fh)
+    read = (
+        np.lib.format.read_array_header_1_0
+        if version == (1, 0)
+        else np.lib.format.read_array_header_2_0
+    )
+    shape, fortran, dtype = read(fh)
+    if fortran or dtype.hasobject:
+        raise _Doubt
+    return fh, shape, dtype
+
+
+def _summarise_columns(
+    p: Path, zf: zipfile.ZipFile, summarise: Callable[[RecordedWindow, float], Any]
+) -> Any:
+    names = zf.namelist()
+    if "meta_json.npy" not in names or "window.npy" not in names:
+        raise _Doubt  # no recording, or the window layout
+    with zf.open("meta_json.npy") as fh:
+        meta = json.loads(str(np.lib.format.read_array(fh, allow_pickle=False)))
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT or "spin" in meta:
+        raise _Doubt
+    if meta.get("version") != VERSION:
+        raise _Doubt
+    check_meta(meta, p)
+    bounds = _window_bounds(zf)
+    streams = {}
+    for name in ("commanded_deg", *SAMPLE_ARRAYS):
+        fh, shape, dtype = _npy_stream(zf, name)
+        width = 3 if name in ("gyro_dph", "accel_mps2") else 1
+        if shape != ((bounds[-1], 3) if width == 3 else (bounds[-1],)):
+            raise _Doubt
+        if dtype.kind not in "iuf" or (dtype.kind == "f" and dtype.itemsize < 4):
+            raise _Doubt
+        if name in ("counter", "validity") and dtype.kind == "f":
+            raise _Doubt
+        streams[name] = (fh, dtype, width)
+    summaries, stubs, rate = [], [], _RateCount(float(meta["sample_rate_hz"]))
+    for k in range(len(bounds) - 1):
+        w = _read_window(streams, bounds[k + 1] - bounds[k])
+        rate.add(w)
+        # What the plan check reads of a window: its first and last counters (ticks spanned).
+        stubs.append(RecordedWindow(w.commanded_deg, **_stub(w)))
+        summaries.append(summarise(w, float(meta["sample_rate_hz"])))
+        del w
+    for fh, _, _ in streams.values():
+        if fh.read(1):  # at the end: zipfile checks the member's CRC there, as a load does
+            raise _Doubt
+    rate.check()
+    stub = Recording(tuple(stubs), meta)
+    check_against_plan(stub, p)
+    return summaries, meta, stub.partial
+
+
+def _window_bounds(zf: zipfile.ZipFile) -> list[int]:
+    """Row bounds of the windows from the ``window`` column, read in blocks: whole numbers
+    0, 1, 2, ... one after the other (anything else is left to the whole reader)."""
+    fh, shape, dtype = _npy_stream(zf, "window")
+    if len(shape) != 1 or dtype.kind not in "iu" or shape[0] > MAX_SAMPLES:
+        raise _Doubt
+    bounds, done, prev = [0], 0, -1
+    with fh:
+        while done < shape[0]:
+            rows = min(_STREAM_ROWS, shape[0] - done)
+            block = np.frombuffer(_exactly(fh, rows * dtype.itemsize), dtype=dtype)
+            for j in np.concatenate(([0], np.flatnonzero(np.diff(block)) + 1)):
+                v = int(block[j])
+                if v == prev + 1 and prev >= 0:
+                    bounds.append(done + int(j))  # the next window begins
+                elif not ((v == prev and j == 0) or (v == 0 and prev < 0)):
+                    raise _Doubt  # windows not 0, 1, 2, ... one after the other
+                prev = v
+            done += rows
+    bounds.append(shape[0])
+    if len(bounds) - 1 < 2 or len(bounds) - 1 > MAX_WINDOWS:
+        raise _Doubt
+    return bounds
+
+
+#: Rows of the window column read at a time by :func:`summarise_npz`.
+_STREAM_ROWS = 1 << 20
+
+
+def _exactly(fh: Any, n: int) -> bytes:
+    data = fh.read(n)
+    if len(data) != n:
+        raise _Doubt  # cut short
+    return bytes(data)
+
+
+def _read_window(streams: dict[str, Any], rows: int) -> RecordedWindow:
+    """The next ``rows`` rows of every column, checked as :func:`_split` checks them."""
+    fields: dict[str, Any] = {}
+    for name, (fh, dtype, width) in streams.items():
+        a = np.frombuffer(_exactly(fh, rows * width * dtype.itemsize), dtype=dtype)
+        a = a.reshape(rows, 3) if width == 3 else a
+        if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+            raise _Doubt
+        limit = SAMPLE_LIMITS.get(name)
+        if limit is not None and np.any(np.abs(a) > limit):
+            raise _Doubt
+        fields[name] = a
+    counter, validity, commanded = (
+        fields["counter"],
+        fields["validity"],
+        fields.pop("commanded_deg"),
+    )
+    if rows == 0 or np.ptp(commanded) != 0:
+        raise _Doubt
+    if np.any(counter < 0) or np.any(counter > 2.0**53) or np.any(np.diff(counter) <= 0):
+        raise _Doubt
+    if np.any(validity < 0) or np.any(validity > 255):
+        raise _Doubt
+    fields["counter"] = counter.astype(np.int64)
+    fields["validity"] = validity.astype(np.uint8)
+    return RecordedWindow(float(commanded[0]), **fields)
+
+
+def _stub(w: RecordedWindow) -> dict[str, Any]:
+    ends = [0, len(w.counter) - 1] if len(w.counter) > 1 else [0]
+    return {name: getattr(w, name)[ends] for name in SAMPLE_ARRAYS}
+
+
+class _RateCount:
+    """:func:`check_rate` from counts, window by window: the median step lies surely inside
+    the 1 % band when fewer than half the steps fall outside a band a little narrower on each
+    side; else the whole reader decides (and names the step)."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = rate_hz
+        self.n = self.low = self.high = 0
+
+    def add(self, w: RecordedWindow) -> None:
+        if len(w.counter) < 2:
+            return
+        dt = np.diff(w.time_s)[np.diff(w.counter) == 1]
+        off = dt * self.rate_hz - 1.0
+        self.n += len(dt)
+        self.low += int(np.count_nonzero(off < -0.0099))
+        self.high += int(np.count_nonzero(off > 0.0099))
+
+    def check(self) -> None:
+        if self.n < 2:
+            return
+        lower, upper = (self.n - 1) // 2, self.n // 2  # the middle steps once sorted
+        if self.low > lower or self.high > self.n - 1 - upper:
+            raise _Doubt

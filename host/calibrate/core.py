@@ -27,35 +27,27 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from northfinder.driver.protocol.motion import shortest_delta_deg
-from northfinder.driver.protocol.units import UG
 from northfinder.driver.protocol.units import readable_duration as _duration
-from northfinder.host.allan import (
-    TERMS,
-    AllanCurve,
-    NoiseFit,
-    allan_curve,
-    fit_ieee952,
-    pool_curves,
-)
+from northfinder.host.allan import TERMS, AllanCurve, NoiseFit, fit_ieee952, pool_curves
 from northfinder.host.calibrate.between import (
     BetweenFit,
     RunWindows,
     SlowNoise,
     fit_between_positions,
 )
-from northfinder.host.calibrate.readers import RecordedRun, good_stretches
+from northfinder.host.calibrate.readers import (
+    AXES,
+    MIN_PIECE_SAMPLES,
+    RecordedRun,
+    WindowFit,
+)
 from northfinder.host.errors import HostConfigError, InputError, QualityError
 
 __all__ = ["AXES", "Calibration", "IndexingFit", "calibrate"]
 
-#: Channels in order: gyro x, y, z (deg/h), accelerometer x, y, z (ug).
-AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
-#: Shortest stretch of good samples used for the Allan deviation.
-MIN_PIECE_SAMPLES = 64
 
 #: Sensor TOML field of each IEEE 952 term (gyro, accelerometer) and the factor from the fitted
 #: coefficient to it (Q, N, B, K, R in deg/h or ug with seconds; quantisation needs the rate).
@@ -525,13 +517,6 @@ def _toml_value(value: Any) -> str:
     return repr(float(value))
 
 
-def _slope(y: NDArray[np.float64], t: NDArray[np.float64]) -> tuple[float, float]:
-    """Least-squares slope of y over t and its weight (sum of (t - mean)^2)."""
-    tc = t - t.mean()
-    w = float(tc @ tc)
-    return (float(tc @ (y - y.mean())) / w if w > 0 else 0.0), w
-
-
 def calibrate(
     runs: Sequence[RecordedRun],
     *,
@@ -573,10 +558,15 @@ def calibrate(
             "Hz) cannot be pooled; calibrate them separately"
         )
     fs = rates.pop()
-    pieces: list[tuple[int, int, slice]] = []
-    for i, run in enumerate(runs):
-        for j, w in enumerate(run.windows):
-            pieces += [(i, j, s) for s in good_stretches(w, MIN_PIECE_SAMPLES)]
+    # Each window reduced to its stretches' Allan curves and slopes and its means (runs read
+    # ``fitted`` come so; the samples are not needed again).
+    per_run = [run.window_fits() for run in runs]
+    pieces = [
+        (i, j, k)
+        for i, fits in enumerate(per_run)
+        for j, f in enumerate(fits)
+        for k in range(len(f.pieces))
+    ]
     if not pieces:
         raise QualityError(
             f"no stretch of {MIN_PIECE_SAMPLES} or more consecutive good samples in the recordings"
@@ -587,11 +577,9 @@ def calibrate(
     triad_pieces: dict[str, list[AllanCurve]] = {"gyro": [], "accel": []}
     for ch, axis in enumerate(AXES):
         per_piece, num, den = [], 0.0, 0.0
-        for i, j, s in pieces:
-            w = runs[i].windows[j]
-            y = w.gyro_dph[s, ch] if ch < 3 else w.accel_mps2[s, ch - 3] / UG
-            per_piece.append(allan_curve(y, fs))
-            slope, weight = _slope(y, w.time_s[s])
+        for i, j, k in pieces:
+            curve, slope, weight = per_run[i][j].pieces[k][ch]
+            per_piece.append(curve)
             num, den = num + slope * weight, den + weight
         curves[axis] = pool_curves(per_piece)
         triad_pieces["gyro" if ch < 3 else "accel"] += per_piece
@@ -601,9 +589,9 @@ def calibrate(
             raise InputError(f"{axis}: {exc}") from exc
         ramp_sign[axis] = 1.0 if num >= 0 else -1.0
     triad_fits = {k: fit_ieee952(pool_curves(v), terms) for k, v in triad_pieces.items()}
-    hours = sum(s.stop - s.start for _, _, s in pieces) / fs / 3600.0
+    hours = sum(per_run[i][j].piece_samples[k] for i, j, k in pieces) / fs / 3600.0
     notes: list[str] = []
-    between, indexing = _between(runs, fits, tau_s, heat_tau_s, design, notes)
+    between, indexing = _between(per_run, fits, tau_s, heat_tau_s, design, notes)
     return Calibration(
         curves=curves,
         fits=fits,
@@ -613,7 +601,7 @@ def calibrate(
         indexing=indexing,
         sample_rate_hz=fs,
         runs=len(runs),
-        windows=sum(len(r.windows) for r in runs),
+        windows=sum(len(f) for f in per_run),
         pieces=len(pieces),
         hours=hours,
         notes=notes,
@@ -622,7 +610,7 @@ def calibrate(
 
 
 def _between(
-    runs: list[RecordedRun],
+    runs: list[tuple[WindowFit, ...]],
     fits: dict[str, NoiseFit],
     tau_s: float,
     heat_tau_s: float,
@@ -632,22 +620,15 @@ def _between(
     """Between-position terms and stop errors, when the runs have moves."""
     windows: list[RunWindows] = []
     stops: list[float] = []
-    fs = runs[0].sample_rate_hz
     for run in runs:
-        rows = []
-        for w in run.windows:
-            good = good_stretches(w)
-            if not good:
-                continue
-            idx = np.concatenate([np.arange(s.start, s.stop) for s in good])
-            rows.append((w, idx))
+        rows = [(f, f.means) for f in run if f.means is not None]
         if len(rows) < 2:
             continue
-        means = np.array([w.gyro_dph[idx, :2].mean(axis=0) for w, idx in rows])
-        table = np.array([float(np.mean(w.table_deg[idx])) for w, idx in rows])
-        commanded = np.array([w.commanded_deg for w, _ in rows])
-        start = np.array([w.time_s[idx[0]] - 1.0 / fs for w, idx in rows])
-        end = np.array([w.time_s[idx[-1]] for w, idx in rows])
+        means = np.array([m[0] for _, m in rows])
+        table = np.array([m[1] for _, m in rows])
+        commanded = np.array([f.commanded_deg for f, _ in rows])
+        start = np.array([m[2] for _, m in rows])
+        end = np.array([m[3] for _, m in rows])
         move = np.array(
             [0.0] + [shortest_delta_deg(a, b) for a, b in itertools.pairwise(commanded)]
         )

@@ -12,6 +12,8 @@ from a recording by its header, and ``.gz`` of the text formats), whose windows
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -19,19 +21,32 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
+from northfinder.driver.protocol.units import UG
+from northfinder.host.allan import AllanCurve, allan_curve
 from northfinder.host.canlog import ReadProgress, is_can_log, read_can_log
 from northfinder.host.errors import RecordingError
 from northfinder.host.procedure import unfit_samples
-from northfinder.host.recording import RecordedWindow, Recording
+from northfinder.host.recording import RecordedWindow, Recording, summarise_npz
 
 __all__ = [
+    "AXES",
     "READERS",
     "RecordedRun",
+    "WindowFit",
     "good_stretches",
     "read_runs",
     "register_reader",
+    "window_fit",
 ]
+
+#: Channels in order: gyro x, y, z (deg/h), accelerometer x, y, z (ug).
+AXES = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+#: Shortest stretch of good samples used for the Allan deviation.
+MIN_PIECE_SAMPLES = 64
+#: Samples of each window compared, gyro and accelerometer, to tell a recording given twice.
+FINGERPRINT_SAMPLES = 256
 
 
 def good_stretches(window: RecordedWindow, min_samples: int = 1) -> list[slice]:
@@ -75,6 +90,92 @@ class RecordedRun:
     windows: tuple[RecordedWindow, ...]
     latitude_deg: float | None = None
     meta: dict[str, Any] = field(default_factory=dict, repr=False)
+    #: The windows reduced as they were read (``read_runs(..., fitted=True)``); :attr:`windows`
+    #: is then empty.
+    fits: tuple[WindowFit, ...] = field(default=(), repr=False)
+
+    def window_fits(self) -> tuple[WindowFit, ...]:
+        """What calibration takes of each window: :attr:`fits`, or made from :attr:`windows`."""
+        if self.fits or not self.windows:
+            return self.fits
+        return tuple(window_fit(w, self.sample_rate_hz) for w in self.windows)
+
+
+@dataclass(frozen=True)
+class WindowFit:
+    """What calibration takes of one window (:func:`window_fit`), made as the window is read so
+    that its samples can be dropped.
+
+    Of the stages of :func:`~northfinder.host.calibrate.core.calibrate`, only the Allan
+    deviation needs samples together: those of one good stretch (consecutive good samples) of
+    one channel, as float64 (gyro deg/h, accelerometer ug), for the time it is computed. The
+    rest are sums: each stretch's slope, the window's means for the between-position fit, and a
+    fingerprint to tell a recording given twice.
+
+    Attributes
+    ----------
+    commanded_deg : float
+    start_s : float
+        Device time of the first sample, s (the windows of a recording are put in time order).
+    samples : int
+    pieces : tuple
+        For each stretch of at least ``MIN_PIECE_SAMPLES`` good samples, for each channel of
+        :data:`AXES`: its Allan curve, the slope of its samples over time and the slope's weight.
+    piece_samples : tuple of int
+        Samples of each stretch.
+    means : tuple or None
+        Over the window's good samples: the x and y gyro means (deg/h), the mean encoder angle
+        (deg), the device time one sample before the first (s) and of the last; None without
+        good samples.
+    fingerprint : tuple
+        A digest of the counters and validity bits, and :data:`FINGERPRINT_SAMPLES` samples of
+        the gyro and accelerometer spread over the window.
+    """
+
+    commanded_deg: float
+    start_s: float
+    samples: int
+    pieces: tuple[tuple[tuple[AllanCurve, float, float], ...], ...]
+    piece_samples: tuple[int, ...]
+    means: tuple[NDArray[np.float64], float, float, float] | None
+    fingerprint: tuple[bytes, NDArray[np.float64]] = field(repr=False)
+
+
+def _slope(y: NDArray[np.float64], t: NDArray[np.float64]) -> tuple[float, float]:
+    """Least-squares slope of y over t and its weight (sum of (t - mean)^2)."""
+    tc = t - t.mean()
+    w = float(tc @ tc)
+    return (float(tc @ (y - y.mean())) / w if w > 0 else 0.0), w
+
+
+def window_fit(w: RecordedWindow, sample_rate_hz: float) -> WindowFit:
+    """What calibration takes of window ``w`` (:class:`WindowFit`)."""
+    fs = sample_rate_hz
+    pieces, sizes = [], []
+    for s in good_stretches(w, MIN_PIECE_SAMPLES):
+        per_channel = []
+        for ch in range(len(AXES)):
+            y = w.gyro_dph[s, ch] if ch < 3 else w.accel_mps2[s, ch - 3] / UG
+            per_channel.append((allan_curve(y, fs), *_slope(y, w.time_s[s])))
+        pieces.append(tuple(per_channel))
+        sizes.append(s.stop - s.start)
+    means = None
+    good = good_stretches(w)
+    if good:
+        idx = np.concatenate([np.arange(s.start, s.stop) for s in good])
+        means = (
+            w.gyro_dph[idx, :2].mean(axis=0), float(np.mean(w.table_deg[idx])),
+            w.time_s[idx[0]] - 1.0 / fs, w.time_s[idx[-1]],
+        )  # fmt: skip
+    n = len(w.counter)
+    digest = hashlib.sha256(np.ascontiguousarray(w.counter, dtype=np.int64).tobytes())
+    digest.update(np.ascontiguousarray(w.validity, dtype=np.uint8).tobytes())
+    at = np.unique(np.linspace(0, n - 1, min(n, FINGERPRINT_SAMPLES)).astype(np.int64))
+    seen = np.hstack([w.gyro_dph[at], w.accel_mps2[at]]) if n else np.empty((0, 6))
+    return WindowFit(
+        float(w.commanded_deg), float(w.time_s[0]) if n else math.nan, n, tuple(pieces),
+        tuple(sizes), means, (digest.digest(), seen),
+    )  # fmt: skip
 
 
 #: File-name ending -> reader.
@@ -100,13 +201,19 @@ def _read_northfinder(path: Path) -> RecordedRun:
     return RecordedRun(str(path), float(rate), tuple(windows[i] for i in order), latitude, rec.meta)
 
 
-def _read_can_log(path: Path, progress: ReadProgress | None = None) -> RecordedRun:
-    session = read_can_log(path, min_windows=1, progress=progress)
+def _read_can_log(
+    path: Path, progress: ReadProgress | None = None, *, fitted: bool = False
+) -> RecordedRun:
+    session = read_can_log(
+        path, min_windows=1, progress=progress, summarise=window_fit if fitted else None
+    )
     gaps = [n for n in session.notes if "missing" in n]
     meta: dict[str, Any] = {"notes": list(session.notes), "gaps": gaps}
     if session.identity is not None:
         meta["device"] = session.recording().meta.get("device")
-    return RecordedRun(str(path), session.sample_rate_hz, session.windows, None, meta)
+    return RecordedRun(
+        str(path), session.sample_rate_hz, session.windows, None, meta, session.summaries
+    )
 
 
 def _read_csv(path: Path) -> RecordedRun:
@@ -127,11 +234,19 @@ register_reader(".gz", _read_gz)
 
 
 def read_runs(
-    paths: Sequence[str | Path], progress: Callable[[Path], ReadProgress | None] | None = None
+    paths: Sequence[str | Path],
+    progress: Callable[[Path], ReadProgress | None] | None = None,
+    *,
+    fitted: bool = False,
 ) -> list[RecordedRun]:
     """Read every file, one run each, by the reader its ending names; a CAN log's reading is
     told to ``progress(path)`` when that gives a callback
     (:func:`~northfinder.host.canlog.read_can_log`'s ``progress``).
+
+    ``fitted``: each window is reduced to what calibration takes of it (:func:`window_fit`) and
+    its samples dropped: :attr:`RecordedRun.fits` instead of :attr:`RecordedRun.windows`, in
+    memory one window's samples at a time (CAN logs and NPZ recordings are read window by
+    window; a file of another reader is read whole, then reduced).
 
     Raises
     ------
@@ -153,7 +268,35 @@ def read_runs(
                 f"{', '.join(sorted(READERS))}"
             )
         told = progress(p) if progress is not None else None
-        runs.append(_read_can_log(p, told) if told is not None and is_can_log(p) else reader(p))
+        if fitted:
+            runs.append(_fitted(p, reader, told))
+        else:
+            runs.append(_read_can_log(p, told) if told is not None and is_can_log(p) else reader(p))
+    _check_distinct(paths, runs)
+    return runs
+
+
+def _fitted(
+    p: Path, reader: Callable[[Path], RecordedRun], progress: ReadProgress | None
+) -> RecordedRun:
+    """The run of ``p`` with its windows reduced (:func:`window_fit`) as they are read."""
+    if is_can_log(p):
+        return _read_can_log(p, progress, fitted=True)
+    if p.suffix.lower() == ".npz":
+        got = summarise_npz(p, window_fit)
+        if got is not None:
+            fits, meta, _ = got
+            lat = meta.get("latitude_deg")
+            latitude = float(lat) if isinstance(lat, int | float) and math.isfinite(lat) else None
+            order = np.argsort([f.start_s for f in fits], kind="stable")
+            rate = float(meta["sample_rate_hz"])
+            return RecordedRun(str(p), rate, (), latitude, meta, tuple(fits[i] for i in order))
+    run = reader(p)
+    fits = tuple(window_fit(w, run.sample_rate_hz) for w in run.windows)
+    return dataclasses.replace(run, windows=(), fits=fits)
+
+
+def _check_distinct(paths: Sequence[str | Path], runs: list[RecordedRun]) -> None:
     names = list(map(str, paths))
     for j, run in enumerate(runs):
         first = next((names[i] for i in range(j) if same_session(runs[i], run)), None)
@@ -169,7 +312,6 @@ def read_runs(
             f"{name}: {same} {first}; each recording must be a separate power-on "
             "(a repeated one would be counted as independent data)"
         )
-    return runs
 
 
 #: Sample values of one session written in two formats (a recording's CSV or NPZ, a CAN log's
@@ -182,7 +324,10 @@ def same_session(a: RecordedRun, b: RecordedRun) -> bool:
     """Whether two runs hold the same session: the same windows of the same sample counters and
     validity, with gyro and accelerometer samples equal within :data:`SAME_SESSION_RTOL` (a
     recording and a CAN log of one run differ in the last digits, as floats written and read
-    in another way do)."""
+    in another way do). Runs read ``fitted`` are compared on their windows' fingerprints
+    (:class:`WindowFit`): the counters and validity bits, and samples spread over each window."""
+    if a.fits or b.fits:
+        return _same_fits(a.window_fits(), b.window_fits())
     if len(a.windows) != len(b.windows):
         return False
     for wa, wb in zip(a.windows, b.windows, strict=True):
@@ -193,4 +338,16 @@ def same_session(a: RecordedRun, b: RecordedRun) -> bool:
         for x, y in ((wa.gyro_dph, wb.gyro_dph), (wa.accel_mps2, wb.accel_mps2)):
             if not np.allclose(x, y, rtol=SAME_SESSION_RTOL, atol=SAME_SESSION_ATOL):
                 return False
+    return True
+
+
+def _same_fits(a: Sequence[WindowFit], b: Sequence[WindowFit]) -> bool:
+    if len(a) != len(b):
+        return False
+    for fa, fb in zip(a, b, strict=True):
+        if fa.fingerprint[0] != fb.fingerprint[0] or fa.samples != fb.samples:
+            return False
+        x, y = fa.fingerprint[1], fb.fingerprint[1]
+        if not np.allclose(x, y, rtol=SAME_SESSION_RTOL, atol=SAME_SESSION_ATOL):
+            return False
     return True

@@ -73,10 +73,14 @@ def run(args: argparse.Namespace) -> int:
     base: dict[str, Any] | None = load_sensor(args.base).to_dict() if args.base else None
     with Progress("calibrate", enabled=not args.json) as bar:
         bar.step(f"reading {len(args.recordings)} recording(s)")
+        # Each window reduced as it is read (its Allan curves, slopes and means), its samples
+        # dropped: memory is one window's, whatever the records' length.
         runs = read_runs(
-            args.recordings, lambda p: LogProgress("calibrate", [p], enabled=not args.json)
+            args.recordings,
+            lambda p: LogProgress("calibrate", [p], enabled=not args.json),
+            fitted=True,
         )
-        samples = sum(len(w.counter) for run in runs for w in run.windows)
+        samples = sum(f.samples for run in runs for f in run.fits)
         bar.step(f"fitting {samples} samples: Allan deviation, then the terms between positions")
         cal = calibrate(
             runs, tau_s=args.move_tau, heat_tau_s=args.heat_tau, design=args.between,

@@ -13,6 +13,8 @@ consistency check.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,15 +28,16 @@ from northfinder.cli.plots import check_plot_path
 from northfinder.driver.framelog import expand_log_names
 from northfinder.host.canlog import LogSet, is_can_log, read_can_log
 from northfinder.host.denoise import METHODS
-from northfinder.host.errors import HostConfigError, QualityError
+from northfinder.host.errors import HostConfigError, HostError, QualityError
 from northfinder.host.procedure import (
     METHOD_CHOICES,
     FindResult,
     Plan,
+    PositionWindow,
     result_from_windows,
     summarise_window,
 )
-from northfinder.host.recording import Recording
+from northfinder.host.recording import RecordedWindow, Recording, summarise_npz
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -118,14 +121,7 @@ def solve_recording(
 ) -> FindResult:
     """Solve a recording's windows (``allow_gaps``: a window with ticks missing is solved from
     the samples it holds, the gap in its notes; else it is an error)."""
-    if latitude is None and "latitude_deg" not in rec.meta:
-        raise HostConfigError("--latitude: the recording has no latitude_deg; give --latitude")
-    lat = float(rec.meta["latitude_deg"] if latitude is None else latitude)
-    recorded = rec.meta.get("latitude_source")
-    if latitude is not None:
-        source = "--latitude"
-    else:
-        source = f"the recording (from {recorded})" if recorded else "the recording"
+    lat, source = _latitude(rec.meta, latitude)
     plan = Plan(
         positions_deg=tuple(w.commanded_deg for w in rec.windows),
         window_s=max(len(w.counter) for w in rec.windows) / float(rec.meta["sample_rate_hz"]),
@@ -138,12 +134,76 @@ def solve_recording(
     return result_from_windows(windows, lat, plan, latitude_source=source)
 
 
-def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
+def _latitude(meta: dict[str, Any], latitude: float | None) -> tuple[float, str]:
+    """The latitude to solve with, deg, and where it came from."""
+    if latitude is None and "latitude_deg" not in meta:
+        raise HostConfigError("--latitude: the recording has no latitude_deg; give --latitude")
+    lat = float(meta["latitude_deg"] if latitude is None else latitude)
+    recorded = meta.get("latitude_source")
+    if latitude is not None:
+        return lat, "--latitude"
+    return lat, f"the recording (from {recorded})" if recorded else "the recording"
+
+
+@dataclass(frozen=True)
+class WindowSummary:
+    """What solving needs of one window (:func:`summarise_window`), its samples dropped; the
+    error summarising raised, kept to be raised where solving the window would have."""
+
+    commanded_deg: float
+    samples: int
+    window: PositionWindow | None
+    error: HostError | None = None
+
+
+def summariser(denoise: str, allow_gaps: bool) -> Callable[[RecordedWindow, float], WindowSummary]:
+    """The function that reduces each window as it is read (for ``read_can_log``'s
+    ``summarise``), as :func:`solve_recording` reduces it."""
+
+    def summarise(w: RecordedWindow, sample_rate_hz: float) -> WindowSummary:
+        try:
+            window = summarise_window(w, w.commanded_deg, denoise, allow_gaps=allow_gaps)
+        except HostError as exc:
+            return WindowSummary(w.commanded_deg, len(w.counter), None, exc)
+        return WindowSummary(w.commanded_deg, len(w.counter), window)
+
+    return summarise
+
+
+@dataclass(frozen=True)
+class Summarised:
+    """A recording read window by window, each window summarised as it was read."""
+
+    windows: tuple[WindowSummary, ...]
+    meta: dict[str, Any]
+
+
+def solve_summaries(
+    summaries: Sequence[WindowSummary], meta: dict[str, Any], latitude: float | None,
+    denoise: str, method: str,
+) -> FindResult:  # fmt: skip
+    """:func:`solve_recording` of windows summarised as they were read: the same result."""
+    lat, source = _latitude(meta, latitude)
+    plan = Plan(
+        positions_deg=tuple(s.commanded_deg for s in summaries),
+        window_s=max(s.samples for s in summaries) / float(meta["sample_rate_hz"]),
+        denoise=denoise,
+        method=method,
+    )
+    windows = []
+    for s in summaries:
+        if s.error is not None:
+            raise s.error
+        assert s.window is not None
+        windows.append(s.window)
+    return result_from_windows(windows, lat, plan, latitude_source=source)
+
+
+def load(args: argparse.Namespace) -> tuple[Recording | Summarised, dict[str, Any]]:
     """The recording named by the arguments (read from a CAN log if it is one, from its parts
     if several) and where it came from."""
     names = expand_log_names(args.file)
     path = Path(names[0])
-    source: dict[str, Any]
     if len(names) > 1 and not all(is_can_log(n) for n in names):
         other = next(n for n in names if not is_can_log(n))
         raise HostConfigError(
@@ -161,28 +221,43 @@ def load(args: argparse.Namespace) -> tuple[Recording, dict[str, Any]]:
     if given or args.strict:
         option = "--" + (given[0] if given else "strict").replace("_", "-")
         raise HostConfigError(f"{option} applies to CAN logs only")
+    if not args.plot:
+        summaries = summarise_npz(path, summariser(args.denoise, report_gaps))
+        if summaries is not None:
+            windows, meta, partial = summaries
+            return Summarised(tuple(windows), meta), _recording_source(path, partial, False)
     rec = Recording.load(path, min_windows=1)
     if "spin" not in rec.meta and len(rec.windows) < 2:
         rec = Recording.load(path)  # the stop-and-go reader's own error: a heading needs two
-    source = {"file": str(path), "format": f"recording{path.suffix}"}
-    if rec.partial is not None:
-        held = "samples" if "spin" in rec.meta else "windows"
-        source["partial"] = rec.partial
-        source["notes"] = [f"partial recording ({rec.partial}): solved from the {held} it holds"]
-    return rec, source
+    return rec, _recording_source(path, rec.partial, "spin" in rec.meta)
 
 
-def _load_can_log(args: argparse.Namespace, names: list[str]) -> tuple[Recording, dict[str, Any]]:
+def _recording_source(path: Path, partial: str | None, spin: bool) -> dict[str, Any]:
+    """Where a recording's windows came from, and what a partial one holds."""
+    source: dict[str, Any] = {"file": str(path), "format": f"recording{path.suffix}"}
+    if partial is not None:
+        held = "samples" if spin else "windows"
+        source["partial"] = partial
+        source["notes"] = [f"partial recording ({partial}): solved from the {held} it holds"]
+    return source
+
+
+def _load_can_log(
+    args: argparse.Namespace, names: list[str]
+) -> tuple[Recording | Summarised, dict[str, Any]]:
     """The complete windows of a CAN log (or of its parts) and where they came from; the
-    windows left out warned of."""
+    windows left out warned of. Each window is summarised as it is read and its samples
+    dropped, unless they are plotted."""
     report_gaps = args.on_gap == "report"
     logs = LogSet(names)
     path = Path(logs.name)
+    summarise = None if args.plot else summariser(args.denoise, report_gaps)
     # Damaged lines are read past even with --strict, so that it names the first one.
     with LogProgress("solve", logs.files, enabled=not args.json) as progress:
         session = read_can_log(
             logs.files, node_id=args.node_id, window_s=args.window, skip_damaged=True,
             session=args.session, windows=args.windows, min_windows=1, progress=progress,
+            summarise=summarise,
         )  # fmt: skip
     if args.strict and session.first_damaged:
         raise QualityError(
@@ -203,12 +278,13 @@ def _load_can_log(args: argparse.Namespace, names: list[str]) -> tuple[Recording
     ]  # fmt: skip
     for note in warned:
         warn("solve", f"{path}: {note}")
-    if len(complete.windows) < len(session.windows):
+    held, solved = len(session.window_numbers), len(complete.window_numbers)
+    if solved < held:
         left = ", ".join(str(n) for n in complete.window_numbers)
         gaps_only = len(session.gap_windows) and not report_gaps
         warn(
             "solve",
-            f"{path}: {len(session.windows) - len(complete.windows)} window(s) with samples "
+            f"{path}: {held - solved} window(s) with samples "
             f"missing left out; solving the complete windows {left or '(none)'}"
             + (
                 f" (--on-gap report solves the {len(session.gap_windows)} with sample "
@@ -217,9 +293,9 @@ def _load_can_log(args: argparse.Namespace, names: list[str]) -> tuple[Recording
                 else ""
             ),
         )
-    if len(complete.windows) < 2:
+    if solved < 2:
         raise QualityError(
-            f"{path}: {len(complete.windows)} complete window(s); a heading needs two"
+            f"{path}: {solved} complete window(s); a heading needs two"
             + ("" if args.strict else " (windows with samples missing are left out")
             + (
                 "; --on-gap report solves those with sample ticks missing)"
@@ -238,6 +314,8 @@ def _load_can_log(args: argparse.Namespace, names: list[str]) -> tuple[Recording
         "windows": list(complete.window_numbers), "skipped_lines": session.skipped_lines,
         "warnings": warned, "reported": reported,
     }  # fmt: skip
+    if summarise is not None:
+        return Summarised(complete.summaries, complete.recording().meta), source
     return complete.recording(), source
 
 
@@ -246,14 +324,19 @@ def run(args: argparse.Namespace) -> int:
         check_plot_path(args.plot)
     rec, source = load(args)
     if "spin" in rec.meta:
+        assert isinstance(rec, Recording)
         return _solve_spin(args, rec, source)
     if args.spin_drift:
         raise HostConfigError("--spin-drift: applies to spin recordings only")
-    result = solve_recording(
-        rec, args.latitude, args.denoise, args.solver, allow_gaps=args.on_gap == "report"
-    )
+    if isinstance(rec, Summarised):
+        result = solve_summaries(rec.windows, rec.meta, args.latitude, args.denoise, args.solver)
+    else:
+        result = solve_recording(
+            rec, args.latitude, args.denoise, args.solver, allow_gaps=args.on_gap == "report"
+        )
     truth = rec.meta.get("truth")
     if args.plot:
+        assert isinstance(rec, Recording)
         report.plot(args.plot, result, list(rec.windows), args.denoise, truth)
     device = rec.meta.get("device")
     if args.json:
