@@ -20,7 +20,9 @@ Columns:
 - ``B/sample``: the peak over the samples of both windows, and ``+B/sample``: the growth of the
   peak from the shortest window's over the samples added (what each sample costs).
 
-The machine's other load shows in the wall time; the CPU time is the steadier figure.
+The machine's other load shows in the wall time; the CPU time is the steadier figure. What one
+200 Hz tick of the stream costs, against the floor of python-can's ``virtual`` bus carrying its
+four frames: ``benchmarks/bench_engine_floor.py``.
 """
 
 from __future__ import annotations

@@ -35,16 +35,11 @@ except ImportError:  # pragma: no cover - not Linux
     capture_message = None  # type: ignore[assignment]
 
 from northfinder.driver.errors import LinkError, LinkLost, ProtocolError
-from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
-from northfinder.driver.protocol.constants import UINT32_MAX, CanFunction
+from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can, sample_ids
+from northfinder.driver.protocol.constants import UINT32_MAX
 from northfinder.driver.protocol.counters import counter_diff
 from northfinder.driver.protocol.messages import Command, Identify, Reply, Sample, Status
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
-
-#: The functions of a tick's four sample frames, in the order the device sends them.
-_SAMPLE_FUNCTIONS = (
-    CanFunction.SAMPLE_X, CanFunction.SAMPLE_Y, CanFunction.SAMPLE_Z, CanFunction.SAMPLE_AUX,
-)  # fmt: skip
 
 log = logging.getLogger("northfinder.driver")
 
@@ -363,7 +358,7 @@ class CanTransport(_TransportBase):
         self.rcvbuf = enlarge_receive_buffer(bus)
         self.garbled = 0  # SLCAN lines that did not parse (frame errors)
         self._take = frame_batch(bus, self._garbled)
-        self._tick_ids = tuple(f | node_id for f in _SAMPLE_FUNCTIONS)
+        self._tick_ids = sample_ids(node_id)
 
     def send(self, command: Command) -> None:
         """Send one command (one frame).

@@ -15,7 +15,6 @@ frame and is not given), so a serial session logs like a CAN one. Frames are han
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
 import select
 import socket
@@ -27,7 +26,7 @@ import can
 import serial
 from can import Message
 
-from northfinder.driver.protocol.can import encode_can, split_can_id
+from northfinder.driver.protocol.can import encode_can, sample_ids, split_can_id
 from northfinder.driver.protocol.constants import CanFunction
 from northfinder.driver.protocol.errors import BadCommandError, ProtocolError
 from northfinder.driver.protocol.messages import Command, Sample
@@ -320,16 +319,10 @@ def _frame_data(item: Outgoing, node: int) -> Iterable[tuple[int, bytes]]:
     its fields (as :func:`encode_can` does, without a frame object each)."""
     data = item.frames
     if data is not None:
-        return zip(_sample_ids(node), (data[:8], data[8:16], data[16:24], data[24:]), strict=True)
+        return zip(sample_ids(node), (data[:8], data[8:16], data[16:24], data[24:]), strict=True)
     if type(item.message) is Sample:
-        return zip(_sample_ids(node), item.message.can_payloads(), strict=True)
+        return zip(sample_ids(node), item.message.can_payloads(), strict=True)
     return encode_can(item.message, node)
-
-
-@functools.cache
-def _sample_ids(node: int) -> tuple[int, ...]:
-    return tuple(f | node for f in (CanFunction.SAMPLE_X, CanFunction.SAMPLE_Y,
-                                    CanFunction.SAMPLE_Z, CanFunction.SAMPLE_AUX))  # fmt: skip
 
 
 def _drop_last_byte(data: bytes) -> bytes:

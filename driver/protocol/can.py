@@ -53,6 +53,7 @@ __all__ = [
     "can_id",
     "decode_can",
     "encode_can",
+    "sample_ids",
     "split_can_id",
 ]
 
@@ -155,7 +156,7 @@ def encode_can(message: Message | CanMessage, node_id: int = 1) -> list[CanFrame
         # The stream's message: its four frames packed directly (Sample.can_payloads).
         return [
             CanFrame(i, data)
-            for i, data in zip(_sample_ids(node_id), message.can_payloads(), strict=True)
+            for i, data in zip(sample_ids(node_id), message.can_payloads(), strict=True)
         ]
     if isinstance(message, Sample):
         parts: tuple[CanMessage, ...] | list[IdentifyPage] = message.split()
@@ -189,8 +190,15 @@ _SAMPLE_SLOT = {function: slot for slot, function in enumerate(_SAMPLE_FUNCTIONS
 
 
 @functools.cache
-def _sample_ids(node_id: int) -> tuple[int, int, int, int]:
-    """The identifiers of the four sample frames of ``node_id`` (checked once)."""
+def sample_ids(node_id: int) -> tuple[int, int, int, int]:
+    """The CAN identifiers of the four sample frames of a tick from ``node_id``, in sending
+    order: SAMPLE_X, _Y, _Z, _AUX (checked once, then cached).
+
+    Raises
+    ------
+    EncodeError
+        ``node_id`` is not a node id (1..15).
+    """
     return tuple(can_id(function, node_id) for function in _SAMPLE_FUNCTIONS)  # type: ignore[return-value]
 
 
