@@ -78,7 +78,11 @@ def summary(rows: list[dict[str, object]]) -> str:
     keys = sorted({k for r in rows for k in r["lines"]})  # type: ignore[attr-defined]
     out = [f"{n} seeds; CPU {sum(r['cpu_s'] for r in rows) / n:.1f} s a seed"]  # type: ignore[misc]
     bad = sum(r["verdict"] == "FAIL" for r in rows)
-    out.append(f"any line FAIL: {bad}/{n} (95 % upper bound {_upper(bad, n):.2%})")
+    low, high = _interval(bad, n)
+    out.append(
+        f"any line FAIL: {bad}/{n} = {bad / n:.2%} (95 % interval {low:.2%} to {high:.2%}, "
+        f"Clopper-Pearson; one-sided 95 % upper bound {_upper(bad, n):.2%})"
+    )
     for k in keys:
         counts: dict[str, int] = {}
         for r in rows:
@@ -90,7 +94,39 @@ def summary(rows: list[dict[str, object]]) -> str:
         f"{design_value(7):.1e}, bias repeatability per axis (16 dof) {design_value(16):.1e}; "
         "any line exactly at its limit: 5 %"
     )
+    heading, change = predicted_sigmas()
+    out.append(
+        f"the planner's 1 sigma for this unit: headings {heading:.3g} deg (limit {2.1 / heading:.2f} "
+        f"x: design {design_value(7, 2.1 / heading):.1e}), change between windows at one angle "
+        f"{change:.3g} deg/h (limit {1.0 / change:.2f} x: design "
+        f"{design_value(16, 1.0 / change):.1e})"
+    )
     return "\n".join(out)
+
+
+def predicted_sigmas() -> tuple[float, float]:
+    """The planner's 1 sigma of the headings and of a window mean's change between the windows at
+    one angle, for the unit and the plan of :data:`DATASHEET` at 34 deg, a 5 s warm-up."""
+    from northfinder.cli.simulated import load_sensor
+    from northfinder.host.acceptance import same_angle_pairs
+    from northfinder.host.accuracy import predict, window_change_dph
+    from northfinder.host.plan import Plan
+    from northfinder.simwindows import error_model
+
+    model = error_model(load_sensor(str(UNIT)))
+    plan = Plan((0.0, 180.0, 180.0, 0.0), 10.0, 0.0, "none", "auto")
+    heading = predict(model, plan, 34.0, warmup_s=5.0).sigma_deg
+    pairs = same_angle_pairs(plan.positions_deg)
+    return heading, window_change_dph(model, plan, pairs, warmup_s=5.0)
+
+
+def _interval(k: int, n: int) -> tuple[float, float]:
+    """Two-sided 95 % interval of a rate seen k times in n (Clopper-Pearson)."""
+    from scipy.stats import beta
+
+    low = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
+    high = 1.0 if k >= n else float(beta.ppf(0.975, k + 1, n - k))
+    return low, high
 
 
 def _upper(k: int, n: int) -> float:

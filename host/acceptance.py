@@ -276,10 +276,14 @@ def datasheet_from_sensor(
     protocol_version: str | None,
     conformance: Sequence[str] = ("*",),
     source: str = "--datasheet-from",
+    predicted_bias_repeatability_dph: float | None = None,
 ) -> Datasheet:
     """A datasheet whose limits are a sensor's figures times ``margin`` (a sensor in the layout
     of a sensor TOML file: ``SensorSpec.to_dict()``). A term the sensor does not have (0) gives
-    no line; the repeatability limit is the planner's prediction for the plan times ``margin``."""
+    no line; the repeatability limit is the planner's prediction for the plan times ``margin``,
+    and the bias repeatability limit the predicted 1-sigma change of a gyro's window mean between
+    the plan's windows at one table angle times ``margin``
+    (:func:`northfinder.host.accuracy.window_change_dph`; a plan that comes back to an angle)."""
     limits: dict[str, float] = {}
     for section, key in LIMITS:
         value = sensor.get(section, {}).get(key) if section in ("gyro", "accel") else None
@@ -287,12 +291,16 @@ def datasheet_from_sensor(
             limits[f"{section}.{key}"] = float(value) * margin
     if predicted_sigma_deg is not None and predicted_sigma_deg > 0:
         limits["north_finding.sigma_deg"] = min(predicted_sigma_deg * margin, 180.0)
+    repeat = predicted_bias_repeatability_dph
+    if repeat is not None and repeat > 0 and same_angle_pairs(positions_deg):
+        limits[_REPEAT] = min(repeat * margin, LIMITS[("gyro", "bias_repeatability_dph")][1])
     if time_to_ready_s is not None and time_to_ready_s > 0:
         limits["unit.time_to_ready_s"] = time_to_ready_s * margin
+    runs = {"north_finding.sigma_deg", _REPEAT} & set(limits)
     return Datasheet(
         name=f"{sensor.get('name', 'sensor')} x {margin:g}",
         limits=limits,
-        positions_deg=tuple(float(a) for a in positions_deg) if predicted_sigma_deg else (),
+        positions_deg=tuple(float(a) for a in positions_deg) if runs else (),
         window_s=float(window_s),
         latitude_deg=float(latitude_deg),
         protocol_version=protocol_version,

@@ -98,6 +98,7 @@ __all__ = [
     "predict",
     "predict_solutions",
     "spin_bound_deg",
+    "window_change_dph",
 ]
 
 #: Where the tilt comes from.
@@ -807,6 +808,56 @@ def predict(
         With the ``pairwise`` solver the first pair's; :func:`predict_solutions` gives all.
     """
     return predict_solutions(model, plan, latitude_deg, **options)[0]
+
+
+def window_change_dph(
+    model: ErrorModel,
+    plan: Plan,
+    pairs: Sequence[tuple[int, int]],
+    *,
+    warmup_s: float = 0.0,
+    sample_rate_hz: float = 200.0,
+) -> float:
+    """Predicted 1-sigma change of a gyro's window mean between two windows of one run, deg/h:
+    the root mean square over ``pairs`` (window indices ``(i, j)`` of ``plan``, e.g. the windows
+    at one table angle), of the x or y gyro, whichever changes more.
+
+    The change is what the acceptance's bias repeatability line measures
+    (:func:`northfinder.host.acceptance.bias_repeatability_lines`): each pair's variance
+    ``C_ii + C_jj - 2 C_ij`` of the window-mean covariance of the prediction (white noise,
+    flicker, rate random walk, the bias walk and transient the moves start, quantisation,
+    vibration, impulses; the module docstring), plus the square of the deterministic drift's
+    change between the two windows (warm-up transient, temperature, ramp). The turn-on bias is
+    the same in every window of a run; the table's angle errors, which move the Earth rate's
+    share between stops, are left out.
+
+    Parameters
+    ----------
+    model : ErrorModel
+        Sensor and table figures.
+    plan : Plan
+        The positions, window and settle time (the timeline of the windows and moves).
+    pairs : sequence of (int, int)
+        Window indices, each pair one change.
+    warmup_s : float, default 0
+        Time from power-on to the first window, s.
+    sample_rate_hz : float, default 200
+        Sample rate, Hz.
+    """
+    if not pairs:
+        raise HostConfigError("window_change_dph: no pair of windows given")
+    tl = _timeline(plan, model.table, warmup_s, sample_rate_hz)
+    gyro, _ = _channels(model)
+    p = tl.starts.size
+    cov = sum(_channel_covs(tl, gyro, model, 0.0).values(), np.zeros((p, p)))
+    i, j = np.asarray(pairs, dtype=np.int64).T
+    var = cov[i, i] + cov[j, j] - 2.0 * cov[i, j]  # (pairs,), the same for both axes
+    drift = np.zeros((i.size, 2))
+    if model.drift_rps is not None:
+        d = _window_drift(tl, model.drift_rps)  # (P, 2)
+        drift = d[j] - d[i]
+    mean_square = np.mean(var[:, None] + drift * drift, axis=0)  # per axis
+    return math.sqrt(float(np.max(mean_square))) / DPH
 
 
 def spin_bound_deg(

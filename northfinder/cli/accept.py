@@ -154,14 +154,18 @@ def _datasheet(args: argparse.Namespace) -> Any:
     if not args.datasheet_from:
         raise HostConfigError("give --datasheet FILE or --datasheet-from PRESET")
     from northfinder.driver.protocol.units import DEFAULT_LATITUDE_DEG
-    from northfinder.host.accuracy import predict
+    from northfinder.host.acceptance import same_angle_pairs
+    from northfinder.host.accuracy import predict, window_change_dph
     from northfinder.host.plan import DEFAULT_POSITIONS_DEG, Plan
     from northfinder.simwindows import error_model
 
     spec = load_sensor(args.datasheet_from)
     plan = Plan(tuple(DEFAULT_POSITIONS_DEG), 10.0, 0.0, "none", "auto")
     latitude = DEFAULT_LATITUDE_DEG if args.latitude is None else args.latitude
-    sigma = predict(error_model(spec), plan, latitude, warmup_s=measure.SIM_WARMUP_S).sigma_deg
+    model = error_model(spec)
+    sigma = predict(model, plan, latitude, warmup_s=measure.SIM_WARMUP_S).sigma_deg
+    pairs = same_angle_pairs(plan.positions_deg)
+    repeat = window_change_dph(model, plan, pairs, warmup_s=measure.SIM_WARMUP_S) if pairs else None
     return datasheet_from_sensor(
         spec.to_dict(),
         args.margin,
@@ -173,6 +177,7 @@ def _datasheet(args: argparse.Namespace) -> Any:
         protocol_version="1.1",
         conformance=("*",),
         source=f"--datasheet-from {args.datasheet_from} --margin {args.margin:g}",
+        predicted_bias_repeatability_dph=repeat,
     )
 
 
