@@ -733,7 +733,8 @@ class _NpzAppender:
 
     def __init__(self, fd: int, meta: dict[str, Any]) -> None:
         self._fh = os.fdopen(fd, "w+b")
-        self._zf = zipfile.ZipFile(self._fh, "w", zipfile.ZIP_DEFLATED)
+        # Any: the archive's directory is written through zipfile's own private method.
+        self._zf: Any = zipfile.ZipFile(self._fh, "w", zipfile.ZIP_DEFLATED)
         self.good = 0  # bytes of the file up to the end of its last whole archive
         self.sizes: list[int] = []  # samples of each window written
         self._put("meta_json", np.array(json.dumps(meta)))

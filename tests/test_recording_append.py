@@ -54,9 +54,12 @@ def test_each_window_is_appended_once_and_the_file_is_whole_after_each(tmp_path,
     path = tmp_path / "run.npz"
     rewrites: list[Path] = []
     real = recording._write_columns
-    monkeypatch.setattr(
-        recording, "_write_columns", lambda p, *a: (rewrites.append(p), real(p, *a))
-    )
+
+    def counted(p: Path, *args: Any) -> None:
+        rewrites.append(p)
+        real(p, *args)
+
+    monkeypatch.setattr(recording, "_write_columns", counted)
     writer = RecordingWriter(path, META)
     before = b""
     for k in range(4):
