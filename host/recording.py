@@ -698,16 +698,18 @@ def _write_columns(
             np.lib.format.write_array(out, np.array(json.dumps(meta)), allow_pickle=False)
         for name in ("window", "commanded_deg", *SAMPLE_ARRAYS):
             like = piece(0, name) if sizes else np.empty(0)
+            dtype, shape = like.dtype, (sum(sizes), *like.shape[1:])
+            del like  # asked for again below: one window's column in memory at a time
             header = {
-                "descr": np.lib.format.dtype_to_descr(like.dtype),
+                "descr": np.lib.format.dtype_to_descr(dtype),
                 "fortran_order": False,
-                "shape": (sum(sizes), *like.shape[1:]),
+                "shape": shape,
             }
             with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
                 np.lib.format.write_array_header_1_0(out, header)
                 for i in range(len(sizes)):
-                    a = like if i == 0 else piece(i, name)
-                    flat = np.ascontiguousarray(a, dtype=like.dtype).reshape(-1).view(np.uint8)
+                    a = np.ascontiguousarray(piece(i, name), dtype=dtype)
+                    flat = a.reshape(-1).view(np.uint8)
                     for k in range(0, len(flat), _NPZ_CHUNK_BYTES):
                         out.write(flat[k : k + _NPZ_CHUNK_BYTES].data)
                     del a, flat
