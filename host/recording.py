@@ -508,7 +508,10 @@ def _read_npz(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
             ) from exc
         raise RecordingError(f"{p}: not a readable NPZ file ({exc})") from exc
     except (zipfile.BadZipFile, EOFError) as exc:
-        raise RecordingError(f"{p}: not a readable NPZ file ({exc})") from exc
+        cut = _cut_off_arrays(p)
+        if cut is None:
+            raise RecordingError(f"{p}: not a readable NPZ file ({exc})") from exc
+        arrays = cut
     if "meta_json" not in arrays:
         raise RecordingError(f"{p}: no meta_json array; not a northfinder recording")
     if _member(0, "counter") in arrays:
@@ -518,6 +521,72 @@ def _read_npz(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
     except json.JSONDecodeError as exc:
         raise RecordingError(f"{p}: meta_json is not JSON ({exc})") from exc
     return arrays, meta
+
+
+def _cut_off_arrays(p: Path) -> dict[str, NDArray[Any]] | None:
+    """The arrays of an NPZ cut off while a window was appended to it (power lost, SIGKILL):
+    those of its last whole archive (:class:`_NpzAppender` writes one after every window),
+    found from the end of the file; None if it holds none of the window layout."""
+    with p.open("rb") as fh:
+        for at in _signatures_from_end(fh, _EOCD, _MAX_ARCHIVES_TRIED):
+            try:
+                with np.load(_Prefix(fh, at + 22), allow_pickle=False) as data:
+                    if "meta_json" not in data.files or _member(0, "counter") not in data.files:
+                        continue
+                    return {k: data[k] for k in data.files}
+            except (ValueError, zipfile.BadZipFile, EOFError, OSError):
+                continue
+    return None
+
+
+#: The signature of a zip archive's end record, and how many are tried from the end of a file.
+_EOCD = b"PK\x05\x06"
+_MAX_ARCHIVES_TRIED = 64
+
+
+def _signatures_from_end(fh: Any, sig: bytes, limit: int) -> Any:
+    """Offsets of ``sig`` in the file, the last first (at most ``limit``), read in blocks."""
+    end = fh.seek(0, os.SEEK_END)
+    pos, found = end, 0
+    while pos > 0 and found < limit:
+        start = max(0, pos - (1 << 20))
+        fh.seek(start)
+        block = fh.read(min(end, pos + len(sig) - 1) - start)
+        i = block.rfind(sig, 0, pos - start + len(sig) - 1)
+        while i >= 0 and found < limit:
+            found += 1
+            yield start + i
+            i = block.rfind(sig, 0, i + len(sig) - 1)
+        pos = start
+
+
+class _Prefix(io.RawIOBase):
+    """The first ``size`` bytes of an open file, as a file of their own."""
+
+    def __init__(self, fh: Any, size: int) -> None:
+        self._fh, self._size, self._pos = fh, size, 0
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        base = {os.SEEK_SET: 0, os.SEEK_CUR: self._pos, os.SEEK_END: self._size}[whence]
+        self._pos = max(0, base + offset)
+        return self._pos
+
+    def tell(self) -> int:
+        return self._pos
+
+    def readinto(self, b: Any) -> int:
+        n = max(0, min(len(b), self._size - self._pos))
+        self._fh.seek(self._pos)
+        data = self._fh.read(n)
+        b[: len(data)] = data
+        self._pos += len(data)
+        return len(data)
 
 
 def _joined(arrays: dict[str, NDArray[Any]], p: Path) -> dict[str, NDArray[Any]]:
@@ -629,16 +698,18 @@ def _write_columns(
             np.lib.format.write_array(out, np.array(json.dumps(meta)), allow_pickle=False)
         for name in ("window", "commanded_deg", *SAMPLE_ARRAYS):
             like = piece(0, name) if sizes else np.empty(0)
+            dtype, shape = like.dtype, (sum(sizes), *like.shape[1:])
+            del like  # asked for again below: one window's column in memory at a time
             header = {
-                "descr": np.lib.format.dtype_to_descr(like.dtype),
+                "descr": np.lib.format.dtype_to_descr(dtype),
                 "fortran_order": False,
-                "shape": (sum(sizes), *like.shape[1:]),
+                "shape": shape,
             }
             with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
                 np.lib.format.write_array_header_1_0(out, header)
                 for i in range(len(sizes)):
-                    a = like if i == 0 else piece(i, name)
-                    flat = np.ascontiguousarray(a, dtype=like.dtype).reshape(-1).view(np.uint8)
+                    a = np.ascontiguousarray(piece(i, name), dtype=dtype)
+                    flat = a.reshape(-1).view(np.uint8)
                     for k in range(0, len(flat), _NPZ_CHUNK_BYTES):
                         out.write(flat[k : k + _NPZ_CHUNK_BYTES].data)
                     del a, flat
@@ -733,7 +804,8 @@ class _NpzAppender:
 
     def __init__(self, fd: int, meta: dict[str, Any]) -> None:
         self._fh = os.fdopen(fd, "w+b")
-        self._zf = zipfile.ZipFile(self._fh, "w", zipfile.ZIP_DEFLATED)
+        # Any: the archive's directory is written through zipfile's own private method.
+        self._zf: Any = zipfile.ZipFile(self._fh, "w", zipfile.ZIP_DEFLATED)
         self.good = 0  # bytes of the file up to the end of its last whole archive
         self.sizes: list[int] = []  # samples of each window written
         self._put("meta_json", np.array(json.dumps(meta)))
@@ -755,6 +827,7 @@ class _NpzAppender:
         os.fsync(self._fh.fileno())
         self.good = self._fh.tell()
         self._zf.start_dir = self.good
+        self._zf._didModify = False  # whole on disk: nothing for zipfile to write as it closes
         self.sizes.append(len(window.counter))
 
     def cut(self) -> None:

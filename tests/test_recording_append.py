@@ -54,9 +54,12 @@ def test_each_window_is_appended_once_and_the_file_is_whole_after_each(tmp_path,
     path = tmp_path / "run.npz"
     rewrites: list[Path] = []
     real = recording._write_columns
-    monkeypatch.setattr(
-        recording, "_write_columns", lambda p, *a: (rewrites.append(p), real(p, *a))
-    )
+
+    def counted(p: Path, *args: Any) -> None:
+        rewrites.append(p)
+        real(p, *args)
+
+    monkeypatch.setattr(recording, "_write_columns", counted)
     writer = RecordingWriter(path, META)
     before = b""
     for k in range(4):
@@ -125,3 +128,29 @@ def test_a_recording_written_before_loads_as_it_did(tmp_path):
     solved = [json.loads(run_cli("solve", str(p), "--json")[1]) for p in (OLD, new)]
     for key in ("azimuth_deg", "sigma_deg", "pitch_deg", "roll_deg"):
         assert solved[0][key] == solved[1][key], key
+
+
+@pytest.mark.parametrize("padding", [0, 70_000])
+def test_a_recording_cut_off_while_a_window_was_appended_keeps_the_windows_before(
+    tmp_path, padding
+):
+    """Power lost or SIGKILL while window 3 was written: the file ends with part of it (and,
+    padded, with more than zipfile searches for an archive's end)."""
+    path = tmp_path / "run.npz"
+    writer = RecordingWriter(path, META)
+    for k in range(2):
+        writer.add(window(k))
+    whole = path.read_bytes()
+    writer.add(window(2))
+    three = path.read_bytes()
+    writer.close("interrupted")
+    path.write_bytes(three[: (len(whole) + len(three)) // 2] + bytes(padding))
+    if padding:
+        with pytest.raises(zipfile.BadZipFile):
+            zipfile.ZipFile(path)
+    rec = Recording.load(path)
+    assert rec.partial == "cut off while recording: 2 of 4 windows"
+    same_windows(rec, Recording(tuple(window(i) for i in range(2))))
+    path.write_bytes(b"PK\x03\x04" + bytes(300_000))  # no archive at all
+    with pytest.raises(recording.RecordingError, match="not a readable NPZ file"):
+        Recording.load(path)
