@@ -714,8 +714,10 @@ def find_north(
     latitude_source: str = "",
     on_window: Callable[[int, Any], None] | None = None,
     on_gap: str = DEFAULT_ON_GAP,
+    keep_windows: bool = True,
 ) -> tuple[FindResult, list[Any]]:
-    """Run the plan on ``device`` and solve; return the result and the raw windows.
+    """Run the plan on ``device`` and solve; return the result and the raw windows (none when
+    ``keep_windows`` is false).
 
     Parameters
     ----------
@@ -742,6 +744,9 @@ def find_north(
         A window with missing sample ticks (a damaged or lost frame): measure it again (up to
         :data:`MAX_REMEASURE` times, then stop), keep it and state the gap in the result's
         notes, or stop the run (:class:`~northfinder.driver.errors.StreamGap`).
+    keep_windows : bool
+        Keep each raw window to return it. False: each window goes to ``on_window``, is
+        summarised and dropped, so that memory does not grow with the plan's length.
 
     Raises
     ------
@@ -773,7 +778,8 @@ def find_north(
         left = timing.seconds_left(i, None) - timing.extra_s
         report(FindProgress("acquire", i + 1, n, target % 360.0, left))
         window, summary = _measure_window(device, plan, target, on_gap)
-        raw.append(window)
+        if keep_windows:
+            raw.append(window)
         if on_window is not None:
             on_window(i, window)
         windows.append(summary())

@@ -879,6 +879,8 @@ class RecordingWriter:
         The recording, .csv or .npz.
     meta : dict
         Its metadata (``latitude_deg``, ``sample_rate_hz``, ``plan``, ...).
+    keep_windows : bool
+        Also keep each window added in :attr:`windows` (False: the file is the only copy).
 
     Raises
     ------
@@ -886,10 +888,18 @@ class RecordingWriter:
         The name ends in neither .csv nor .npz.
     """
 
-    def __init__(self, path: str | Path, meta: dict[str, Any]) -> None:
+    def __init__(
+        self, path: str | Path, meta: dict[str, Any], *, keep_windows: bool = True
+    ) -> None:
         self.path = _recording_path(path)
         self.meta = {"format": FORMAT, "version": VERSION, **meta, "status": "recording"}
+        #: The windows added, in memory (none when made with ``keep_windows=False``: a run of
+        #: hours then holds one window at a time, the file the only copy).
         self.windows: list[RecordedWindow] = []
+        self.keep_windows = keep_windows
+        #: Windows added (:attr:`written` of them written) and the samples of each.
+        self.added = 0
+        self.sizes: list[int] = []
         self.written = 0
         self.error: OutputError | None = None
         #: An earlier file of the name, kept until the new recording is complete.
@@ -909,15 +919,18 @@ class RecordingWriter:
 
     def add(self, window: RecordedWindow) -> None:
         """Write one more window (flushed to disk before this returns)."""
-        self.windows.append(window)
+        if self.keep_windows:
+            self.windows.append(window)
+        self.added += 1
+        self.sizes.append(len(window.counter))
         if self.error is not None or self._closed:
             return
         try:
             if self.path.suffix == ".npz":
                 self._write_npz(window)
             else:
-                self._append_csv(len(self.windows) - 1, window)
-            self.written = len(self.windows)
+                self._append_csv(self.added - 1, window)
+            self.written = self.added
         except OSError as exc:
             self._failed(exc)
 

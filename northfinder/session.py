@@ -149,8 +149,11 @@ class Measured:
     #: Files that could not be written (the recording, the CAN log), after a result was found:
     #: the command reports the result first, then these, and exits 1.
     errors: tuple[Exception, ...] = ()
-    #: What was recorded (``record_to``), as written.
+    #: What was recorded (``record_to``), as written: its metadata, and its windows when they
+    #: were kept (``keep_windows``).
     recording: Recording | None = None
+    #: Samples of each window recorded (``record_to``).
+    recorded_sizes: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -467,6 +470,7 @@ def find(
     progress: Callable[[FindProgress], None] | None = None,
     record_to: str | None = None,
     on_link_statistics: Callable[[str], None] | None = None,
+    keep_windows: bool = True,
 ) -> Measured:
     """Check the run (:func:`check_config`, unless this very configuration was checked, as the
     command line checks it as it parses), open the unit, run the plan, solve, and leave the
@@ -485,6 +489,10 @@ def find(
         result was found is returned in :attr:`Measured.errors`, not raised.
     on_link_statistics : callable, optional
         Called with the link's statistics (:func:`link_statistics`) as the run ends.
+    keep_windows : bool
+        Keep the raw windows (:attr:`Measured.windows`, and the recording's). False: each
+        window is written, summarised and dropped, so that a run of hours holds one window's
+        samples at a time (:attr:`Measured.windows` is then empty).
     """
     _check_once(config, check_config)
     latitude, source, created = site_latitude(config), latitude_source(config), utc_now()
@@ -500,11 +508,12 @@ def find(
         writer = None
         if record_to is not None:
             meta = recording_meta(config.plan, latitude, source, rate, created, identity, truth)
-            writer = RecordingWriter(record_to, meta)
+            writer = RecordingWriter(record_to, meta, keep_windows=keep_windows)
         try:
             result, windows = find_north(
                 device, config.plan, latitude, warmup_timeout_s=config.ready_timeout_s,
                 progress=progress, latitude_source=source, on_gap=config.on_gap,
+                keep_windows=keep_windows,
                 on_window=None if writer is None else functools.partial(_write, writer, config.plan),
             )  # fmt: skip
         except BaseException as exc:
@@ -519,6 +528,7 @@ def find(
         result=result, windows=windows, plan=config.plan, latitude_deg=latitude,
         sample_rate_hz=rate, truth=truth, device=identity, created_utc=created,
         errors=tuple(deferred), recording=recording,
+        recorded_sizes=() if writer is None else tuple(writer.sizes[: writer.written]),
     )  # fmt: skip
 
 

@@ -211,6 +211,50 @@ def test_memory_per_sample_of_a_find_is_bounded():
     assert per_sample < 125, f"{per_sample:.0f} bytes a sample"
 
 
+def _recording_peak_bytes(tmp_path, positions: int, keep: bool) -> tuple[int, int]:
+    """tracemalloc's peak during a find of ``positions`` 20 s windows written to an NPZ as they
+    end (``keep``: the windows also kept), and the samples written."""
+    plan = Plan(tuple(90.0 * (k % 4) for k in range(positions)), 20.0)
+    path = tmp_path / f"run{positions}{keep}.npz"
+    with (
+        SimulatedInstrument("ideal", seed=1, clock="virtual", warmup_s=0.0) as sim,
+        sim.open_device() as dev,
+    ):
+        dev.wait_ready(5.0)
+        writer = RecordingWriter(path, {"sample_rate_hz": RATE_HZ}, keep_windows=keep)
+
+        def write(i: int, window) -> None:
+            writer.add(RecordedWindow.from_window(window, plan.positions_deg[i]))
+
+        gc.collect()
+        tracemalloc.start()
+        try:
+            base = tracemalloc.get_traced_memory()[0]
+            _, raw = find_north(dev, plan, 34.0, on_window=write, keep_windows=keep)
+            peak = tracemalloc.get_traced_memory()[1] - base
+        finally:
+            tracemalloc.stop()
+        writer.close("complete")
+    assert len(raw) == len(writer.windows) == (positions if keep else 0)
+    assert [len(w.counter) for w in Recording.load(path).windows] == writer.sizes
+    assert set(writer.sizes) == {20 * RATE_HZ}
+    return peak, sum(writer.sizes)
+
+
+def test_windows_not_kept_cost_no_memory_as_the_plan_grows(tmp_path):
+    """A run writing its windows and keeping none (``record``, ``find`` without a plot) holds one
+    window's samples at a time: four times the windows, about the same peak; kept, each
+    sample added costs its arrays (the control: the measure sees them)."""
+    _recording_peak_bytes(tmp_path, 4, False)  # what a first run sets up once (imports, caches)
+    grown = {}
+    for keep in (False, True):
+        few, n_few = _recording_peak_bytes(tmp_path, 4, keep)
+        many, n_many = _recording_peak_bytes(tmp_path, 24, keep)
+        grown[keep] = (many - few) / (n_many - n_few)
+    assert grown[True] > 60, f"kept: {grown[True]:.1f} bytes a sample more for more windows"
+    assert grown[False] < 30, f"not kept: {grown[False]:.1f} bytes a sample more"
+
+
 class _CutOff:
     """A column whose row ``at`` cannot be read: the run is interrupted while it is written."""
 

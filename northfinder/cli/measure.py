@@ -284,8 +284,10 @@ def run_config(
             print(line, file=sys.stderr, flush=True)
 
     try:
+        # The raw windows are kept only for a plot: a run of hours holds one at a time.
         return session.find(
-            config, progress=bar, record_to=record_to, on_link_statistics=statistics
-        )
+            config, progress=bar, record_to=record_to, on_link_statistics=statistics,
+            keep_windows=config.output.plot is not None,
+        )  # fmt: skip
     finally:
         bar.close()

@@ -40,8 +40,8 @@ def run(args: argparse.Namespace) -> int:
         raise m.errors[0]
     recording = m.recording
     assert recording is not None
-    samples = sum(len(w.counter) for w in recording.windows)
+    samples = sum(m.recorded_sizes)
     truth = recording.meta.get("truth")
     seed = f" (simulated, seed {truth['seed']})" if truth and "seed" in truth else ""
-    print(f"wrote {len(recording.windows)} windows ({samples} samples) to {args.file}{seed}")
+    print(f"wrote {len(m.recorded_sizes)} windows ({samples} samples) to {args.file}{seed}")
     return 0
