@@ -36,12 +36,15 @@ import can
 from can.interfaces.virtual import VirtualBus
 
 from northfinder.driver.protocol.can import CanFunction
+from northfinder.driver.protocol.constants import Validity
 from northfinder.driver.protocol.messages import Sample
 
 RATE_HZ = 200
 NODE = 1
 #: The stream's four frames of one tick (ids and data of a real sample).
-_SAMPLE = Sample(12345, (1000, -2000, 300000), (-4000, 5000, 1 << 20), 90_000_000, 2500, 0x3F)
+_SAMPLE = Sample(
+    12345, (1000, -2000, 300000), (-4000, 5000, 1 << 20), 90_000_000, 2500, Validity(0x3F)
+)
 FRAMES = list(
     zip(
         [f | NODE for f in (CanFunction.SAMPLE_X, CanFunction.SAMPLE_Y, CanFunction.SAMPLE_Z,

@@ -286,7 +286,7 @@ def test_the_junit_file_has_a_case_per_line(good):
 #: The good unit (sn1: no line fails) and a unit made bad in one term with the line that term
 #: governs, accepted in one batch (seed 7 each) against 1.5 times the good unit's figures: the
 #: bias instability needs the 10 min still record to be decided either way.
-LOT = {
+LOT: dict[str, tuple[str | None, str | None, float | None, str | None]] = {
     "sn1": (None, None, None, None),
     "sn2": ("gyro", "bias_instability_dph", 0.75, "gyro.bias_instability_dph"),  # x3
 }
@@ -301,7 +301,11 @@ def lot(tmp_path_factory):
     rows = []
     for name, (section, key, value, _) in LOT.items():
         # A sensor file named relative to the units file, and one by its absolute path.
-        unit = str(UNIT) if key is None else sensor(tmp, section, key, value).name
+        if key is None:
+            unit = str(UNIT)
+        else:
+            assert section is not None and value is not None
+            unit = sensor(tmp, section, key, value).name
         rows.append(f'[[unit]]\nname = "{name}"\nsensor = "{unit}"\nseed = 7\n')
     units = _units(tmp, "\n".join(rows))
     out = tmp / "out"
