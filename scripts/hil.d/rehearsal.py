@@ -750,7 +750,7 @@ protocol_version = "1.1"
 conformance = ["identify"]
 """
 ACCEPT_STATIC_S = 60.0
-ACCEPT_RUNS = 2
+ACCEPT_RUNS = 4
 #: accept's exit statuses: 0 every line passed, 4 no line failed but one is not resolved (two
 #: runs and a minute still decide little); 1 a line failed or the link did.
 ACCEPT_OK = (0, 4)
