@@ -469,6 +469,19 @@ def _concat(windows: tuple[RecordedWindow, ...]) -> dict[str, NDArray[Any]]:
     }
 
 
+def _npy_header(fh: Any) -> tuple[tuple[int, ...], bool, np.dtype[Any]]:
+    """The shape, Fortran order and dtype of the ``.npy`` array open in ``fh``, read from its
+    header (``fh`` is left at the array's data)."""
+    version = np.lib.format.read_magic(fh)
+    read = (
+        np.lib.format.read_array_header_1_0
+        if version == (1, 0)
+        else np.lib.format.read_array_header_2_0
+    )
+    shape, fortran, dtype = read(fh)
+    return shape, fortran, dtype
+
+
 def _npz_size(p: Path) -> int:
     """Bytes the arrays of an NPZ file take once loaded, from their headers (a small compressed
     file may hold arrays far larger than itself)."""
@@ -476,13 +489,7 @@ def _npz_size(p: Path) -> int:
     with zipfile.ZipFile(p) as zf:
         for info in zf.infolist():
             with zf.open(info) as fh:
-                version = np.lib.format.read_magic(fh)
-                read = (
-                    np.lib.format.read_array_header_1_0
-                    if version == (1, 0)
-                    else np.lib.format.read_array_header_2_0
-                )
-                shape, _, dtype = read(fh)
+                shape, _, dtype = _npy_header(fh)
                 total += math.prod(shape) * dtype.itemsize
     return total
 
@@ -897,8 +904,7 @@ class RecordingWriter:
         #: hours then holds one window at a time, the file the only copy).
         self.windows: list[RecordedWindow] = []
         self.keep_windows = keep_windows
-        #: Windows added (:attr:`written` of them written) and the samples of each.
-        self.added = 0
+        #: The samples of each window added (:attr:`written` of them written).
         self.sizes: list[int] = []
         self.written = 0
         self.error: OutputError | None = None
@@ -921,7 +927,6 @@ class RecordingWriter:
         """Write one more window (flushed to disk before this returns)."""
         if self.keep_windows:
             self.windows.append(window)
-        self.added += 1
         self.sizes.append(len(window.counter))
         if self.error is not None or self._closed:
             return
@@ -929,8 +934,8 @@ class RecordingWriter:
             if self.path.suffix == ".npz":
                 self._write_npz(window)
             else:
-                self._append_csv(self.added - 1, window)
-            self.written = self.added
+                self._append_csv(len(self.sizes) - 1, window)
+            self.written = len(self.sizes)
         except OSError as exc:
             self._failed(exc)
 
@@ -1267,13 +1272,7 @@ def summarise_npz(path: str | Path, summarise: Callable[[RecordedWindow, float],
 def _npy_stream(zf: zipfile.ZipFile, name: str) -> tuple[Any, tuple[int, ...], np.dtype[Any]]:
     """An open member ``name`` of ``zf`` positioned at its data, its shape and dtype."""
     fh = zf.open(f"{name}.npy")
-    version = np.lib.format.read_magic(fh)
-    read = (
-        np.lib.format.read_array_header_1_0
-        if version == (1, 0)
-        else np.lib.format.read_array_header_2_0
-    )
-    shape, fortran, dtype = read(fh)
+    shape, fortran, dtype = _npy_header(fh)
     if fortran or dtype.hasobject:
         raise _Doubt
     return fh, shape, dtype
