@@ -25,6 +25,12 @@ complete log on its own) and renamed ``STEM_#NNN.EXT``, NNN counting 000, 001, .
 (:func:`part_name`). Rotation takes the formats python-can rotates: ``.asc``, ``.blf``,
 ``.csv``, ``.log``. :func:`log_parts` lists a set in order, the part with the given name last.
 
+A log is readable while it is written: the file is flushed with the first frame logged
+``flush_s`` wall seconds (default 1) after the last flush, and at :meth:`FrameLog.flush`, which
+the simulator's links call as they send a reply (so a log read after a host's last reply holds
+that host's session whole). BLF's containers are written out then too; ``.mf4`` and SQLite
+write as their libraries do.
+
 A write that fails (disk full, say) does not stop the link: the first error is kept in
 :attr:`FrameLog.error`, later frames are counted in :attr:`FrameLog.lost`, and :meth:`close`
 raises :class:`~northfinder.driver.errors.LinkError` naming both, so a log is never silently
@@ -255,6 +261,9 @@ class FrameLog:
         Rotate the log by size (see the module docstring; 0: never).
     max_seconds : float, optional
         Rotate the log by time (see the module docstring; 0: never).
+    flush_s : float, optional
+        Flush the file with the first frame this many wall seconds after the last flush (0:
+        with every frame).
     **options
         Passed to python-can's writer (for example ``channel=`` of the ASC writer).
 
@@ -286,8 +295,11 @@ class FrameLog:
         channel: str | int | None = None,
         max_bytes: int = 0,
         max_seconds: float = 0.0,
+        flush_s: float = 1.0,
         **options: Any,
     ) -> None:
+        if not flush_s >= 0:
+            raise ArgumentError(f"a log's flush interval must be 0 s or more, got {flush_s}")
         self.path = Path(path)
         suffix = log_suffix(self.path)
         check_rotation(self.path, max_bytes, max_seconds)
@@ -306,6 +318,8 @@ class FrameLog:
         self._clock: Any = None
         self._epoch = 0.0
         self._closed = False
+        self.flush_s = float(flush_s)
+        self._flushed_at = time.monotonic()
         self.frames = 0
         self.lost = 0
         self.error: Exception | None = None
@@ -340,9 +354,31 @@ class FrameLog:
                 self.lost += 1
                 return
             self.frames += 1
+            if time.monotonic() - self._flushed_at >= self.flush_s:
+                self._flush_writer()
 
     on_message_received = __call__
     """The :class:`can.Listener` spelling, so a :class:`can.Notifier` can feed the log too."""
+
+    def flush(self) -> None:
+        """Write the frames logged so far to the file, so that a reader of the file sees them
+        (thread-safe; nothing after :meth:`close`)."""
+        with self._lock:
+            if not self._closed and self.error is None:
+                self._flush_writer()
+
+    def _flush_writer(self) -> None:
+        # Called with the lock held. A rotating log's writer is its current part's.
+        writer = getattr(self._writer, "writer", self._writer)
+        self._flushed_at = time.monotonic()
+        try:
+            if isinstance(writer, can.BLFWriter):
+                writer._flush()  # the frames buffered for the next compressed container
+            file = getattr(writer, "file", None)
+            if file is not None and not file.closed:
+                file.flush()
+        except (OSError, ValueError) as exc:
+            self.error = exc
 
     def close(self) -> None:
         """Flush and close the file (idempotent).

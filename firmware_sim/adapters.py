@@ -10,6 +10,9 @@ went out, after fault injection), for a CAN log. The serial adapter gives the CA
 carry the same messages on the CAN link (a frame the fault injection corrupted has no such
 frame and is not given), so a serial session logs like a CAN one. Frames are handed over with
 ``timestamp`` 0 unless the bus stamped them: the tap stamps them (this package reads no clock).
+A tap with a ``flush`` method (a :class:`~northfinder.driver.framelog.FrameLog`) is flushed as
+each message other than a sample goes out, so a log read after a host's last reply holds all
+the host's session.
 """
 
 from __future__ import annotations
@@ -259,6 +262,8 @@ class CanLink:
             ]
         if msgs:
             self._put(msgs)
+            if self.tap is not None:
+                _flush_at_reply(self.tap, outgoing)
 
     def _frames_with_faults(self, outgoing: list[Outgoing]) -> list[can.Message]:
         """The frames of ``outgoing`` as the firmware's fault injection leaves them (dropped,
@@ -311,6 +316,13 @@ class CanLink:
                     arbitration_id=msg.arbitration_id, data=msg.data, is_extended_id=False,
                     is_rx=False,
                 ))  # fmt: skip
+
+
+def _flush_at_reply(tap: Callable[[can.Message], None], outgoing: list[Outgoing]) -> None:
+    """Flush ``tap`` (where it can be flushed) if ``outgoing`` holds anything but samples."""
+    flush = getattr(tap, "flush", None)
+    if flush is not None and any(type(item.message) is not Sample for item in outgoing):
+        flush()
 
 
 def _frame_data(item: Outgoing, node: int) -> Iterable[tuple[int, bytes]]:
@@ -443,6 +455,8 @@ class SerialLink:
                 return
             for message in intact:
                 self._tap(message, is_rx=False)
+            if self.tap is not None:
+                _flush_at_reply(self.tap, outgoing)
 
 
 def _flip_payload_bit(frame: bytes) -> bytes:
