@@ -759,11 +759,13 @@ def read_frames(
     skipped: list[tuple[int, str]] | None = None,
     cut: list[str] | None = None,
     gaps: list[str] | None = None,
+    progress: ReadProgress | None = None,
 ) -> Iterator[can.Message]:
     """The frames of a CAN log in any format python-can reads, or of the parts of a rotated log
     in order; with ``skip_damaged`` a damaged line of a text log is skipped and noted in
     ``skipped`` (line number, error), and a log that breaks off ends there (noted in ``cut``).
-    ``gaps`` receives a note for frames missing between two parts as they are found."""
+    ``gaps`` receives a note for frames missing between two parts as they are found;
+    ``progress(done, total)`` is told the bytes read every 65536 frames and at the end."""
     logs = LogSet(path)
     if gaps is not None:
         gaps += logs.gaps
@@ -771,9 +773,22 @@ def read_frames(
         [] if cut is None else cut,
         (skipped if skipped is not None else []) if skip_damaged else None,
     )
+    if progress is not None:
+        frames = _telling(logs, frames, progress)
     if gaps is None:
         return frames
     return _noting_gaps(logs, frames, gaps)
+
+
+def _telling(
+    logs: LogSet, frames: Iterator[can.Message], progress: ReadProgress
+) -> Iterator[can.Message]:
+    for n, msg in enumerate(frames, 1):
+        yield msg
+        if not n & 0xFFFF:
+            progress(*logs.position())
+    total = logs.position()[1]
+    progress(total, total)
 
 
 def _noting_gaps(

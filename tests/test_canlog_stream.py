@@ -253,6 +253,25 @@ def test_solve_shows_the_reading_of_a_long_log(tmp_path, monkeypatch):
     assert "solve: " not in err
 
 
+def test_dump_shows_the_reading_of_a_long_log_when_its_frames_go_elsewhere(tmp_path, monkeypatch):
+    path = tmp_path / "run.asc"
+    _write_log(path, 200_000)
+    monkeypatch.setattr(logprogress, "PROGRESS_BYTES", 0)  # the log counts as long
+    code, out, err = run_cli("dump", str(path), "--raw")  # stdout a pipe, as `dump > file`
+    assert code == 0, err
+    frames = sum(1 for _ in can.LogReader(str(path)))
+    assert len(out.splitlines()) == frames  # every frame printed, none mixed with the progress
+    lines = [line for line in err.splitlines() if line.startswith("dump: ")]
+    assert lines[0] == "dump: reading the log"
+    assert lines[-1].endswith("(100%)") and len(lines) >= 3
+    code, out, err = run_cli("dump", str(path), "--count", "5")  # stopped early: no 100 %
+    assert code == 0 and len(out.splitlines()) == 5
+    assert not any(line.endswith("(100%)") for line in err.splitlines())
+    monkeypatch.setattr(logprogress, "PROGRESS_BYTES", path.stat().st_size + 1)
+    code, _, err = run_cli("dump", str(path), "--count", "5")  # a short log: nothing shown
+    assert code == 0 and "dump: " not in err
+
+
 @pytest.fixture(scope="module")
 def seeded_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """The CAN log of a seeded four-position find, in ASC, BLF and candump formats."""

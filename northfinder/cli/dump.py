@@ -21,6 +21,7 @@ from typing import Any
 
 from northfinder.cli.argtypes import bounded_float, bounded_int
 from northfinder.cli.links import add_bus_arguments, bus_given, open_can_bus
+from northfinder.cli.logprogress import LogProgress
 from northfinder.cli.options import add_duration_argument, add_session_argument
 from northfinder.cli.output import warn
 from northfinder.host.errors import HostConfigError, RecordingError
@@ -251,6 +252,11 @@ def _session_filter(frames: Iterable[Any], session: int | None) -> Iterator[Any]
             return
 
 
+def _isatty(stream: Any) -> bool:
+    isatty = getattr(stream, "isatty", None)
+    return bool(isatty is not None and isatty())
+
+
 def run(args: argparse.Namespace) -> int:
     live = bus_given(args)
     if live == bool(args.log):
@@ -264,6 +270,7 @@ def run(args: argparse.Namespace) -> int:
     cut: list[str] = []
     gaps: list[str] = []
     name = "bus"
+    shown: LogProgress | None = None
     if live:
         frames: Iterable[Any] = _frames_of_bus(args)
     else:
@@ -274,9 +281,13 @@ def run(args: argparse.Namespace) -> int:
         for path in logs.files:
             check_log_file(path)
         name = logs.name
+        # A long log's reading shown on stderr when the frames go elsewhere (on a terminal,
+        # the frames themselves show how far it is).
+        shown = LogProgress("dump", logs.files, enabled=not _isatty(sys.stdout))
         frames = read_frames(
-            logs.files, skip_damaged=not args.strict, skipped=skipped, cut=cut, gaps=gaps
-        )
+            logs.files, skip_damaged=not args.strict, skipped=skipped, cut=cut, gaps=gaps,
+            progress=shown,
+        )  # fmt: skip
     channel = str(args.channel) if live and args.channel is not None else UNNAMED_CHANNEL
     decode = FrameDecoder(db)
     read = _Count(frames)
@@ -302,6 +313,8 @@ def run(args: argparse.Namespace) -> int:
                 break
     finally:
         out.flush()
+        if shown is not None:
+            shown.bar.close()
         for gap in gaps:
             warn("dump", f"{name}: {gap}")
         if skipped and read.n > 0:
