@@ -1149,8 +1149,10 @@ def _csv_blocks(
             )
         rows.append(values)
         if len(rows) >= _CSV_BLOCK_ROWS:
-            yield np.array(rows, dtype=np.float64)
-            rows = []
+            block = np.array(rows, dtype=np.float64)
+            rows = []  # its numbers as objects go before the block is handed on
+            yield block
+            del block
     if rows:
         yield np.array(rows, dtype=np.float64)
 
