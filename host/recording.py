@@ -1388,9 +1388,17 @@ def _csv_windows(blocks: Iterator[NDArray[np.float64]]) -> Iterator[RecordedWind
 
 
 def _csv_window(pieces: list[NDArray[np.float64]]) -> RecordedWindow:
-    """One window of a CSV recording from its rows, checked as :func:`_split` checks it (its
-    arrays views of one array of rows, as the whole reader's are)."""
-    a = np.concatenate(pieces) if len(pieces) > 1 else pieces[0]
+    """One window of a CSV recording from its rows (``pieces``, emptied), checked as
+    :func:`_split` checks it (its arrays views of one array of rows, as the whole reader's
+    are)."""
+    a = np.empty((sum(len(x) for x in pieces), len(COLUMNS)))
+    at = 0
+    pieces.reverse()
+    while pieces:  # each block of rows dropped once copied: the window is in memory once
+        x = pieces.pop()
+        a[at : at + len(x)] = x
+        at += len(x)
+        del x
     columns = _csv_columns(a)
     del columns["window"]
     return _checked_window(columns)
