@@ -19,12 +19,14 @@ of its own) and CPU time as a multiple of the floor's (the steadier figure on a 
 Files are kept in ``--dir`` and reused when present (with the record's figures, in a
 ``.json`` beside them).
 
-``--formats`` picks the files measured (default all: ``npz blf asc log``; the text formats
+``--formats`` picks the files measured (default ``npz blf asc log``; the text formats
 only for the lengths in ``--text-hours``), so that a day runs as NPZ and BLF alone:
 ``--hours 24 --text-hours --formats npz blf`` (about 1.1 GB of records, 24 h has no limit of
 its own). The disk space free in ``--dir`` and what the records of each length take (measured,
 or estimated before they are made from 16 MB of NPZ and 29 MB of BLF an hour, 191 MB of ASC and
 142 MB of ``.log``) are printed first, and a length whose records would not fit is refused.
+``csv`` (asked for only) adds the recording as CSV, written by a second ``record`` of the same
+seed (the same samples; its floor parses every row with :mod:`csv`, 103 MB an hour).
 
 Run: ``.venv/bin/python benchmarks/bench_size_guide.py [--hours 1 6] [--text-hours 1]
 [--dir DIR] [--skip dump] [--formats npz blf]``.
@@ -48,6 +50,7 @@ WINDOW_S = 1800
 ANGLES = (0, 90, 180, 270)
 _CLI = "import sys\nfrom northfinder.cli import main\nsys.exit(main())\n"
 _FLOOR_LOG = "import can, sys\nfor _ in can.LogReader(sys.argv[1]):\n    pass\n"
+_FLOOR_CSV = "import csv, sys\nfor _ in csv.reader(open(sys.argv[1])):\n    pass\n"
 _FLOOR_NPZ = (
     "import numpy as np, sys\n"
     "with np.load(sys.argv[1]) as d:\n"
@@ -88,6 +91,23 @@ def isolated(cmd: list[str]) -> tuple[float, float, float, int]:
     return float(wall), float(cpu), float(peak), int(status)
 
 
+def make_csv(hours: int, d: Path) -> tuple[Path, tuple[float, float, float, int]]:
+    """The CSV recording of ``hours`` of data (the NPZ's samples), and its record's figures."""
+    path, figures = d / f"rec{hours}h.csv", d / f"rec{hours}h.csv.json"
+    if not (path.exists() and figures.exists()):
+        positions = ",".join(str(ANGLES[i % len(ANGLES)]) for i in range(2 * hours))
+        cmd = northfinder(
+            "record", "--sim", "--seed", "1", "--warmup", "0", "--positions", positions,
+            "--window", str(WINDOW_S), str(path),
+        )  # fmt: skip
+        measured = isolated(cmd)
+        if measured[3] != 0:
+            raise SystemExit(f"record of {hours} h as CSV failed (exit {measured[3]})")
+        figures.write_text(json.dumps(measured))
+    wall, cpu, peak, status = json.loads(figures.read_text())
+    return path, (float(wall), float(cpu), float(peak), int(status))
+
+
 def make_record(hours: int, d: Path) -> tuple[Path, Path, tuple[float, float, float, int]]:
     """The NPZ and BLF of ``hours`` of data, and the record command's figures."""
     npz, blf, figures = d / f"rec{hours}h.npz", d / f"rec{hours}h.blf", d / f"rec{hours}h.json"
@@ -118,7 +138,7 @@ def as_text(blf: Path, suffix: str) -> Path:
 
 
 #: Bytes a record takes per hour of 200 Hz data, by format (the size guide, measured at 1 h).
-MB_PER_HOUR = {"npz": 16, "blf": 29, "asc": 191, "log": 142}
+MB_PER_HOUR = {"npz": 16, "blf": 29, "asc": 191, "log": 142, "csv": 103}
 
 
 def disk_check(d: Path, hours: list[int], text_hours: list[int], formats: list[str]) -> None:
@@ -126,7 +146,7 @@ def disk_check(d: Path, hours: list[int], text_hours: list[int], formats: list[s
     free = shutil.disk_usage(d).free / 1e6
     need = 0.0
     for h in hours:
-        for fmt in ("npz", "blf", "asc", "log"):
+        for fmt in MB_PER_HOUR:
             text = fmt in ("asc", "log")
             wanted = fmt in formats and (not text or h in text_hours)
             path = d / f"rec{h}h.{fmt}"
@@ -141,8 +161,9 @@ def disk_check(d: Path, hours: list[int], text_hours: list[int], formats: list[s
 
 def commands(path: Path, skip: set[str]) -> list[tuple[str, list[str]]]:
     """The floor and the commands measured on ``path``."""
-    log = path.suffix != ".npz"
-    rows = [("floor", [sys.executable, "-c", _FLOOR_LOG if log else _FLOOR_NPZ, str(path)])]
+    log = path.suffix not in (".npz", ".csv")
+    floor = {".npz": _FLOOR_NPZ, ".csv": _FLOOR_CSV}.get(path.suffix, _FLOOR_LOG)
+    rows = [("floor", [sys.executable, "-c", floor, str(path)])]
     rows += [
         ("solve", northfinder("solve", str(path), "--latitude", "34")),
         ("calibrate", northfinder("calibrate", str(path))),
@@ -160,7 +181,7 @@ def main() -> None:
     ap.add_argument("--skip", nargs="*", default=[], choices=("solve", "calibrate", "dump"))
     ap.add_argument(
         "--formats", nargs="+", default=["npz", "blf", "asc", "log"],
-        choices=("npz", "blf", "asc", "log"), help="the files measured",
+        choices=("npz", "blf", "asc", "log", "csv"), help="the files measured",
     )  # fmt: skip
     args = ap.parse_args()
     d = args.dir or Path(tempfile.gettempdir()) / "northfinder-size-guide"
@@ -176,6 +197,11 @@ def main() -> None:
         files = [f for f in (npz, blf) if f.suffix[1:] in args.formats]
         if hours in args.text_hours:
             files += [as_text(blf, f".{f}") for f in ("asc", "log") if f in args.formats]
+        if "csv" in args.formats:
+            csv_path, (wall, cpu, peak, _) = make_csv(hours, d)
+            print(f"| {hours} h: CSV | {csv_path.stat().st_size / 1e6:.0f} | record | {wall:.0f} | "
+                  f"{cpu:.0f} | {peak:.0f} | |", flush=True)  # fmt: skip
+            files.append(csv_path)
         for path in files:
             size = path.stat().st_size / 1e6
             floor = None

@@ -55,7 +55,7 @@ import math
 import os
 import tempfile
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeGuard
@@ -76,7 +76,9 @@ __all__ = [
     "Recording",
     "RecordingError",
     "RecordingWriter",
+    "summarise_csv",
     "summarise_npz",
+    "summarise_recording",
 ]
 
 FORMAT = "northfinder-recording"
@@ -1064,84 +1066,101 @@ _MAX_ARRAY_BYTES = MAX_SAMPLES * 13 * 8 + (16 << 20)
 
 
 def _read_csv(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
-    meta: dict[str, Any] = {}
     with p.open(errors="replace", newline="") as fh:
-        lineno = 0
-        line = ""
-        for line in fh:
-            lineno += 1
-            if not line.startswith("#"):
-                break
-            key, sep, value = line[1:].rstrip("\r\n").partition("=")
-            if sep:
-                try:
-                    meta[key.strip()] = json.loads(value.strip())
-                except json.JSONDecodeError:
-                    raise RecordingError(
-                        f"{p}: line {lineno}: metadata value is not JSON: {value.strip()!r}"
-                    ) from None
-        else:
-            line = ""
-        header = next(csv.reader([line]), None) if line.strip() else None
-        if header is None:
-            raise RecordingError(f"{p}: no header line")
-        missing = [c for c in COLUMNS if c not in header]
-        if missing:
-            raise RecordingError(
-                f"{p}: missing column {missing[0]!r}; columns are {', '.join(COLUMNS)}"
-            )
-        idx = [header.index(c) for c in COLUMNS]
-        blocks: list[NDArray[np.float64]] = []
-        rows: list[list[float]] = []
-        count = 0
-        windows: set[float] = set()
-        first_row = lineno + 1
-        for lineno, row in enumerate(csv.reader(fh), start=first_row):
-            if not row:
-                continue
-            if row[0].startswith("#"):  # the tail: how the recording ended
-                key, sep, value = ",".join(row)[1:].partition("=")
-                with contextlib.suppress(json.JSONDecodeError):
-                    if sep:
-                        meta[key.strip()] = json.loads(value.strip())
-                continue
-            try:
-                values = [float(row[k]) for k in idx]
-            except (ValueError, IndexError):
-                bad = next(
-                    (
-                        COLUMNS[n]
-                        for n, k in enumerate(idx)
-                        if k >= len(row) or not _is_number(row[k])
-                    ),
-                    "?",
-                )
-                raise RecordingError(
-                    f"{p}: line {lineno}: column {bad!r} is missing or not a number"
-                ) from None
-            if values[0] not in windows:
-                windows.add(values[0])
-                if len(windows) > MAX_WINDOWS:
-                    raise RecordingError(
-                        f"{p}: line {lineno}: more than {MAX_WINDOWS} windows; a recording holds "
-                        "at most that many (split the session)"
-                    )
-            count += 1
-            if count > MAX_SAMPLES:
-                raise RecordingError(
-                    f"{p}: line {lineno}: more than {MAX_SAMPLES} samples; a recording holds at "
-                    "most that many (split the session)"
-                )
-            rows.append(values)
-            if len(rows) >= _CSV_BLOCK_ROWS:
-                blocks.append(np.array(rows, dtype=np.float64))
-                rows = []
-    if rows:
-        blocks.append(np.array(rows, dtype=np.float64))
+        meta, idx, first_row = _read_csv_head(fh, p)
+        blocks = list(_csv_blocks(fh, p, idx, meta, first_row))
     if not blocks:
         raise RecordingError(f"{p}: no samples")
     a = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]
-    arrays = {  # whole-number columns stay floats here: _split checks and converts them
+    return _csv_columns(a), meta
+
+
+def _read_csv_head(fh: Any, p: Path) -> tuple[dict[str, Any], list[int], int]:
+    """The metadata of a CSV recording's comment lines, where each column of :data:`COLUMNS`
+    is in a row, and the line number of the first row after the header."""
+    meta: dict[str, Any] = {}
+    lineno = 0
+    line = ""
+    for line in fh:
+        lineno += 1
+        if not line.startswith("#"):
+            break
+        key, sep, value = line[1:].rstrip("\r\n").partition("=")
+        if sep:
+            try:
+                meta[key.strip()] = json.loads(value.strip())
+            except json.JSONDecodeError:
+                raise RecordingError(
+                    f"{p}: line {lineno}: metadata value is not JSON: {value.strip()!r}"
+                ) from None
+    else:
+        line = ""
+    header = next(csv.reader([line]), None) if line.strip() else None
+    if header is None:
+        raise RecordingError(f"{p}: no header line")
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise RecordingError(
+            f"{p}: missing column {missing[0]!r}; columns are {', '.join(COLUMNS)}"
+        )
+    return meta, [header.index(c) for c in COLUMNS], lineno + 1
+
+
+def _csv_blocks(
+    fh: Any, p: Path, idx: list[int], meta: dict[str, Any], first_row: int
+) -> Iterator[NDArray[np.float64]]:
+    """The rows after a CSV recording's header as blocks of at most :data:`_CSV_BLOCK_ROWS`
+    rows of numbers, the columns in the order of :data:`COLUMNS`; comment lines (the tail: how
+    the recording ended) go to ``meta`` as they are read."""
+    rows: list[list[float]] = []
+    count = 0
+    windows: set[float] = set()
+    for lineno, row in enumerate(csv.reader(fh), start=first_row):
+        if not row:
+            continue
+        if row[0].startswith("#"):  # the tail: how the recording ended
+            key, sep, value = ",".join(row)[1:].partition("=")
+            with contextlib.suppress(json.JSONDecodeError):
+                if sep:
+                    meta[key.strip()] = json.loads(value.strip())
+            continue
+        try:
+            values = [float(row[k]) for k in idx]
+        except (ValueError, IndexError):
+            bad = next(
+                (COLUMNS[n] for n, k in enumerate(idx) if k >= len(row) or not _is_number(row[k])),
+                "?",
+            )
+            raise RecordingError(
+                f"{p}: line {lineno}: column {bad!r} is missing or not a number"
+            ) from None
+        if values[0] not in windows:
+            windows.add(values[0])
+            if len(windows) > MAX_WINDOWS:
+                raise RecordingError(
+                    f"{p}: line {lineno}: more than {MAX_WINDOWS} windows; a recording holds "
+                    "at most that many (split the session)"
+                )
+        count += 1
+        if count > MAX_SAMPLES:
+            raise RecordingError(
+                f"{p}: line {lineno}: more than {MAX_SAMPLES} samples; a recording holds at "
+                "most that many (split the session)"
+            )
+        rows.append(values)
+        if len(rows) >= _CSV_BLOCK_ROWS:
+            block = np.array(rows, dtype=np.float64)
+            rows = []  # its numbers as objects go before the block is handed on
+            yield block
+            del block
+    if rows:
+        yield np.array(rows, dtype=np.float64)
+
+
+def _csv_columns(a: NDArray[np.float64]) -> dict[str, NDArray[Any]]:
+    """The arrays of rows of a CSV recording (views of ``a``, one row a sample). Whole-number
+    columns stay floats here: :func:`_split` checks and converts them."""
+    return {
         "window": a[:, 0],
         "commanded_deg": a[:, 1],
         "counter": a[:, 2],
@@ -1152,7 +1171,6 @@ def _read_csv(p: Path) -> tuple[dict[str, NDArray[Any]], dict[str, Any]]:
         "temperature_c": a[:, 11],
         "validity": a[:, 12],
     }
-    return arrays, meta
 
 
 def _is_number(text: str) -> bool:
@@ -1244,6 +1262,17 @@ class _Doubt(Exception):
     layout, or anything it would refuse or cannot vouch for: the whole reader says what)."""
 
 
+def summarise_recording(path: str | Path, summarise: Callable[[RecordedWindow, float], Any]) -> Any:
+    """:func:`summarise_npz` or :func:`summarise_csv` by the file name's ending; None for
+    another ending (the whole reader says what is wrong)."""
+    suffix = Path(path).suffix
+    if suffix == ".npz":
+        return summarise_npz(path, summarise)
+    if suffix == ".csv":
+        return summarise_csv(path, summarise)
+    return None
+
+
 def summarise_npz(path: str | Path, summarise: Callable[[RecordedWindow, float], Any]) -> Any:
     """Read an NPZ recording of the column layout window by window, each window handed to
     ``summarise(window, sample_rate_hz)`` as it is read and then dropped: memory is one
@@ -1269,6 +1298,112 @@ def summarise_npz(path: str | Path, summarise: Callable[[RecordedWindow, float],
         return None
 
 
+def summarise_csv(path: str | Path, summarise: Callable[[RecordedWindow, float], Any]) -> Any:
+    """Read a CSV recording window by window in one pass, its rows parsed a block at a time,
+    each window handed to ``summarise(window, sample_rate_hz)`` once its rows are read and then
+    dropped: memory is one window's arrays and what ``summarise`` returns.
+
+    Returns what :func:`summarise_npz` returns, the metadata with the CSV's tail (how the
+    recording ended) as :meth:`Recording.load` reads it; None where :meth:`Recording.load` must
+    read the file whole: as for an NPZ, and windows not numbered 0, 1, 2, ... one after the
+    other, or a tail that changes the sample rate.
+    """
+    p = Path(path)
+    try:
+        if p.suffix != ".csv":
+            raise _Doubt
+        _check_readable(p)
+        with p.open(errors="replace", newline="") as fh:
+            meta, idx, first_row = _read_csv_head(fh, p)
+            _known(meta, p)
+            windows = _csv_windows(_csv_blocks(fh, p, idx, meta, first_row))
+            return _summarised(p, meta, windows, summarise)
+    except (_Doubt, RecordingError, OSError, ValueError, csv.Error):
+        return None
+
+
+def _known(meta: Any, p: Path) -> None:
+    """Metadata the window-by-window readers take as :meth:`Recording.load` would (else
+    :class:`_Doubt`, or the RecordingError of :func:`check_meta`)."""
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT or "spin" in meta:
+        raise _Doubt
+    if meta.get("version") != VERSION:
+        raise _Doubt
+    check_meta(meta, p)
+
+
+def _summarised(
+    p: Path,
+    meta: dict[str, Any],
+    windows: Iterator[RecordedWindow],
+    summarise: Callable[[RecordedWindow, float], Any],
+) -> tuple[list[Any], dict[str, Any], str | None]:
+    """The windows summarised one at a time, and the checks :meth:`Recording.load` makes of
+    them together (the rate, the plan) from counts and each window's ends."""
+    rate_hz = float(meta["sample_rate_hz"])
+    summaries: list[Any] = []
+    stubs: list[RecordedWindow] = []
+    rate = _RateCount(rate_hz)
+    for w in windows:
+        if len(stubs) >= MAX_WINDOWS:
+            raise _Doubt
+        rate.add(w)
+        # What the plan check reads of a window: its first and last counters (ticks spanned).
+        stubs.append(RecordedWindow(w.commanded_deg, **_stub(w)))
+        summaries.append(summarise(w, rate_hz))
+        del w
+    # Read to its end, a CSV's metadata holds its tail: checked again as the whole reader does.
+    _known(meta, p)
+    if float(meta["sample_rate_hz"]) != rate_hz or len(stubs) < 2:
+        raise _Doubt
+    rate.check()
+    stub = Recording(tuple(stubs), meta)
+    check_against_plan(stub, p)
+    return summaries, meta, stub.partial
+
+
+def _csv_windows(blocks: Iterator[NDArray[np.float64]]) -> Iterator[RecordedWindow]:
+    """The windows of a CSV recording's blocks of rows, each once its last row is read: the
+    window column must read 0, 1, 2, ... one after the other (else :class:`_Doubt`)."""
+    pieces: list[NDArray[np.float64]] = []
+    current = 0.0
+    for block in blocks:
+        column = block[:, 0]
+        starts = np.flatnonzero(column[1:] != column[:-1]) + 1
+        at = 0
+        for j in (*starts.tolist(), len(block)):
+            if j == at:
+                continue
+            v = float(column[at])
+            if v != current:
+                if v != current + 1 or not pieces:
+                    raise _Doubt  # windows not 0, 1, 2, ... one after the other
+                yield _csv_window(pieces)
+                pieces, current = [], v
+            pieces.append(block[at:j])
+            at = j
+        del block, column
+    if pieces:
+        yield _csv_window(pieces)
+
+
+def _csv_window(pieces: list[NDArray[np.float64]]) -> RecordedWindow:
+    """One window of a CSV recording from its rows (``pieces``, emptied), checked as
+    :func:`_split` checks it (its arrays views of one array of rows, as the whole reader's
+    are)."""
+    a = np.empty((sum(len(x) for x in pieces), len(COLUMNS)))
+    at = 0
+    pieces.reverse()
+    while pieces:  # each block of rows dropped once copied: the window is in memory once
+        x = pieces.pop()
+        a[at : at + len(x)] = x
+        at += len(x)
+        del x
+    columns = _csv_columns(a)
+    del columns["window"]
+    return _checked_window(columns)
+
+
 def _npy_stream(zf: zipfile.ZipFile, name: str) -> tuple[Any, tuple[int, ...], np.dtype[Any]]:
     """An open member ``name`` of ``zf`` positioned at its data, its shape and dtype."""
     fh = zf.open(f"{name}.npy")
@@ -1286,11 +1421,7 @@ def _summarise_columns(
         raise _Doubt  # no recording, or the window layout
     with zf.open("meta_json.npy") as fh:
         meta = json.loads(str(np.lib.format.read_array(fh, allow_pickle=False)))
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT or "spin" in meta:
-        raise _Doubt
-    if meta.get("version") != VERSION:
-        raise _Doubt
-    check_meta(meta, p)
+    _known(meta, p)
     bounds = _window_bounds(zf)
     streams = {}
     for name in ("commanded_deg", *SAMPLE_ARRAYS):
@@ -1303,21 +1434,15 @@ def _summarise_columns(
         if name in ("counter", "validity") and dtype.kind == "f":
             raise _Doubt
         streams[name] = (fh, dtype, width)
-    summaries, stubs, rate = [], [], _RateCount(float(meta["sample_rate_hz"]))
+    return _summarised(p, meta, _npz_windows(streams, bounds), summarise)
+
+
+def _npz_windows(streams: dict[str, Any], bounds: list[int]) -> Iterator[RecordedWindow]:
     for k in range(len(bounds) - 1):
-        w = _read_window(streams, bounds[k + 1] - bounds[k])
-        rate.add(w)
-        # What the plan check reads of a window: its first and last counters (ticks spanned).
-        stubs.append(RecordedWindow(w.commanded_deg, **_stub(w)))
-        summaries.append(summarise(w, float(meta["sample_rate_hz"])))
-        del w
+        yield _read_window(streams, bounds[k + 1] - bounds[k])
     for fh, _, _ in streams.values():
         if fh.read(1):  # at the end: zipfile checks the member's CRC there, as a load does
             raise _Doubt
-    rate.check()
-    stub = Recording(tuple(stubs), meta)
-    check_against_plan(stub, p)
-    return summaries, meta, stub.partial
 
 
 def _window_bounds(zf: zipfile.ZipFile) -> list[int]:
@@ -1361,26 +1486,32 @@ def _read_window(streams: dict[str, Any], rows: int) -> RecordedWindow:
     fields: dict[str, Any] = {}
     for name, (fh, dtype, width) in streams.items():
         a = np.frombuffer(_exactly(fh, rows * width * dtype.itemsize), dtype=dtype)
-        a = a.reshape(rows, 3) if width == 3 else a
+        fields[name] = a.reshape(rows, 3) if width == 3 else a
+    return _checked_window(fields)
+
+
+def _checked_window(fields: dict[str, NDArray[Any]]) -> RecordedWindow:
+    """A window of its columns (``commanded_deg`` and :data:`SAMPLE_ARRAYS`), checked as
+    :func:`_split` checks a window; what it would refuse raises :class:`_Doubt`."""
+    for name, a in fields.items():
         if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
             raise _Doubt
         limit = SAMPLE_LIMITS.get(name)
         if limit is not None and np.any(np.abs(a) > limit):
             raise _Doubt
-        fields[name] = a
-    counter, validity, commanded = (
-        fields["counter"],
-        fields["validity"],
-        fields.pop("commanded_deg"),
-    )
-    if rows == 0 or np.ptp(commanded) != 0:
+    commanded = fields.pop("commanded_deg")
+    if len(commanded) == 0 or np.ptp(commanded) != 0:
         raise _Doubt
-    if np.any(counter < 0) or np.any(counter > 2.0**53) or np.any(np.diff(counter) <= 0):
+    for name, hi in (("counter", 2.0**53), ("validity", 255)):
+        v = fields[name]
+        if np.any(v < 0) or np.any(v > hi):
+            raise _Doubt
+        if v.dtype.kind == "f" and np.any(v != np.round(v)):
+            raise _Doubt  # no whole number
+    fields["counter"] = fields["counter"].astype(np.int64)
+    fields["validity"] = fields["validity"].astype(np.uint8)
+    if np.any(np.diff(fields["counter"]) <= 0):
         raise _Doubt
-    if np.any(validity < 0) or np.any(validity > 255):
-        raise _Doubt
-    fields["counter"] = counter.astype(np.int64)
-    fields["validity"] = validity.astype(np.uint8)
     return RecordedWindow(float(commanded[0]), **fields)
 
 

@@ -165,7 +165,7 @@ def _solved_both_ways(path: Path, monkeypatch: pytest.MonkeyPatch, *options: str
     for streamed in (True, False):
         with monkeypatch.context() as m:
             if not streamed:
-                m.setattr(solve, "summarise_npz", lambda *_: None)
+                m.setattr(solve, "summarise_recording", lambda *_: None)
             code, text, err = run_cli("solve", str(path), "--json", *options)
         doc = json.loads(text) if text else {}
         doc.pop("created_utc", None)

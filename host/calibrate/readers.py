@@ -28,7 +28,7 @@ from northfinder.host.allan import AllanCurve, allan_curve
 from northfinder.host.canlog import ReadProgress, is_can_log, read_can_log
 from northfinder.host.errors import RecordingError
 from northfinder.host.procedure import unfit_samples
-from northfinder.host.recording import RecordedWindow, Recording, summarise_npz
+from northfinder.host.recording import RecordedWindow, Recording, summarise_recording
 
 __all__ = [
     "AXES",
@@ -282,15 +282,14 @@ def _fitted(
     """The run of ``p`` with its windows reduced (:func:`window_fit`) as they are read."""
     if is_can_log(p):
         return _read_can_log(p, progress, fitted=True)
-    if p.suffix.lower() == ".npz":
-        got = summarise_npz(p, window_fit)
-        if got is not None:
-            fits, meta, _ = got
-            lat = meta.get("latitude_deg")
-            latitude = float(lat) if isinstance(lat, int | float) and math.isfinite(lat) else None
-            order = np.argsort([f.start_s for f in fits], kind="stable")
-            rate = float(meta["sample_rate_hz"])
-            return RecordedRun(str(p), rate, (), latitude, meta, tuple(fits[i] for i in order))
+    got = summarise_recording(p, window_fit)  # None for another format
+    if got is not None:
+        fits, meta, _ = got
+        lat = meta.get("latitude_deg")
+        latitude = float(lat) if isinstance(lat, int | float) and math.isfinite(lat) else None
+        order = np.argsort([f.start_s for f in fits], kind="stable")
+        rate = float(meta["sample_rate_hz"])
+        return RecordedRun(str(p), rate, (), latitude, meta, tuple(fits[i] for i in order))
     run = reader(p)
     fits = tuple(window_fit(w, run.sample_rate_hz) for w in run.windows)
     return dataclasses.replace(run, windows=(), fits=fits)

@@ -37,7 +37,7 @@ from northfinder.host.procedure import (
     result_from_windows,
     summarise_window,
 )
-from northfinder.host.recording import RecordedWindow, Recording, summarise_npz
+from northfinder.host.recording import RecordedWindow, Recording, summarise_recording
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -222,7 +222,7 @@ def load(args: argparse.Namespace) -> tuple[Recording | Summarised, dict[str, An
         option = "--" + (given[0] if given else "strict").replace("_", "-")
         raise HostConfigError(f"{option} applies to CAN logs only")
     if not args.plot:
-        summaries = summarise_npz(path, summariser(args.denoise, report_gaps))
+        summaries = summarise_recording(path, summariser(args.denoise, report_gaps))
         if summaries is not None:
             windows, meta, partial = summaries
             return Summarised(tuple(windows), meta), _recording_source(path, partial, False)
