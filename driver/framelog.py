@@ -27,9 +27,9 @@ complete log on its own) and renamed ``STEM_#NNN.EXT``, NNN counting 000, 001, .
 
 A log is readable while it is written: the file is flushed with the first frame logged
 ``flush_s`` wall seconds (default 1) after the last flush, and at :meth:`FrameLog.flush`, which
-the simulator's links call as they send a reply (so a log read after a host's last reply holds
-that host's session whole). BLF's containers are written out then too; ``.mf4`` and SQLite
-write as their libraries do.
+the simulator's links call as they answer a command, before the answer goes out and after (so
+a log read after a host's last reply holds that host's session whole). BLF's containers are
+written out then too; ``.mf4`` and SQLite write as their libraries do.
 
 A write that fails (disk full, say) does not stop the link: the first error is kept in
 :attr:`FrameLog.error`, later frames are counted in :attr:`FrameLog.lost`, and :meth:`close`
@@ -48,7 +48,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import can
 
@@ -372,8 +372,13 @@ class FrameLog:
         writer = getattr(self._writer, "writer", self._writer)
         self._flushed_at = time.monotonic()
         try:
-            if isinstance(writer, can.BLFWriter):
-                writer._flush()  # the frames buffered for the next compressed container
+            # BLF: the frames buffered for the next compressed container (python-can's own
+            # method, private; without it the container waits for its size or the close).
+            blf_flush = (
+                getattr(writer, "_flush", None) if isinstance(writer, can.BLFWriter) else None
+            )
+            if callable(blf_flush):
+                blf_flush()
             file = getattr(writer, "file", None)
             if file is not None and not file.closed:
                 file.flush()
@@ -419,7 +424,7 @@ class FrameLog:
             time.sleep(0.01)
         time.sleep(2 * self._writer.GET_MESSAGE_TIMEOUT)
 
-    def __enter__(self) -> FrameLog:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:

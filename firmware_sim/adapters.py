@@ -11,8 +11,8 @@ carry the same messages on the CAN link (a frame the fault injection corrupted h
 frame and is not given), so a serial session logs like a CAN one. Frames are handed over with
 ``timestamp`` 0 unless the bus stamped them: the tap stamps them (this package reads no clock).
 A tap with a ``flush`` method (a :class:`~northfinder.driver.framelog.FrameLog`) is flushed as
-each message other than a sample goes out, so a log read after a host's last reply holds all
-the host's session.
+the device answers a command, before the answer goes out and again after it, so a log read
+after a host's last reply holds all the host's session.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from can import Message
 from northfinder.driver.protocol.can import encode_can, sample_ids, split_can_id
 from northfinder.driver.protocol.constants import CanFunction
 from northfinder.driver.protocol.errors import BadCommandError, ProtocolError
-from northfinder.driver.protocol.messages import Command, Sample
+from northfinder.driver.protocol.messages import Command, Identify, Reply, Sample
 from northfinder.driver.protocol.serial import Deframer, SerialEncoder, decode_payload
 from northfinder.firmware_sim.firmware import Firmware, Outgoing
 
@@ -261,9 +261,12 @@ class CanLink:
                 for arbitration_id, data in _frame_data(item, node)
             ]
         if msgs:
+            flush = _flush_at_reply(self.tap, outgoing)
+            if flush is not None:
+                flush()  # the command answered, and all before it
             self._put(msgs)
-            if self.tap is not None:
-                _flush_at_reply(self.tap, outgoing)
+            if flush is not None:
+                flush()  # the answer
 
     def _frames_with_faults(self, outgoing: list[Outgoing]) -> list[can.Message]:
         """The frames of ``outgoing`` as the firmware's fault injection leaves them (dropped,
@@ -318,11 +321,20 @@ class CanLink:
                 ))  # fmt: skip
 
 
-def _flush_at_reply(tap: Callable[[can.Message], None], outgoing: list[Outgoing]) -> None:
-    """Flush ``tap`` (where it can be flushed) if ``outgoing`` holds anything but samples."""
+#: What the device sends in answer to a command (IDENTIFY's pages follow its reply).
+_ANSWERS = (Reply, Identify)
+
+
+def _flush_at_reply(
+    tap: Callable[[can.Message], None] | None, outgoing: list[Outgoing]
+) -> Callable[[], None] | None:
+    """The ``flush`` of ``tap`` if ``outgoing`` answers a command (heartbeats and samples go
+    unflushed: the tap flushes on its own, :class:`~northfinder.driver.framelog.FrameLog` once
+    a second)."""
     flush = getattr(tap, "flush", None)
-    if flush is not None and any(type(item.message) is not Sample for item in outgoing):
-        flush()
+    if flush is not None and any(type(item.message) in _ANSWERS for item in outgoing):
+        return flush
+    return None
 
 
 def _frame_data(item: Outgoing, node: int) -> Iterable[tuple[int, bytes]]:
@@ -448,6 +460,9 @@ class SerialLink:
                 if data == encoded:
                     intact.append(item.message)
         if chunks:
+            flush = _flush_at_reply(self.tap, outgoing)
+            if flush is not None:
+                flush()  # the command answered, and all before it
             try:
                 self.stream.write(b"".join(chunks))
             except (BlockingIOError, OSError):
@@ -455,8 +470,8 @@ class SerialLink:
                 return
             for message in intact:
                 self._tap(message, is_rx=False)
-            if self.tap is not None:
-                _flush_at_reply(self.tap, outgoing)
+            if flush is not None:
+                flush()  # the answer
 
 
 def _flip_payload_bit(frame: bytes) -> bytes:

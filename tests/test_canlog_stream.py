@@ -8,6 +8,8 @@ log solves to the same heading to the last digit either way. No clock is read.
 from __future__ import annotations
 
 import gc
+import io
+import os
 import re
 import tracemalloc
 from pathlib import Path
@@ -19,6 +21,7 @@ from clirun import run_cli, run_json
 
 import northfinder.cli.logprogress as logprogress
 import northfinder.host.canlog as canlog
+from northfinder.cli.dump import lines_go_to_a_file
 from northfinder.driver.protocol import Sample, Validity
 from northfinder.driver.protocol.can import CanReceiver, TickLoss, encode_can
 from northfinder.driver.protocol.messages import RotateTo, StreamStart, StreamStop
@@ -253,11 +256,29 @@ def test_solve_shows_the_reading_of_a_long_log(tmp_path, monkeypatch):
     assert "solve: " not in err
 
 
-def test_dump_shows_the_reading_of_a_long_log_when_its_frames_go_elsewhere(tmp_path, monkeypatch):
+def test_dump_shows_its_progress_only_when_its_lines_go_to_a_file(tmp_path):
+    with (tmp_path / "out.txt").open("w") as fh:
+        assert lines_go_to_a_file(fh)  # `dump LOG > out.txt`
+    assert lines_go_to_a_file(io.StringIO())  # a program's buffer
+    r, w = os.pipe()
+    try:  # `dump LOG | less`: less shares the terminal with stderr
+        assert not lines_go_to_a_file(os.fdopen(w, "w", closefd=False))
+    finally:
+        os.close(r)
+        os.close(w)
+    master, slave = os.openpty()
+    try:  # on a terminal the lines show how far it is
+        assert not lines_go_to_a_file(os.fdopen(slave, "w", closefd=False))
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_dump_shows_the_reading_of_a_long_log_when_its_lines_go_to_a_file(tmp_path, monkeypatch):
     path = tmp_path / "run.asc"
     _write_log(path, 200_000)
     monkeypatch.setattr(logprogress, "PROGRESS_BYTES", 0)  # the log counts as long
-    code, out, err = run_cli("dump", str(path), "--raw")  # stdout a pipe, as `dump > file`
+    code, out, err = run_cli("dump", str(path), "--raw")  # stdout a buffer, as `dump > file`
     assert code == 0, err
     frames = sum(1 for _ in can.LogReader(str(path)))
     assert len(out.splitlines()) == frames  # every frame printed, none mixed with the progress

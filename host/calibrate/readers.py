@@ -245,7 +245,7 @@ def read_runs(
 
     ``fitted``: each window is reduced to what calibration takes of it (:func:`window_fit`) and
     its samples dropped: :attr:`RecordedRun.fits` instead of :attr:`RecordedRun.windows`, in
-    memory one window's samples at a time (CAN logs and NPZ recordings are read window by
+    memory one window's samples at a time (CAN logs, NPZ and CSV recordings are read window by
     window; a file of another reader is read whole, then reduced).
 
     Raises

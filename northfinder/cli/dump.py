@@ -13,6 +13,8 @@ alone). Filters: ``--id``, ``--time-from``/``--time-to`` (seconds from the first
 from __future__ import annotations
 
 import argparse
+import os
+import stat
 import sys
 import time
 from collections.abc import Iterable, Iterator
@@ -252,9 +254,19 @@ def _session_filter(frames: Iterable[Any], session: int | None) -> Iterator[Any]
             return
 
 
-def _isatty(stream: Any) -> bool:
-    isatty = getattr(stream, "isatty", None)
-    return bool(isatty is not None and isatty())
+def lines_go_to_a_file(stream: Any) -> bool:
+    """Whether ``stream`` is a file (a regular file, or a buffer in memory with no descriptor,
+    as a program embedding the command gives): not a terminal, where the lines themselves show
+    how far the reading is, nor a pipe, whose reader (``less``, ``grep``) shares the terminal
+    with stderr."""
+    try:
+        fd = stream.fileno()
+    except (AttributeError, OSError, ValueError):
+        return True
+    try:
+        return stat.S_ISREG(os.fstat(fd).st_mode)
+    except OSError:
+        return False
 
 
 def run(args: argparse.Namespace) -> int:
@@ -281,9 +293,8 @@ def run(args: argparse.Namespace) -> int:
         for path in logs.files:
             check_log_file(path)
         name = logs.name
-        # A long log's reading shown on stderr when the frames go elsewhere (on a terminal,
-        # the frames themselves show how far it is).
-        shown = LogProgress("dump", logs.files, enabled=not _isatty(sys.stdout))
+        # A long log's reading shown on stderr when the lines go to a file.
+        shown = LogProgress("dump", logs.files, enabled=lines_go_to_a_file(sys.stdout))
         frames = read_frames(
             logs.files, skip_damaged=not args.strict, skipped=skipped, cut=cut, gaps=gaps,
             progress=shown,
