@@ -91,38 +91,36 @@ def isolated(cmd: list[str]) -> tuple[float, float, float, int]:
     return float(wall), float(cpu), float(peak), int(status)
 
 
-def make_csv(hours: int, d: Path) -> tuple[Path, tuple[float, float, float, int]]:
-    """The CSV recording of ``hours`` of data (the NPZ's samples), and its record's figures."""
-    path, figures = d / f"rec{hours}h.csv", d / f"rec{hours}h.csv.json"
-    if not (path.exists() and figures.exists()):
+def _recorded(
+    hours: int, made: list[Path], figures: Path, outputs: list[str], what: str
+) -> tuple[float, float, float, int]:
+    """The figures of ``record`` of ``hours`` of data to ``outputs`` (run once: the files
+    ``made`` and the ``figures`` kept)."""
+    if not (all(p.exists() for p in made) and figures.exists()):
         positions = ",".join(str(ANGLES[i % len(ANGLES)]) for i in range(2 * hours))
         cmd = northfinder(
             "record", "--sim", "--seed", "1", "--warmup", "0", "--positions", positions,
-            "--window", str(WINDOW_S), str(path),
+            "--window", str(WINDOW_S), *outputs,
         )  # fmt: skip
         measured = isolated(cmd)
         if measured[3] != 0:
-            raise SystemExit(f"record of {hours} h as CSV failed (exit {measured[3]})")
+            raise SystemExit(f"record of {hours} h{what} failed (exit {measured[3]})")
         figures.write_text(json.dumps(measured))
     wall, cpu, peak, status = json.loads(figures.read_text())
-    return path, (float(wall), float(cpu), float(peak), int(status))
+    return float(wall), float(cpu), float(peak), int(status)
+
+
+def make_csv(hours: int, d: Path) -> tuple[Path, tuple[float, float, float, int]]:
+    """The CSV recording of ``hours`` of data (the NPZ's samples), and its record's figures."""
+    path = d / f"rec{hours}h.csv"
+    return path, _recorded(hours, [path], d / f"rec{hours}h.csv.json", [str(path)], " as CSV")
 
 
 def make_record(hours: int, d: Path) -> tuple[Path, Path, tuple[float, float, float, int]]:
     """The NPZ and BLF of ``hours`` of data, and the record command's figures."""
-    npz, blf, figures = d / f"rec{hours}h.npz", d / f"rec{hours}h.blf", d / f"rec{hours}h.json"
-    if not (npz.exists() and blf.exists() and figures.exists()):
-        positions = ",".join(str(ANGLES[i % len(ANGLES)]) for i in range(2 * hours))
-        cmd = northfinder(
-            "record", "--sim", "--seed", "1", "--warmup", "0", "--positions", positions,
-            "--window", str(WINDOW_S), "--can-log", str(blf), str(npz),
-        )  # fmt: skip
-        measured = isolated(cmd)
-        if measured[3] != 0:
-            raise SystemExit(f"record of {hours} h failed (exit {measured[3]})")
-        figures.write_text(json.dumps(measured))
-    wall, cpu, peak, status = json.loads(figures.read_text())
-    return npz, blf, (float(wall), float(cpu), float(peak), int(status))
+    npz, blf = d / f"rec{hours}h.npz", d / f"rec{hours}h.blf"
+    outputs = ["--can-log", str(blf), str(npz)]
+    return npz, blf, _recorded(hours, [npz, blf], d / f"rec{hours}h.json", outputs, "")
 
 
 def as_text(blf: Path, suffix: str) -> Path:

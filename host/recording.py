@@ -1280,9 +1280,9 @@ def summarise_npz(path: str | Path, summarise: Callable[[RecordedWindow, float],
 
     Returns ``(summaries, meta, partial)`` (:attr:`Recording.partial`), or None where
     :meth:`Recording.load` must read the file whole: a recording it would refuse (so that its
-    one message names what is wrong), a spin recording, fewer than two windows, windows not
-    stored one after the other, the window layout, a sample rate the samples might not bear
-    out (the check then needs every step). Where it returns, the windows are those
+    one message names what is wrong), a spin recording, windows not stored one after the
+    other, the window layout, a sample rate the samples might not bear out (the check then
+    needs every step). Where it returns, the windows are those
     :meth:`Recording.load` gives, checked as it checks them.
     """
     p = Path(path)
@@ -1354,7 +1354,7 @@ def _summarised(
         del w
     # Read to its end, a CSV's metadata holds its tail: checked again as the whole reader does.
     _known(meta, p)
-    if float(meta["sample_rate_hz"]) != rate_hz or len(stubs) < 2:
+    if float(meta["sample_rate_hz"]) != rate_hz or not stubs:
         raise _Doubt
     rate.check()
     stub = Recording(tuple(stubs), meta)
@@ -1465,7 +1465,7 @@ def _window_bounds(zf: zipfile.ZipFile) -> list[int]:
                 prev = v
             done += rows
     bounds.append(shape[0])
-    if len(bounds) - 1 < 2 or len(bounds) - 1 > MAX_WINDOWS:
+    if len(bounds) - 1 > MAX_WINDOWS:
         raise _Doubt
     return bounds
 

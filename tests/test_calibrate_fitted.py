@@ -9,13 +9,12 @@ import gc
 import tracemalloc
 from pathlib import Path
 
-import numpy as np
 import pytest
 from clirun import run_cli
+from seeded import saved, seeded_windows
 
 from northfinder.host.calibrate import calibrate, read_runs
 from northfinder.host.errors import RecordingError
-from northfinder.host.recording import RecordedWindow, Recording
 
 RATE_HZ = 200.0
 
@@ -48,19 +47,7 @@ def test_a_recording_given_twice_is_refused_when_reduced_as_read(recorded):
 
 
 def _npz(path: Path, windows: int, n: int, seed: int) -> Path:
-    rng = np.random.default_rng(seed)
-    made = []
-    for k in range(windows):
-        counter = np.arange(n) + k * 2 * n
-        made.append(
-            RecordedWindow(
-                90.0 * (k % 4), counter, (counter + 1) / RATE_HZ, rng.normal(0.0, 3.0, (n, 3)),
-                rng.normal([0.0, 0.0, 9.8], 1e-3, (n, 3)), np.full(n, 90.0 * (k % 4)),
-                np.full(n, 20.0), np.full(n, 3, dtype=np.uint8),
-            )
-        )  # fmt: skip
-    Recording(tuple(made), {"latitude_deg": 34.0, "sample_rate_hz": RATE_HZ}).save(path)
-    return path
+    return saved(path, seeded_windows(windows, n, seed, spacing=2, biased=False))
 
 
 def test_another_power_on_is_not_taken_for_the_same(tmp_path):

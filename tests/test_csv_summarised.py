@@ -17,11 +17,13 @@ from typing import Any
 import numpy as np
 import pytest
 from clirun import run_cli
+from seeded import saved, seeded_windows, solved_both_ways
 
 import northfinder.cli.solve as solve
 import northfinder.host.calibrate.readers as readers
 from northfinder.host import recording
 from northfinder.host.calibrate import calibrate, read_runs
+from northfinder.host.calibrate.readers import window_fit
 from northfinder.host.recording import (
     SAMPLE_ARRAYS,
     RecordedWindow,
@@ -45,40 +47,12 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def _windows(windows: int, n: int, seed: int = 0) -> list[RecordedWindow]:
-    rng = np.random.default_rng(seed)
-    made = []
-    for k in range(windows):
-        counter = np.arange(n) + k * 10 * n
-        made.append(
-            RecordedWindow(
-                90.0 * (k % 4), counter, (counter + 1) / RATE_HZ,
-                rng.normal([10.0 * (k % 4 - 1.5), 5.0, -8.0], 3.0, (n, 3)),
-                rng.normal([0.01, -0.02, 9.8], 1e-3, (n, 3)), np.full(n, 90.0 * (k % 4)),
-                np.full(n, 20.0), np.full(n, 3, dtype=np.uint8),
-            )
-        )  # fmt: skip
-    return made
+def _windows(windows: int, n: int) -> list[RecordedWindow]:
+    return seeded_windows(windows, n, 0)
 
 
 def _csv(path: Path, windows: int, n: int = 2000, **meta: Any) -> Path:
-    made = _windows(windows, n)
-    Recording(tuple(made), {"latitude_deg": 34.0, "sample_rate_hz": RATE_HZ, **meta}).save(path)
-    return path
-
-
-def _solved_both_ways(path: Path, monkeypatch: pytest.MonkeyPatch, *options: str) -> list[Any]:
-    """``solve --json`` read window by window and read whole (every window held)."""
-    out = []
-    for streamed in (True, False):
-        with monkeypatch.context() as m:
-            if not streamed:
-                m.setattr(solve, "summarise_recording", lambda *_: None)
-            code, text, err = run_cli("solve", str(path), "--json", *options)
-        doc = json.loads(text) if text else {}
-        doc.pop("created_utc", None)
-        out.append((code, doc, err))
-    return out
+    return saved(path, _windows(windows, n), meta)
 
 
 def _kept(w: RecordedWindow, rate_hz: float) -> tuple[RecordedWindow, float]:
@@ -110,7 +84,7 @@ def test_a_csv_solved_window_by_window_gives_the_result_of_every_window_held(
 ):
     for path in (recorded, _csv(tmp_path / "rec.csv", 8)):
         assert summarise_csv(path, solve.summariser("none", False)) is not None
-        streamed, held = _solved_both_ways(path, monkeypatch, *options)
+        streamed, held = solved_both_ways(path, monkeypatch, *options)
         assert streamed == held and streamed[0] in (0, 3)  # 3: inconsistent at a wrong latitude
         assert "azimuth_deg" in streamed[1]
 
@@ -146,7 +120,7 @@ def test_an_interrupted_and_a_cut_off_csv_say_what_they_hold(tmp_path, monkeypat
         got = summarise_csv(path, solve.summariser("none", False))
         assert got is not None
         assert got[2] == Recording.load(path).partial == f"{why}: 3 of 4 windows"
-        streamed, held = _solved_both_ways(path, monkeypatch)
+        streamed, held = solved_both_ways(path, monkeypatch)
         assert streamed == held and streamed[0] in (0, 3)  # 3: inconsistent (random samples)
         assert streamed[1]["source"]["partial"] == f"{why}: 3 of 4 windows"
 
@@ -193,7 +167,7 @@ def _same_either_way(
     ``left``: the window-by-window reader leaves the file to the whole reader."""
     got = summarise_csv(path, solve.summariser("none", False))
     assert (got is None) == left
-    streamed, held = _solved_both_ways(path, monkeypatch)
+    streamed, held = solved_both_ways(path, monkeypatch)
     assert streamed == held
     calibrated = []
     for patched in (False, True):
@@ -241,7 +215,7 @@ def test_windows_stored_out_of_order_are_left_to_the_whole_reader(tmp_path, monk
                                                                   *r[N : 2 * N], *r[3 * N :]])  # fmt: skip
     code, err, _ = _same_either_way(swapped, monkeypatch)
     assert code in (0, 3), err  # the whole reader picks each window's rows out
-    azimuth = [_solved_both_ways(p, monkeypatch)[0][1]["azimuth_deg"] for p in (swapped, good)]
+    azimuth = [solved_both_ways(p, monkeypatch)[0][1]["azimuth_deg"] for p in (swapped, good)]
     assert azimuth[0] == azimuth[1]  # the same windows
 
 
@@ -272,3 +246,25 @@ def test_a_csv_of_four_times_the_windows_holds_one_window_at_a_time(tmp_path, mo
     one_window = 8 * 13 * n  # its rows as float64, bytes
     assert grown["streamed"] < one_window / 2, (grown, one_window)
     assert grown["whole"] > 6 * one_window, (grown, one_window)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_a_one_window_recording_is_read_and_reduced_once(tmp_path, monkeypatch, suffix):
+    """``calibrate`` takes a recording of one window (a still record): the window-by-window
+    reader reduces it as it reads it, once, to the whole reader's result; ``solve`` refuses it
+    with the whole reader's message either way."""
+    path = saved(tmp_path / f"one{suffix}", seeded_windows(1, 4000, 5))
+    fits = []
+
+    def counted(w: RecordedWindow, rate_hz: float) -> Any:
+        fits.append(len(w.counter))
+        return window_fit(w, rate_hz)
+
+    monkeypatch.setattr(readers, "window_fit", counted)
+    fitted = read_runs([path], fitted=True)
+    assert fits == [4000]  # read and reduced once
+    held = read_runs([path])
+    assert calibrate(fitted).to_json_dict() == calibrate(held).to_json_dict()
+    streamed, whole = solved_both_ways(path, monkeypatch)
+    assert streamed == whole and streamed[0] == 2
+    assert "1 window(s); north finding needs at least two positions" in streamed[2]

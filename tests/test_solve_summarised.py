@@ -6,15 +6,14 @@ traced too)."""
 from __future__ import annotations
 
 import gc
-import json
 import tracemalloc
 from pathlib import Path
 from typing import Any
 
 import can
-import numpy as np
 import pytest
-from clirun import run_cli, run_json
+from clirun import run_json
+from seeded import saved, seeded_windows, solved_both_ways
 
 import northfinder.cli.solve as solve
 import northfinder.host.canlog as canlog
@@ -22,7 +21,7 @@ from northfinder.driver.protocol import Sample, Validity
 from northfinder.driver.protocol.can import encode_can
 from northfinder.driver.protocol.messages import RotateTo, StreamStart, StreamStop
 from northfinder.host.canlog import read_can_log
-from northfinder.host.recording import RecordedWindow, Recording, summarise_npz
+from northfinder.host.recording import summarise_npz
 
 NODE = 1
 RATE_HZ = 200.0
@@ -141,36 +140,8 @@ OLD = Path(__file__).parent / "data" / "recording-v1-seed1.npz"
 
 
 def _npz(tmp_path: Path, windows: int, n: int = 2000, **changes: Any) -> Path:
-    rng = np.random.default_rng(windows)
-    made = []
-    for k in range(windows):
-        counter = np.arange(n) + k * 10 * n
-        made.append(
-            RecordedWindow(
-                90.0 * (k % 4), counter, (counter + 1) / RATE_HZ * changes.get("dt", 1.0),
-                rng.normal([10.0 * (k % 4 - 1.5), 5.0, -8.0], 3.0, (n, 3)),
-                rng.normal([0.01, -0.02, 9.8], 1e-3, (n, 3)), np.full(n, 90.0 * (k % 4)),
-                np.full(n, 20.0), np.full(n, 3, dtype=np.uint8),
-            )
-        )  # fmt: skip
-    meta = {"latitude_deg": 34.0, "sample_rate_hz": RATE_HZ, **changes.get("meta", {})}
-    path = tmp_path / f"rec{windows}.npz"
-    Recording(tuple(made), meta).save(path)
-    return path
-
-
-def _solved_both_ways(path: Path, monkeypatch: pytest.MonkeyPatch, *options: str) -> list[Any]:
-    """``solve --json`` read window by window and read whole (every window held)."""
-    out = []
-    for streamed in (True, False):
-        with monkeypatch.context() as m:
-            if not streamed:
-                m.setattr(solve, "summarise_recording", lambda *_: None)
-            code, text, err = run_cli("solve", str(path), "--json", *options)
-        doc = json.loads(text) if text else {}
-        doc.pop("created_utc", None)
-        out.append((code, doc, err))
-    return out
+    made = seeded_windows(windows, n, windows, dt=changes.get("dt", 1.0))
+    return saved(tmp_path / f"rec{windows}.npz", made, changes.get("meta", {}))
 
 
 @pytest.mark.parametrize(
@@ -179,10 +150,10 @@ def _solved_both_ways(path: Path, monkeypatch: pytest.MonkeyPatch, *options: str
 def test_an_npz_solved_window_by_window_gives_the_result_of_every_window_held(
     tmp_path, monkeypatch, options
 ):
-    streamed, held = _solved_both_ways(OLD, monkeypatch, *options)
+    streamed, held = solved_both_ways(OLD, monkeypatch, *options)
     assert streamed == held and streamed[0] in (0, 3)  # 3: inconsistent at a wrong latitude
     path = _npz(tmp_path, 8)
-    streamed, held = _solved_both_ways(path, monkeypatch, *options)
+    streamed, held = solved_both_ways(path, monkeypatch, *options)
     assert streamed == held and "azimuth_deg" in streamed[1]
 
 
@@ -214,7 +185,7 @@ def test_a_rate_near_the_limit_is_left_to_the_whole_reader_and_judged_as_before(
 ):
     path = _npz(tmp_path, 4, dt=dt)
     assert summarise_npz(path, solve.summariser("none", False)) is None
-    streamed, held = _solved_both_ways(path, monkeypatch)
+    streamed, held = solved_both_ways(path, monkeypatch)
     assert streamed == held
     assert (streamed[0] == 2) == (dt == 1.02), streamed[2]
 
@@ -222,12 +193,12 @@ def test_a_rate_near_the_limit_is_left_to_the_whole_reader_and_judged_as_before(
 def test_a_partial_and_a_damaged_npz_say_what_they_did(tmp_path, monkeypatch):
     path = _npz(tmp_path, 3, meta={"plan": {"positions_deg": [0, 90, 180, 270], "window_s": 10.0},
                                     "status": "interrupted"})  # fmt: skip
-    streamed, held = _solved_both_ways(path, monkeypatch)
+    streamed, held = solved_both_ways(path, monkeypatch)
     assert streamed == held and "interrupted: 3 of 4 windows" in streamed[1]["source"]["partial"]
     data = bytearray(path.read_bytes())
     at = data.index(b"gyro_dph.npy") + 2000  # inside the gyro's compressed samples
     data[at : at + 8] = b"\0" * 8
     path.write_bytes(bytes(data))
     assert summarise_npz(path, solve.summariser("none", False)) is None
-    streamed, held = _solved_both_ways(path, monkeypatch)
+    streamed, held = solved_both_ways(path, monkeypatch)
     assert streamed == held and streamed[0] == 2 and streamed[2].count("\n") == 1

@@ -225,6 +225,8 @@ def load(args: argparse.Namespace) -> tuple[Recording | Summarised, dict[str, An
         summaries = summarise_recording(path, summariser(args.denoise, report_gaps))
         if summaries is not None:
             windows, meta, partial = summaries
+            if len(windows) < 2:
+                Recording.load(path)  # the stop-and-go reader's own error: a heading needs two
             return Summarised(tuple(windows), meta), _recording_source(path, partial, False)
     rec = Recording.load(path, min_windows=1)
     if "spin" not in rec.meta and len(rec.windows) < 2:
