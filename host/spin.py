@@ -388,6 +388,10 @@ class SpinSolution:
     consistent : bool
         Whether the halves agree within three sigma of their difference.
     drift : bool
+    sigma_scale : float
+        1, or when the halves disagree the ratio of their difference to its sigma (the square
+        root of chi2 for one degree of freedom), already applied to ``sigma_deg``: a heading its
+        halves cannot vouch for does not keep a sigma they contradict.
     """
 
     azimuth_deg: float
@@ -407,6 +411,7 @@ class SpinSolution:
     halves_sigma_deg: tuple[float, float] | None
     consistent: bool | None
     drift: bool
+    sigma_scale: float = 1.0
 
     def to_dict(self) -> dict[str, Any]:
         out = dict(self.__dict__)
@@ -502,6 +507,7 @@ def solve_spin(data: SpinSamples, *, latitude_deg: float, drift: bool = False) -
     halves: tuple[float, float] | None = None
     halves_sigma: tuple[float, float] | None = None
     consistent: bool | None = None
+    scale = 1.0
     half = data.n // 2
     first, second = _subset(data, slice(0, half)), _subset(data, slice(half, None))
     if min(abs(first.sweep_deg), abs(second.sweep_deg)) >= MIN_SWEEP_DEG and half >= 16:
@@ -511,11 +517,13 @@ def solve_spin(data: SpinSamples, *, latitude_deg: float, drift: bool = False) -
         halves, halves_sigma = (a1[0], a2[0]), (s1, s2)
         diff = (a1[0] - a2[0] + 180.0) % 360.0 - 180.0
         consistent = abs(diff) <= 3.0 * math.hypot(s1, s2)
+        if not consistent:
+            scale = abs(diff) / math.hypot(s1, s2)
     span = float(data.time_s[-1] - data.time_s[0]) if data.n > 1 else 0.0
     dt = float(np.median(np.diff(data.time_s))) if data.n > 1 else 0.0
     return SpinSolution(
         azimuth_deg=az,
-        sigma_deg=reported_sigma(white, batch),
+        sigma_deg=reported_sigma(white, batch) * scale,
         sigma_white_deg=white,
         sigma_batch_deg=batch,
         pitch_deg=math.degrees(th),
@@ -531,6 +539,7 @@ def solve_spin(data: SpinSamples, *, latitude_deg: float, drift: bool = False) -
         halves_sigma_deg=halves_sigma,
         consistent=consistent,
         drift=drift,
+        sigma_scale=scale,
     )
 
 

@@ -7,12 +7,13 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from northfinder.cli import main
+from northfinder.cli import main, spinfind
 from northfinder.driver.protocol.units import DPSH, OMEGA_IE
 from northfinder.embed import SimulatedInstrument
 from northfinder.firmware_sim.batch import simulate_spin
@@ -208,6 +209,22 @@ def test_a_heading_change_midway_fails_the_consistency_check():
     assert (
         sol.halves_deg is not None and abs(wrap(sol.halves_deg[1] - sol.halves_deg[0]) - 1.0) < 0.3
     )
+    # Its sigma grows by the halves' disagreement: the 1 deg step is inside it.
+    assert sol.halves_sigma_deg is not None
+    d = abs(wrap(sol.halves_deg[1] - sol.halves_deg[0])) / math.hypot(*sol.halves_sigma_deg)
+    assert_allclose(sol.sigma_scale, d, rtol=1e-12)
+    assert sol.sigma_scale > 3 and sol.sigma_deg > 0.25
+    assert f"sigma scaled x{sol.sigma_scale:.2f}" in spinfind.text(
+        SimpleNamespace(solution=sol, latitude_deg=LAT, latitude_source=None), None
+    )
+    # The printed result carries find's marker for a heading its data cannot vouch for.
+    found = SimpleNamespace(solution=sol, latitude_deg=LAT, latitude_source="--latitude")
+    printed = spinfind.text(found, None)
+    assert "halves" in printed and "NOT consistent" in printed
+    assert "CONSISTENCY CHECK FAILED" in printed
+    assert "CONSISTENCY CHECK FAILED" not in spinfind.text(
+        SimpleNamespace(solution=replace(sol, consistent=True), latitude_deg=LAT,
+                        latitude_source=None), None)  # fmt: skip
 
 
 def test_a_drift_is_fitted_when_asked():

@@ -169,7 +169,14 @@ def text(found: Any, truth: dict[str, Any] | None) -> str:
             + (f"; seed {truth['seed']}" if "seed" in truth else "")
         )
     if sol.consistent is False:
-        lines.append("note: the two halves disagree beyond their noise: check for disturbances")
+        # The same marker as find's windows (exit 3): a script or a reader must not take this
+        # heading as a good one.
+        lines.append(
+            "CONSISTENCY CHECK FAILED: the two halves disagree beyond their noise (more than 3 "
+            "sigma of their difference); the azimuth may be wrong by more than its noise: sigma "
+            f"scaled x{sol.sigma_scale:.2f}; check for disturbances during the spin (a knock, a "
+            "rate change, a bias step)"
+        )
     return plain_numbers("\n".join(lines))
 
 
