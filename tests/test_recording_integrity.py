@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from northfinder.cli import main
+from northfinder.cli.exits import EXIT_INCONSISTENT
 from northfinder.host.errors import OutputError
 from northfinder.host.recording import RecordedWindow, Recording, RecordingError, RecordingWriter
 
@@ -196,7 +197,12 @@ def test_an_interrupted_record_keeps_its_complete_windows_and_solve_says_so(tmp_
     done = subprocess.run(
         [*argv[:3], "solve", str(path)], capture_output=True, text=True, timeout=60
     )
-    assert done.returncode == 0, done.stderr
+    # Three or more windows are checked against each other, and a sound recording fails that
+    # check at its false-alarm rate (1 %): exit 3 with the warning, the heading printed. A seed
+    # would not fix the samples: a paced simulator's noise follows the wall clock.
+    assert done.returncode == 0 or (
+        done.returncode == EXIT_INCONSISTENT and "CONSISTENCY CHECK FAILED" in done.stdout
+    ), done.stderr
     assert f"partial recording (interrupted: {len(rec.windows)} of 6 windows)" in done.stdout
 
 
