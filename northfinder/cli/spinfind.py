@@ -168,16 +168,21 @@ def text(found: Any, truth: dict[str, Any] | None) -> str:
             f"{truth['roll_deg']:g}); error {err:+.4f} deg"
             + (f"; seed {truth['seed']}" if "seed" in truth else "")
         )
-    if sol.consistent is False:
-        # The same marker as find's windows (exit 3): a script or a reader must not take this
-        # heading as a good one.
-        lines.append(
-            "CONSISTENCY CHECK FAILED: the two halves disagree beyond their noise (more than 3 "
-            "sigma of their difference); the azimuth may be wrong by more than its noise: sigma "
-            f"scaled x{sol.sigma_scale:.2f}; check for disturbances during the spin (a knock, a "
-            "rate change, a bias step)"
-        )
+    lines += notes(sol)
     return plain_numbers("\n".join(lines))
+
+
+def notes(sol: Any) -> list[str]:
+    """The result's warnings (text and JSON): when the halves disagree, find's marker for a
+    heading its data cannot vouch for (exit 3), so a script or a reader does not take it as good."""
+    if sol.consistent is not False:
+        return []
+    return [
+        "CONSISTENCY CHECK FAILED: the two halves disagree beyond their noise (more than 3 "
+        "sigma of their difference); the azimuth may be wrong by more than its noise: sigma "
+        f"scaled x{sol.sigma_scale:.2f}; check for disturbances during the spin (a knock, a "
+        "rate change, a bias step)"
+    ]
 
 
 def as_json(
@@ -196,6 +201,7 @@ def as_json(
         "pitch_deg": sol.pitch_deg,
         "roll_deg": sol.roll_deg,
         "consistent": sol.consistent,
+        "notes": notes(sol),
         "solver": "spin",
         "latitude_deg": found.latitude_deg,
         "latitude_source": found.latitude_source,
