@@ -191,6 +191,13 @@ class MultiPositionSolution:
 # ----------------------------------------------------------------------------------------------
 
 
+def heading_text(azimuth_deg: float, digits: int) -> str:
+    """``azimuth_deg`` printed with ``digits`` decimals in [0, 360): a heading that rounds up to
+    360 is written as 0 (``359.99996`` -> ``0.0000``), as a compass and NMEA's HDT read it."""
+    text = f"{azimuth_deg % 360.0:.{digits}f}"
+    return f"{0.0:.{digits}f}" if float(text) >= 360.0 else text
+
+
 def _unit_scale(unit: str | float, table: Mapping[str, float], field_name: str) -> float:
     if isinstance(unit, str):
         try:

@@ -47,6 +47,7 @@ import pynmea2
 import serial
 
 from northfinder.host.errors import HostConfigError, OutputError
+from northfinder.host.heading import heading_text
 
 __all__ = [
     "NFDH",
@@ -111,9 +112,7 @@ def _fixed(value: float, digits: int) -> str:
 
 def hdt_sentence(fix: HeadingFix) -> str:
     """``$HEHDT,x.xx,T*hh`` (empty heading when the fix is not valid)."""
-    heading = f"{fix.azimuth_deg % 360.0:.2f}" if fix.valid else ""
-    if heading == "360.00":
-        heading = "0.00"
+    heading = heading_text(fix.azimuth_deg, 2) if fix.valid else ""
     return sentence(f"HEHDT,{heading},T")
 
 
@@ -122,7 +121,7 @@ def nfdh_sentence(fix: HeadingFix) -> str:
     sigma = (
         "" if fix.sigma_deg is None or not math.isfinite(fix.sigma_deg) else f"{fix.sigma_deg:.4f}"
     )
-    heading = f"{fix.azimuth_deg % 360.0:.4f}" if fix.valid else ""
+    heading = heading_text(fix.azimuth_deg, 4) if fix.valid else ""
     status = "A" if fix.valid else "V"
     return sentence(
         f"PNFDH,{heading},{sigma},{status},{_fixed(fix.pitch_deg, 3)},{_fixed(fix.roll_deg, 3)},"

@@ -33,6 +33,7 @@ from northfinder.driver.framelog import FrameLog, log_suffix
 from northfinder.driver.protocol.can import decode_can
 from northfinder.driver.protocol.messages import RotateTo, SampleX
 from northfinder.host.canlog import is_can_log, read_can_log
+from northfinder.host.heading import heading_text
 from northfinder.host.nmea import HeadingFix, hdt_sentence, nfdh_sentence
 from northfinder.host.results import SIMULATOR_MODEL, schema
 
@@ -623,3 +624,26 @@ def test_the_instrument_page_names_every_control_operation():
     text = (ROOT / "docs" / "instrument.md").read_text()
     missing = [name for name in OPS if f"`{name}`" not in text]
     assert not missing, f"docs/instrument.md does not name {missing}"
+
+
+@pytest.mark.parametrize("plan", [["--window", "2"], ["--spin", "6"]], ids=["stop-and-go", "spin"])
+def test_a_heading_that_rounds_up_to_360_is_printed_as_0(plan):
+    # An ideal unit a hundredth of a millidegree west of north: the printed heading is 0.0000,
+    # never 360.0000 (a compass and NMEA's HDT read [0, 360)).
+    code, out, err = run_cli(
+        "find", "--sim", "--sensor", "ideal", "--warmup", "0", "--seed", "1",
+        "--azimuth", "359.99999", *plan,
+    )  # fmt: skip
+    assert code == 0, err
+    first = out.splitlines()[0]
+    assert first.startswith("azimuth 0.0000 deg"), first
+    assert "truth   0.0000 deg" in out and "360.0" not in out
+    fix = HeadingFix(359.99996, 0.05, 0.0, 0.0, 2)
+    assert nfdh_sentence(fix).startswith("$PNFDH,0.0000,0.0500,A,")
+    assert hdt_sentence(fix).startswith("$HEHDT,0.00,T")
+    for digits in (1, 2, 3, 4):
+        unit = 10.0**-digits
+        assert heading_text(360.0 - 0.4 * unit, digits) == "0." + "0" * digits
+        assert heading_text(360.0 - 0.6 * unit, digits) == "359." + "9" * digits
+        assert heading_text(360.0 - 1.6 * unit, digits) == "359." + "9" * (digits - 1) + "8"
+    assert heading_text(-0.00001, 4) == "0.0000" and heading_text(720.5, 1) == "0.5"

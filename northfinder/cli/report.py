@@ -10,6 +10,7 @@ import numpy as np
 
 from northfinder.cli.output import dumps, plain_numbers
 from northfinder.cli.plots import pyplot, save_figure
+from northfinder.host.heading import heading_text
 from northfinder.host.procedure import FindResult, pairwise_solutions
 from northfinder.host.results import envelope
 
@@ -22,20 +23,22 @@ def angle_error(a_deg: float, b_deg: float) -> float:
 def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
     sigma = f" +- {result.sigma_deg:.4f}" if result.sigma_deg is not None else ""
     lines = [
-        f"azimuth {result.azimuth_deg:.4f} deg{sigma} (1 sigma), clockwise from true north",
+        f"azimuth {heading_text(result.azimuth_deg, 4)} deg{sigma} (1 sigma), clockwise from true north",
         f"pitch {result.pitch_deg:.4f} deg, roll {result.roll_deg:.4f} deg",
         f"solver {result.method}, denoise {result.denoise}, latitude {result.latitude_deg:g} deg"
         + (f" from {result.latitude_source}" if result.latitude_source else "")
-        + f", positions {', '.join(f'{w.encoder_deg:.4f}' for w in result.windows)} deg (encoder)",
+        + f", positions {', '.join(heading_text(w.encoder_deg, 4) for w in result.windows)} deg (encoder)",
     ]
     if result.pairwise_deg:
         lines.append(
-            "pairwise azimuths " + ", ".join(f"{a:.4f}" for a in result.pairwise_deg) + " deg"
+            "pairwise azimuths "
+            + ", ".join(heading_text(a, 4) for a in result.pairwise_deg)
+            + " deg"
         )
     if truth is not None:
         err = angle_error(result.azimuth_deg, truth["azimuth_deg"])
         lines.append(
-            f"truth   {truth['azimuth_deg']:.4f} deg (pitch {truth['pitch_deg']:g}, roll {truth['roll_deg']:g}); "
+            f"truth   {heading_text(truth['azimuth_deg'], 4)} deg (pitch {truth['pitch_deg']:g}, roll {truth['roll_deg']:g}); "
             f"error {err:+.4f} deg"
             + (
                 f"; seed {truth['seed']} (--seed {truth['seed']} repeats the run)"
@@ -67,10 +70,12 @@ def as_json(
 
 def _title(result: FindResult, truth: dict[str, Any] | None) -> str:
     sigma = "" if result.sigma_deg is None else f" ± {result.sigma_deg:.4f}"
-    head = f"azimuth {result.azimuth_deg:.4f}{sigma} deg (1σ)"
+    head = f"azimuth {heading_text(result.azimuth_deg, 4)}{sigma} deg (1σ)"
     if truth is not None:
         err = angle_error(result.azimuth_deg, truth["azimuth_deg"])
-        head += f"   simulated truth {truth['azimuth_deg']:.4f} deg, error {err:+.4f} deg"
+        head += (
+            f"   simulated truth {heading_text(truth['azimuth_deg'], 4)} deg, error {err:+.4f} deg"
+        )
     return head
 
 

@@ -15,6 +15,7 @@ from northfinder.cli.output import dumps, plain_numbers
 from northfinder.cli.plots import pyplot, save_figure
 from northfinder.config import SpinConfig
 from northfinder.host.errors import HostConfigError
+from northfinder.host.heading import heading_text
 
 #: Longest spin, s.
 MAX_SPIN_S = 86_400.0
@@ -151,7 +152,7 @@ def _error(sol: Any, truth: dict[str, Any] | None) -> float | None:
 def text(found: Any, truth: dict[str, Any] | None) -> str:
     sol = found.solution
     lines = [
-        f"azimuth {sol.azimuth_deg:.4f} deg +- {sol.sigma_deg:.4f} (1 sigma), clockwise from "
+        f"azimuth {heading_text(sol.azimuth_deg, 4)} deg +- {sol.sigma_deg:.4f} (1 sigma), clockwise from "
         "true north",
         f"pitch {sol.pitch_deg:.4f} deg, roll {sol.roll_deg:.4f} deg",
         f"spin {sol.rate_dps:+.3f} deg/s for {sol.duration_s:.1f} s ({sol.sweep_deg / 360.0:+.2f} "
@@ -160,11 +161,13 @@ def text(found: Any, truth: dict[str, Any] | None) -> str:
     ]
     if sol.halves_deg is not None:
         verdict = "consistent" if sol.consistent else "NOT consistent"
-        lines.append(f"halves {sol.halves_deg[0]:.4f}, {sol.halves_deg[1]:.4f} deg: {verdict}")
+        lines.append(
+            f"halves {heading_text(sol.halves_deg[0], 4)}, {heading_text(sol.halves_deg[1], 4)} deg: {verdict}"
+        )
     err = _error(sol, truth)
     if truth is not None and err is not None:
         lines.append(
-            f"truth   {truth['azimuth_deg']:.4f} deg (pitch {truth['pitch_deg']:g}, roll "
+            f"truth   {heading_text(truth['azimuth_deg'], 4)} deg (pitch {truth['pitch_deg']:g}, roll "
             f"{truth['roll_deg']:g}); error {err:+.4f} deg"
             + (f"; seed {truth['seed']}" if "seed" in truth else "")
         )
@@ -326,7 +329,7 @@ def plot(
     err = _error(sol, truth)
     head = (
         ("CONSISTENCY CHECK FAILED: " if failed else "")
-        + f"azimuth {sol.azimuth_deg:.3f} ± {sol.sigma_deg:.3f}° (1σ)"
+        + f"azimuth {heading_text(sol.azimuth_deg, 3)} ± {sol.sigma_deg:.3f}° (1σ)"
         + ("" if err is None else f", error {err:+.3f}° against the simulated truth")
     )
     sub = (

@@ -30,6 +30,7 @@ from northfinder.driver.protocol import DBC_NODE, dbc_path
 from northfinder.driver.protocol.constants import DeviceState
 from northfinder.host.canlog import decode_signals
 from northfinder.host.errors import HostError
+from northfinder.host.heading import heading_text
 from northfinder.host.plan import Plan
 from northfinder.monitor.observer import FrameRow, LogEntry, Traces, View
 from northfinder.monitor.session import ActiveSession, FindRun, MonitorSession
@@ -423,7 +424,7 @@ class MonitorApp(App[int]):
         r = run.result
         if r is not None:
             sig = "---" if r.sigma_deg is None else f"{r.sigma_deg:.3f}"
-            t.append(f"azimuth {r.azimuth_deg:.3f} +- {sig} deg", style="bold green")
+            t.append(f"azimuth {heading_text(r.azimuth_deg, 3)} +- {sig} deg", style="bold green")
             check = {True: "consistent", False: "INCONSISTENT", None: "not checked"}[r.consistent]
             t.append(f"  {check}\n", style="green" if r.consistent else "yellow")
         if truth is not None:

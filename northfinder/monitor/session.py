@@ -26,6 +26,7 @@ from northfinder.driver.framelog import FrameLog
 from northfinder.driver.protocol.constants import DeviceState
 from northfinder.driver.transport import enlarge_receive_buffer
 from northfinder.host.errors import HostError
+from northfinder.host.heading import heading_text
 from northfinder.host.plan import Plan
 from northfinder.host.procedure import (
     MAX_REMEASURE,
@@ -458,7 +459,9 @@ class FindRun:
             self.finished = True
         self.result = result
         sigma = "" if result.sigma_deg is None else f" +- {result.sigma_deg:.3f}"
-        session.observer.note(f"find: azimuth {result.azimuth_deg:.3f}{sigma} deg", "ok")
+        session.observer.note(
+            f"find: azimuth {heading_text(result.azimuth_deg, 3)}{sigma} deg", "ok"
+        )
 
     def _progress(self, p: FindProgress) -> None:
         self.progress_at = self._session.clock.now()
