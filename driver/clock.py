@@ -364,7 +364,8 @@ class VirtualClock:
     def _may_jump(self, me: _Waiter) -> bool:
         """Every participant waits and no other waiter has something to do at the present."""
         if len(self._waiters) == 1:  # me alone: the participants are me or none
-            return all(thread == me.thread for thread in self._depth)
+            depth = self._depth  # by thread, each once
+            return not depth or (len(depth) == 1 and me.thread in depth)
         waiting = {w.thread for w in self._waiters}
         if any(thread not in waiting for thread in self._depth):
             return False
