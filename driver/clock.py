@@ -349,14 +349,16 @@ class VirtualClock:
         t = self._ns / NS_PER_S
         for source in list(self._sources):
             try:
-                done |= bool(source.run_until(t))
+                if source.run_until(t):
+                    done = True
             except Exception as exc:
                 self._detach(source, exc)
         if not (done or dirty):
             return False
         for poll in list(self._pollers):
             try:
-                done |= bool(poll())
+                if poll():
+                    done = True
             except Exception as exc:
                 self._detach(poll, exc)
         return done
