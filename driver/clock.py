@@ -349,14 +349,16 @@ class VirtualClock:
         t = self._ns / NS_PER_S
         for source in list(self._sources):
             try:
-                done |= bool(source.run_until(t))
+                if source.run_until(t):
+                    done = True
             except Exception as exc:
                 self._detach(source, exc)
         if not (done or dirty):
             return False
         for poll in list(self._pollers):
             try:
-                done |= bool(poll())
+                if poll():
+                    done = True
             except Exception as exc:
                 self._detach(poll, exc)
         return done
@@ -364,7 +366,8 @@ class VirtualClock:
     def _may_jump(self, me: _Waiter) -> bool:
         """Every participant waits and no other waiter has something to do at the present."""
         if len(self._waiters) == 1:  # me alone: the participants are me or none
-            return all(thread == me.thread for thread in self._depth)
+            depth = self._depth  # by thread, each once
+            return not depth or (len(depth) == 1 and me.thread in depth)
         waiting = {w.thread for w in self._waiters}
         if any(thread not in waiting for thread in self._depth):
             return False

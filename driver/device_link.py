@@ -652,14 +652,15 @@ class DeviceLink:
         stream = False
         with self._lock:
             for item in items:
-                if isinstance(item, Sample | TickLoss):
+                kind = type(item)  # Sample and TickLoss are final (frozen, slotted dataclasses)
+                if kind is Sample or kind is TickLoss:
                     stream = True
-                    if isinstance(item, Sample):
+                    if kind is Sample:
                         self._counts["samples"] += 1
                     # Only what was received after acquire() was called belongs to its window.
                     if self._inbox is not None and mono >= self._inbox_since:
-                        if isinstance(item, Sample):
-                            self._inbox.add_sample(item, mono, wall)
+                        if kind is Sample:
+                            self._inbox.add_sample(item, mono, wall)  # type: ignore[arg-type]
                         else:
                             self._inbox.add_event("loss", item, mono, wall)
                             self._inbox_alerts += 1

@@ -444,18 +444,20 @@ class CanTransport(_TransportBase):
         return out
 
     def _whole_tick(self, frames: list[can.Message], i: int) -> bool:
-        """Whether ``frames[i:i + 4]`` are the four sample frames of one tick of this node, in
-        sending order: standard data frames of 8 bytes."""
-        for msg, arbitration_id in zip(frames[i : i + 4], self._tick_ids, strict=True):
-            if (
-                msg.arbitration_id != arbitration_id
-                or len(msg.data) != 8
-                or msg.is_extended_id
-                or msg.is_error_frame
-                or msg.is_remote_frame
-            ):
-                return False
-        return True
+        """Whether ``frames[i:i + 4]`` (four frames: the caller has checked) are the four sample
+        frames of one tick of this node, in sending order: standard data frames of 8 bytes."""
+        x, y, z, aux = frames[i : i + 4]
+        return (
+            (x.arbitration_id, y.arbitration_id, z.arbitration_id, aux.arbitration_id)
+            == self._tick_ids
+            and len(x.data) == len(y.data) == len(z.data) == len(aux.data) == 8
+            and not (
+                x.is_extended_id or x.is_error_frame or x.is_remote_frame
+                or y.is_extended_id or y.is_error_frame or y.is_remote_frame
+                or z.is_extended_id or z.is_error_frame or z.is_remote_frame
+                or aux.is_extended_id or aux.is_error_frame or aux.is_remote_frame
+            )
+        )  # fmt: skip
 
     def restart_stream(self) -> list[TickLoss]:
         """The stream was off: the next tick does not continue the previous one (any thread)."""

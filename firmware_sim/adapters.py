@@ -254,14 +254,9 @@ class CanLink:
         if faults.drop_frames or faults.corrupt_frames or faults.garble:
             msgs = self._frames_with_faults(outgoing)
         else:
-            node = self.node_id
-            msgs = [
-                Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
-                for item in outgoing
-                for arbitration_id, data in _frame_data(item, node)
-            ]
+            msgs = _frames(outgoing, self.node_id)
         if msgs:
-            flush = _flush_at_reply(self.tap, outgoing)
+            flush = None if self.tap is None else _flush_at_reply(self.tap, outgoing)
             if flush is not None:
                 flush()  # the command answered, and all before it
             self._put(msgs)
@@ -337,13 +332,34 @@ def _flush_at_reply(
     return None
 
 
+def _frames(outgoing: list[Outgoing], node: int) -> list[can.Message]:
+    """The CAN frames of ``outgoing`` from ``node``, in sending order: a sample's four from the
+    data the firmware packed with its chunk (``item.frames``), anything else by
+    :func:`_frame_data`."""
+    msgs: list[can.Message] = []
+    for item in outgoing:
+        data = item.frames
+        if data is None:
+            msgs += [
+                Message(arbitration_id=arbitration_id, data=payload, is_extended_id=False)
+                for arbitration_id, payload in _frame_data(item, node)
+            ]
+            continue
+        x, y, z, aux = sample_ids(node)
+        msgs += (
+            Message(arbitration_id=x, data=data[:8], is_extended_id=False),
+            Message(arbitration_id=y, data=data[8:16], is_extended_id=False),
+            Message(arbitration_id=z, data=data[16:24], is_extended_id=False),
+            Message(arbitration_id=aux, data=data[24:], is_extended_id=False),
+        )
+    return msgs
+
+
 def _frame_data(item: Outgoing, node: int) -> Iterable[tuple[int, bytes]]:
     """``(arbitration_id, data)`` of each CAN frame of ``item`` from ``node``, in sending
-    order: a sample's four as the firmware packed them with its chunk, or packed straight from
-    its fields (as :func:`encode_can` does, without a frame object each)."""
-    data = item.frames
-    if data is not None:
-        return zip(sample_ids(node), (data[:8], data[8:16], data[16:24], data[24:]), strict=True)
+    order, for an item the firmware did not pack with its chunk (``item.frames`` None): a
+    sample's four packed straight from its fields (as :func:`encode_can` does, without a frame
+    object each)."""
     if type(item.message) is Sample:
         return zip(sample_ids(node), item.message.can_payloads(), strict=True)
     return encode_can(item.message, node)

@@ -147,9 +147,10 @@ class _DeviceEndBus(VirtualBus):
         not take (its queue full)."""
         self._refuse_if_ended()
         stamp = time.time()
+        channel_id = self.channel_id
         for msg in msgs:
             msg.timestamp = stamp
-            msg.channel = self.channel_id
+            msg.channel = channel_id
             msg.is_rx = True
         dropped: list[can.Message] = []
         for bus_queue in self.channel:

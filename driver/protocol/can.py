@@ -38,6 +38,7 @@ from northfinder.driver.protocol.messages import (
     StatusMain,
     sample_aux_fields,
     sample_axis_fields,
+    sample_tick_fields,
     validity_of,
 )
 
@@ -327,10 +328,9 @@ class TickAssembler:
         device sends them (SAMPLE_X, _Y, _Z, _AUX): the same result, without the steps of each
         frame when the four carry the same tick and no other tick waits for frames (the stream
         as it comes, four frames a tick)."""
-        tx, gx, ax = sample_axis_fields(x)
-        ty, gy, ay = sample_axis_fields(y)
-        tz, gz, az = sample_axis_fields(z)
-        ta, angle, temperature, bits = sample_aux_fields(aux)
+        (tx, gx, lx, hx, ty, gy, ly, hy, tz, gz, lz, hz,
+         ta, angle, temperature, bits) = sample_tick_fields(x, y, z, aux)  # fmt: skip
+        ax, ay, az = lx | (hx << 16), ly | (hy << 16), lz | (hz << 16)
         if self._tick is not None or not tx == ty == tz == ta:
             return [
                 *self._add(tx, 0, (gx, ax)), *self._add(ty, 1, (gy, ay)),

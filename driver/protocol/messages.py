@@ -505,6 +505,8 @@ def _encode_config_value(key: ConfigKey | int, value: int) -> bytes:
 _SAMPLE = struct.Struct("<I3i3iIhB")
 _SAMPLE_AXIS = struct.Struct("<BiHb")  # accel int24 = u16 low part + i8 high byte
 _SAMPLE_AUX = struct.Struct("<BIhB")
+#: The four frames of one tick end to end (X, Y, Z, AUX), unpacked at once.
+_SAMPLE_TICK = struct.Struct("<" + _SAMPLE_AXIS.format[1:] * 3 + _SAMPLE_AUX.format[1:])
 
 
 def _check_sample_common(angle: int, temperature: int, validity: int) -> None:
@@ -587,6 +589,15 @@ def sample_aux_fields(payload: bytes | bytearray) -> tuple[int, int, int, int]:
     """``(tick, angle, temperature, validity bits)`` of an 8-byte SAMPLE_AUX payload (the
     length unchecked)."""
     return _SAMPLE_AUX.unpack(payload)
+
+
+def sample_tick_fields(
+    x: bytes | bytearray, y: bytes | bytearray, z: bytes | bytearray, aux: bytes | bytearray
+) -> tuple[int, ...]:
+    """The fields of a tick's four 8-byte payloads (SAMPLE_X, _Y, _Z, _AUX; the lengths
+    unchecked) in one unpack: :func:`sample_axis_fields` of each axis, the accelerometer as its
+    two parts (low 16 bits, high byte: ``lo | hi << 16``), then :func:`sample_aux_fields`."""
+    return _SAMPLE_TICK.unpack(x + y + z + aux)
 
 
 @dataclass(frozen=True, slots=True)
