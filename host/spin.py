@@ -23,7 +23,8 @@ computed from the fit; the reported ``sigma_deg`` is the white-noise sigma (resi
 through those weights) unless a batch estimate (the weighted residuals summed over :data:`BATCHES`
 consecutive stretches, which also holds when the noise is correlated over less than a stretch)
 exceeds it beyond its own scatter (:func:`reported_sigma`). The consistency check solves the first and the second half of the samples
-separately and asks them to agree within three sigma of their difference.
+separately and asks them to agree within three sigma of their difference; when they do not, the
+reported sigma is scaled by their disagreement (``sigma_scale``).
 
 The white-noise bound is :func:`northfinder.host.accuracy.spin_bound_deg`.
 """
@@ -369,7 +370,7 @@ class SpinSolution:
         Azimuth of body x at table angle 0, clockwise from true north, [0, 360) deg.
     sigma_deg : float
         1 sigma, deg: ``sigma_batch_deg`` where it exceeds ``sigma_white_deg`` beyond its
-        scatter, else ``sigma_white_deg`` (:func:`reported_sigma`).
+        scatter, else ``sigma_white_deg`` (:func:`reported_sigma`); times ``sigma_scale``.
     sigma_white_deg, sigma_batch_deg : float
         White-noise sigma from the residual scatter; batch estimate over :data:`BATCHES`
         stretches (see the module docstring).
