@@ -119,12 +119,12 @@ def sigma_rows(runs: int) -> None:
     from northfinder.host.accuracy import predict
     from northfinder.host.plan import spin_start_deg
     from northfinder.host.plan_search import search_spin_plans
-    from northfinder.host.spin import SpinSamples, solve_spin
+    from northfinder.host.spin import SpinSamples, reported_sigma, solve_spin
     from northfinder.simwindows import error_model
 
     print("| preset | spin | runs | RMSE deg [95 %] | mean sigma deg | RMSE / mean sigma | "
-          "predicted deg | mean sigma / predicted | batch reported |")  # fmt: skip
-    print("|---|---|---:|---|---:|---|---:|---:|---:|")
+          "predicted deg | mean sigma / predicted | batch reported | halves failed |")  # fmt: skip
+    print("|---|---|---:|---|---:|---|---:|---:|---:|---:|")
     for name in preset_names():
         if name == "ideal":
             continue
@@ -143,13 +143,15 @@ def sigma_rows(runs: int) -> None:
                           sample_rate_hz=50.0, start_deg=start, start_s=120.0)  # fmt: skip
         enc = (b.mu0_rad, b.mu1_rad) if b.encoder_rad is None else (
             b.encoder_rad[:, :-1], b.encoder_rad[:, 1:])  # fmt: skip
-        err, sig, batch = [], [], 0
+        err, sig, batch, failed = [], [], 0, 0
         for r in range(runs):
             sol = solve_spin(SpinSamples(b.gyro_rps[r], b.accel_mps2[r], enc[0][r], enc[1][r],
                                          b.time_s), latitude_deg=LAT, drift=plan.drift)  # fmt: skip
             err.append((sol.azimuth_deg - b.azimuth_deg[r] + 180.0) % 360.0 - 180.0)
             sig.append(sol.sigma_deg)
-            batch += sol.sigma_deg != sol.sigma_white_deg
+            # the batch estimate reported (before any scaling by the halves' disagreement)
+            batch += reported_sigma(sol.sigma_white_deg, sol.sigma_batch_deg) != sol.sigma_white_deg
+            failed += sol.consistent is False
         e = np.asarray(err)
         rmse = math.sqrt(float(np.mean(e**2)))
         lo, hi = (rmse * math.sqrt(runs / chi2.ppf(q, runs)) for q in (0.975, 0.025))
@@ -157,7 +159,7 @@ def sigma_rows(runs: int) -> None:
         print(f"| {name} | {plan.rate_dps:+g} deg/s x {plan.spin_s:.1f} s"
               f"{', drift' if plan.drift else ''} | {runs} | {rmse:.5f} [{lo:.5f}, {hi:.5f}] | "
               f"{ms:.5f} | {rmse / ms:.3f} [{lo / ms:.3f}, {hi / ms:.3f}] | {pred:.5f} | "
-              f"{ms / pred:.3f} | {batch} |",
+              f"{ms / pred:.3f} | {batch} | {failed} |",
               flush=True)  # fmt: skip
 
 
