@@ -13,6 +13,8 @@ from html import escape
 from typing import Any
 from xml.etree import ElementTree as ET
 
+from northfinder.host.heading import heading_text
+
 __all__ = ["html_report", "junit_xml", "summary_html"]
 
 _COLOURS = {"PASS": "#1b7f3b", "FAIL": "#b3261e", "NOT RESOLVED": "#a15c00"}
@@ -256,7 +258,7 @@ def _headings(result: dict[str, Any]) -> str:
         f"<p>{len(runs)} runs of the plan "
         f"{escape(', '.join(f'{p:g}' for p in plan['positions_deg']))} deg "
         f"({plan['window_s']:g} s windows{how}) at {runs[0]['latitude_deg']:g} deg; "
-        f"mean heading {mean:.4f} deg. Blue band: ±1σ of the runs at that orientation; green "
+        f"mean heading {heading_text(mean, 4)} deg. Blue band: ±1σ of the runs at that orientation; green "
         "dashed: the datasheet's ±1σ limit.</p>",
     ]
     measured = _num(line["measured"] if line else None)
@@ -285,7 +287,7 @@ def _headings(result: dict[str, Any]) -> str:
         )
         parts.append(_orientation_svg(group, mean, limit, s))
         rows = "".join(
-            f"<tr><td>{r['run']}</td><td class=num>{r['azimuth_deg']:.4f}</td>"
+            f"<tr><td>{r['run']}</td><td class=num>{heading_text(r['azimuth_deg'], 4)}</td>"
             f"<td class=num>{_num(r['sigma_deg'])}</td><td>{'yes' if r['consistent'] else 'NO'}"
             f"</td><td class=num>{_num(r.get('error_deg'))}</td>"
             f"<td><code>{escape(r['recording'])}</code></td></tr>"

@@ -638,6 +638,8 @@ def test_a_heading_that_rounds_up_to_360_is_printed_as_0(plan):
     first = out.splitlines()[0]
     assert first.startswith("azimuth 0.0000 deg"), first
     assert "truth   0.0000 deg" in out and "360.0" not in out
+    code, out, err = run_cli("simulate", "--azimuth", "359.99999", "--window", "1", "--seed", "1")
+    assert code == 0 and "truth azimuth 0.0000 deg" in out, err
     fix = HeadingFix(359.99996, 0.05, 0.0, 0.0, 2)
     assert nfdh_sentence(fix).startswith("$PNFDH,0.0000,0.0500,A,")
     assert hdt_sentence(fix).startswith("$HEHDT,0.00,T")

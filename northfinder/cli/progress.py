@@ -146,7 +146,9 @@ class PlanProgress(Progress):
         if self.mode != "bar":
             return
         bar = self._ensure_bar()
-        angle = "---" if p.table_deg is None else f"{p.table_deg:.3f}"
+        from northfinder.host.heading import heading_text
+
+        angle = "---" if p.table_deg is None else heading_text(p.table_deg, 3)
         bar.set_description_str(
             f"{p.phase:<8} position {p.position}/{p.positions} table {angle} deg"
         )

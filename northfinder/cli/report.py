@@ -166,7 +166,8 @@ def plot(
             x,
             [
                 f"{p.first + 1}-{p.first + 2}\n"
-                f"{result.windows[p.first].encoder_deg:.0f}→{result.windows[p.first + 1].encoder_deg:.0f}°"
+                f"{heading_text(result.windows[p.first].encoder_deg, 0)}→"
+                f"{heading_text(result.windows[p.first + 1].encoder_deg, 0)}°"
                 for p in pairs
             ],
             fontsize=8,

@@ -19,6 +19,7 @@ from northfinder.cli.simulated import simulated
 from northfinder.driver.protocol.units import DPH, UG
 from northfinder.firmware_sim.earth import mat_table
 from northfinder.firmware_sim.imu import Instrument, body_rates
+from northfinder.host.heading import heading_text
 from northfinder.host.results import envelope
 from northfinder.simwindows import MAX_RATE_HZ, MAX_WINDOW_S, simulator_identity
 
@@ -72,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         say(dumps(envelope("simulate", simulator_identity(spec.name), body)))
         return 0
     say(
-        f"sensor {spec.name}; truth azimuth {truth.azimuth_deg:.4f} deg, latitude {truth.latitude_deg:g} deg, "
+        f"sensor {spec.name}; truth azimuth {heading_text(truth.azimuth_deg, 4)} deg, latitude {truth.latitude_deg:g} deg, "
         f"pitch {truth.pitch_deg:g} deg, roll {truth.roll_deg:g} deg; {args.window:g} s windows at {args.rate:g} Hz; "
         f"seed {seed}"
     )

@@ -336,7 +336,7 @@ class MonitorApp(App[int]):
         t.append(f"status   {age}\n", style="dim")
         s = self.session
         if s.truth is not None:
-            t.append(f"truth    azimuth {s.truth.get('azimuth_deg', math.nan):.3f} deg\n",
+            t.append(f"truth    azimuth {heading_text(s.truth.get('azimuth_deg', math.nan), 3)} deg\n",
                      style="magenta")  # fmt: skip
         return t
 
@@ -416,7 +416,7 @@ class MonitorApp(App[int]):
         truth = run.truth_deg
         for sol in run.solutions[-3:]:
             sig = "---" if sol.sigma_deg is None else f"{sol.sigma_deg:.3f}"
-            t.append(f"{sol.windows} windows: {sol.azimuth_deg:8.3f} +- {sig} deg")
+            t.append(f"{sol.windows} windows: {heading_text(sol.azimuth_deg, 3):>8} +- {sig} deg")
             if truth is not None:
                 err = (sol.azimuth_deg - truth + 180.0) % 360.0 - 180.0
                 t.append(f"  error {err:+.3f}", style="magenta")
@@ -428,7 +428,7 @@ class MonitorApp(App[int]):
             check = {True: "consistent", False: "INCONSISTENT", None: "not checked"}[r.consistent]
             t.append(f"  {check}\n", style="green" if r.consistent else "yellow")
         if truth is not None:
-            t.append(f"truth   {truth:.3f} deg (simulated)\n", style="magenta")
+            t.append(f"truth   {heading_text(truth, 3)} deg (simulated)\n", style="magenta")
         if run.error:
             t.append(f"failed: {run.error}\n", style="bold red")
         return t
