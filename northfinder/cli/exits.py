@@ -10,8 +10,9 @@ Exit status
   command and run it again. argparse's own errors exit 2 as well.
 - 3 (:data:`EXIT_INCONSISTENT`): ``find`` and ``solve`` found a heading, but its windows failed
   their consistency check (they disagree beyond their noise: a bias step, a drift, a table angle
-  error, a wrong latitude). The result is printed (JSON, plot, record) with the warning, its
-  sigma scaled; NMEA sends it as not valid. A script must not take it as a good heading.
+  error, a wrong latitude), or a spin's two halves did. The result is printed (JSON, plot,
+  record) with the warning, its sigma scaled; NMEA sends it as not valid. A script must not take
+  it as a good heading.
 - 4 (:data:`EXIT_NOT_RESOLVED`): ``accept`` failed no datasheet line, but the data could not
   decide at least one (NOT RESOLVED: the record too short); the report says what would decide it.
 - 130, 143, 129: interrupted by SIGINT (Ctrl-C), SIGTERM, SIGHUP (128 + the signal's number);
