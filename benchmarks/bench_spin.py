@@ -1,7 +1,7 @@
 """North finding on a turning table: RMSE against the spin bound, spin against stop-and-go for the
 same time, and the time of ``find --sim --spin``.
 
-Run: ``.venv/bin/python benchmarks/bench_spin.py [--runs 10000] [--only ratio|budget|find|sigma|heat]``.
+Run: ``.venv/bin/python benchmarks/bench_spin.py [--runs 10000] [--only ratio|budget|find|sigma|heat|halves]``.
 Prints markdown tables:
 
 1. RMSE / bound for white gyro (ARW 0.0015 deg/sqrt(h)) and accelerometer (20 ug/sqrt(Hz)) noise,
@@ -26,6 +26,7 @@ Prints markdown tables:
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import statistics
 import subprocess
@@ -201,10 +202,42 @@ def heat_rows(runs: int) -> None:
               f"{pred:.4f} |", flush=True)  # fmt: skip
 
 
+def halves_rows(runs: int, sensor: str = "paper-prototype") -> None:
+    """``find --sim --spin 6 --sensor SENSOR --seed N --json`` for seeds 1..runs (in process):
+    how many fail the halves check (exit 3), and the RMSE against the mean sigma of those that
+    pass, of those that fail (their sigma scaled by the halves' disagreement) and unscaled."""
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from northfinder.cli import main as cli
+
+    rows = []
+    for seed in range(1, runs + 1):
+        out = io.StringIO()
+        with redirect_stdout(out), redirect_stderr(io.StringIO()):
+            code = cli(["find", "--sim", "--spin", "6", "--sensor", sensor, "--seed", str(seed),
+                        "--json"])  # fmt: skip
+        doc = json.loads(out.getvalue())
+        rows.append((code, doc["error_deg"], doc["sigma_deg"], doc["spin"]["sigma_scale"]))
+    code, err, sig, scale = (np.array(c) for c in zip(*rows, strict=True))
+    failed = code == 3
+
+    def rmse(e: np.ndarray) -> float:
+        return math.sqrt(float(np.mean(e**2))) if e.size else math.nan
+
+    print(f"find --sim --spin 6 --sensor {sensor}, seeds 1..{runs}: halves failed (exit 3) in "
+          f"{int(failed.sum())}; RMSE {rmse(err):.4f} deg, mean sigma {sig.mean():.4f} "
+          f"(unscaled {np.mean(sig / scale):.4f}); passed: RMSE {rmse(err[~failed]):.4f}, mean "
+          f"sigma {sig[~failed].mean():.4f}; failed: RMSE {rmse(err[failed]):.4f}, mean sigma "
+          f"{np.mean(sig[failed]) if failed.any() else math.nan:.4f}; errors beyond 3 sigma "
+          f"{int(np.sum(np.abs(err) > 3 * sig))} (unscaled "
+          f"{int(np.sum(np.abs(err) > 3 * sig / scale))})")  # fmt: skip
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=10_000)
-    p.add_argument("--only", choices=("ratio", "budget", "find", "sigma", "heat"))
+    p.add_argument("--only", choices=("ratio", "budget", "find", "sigma", "heat", "halves"))
     a = p.parse_args()
     if a.only in (None, "ratio"):
         ratio_rows(a.runs)
@@ -216,6 +249,8 @@ def main() -> None:
         sigma_rows(min(a.runs, 400))
     if a.only in (None, "heat"):
         heat_rows(min(a.runs, 400))
+    if a.only in (None, "halves"):
+        halves_rows(min(a.runs, 80))
 
 
 if __name__ == "__main__":
