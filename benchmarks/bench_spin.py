@@ -219,8 +219,8 @@ def halves_rows(runs: int, sensor: str = "paper-prototype") -> None:
                         "--json"])  # fmt: skip
         doc = json.loads(out.getvalue())
         rows.append((code, doc["error_deg"], doc["sigma_deg"], doc["spin"]["sigma_scale"]))
-    code, err, sig, scale = (np.array(c) for c in zip(*rows, strict=True))
-    failed = code == 3
+    codes, err, sig, scale = (np.array(c) for c in zip(*rows, strict=True))
+    failed: np.ndarray = codes == 3
 
     def rmse(e: np.ndarray) -> float:
         return math.sqrt(float(np.mean(e**2))) if e.size else math.nan
