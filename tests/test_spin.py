@@ -223,7 +223,7 @@ def test_a_heading_change_midway_fails_the_consistency_check():
     assert "halves" in printed and "NOT consistent" in printed
     assert "CONSISTENCY CHECK FAILED" in printed
     (warning,) = json.loads(spinfind.as_json(found, None, None))["notes"]
-    assert warning.startswith("CONSISTENCY CHECK FAILED") and warning in printed
+    assert warning.startswith("CONSISTENCY CHECK FAILED") and f"note: {warning}" in printed
     assert "CONSISTENCY CHECK FAILED" not in spinfind.text(
         SimpleNamespace(solution=replace(sol, consistent=True), latitude_deg=LAT,
                         latitude_source=None), None)  # fmt: skip

@@ -171,7 +171,7 @@ def text(found: Any, truth: dict[str, Any] | None) -> str:
             f"{truth['roll_deg']:g}); error {err:+.4f} deg"
             + (f"; seed {truth['seed']}" if "seed" in truth else "")
         )
-    lines += notes(sol)
+    lines += [f"note: {n}" for n in notes(sol)]  # as find prints its notes
     return plain_numbers("\n".join(lines))
 
 
