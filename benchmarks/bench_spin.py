@@ -206,18 +206,14 @@ def halves_rows(runs: int, sensor: str = "paper-prototype") -> None:
     """``find --sim --spin 6 --sensor SENSOR --seed N --json`` for seeds 1..runs (in process):
     how many fail the halves check (exit 3), and the RMSE against the mean sigma of those that
     pass, of those that fail (their sigma scaled by the halves' disagreement) and unscaled."""
-    import io
-    from contextlib import redirect_stderr, redirect_stdout
-
-    from northfinder.cli import main as cli
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from clirun import run_cli
 
     rows = []
     for seed in range(1, runs + 1):
-        out = io.StringIO()
-        with redirect_stdout(out), redirect_stderr(io.StringIO()):
-            code = cli(["find", "--sim", "--spin", "6", "--sensor", sensor, "--seed", str(seed),
-                        "--json"])  # fmt: skip
-        doc = json.loads(out.getvalue())
+        code, out, _ = run_cli("find", "--sim", "--spin", "6", "--sensor", sensor, "--seed",
+                               str(seed), "--json")  # fmt: skip
+        doc = json.loads(out)
         rows.append((code, doc["error_deg"], doc["sigma_deg"], doc["spin"]["sigma_scale"]))
     codes, err, sig, scale = (np.array(c) for c in zip(*rows, strict=True))
     failed: np.ndarray = codes == 3

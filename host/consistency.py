@@ -47,6 +47,10 @@ from northfinder.driver.protocol.units import DPH, OMEGA_IE
 from northfinder.host.heading import solve_multi_position
 from northfinder.host.kernels import earth_rate_body, table_rotation
 
+#: How every result whose consistency check failed begins its warning (text, JSON notes, plot
+#: title): find's windows and a spin's halves alike (exit 3).
+FAILED_MARKER = "CONSISTENCY CHECK FAILED"
+
 __all__ = [
     "FALSE_ALARM",
     "NOISE_FLOOR_DPH",
@@ -138,7 +142,7 @@ class ConsistencyCheck:
             for e in self.explanations
         )
         return (
-            f"CONSISTENCY CHECK FAILED: the windows disagree beyond their noise ({head}); the "
+            f"{FAILED_MARKER}: the windows disagree beyond their noise ({head}); the "
             f"azimuth may be wrong by more than its noise: sigma scaled x{self.sigma_scale:.2f}; "
             + (
                 f"possible causes: {causes}"

@@ -28,6 +28,7 @@ from docpages import ROOT, Command, commands, output_mismatch, pages
 from simprocess import sim_process
 
 from northfinder.cli.exits import EXIT_INCONSISTENT, EXIT_NOT_RESOLVED
+from northfinder.host.consistency import FAILED_MARKER
 
 #: Commands of the pages that are not run, each with its reason: a pattern (matched against the
 #: whole command, without its comment) -> why.
@@ -103,12 +104,6 @@ def _listed(command: Command) -> str | None:
     return None
 
 
-def says_inconsistent(out: str) -> bool:
-    """The printed result says its consistency check failed: ``CONSISTENCY CHECK FAILED`` in
-    its text, or in the ``notes`` of its JSON (``--json``; find's and a spin's alike)."""
-    return "CONSISTENCY CHECK FAILED" in out
-
-
 def _check_output(command: Command, code: int, out: str, err: str, fixed: bool) -> None:
     """The command ended as the page shows: exit 0 and the shown output, or the shown error
     (with its numbers where they are ``fixed``)."""
@@ -128,7 +123,8 @@ def _check_output(command: Command, code: int, out: str, err: str, fixed: bool) 
         # Unseeded, a correct instrument fails its consistency check at its stated
         # false-alarm rate (find's windows 1 %, a spin's halves 0.3 %): the documented outcome,
         # said so on the result.
-        assert says_inconsistent(out), f"{command}\n{out}"
+        # In its text or its JSON's notes (--json): find's and a spin's alike.
+        assert FAILED_MARKER in out, f"{command}\n{out}"
         return
     assert code == 0, f"{command}: exit status {code}\n{err[-2000:]}"
     mismatch = output_mismatch(command.shown, out, seeded)

@@ -10,6 +10,7 @@ import numpy as np
 
 from northfinder.cli.output import dumps, plain_numbers
 from northfinder.cli.plots import pyplot, save_figure
+from northfinder.host.consistency import FAILED_MARKER
 from northfinder.host.heading import heading_text
 from northfinder.host.procedure import FindResult, pairwise_solutions
 from northfinder.host.results import envelope
@@ -22,12 +23,14 @@ def angle_error(a_deg: float, b_deg: float) -> float:
 
 def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
     sigma = f" +- {result.sigma_deg:.4f}" if result.sigma_deg is not None else ""
+    positions = ", ".join(heading_text(w.encoder_deg, 4) for w in result.windows)
     lines = [
-        f"azimuth {heading_text(result.azimuth_deg, 4)} deg{sigma} (1 sigma), clockwise from true north",
+        f"azimuth {heading_text(result.azimuth_deg, 4)} deg{sigma} (1 sigma), clockwise from "
+        "true north",
         f"pitch {result.pitch_deg:.4f} deg, roll {result.roll_deg:.4f} deg",
         f"solver {result.method}, denoise {result.denoise}, latitude {result.latitude_deg:g} deg"
         + (f" from {result.latitude_source}" if result.latitude_source else "")
-        + f", positions {', '.join(heading_text(w.encoder_deg, 4) for w in result.windows)} deg (encoder)",
+        + f", positions {positions} deg (encoder)",
     ]
     if result.pairwise_deg:
         lines.append(
@@ -38,7 +41,8 @@ def text(result: FindResult, truth: dict[str, float] | None = None) -> str:
     if truth is not None:
         err = angle_error(result.azimuth_deg, truth["azimuth_deg"])
         lines.append(
-            f"truth   {heading_text(truth['azimuth_deg'], 4)} deg (pitch {truth['pitch_deg']:g}, roll {truth['roll_deg']:g}); "
+            f"truth   {heading_text(truth['azimuth_deg'], 4)} deg (pitch {truth['pitch_deg']:g}, "
+            f"roll {truth['roll_deg']:g}); "
             f"error {err:+.4f} deg"
             + (
                 f"; seed {truth['seed']} (--seed {truth['seed']} repeats the run)"
@@ -118,7 +122,7 @@ def plot(
     )
     sub = "\n".join(textwrap.wrap(_subtitle(result, truth), 135))
     failed = result.consistent is False
-    head = ("CONSISTENCY CHECK FAILED: " if failed else "") + _title(result, truth)
+    head = (f"{FAILED_MARKER}: " if failed else "") + _title(result, truth)
     fig.suptitle(
         plain_numbers(head + "\n" + sub), fontsize=10.5, color="tab:red" if failed else "black"
     )

@@ -14,6 +14,7 @@ from northfinder.cli.argtypes import bounded_float, finite_float
 from northfinder.cli.output import dumps, plain_numbers
 from northfinder.cli.plots import pyplot, save_figure
 from northfinder.config import SpinConfig
+from northfinder.host.consistency import FAILED_MARKER
 from northfinder.host.errors import HostConfigError
 from northfinder.host.heading import heading_text
 
@@ -152,8 +153,8 @@ def _error(sol: Any, truth: dict[str, Any] | None) -> float | None:
 def text(found: Any, truth: dict[str, Any] | None) -> str:
     sol = found.solution
     lines = [
-        f"azimuth {heading_text(sol.azimuth_deg, 4)} deg +- {sol.sigma_deg:.4f} (1 sigma), clockwise from "
-        "true north",
+        f"azimuth {heading_text(sol.azimuth_deg, 4)} deg +- {sol.sigma_deg:.4f} (1 sigma), "
+        "clockwise from true north",
         f"pitch {sol.pitch_deg:.4f} deg, roll {sol.roll_deg:.4f} deg",
         f"spin {sol.rate_dps:+.3f} deg/s for {sol.duration_s:.1f} s ({sol.sweep_deg / 360.0:+.2f} "
         f"turns, {sol.samples} samples), latitude {found.latitude_deg:g} deg"
@@ -161,14 +162,13 @@ def text(found: Any, truth: dict[str, Any] | None) -> str:
     ]
     if sol.halves_deg is not None:
         verdict = "consistent" if sol.consistent else "NOT consistent"
-        lines.append(
-            f"halves {heading_text(sol.halves_deg[0], 4)}, {heading_text(sol.halves_deg[1], 4)} deg: {verdict}"
-        )
+        first, second = (heading_text(a, 4) for a in sol.halves_deg)
+        lines.append(f"halves {first}, {second} deg: {verdict}")
     err = _error(sol, truth)
     if truth is not None and err is not None:
         lines.append(
-            f"truth   {heading_text(truth['azimuth_deg'], 4)} deg (pitch {truth['pitch_deg']:g}, roll "
-            f"{truth['roll_deg']:g}); error {err:+.4f} deg"
+            f"truth   {heading_text(truth['azimuth_deg'], 4)} deg (pitch {truth['pitch_deg']:g}, "
+            f"roll {truth['roll_deg']:g}); error {err:+.4f} deg"
             + (f"; seed {truth['seed']}" if "seed" in truth else "")
         )
     lines += [f"note: {n}" for n in notes(sol)]  # as find prints its notes
@@ -181,7 +181,7 @@ def notes(sol: Any) -> list[str]:
     if sol.consistent is not False:
         return []
     return [
-        "CONSISTENCY CHECK FAILED: the two halves disagree beyond their noise (more than 3 "
+        f"{FAILED_MARKER}: the two halves disagree beyond their noise (more than 3 "
         "sigma of their difference); the azimuth may be wrong by more than its noise: sigma "
         f"scaled x{sol.sigma_scale:.2f}; check for disturbances during the spin (a knock, a "
         "rate change, a bias step)"
@@ -328,7 +328,7 @@ def plot(
     failed = sol.consistent is False
     err = _error(sol, truth)
     head = (
-        ("CONSISTENCY CHECK FAILED: " if failed else "")
+        (f"{FAILED_MARKER}: " if failed else "")
         + f"azimuth {heading_text(sol.azimuth_deg, 3)} ± {sol.sigma_deg:.3f}° (1σ)"
         + ("" if err is None else f", error {err:+.3f}° against the simulated truth")
     )
