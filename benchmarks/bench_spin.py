@@ -221,11 +221,14 @@ def halves_rows(runs: int, sensor: str = "paper-prototype") -> None:
     def rmse(e: np.ndarray) -> float:
         return math.sqrt(float(np.mean(e**2))) if e.size else math.nan
 
+    def mean(e: np.ndarray) -> float:
+        return float(np.mean(e)) if e.size else math.nan
+
     print(f"find --sim --spin 6 --sensor {sensor}, seeds 1..{runs}: halves failed (exit 3) in "
           f"{int(failed.sum())}; RMSE {rmse(err):.4f} deg, mean sigma {sig.mean():.4f} "
           f"(unscaled {np.mean(sig / scale):.4f}); passed: RMSE {rmse(err[~failed]):.4f}, mean "
-          f"sigma {sig[~failed].mean():.4f}; failed: RMSE {rmse(err[failed]):.4f}, mean sigma "
-          f"{np.mean(sig[failed]) if failed.any() else math.nan:.4f}; errors beyond 3 sigma "
+          f"sigma {mean(sig[~failed]):.4f}; failed: RMSE {rmse(err[failed]):.4f}, mean sigma "
+          f"{mean(sig[failed]):.4f}; errors beyond 3 sigma "
           f"{int(np.sum(np.abs(err) > 3 * sig))} (unscaled "
           f"{int(np.sum(np.abs(err) > 3 * sig / scale))})")  # fmt: skip
 
